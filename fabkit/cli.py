@@ -1,0 +1,153 @@
+"""Command line: ``fabkit <command> SPEC [options]``.
+
+A thin ``main(argv) -> int``. The parser is defined here; each command's work
+lives in ``fabkit.commands.<name>.run(args) -> int``, imported only when that
+command runs (so ``fabkit --help`` imports nothing heavy). Exceptions become
+exit codes here and nowhere else:
+
+    0  ok
+    1  a check failed (design unsafe, verified cut out of tolerance)
+    2  bad input (file, YAML, key, value, expression, depth over a limit, size guard)
+    3  internal error (a bug: please report it; FABKIT_DEBUG=1 shows the traceback)
+  130  interrupted (Ctrl-C); existing outputs are left intact
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import os
+import sys
+
+from . import __version__
+from .errors import EXIT_INTERNAL, EXIT_INTERRUPTED, FabkitError
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse that raises instead of exiting, so main() owns the exit code."""
+
+    def error(self, message):
+        raise _UsageError(f"{self.prog}: {message}")
+
+
+class _UsageError(Exception):
+    pass
+
+
+def _float_list(n):
+    return {"nargs": n, "type": float}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = _Parser(prog="fabkit", description="From a surface formula to a milled block: STL, verified "
+                "ball-end G-code, ramp calibration and a rolling-ball simulator.",
+                epilog="Exit codes: 0 ok, 1 a check failed, 2 bad input, 130 interrupted.")
+    p.add_argument("--version", action="version", version=f"fabkit {__version__}")
+    sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+
+    def cmd(name, help_):
+        c = sub.add_parser(name, help=help_, description=help_)
+        c.add_argument("spec", metavar="SPEC", help="the YAML spec, e.g. specs/surface.yaml")
+        return c
+
+    c = cmd("stl", "build the milled block as a watertight solid and export it (binary STL by default)")
+    c.add_argument("-o", "--output", metavar="PATH", help="output file (default toolpaths/<name>.stl; "
+                   "other formats by extension)")
+    c.add_argument("--tolerance", type=float, metavar="MM", help="chordal tolerance in mm (default 0.01)")
+    c.add_argument("--json", action="store_true", help="print the summary as JSON")
+
+    c = cmd("gcode", "write the ball-end raster program, its setup sheet, and verify the cut")
+    c.add_argument("-o", "--output", metavar="PATH", help="output program (default toolpaths/<name>.ngc)")
+    c.add_argument("--no-verify", action="store_true", help="skip the built-in cut verification")
+    c.add_argument("--json", action="store_true", help="print the summary as JSON")
+
+    c = cmd("calibrate", "map ramp release height to entry speed v_in (rolling, energy)")
+    c.add_argument("--height", type=float, nargs="+", metavar="H", help="heights to convert (design units)")
+    c.add_argument("--v-in", type=float, nargs="+", metavar="V", dest="v_in",
+                   help="entry speeds to convert back to heights (design units/s)")
+    c.add_argument("--json", action="store_true", help="print JSON")
+
+    c = cmd("simulate", "simulate one launch")
+    c.add_argument("--v-in", type=float, required=True, metavar="V", dest="v_in", help="entry speed")
+    c.add_argument("--json", action="store_true", help="print JSON")
+    c.add_argument("--plot", metavar="PNG", help="write x(t), y(t) with bounces marked")
+
+    c = cmd("sweep", "v_out against v_in, v_critical, two-bounce windows (the paper's Fig. 1)")
+    c.add_argument("--v-in", metavar=("LO", "HI", "N"), dest="v_in", **_float_list(3),
+                   help="speeds to launch (default: the ramp's range)")
+    c.add_argument("--json", action="store_true", help="print JSON")
+    c.add_argument("--plot", metavar="PNG", help="write v_out against v_in")
+    c.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+    c = cmd("check", "pre-fabrication check: the ball stays on the milled surface for every ramp height")
+    c.add_argument("--json", action="store_true", help="print JSON")
+    c.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+    c = cmd("precision", "work-precision data: error against run time for simulator, toolpath and mesh")
+    c.add_argument("--json", action="store_true", help="print JSON")
+    c.add_argument("--plot", metavar="PNG", help="write error against time, log-log")
+    c.add_argument("--quick", action="store_true", help="fewer tolerances and launches")
+
+    c = cmd("explore", "a grid of designs over spec keys: v_critical, windows, safety per design")
+    c.add_argument("--vary", action="append", default=[], metavar="KEY=LO:HI:N",
+                   help="a spec key and its grid, e.g. surface.params.eps=0.1:0.4:4 (repeatable)")
+    c.add_argument("--v-in", metavar=("LO", "HI", "N"), dest="v_in", **_float_list(3))
+    c.add_argument("--scheduler", metavar="ADDRESS", help="Dask scheduler, e.g. tcp://127.0.0.1:8786")
+    c.add_argument("--out", metavar="FILE", help="per-launch rows (.parquet or .csv)")
+    c.add_argument("--json", action="store_true", help="print JSON")
+    c.add_argument("--plot", metavar="PNG")
+    c.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+    c = cmd("robustness", "Monte Carlo over the launch's transverse offset and velocity")
+    c.add_argument("--v-in", metavar=("LO", "HI", "N"), dest="v_in", required=True, **_float_list(3))
+    c.add_argument("--sigma-y", type=float, required=True, metavar="S", dest="sigma_y")
+    c.add_argument("--sigma-vy", type=float, required=True, metavar="S", dest="sigma_vy")
+    c.add_argument("--samples", type=int, required=True, metavar="M")
+    c.add_argument("--seed", type=int, default=0, help="random seed (default 0: results are reproducible)")
+    c.add_argument("--scheduler", metavar="ADDRESS")
+    c.add_argument("--out", metavar="FILE")
+    c.add_argument("--json", action="store_true")
+    c.add_argument("--plot", metavar="PNG")
+    c.add_argument("--no-progress", action="store_true", help="no progress bar")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run fabkit; returns the exit code (never raises, never exits)."""
+    argv = sys.argv[1:] if argv is None else list(argv)
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+    except _UsageError as exc:
+        print(str(exc), file=sys.stderr)
+        return 2
+    except SystemExit as exc:  # --help, --version
+        return int(exc.code or 0)
+    if not args.command:
+        parser.print_help()
+        return 2
+    try:
+        module = importlib.import_module(f"fabkit.commands.{args.command}")
+        return int(module.run(args))
+    except FabkitError as exc:
+        where = "" if getattr(exc, "file", None) else f"fabkit {args.command}: "
+        print(f"{where}{exc}", file=sys.stderr)
+        return exc.exit_code
+    except KeyboardInterrupt:
+        print(f"fabkit {args.command}: interrupted; existing outputs left intact", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except MemoryError:
+        print(f"fabkit {args.command}: out of memory: the request is too large for this machine", file=sys.stderr)
+        return 2
+    except BrokenPipeError:
+        return 0
+    except Exception as exc:  # a bug: one line, traceback only on request
+        if os.environ.get("FABKIT_DEBUG"):
+            raise
+        print(f"fabkit {args.command}: internal error ({type(exc).__name__}: {exc}); "
+              "please report it (FABKIT_DEBUG=1 shows the traceback)", file=sys.stderr)
+        return EXIT_INTERNAL
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

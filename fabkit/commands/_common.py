@@ -1,0 +1,65 @@
+"""Helpers shared by the command modules (edge code: printing, paths, timing)."""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+DEFAULT_OUTPUT_DIR = Path("toolpaths")
+
+
+def default_output(spec, suffix: str, given: str | None) -> Path:
+    """``given`` or ``toolpaths/<name><suffix>``."""
+    return Path(given) if given else DEFAULT_OUTPUT_DIR / f"{spec.name}{suffix}"
+
+
+class Timer:
+    def __init__(self) -> None:
+        self.t0 = time.perf_counter()
+
+    @property
+    def seconds(self) -> float:
+        return time.perf_counter() - self.t0
+
+
+def _clean(obj):
+    """JSON-safe: numpy scalars/arrays to Python, non-finite floats to None."""
+    if isinstance(obj, dict):
+        return {str(k): _clean(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_clean(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return [_clean(v) for v in obj.tolist()]
+    if isinstance(obj, (np.floating, float)):
+        f = float(obj)
+        return f if math.isfinite(f) else None
+    if isinstance(obj, (np.integer,)):
+        return int(obj)
+    if isinstance(obj, np.bool_):
+        return bool(obj)
+    return obj
+
+
+def to_json(obj, indent: int | None = 2) -> str:
+    return json.dumps(_clean(obj), indent=indent, sort_keys=False)
+
+
+def emit(summary_lines: list[str] | str, payload: dict | None, as_json: bool) -> None:
+    """Print either the JSON payload or the human summary to stdout."""
+    if as_json:
+        sys.stdout.write(to_json(payload) + "\n")
+    else:
+        if isinstance(summary_lines, str):
+            summary_lines = [summary_lines]
+        for line in summary_lines:
+            sys.stdout.write(line + "\n")
+    sys.stdout.flush()
+
+
+def warn(message: str) -> None:
+    sys.stderr.write(f"warning: {message}\n")

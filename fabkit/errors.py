@@ -1,0 +1,55 @@
+"""The error hierarchy. Exit codes are assigned here and nowhere else.
+
+Library code raises these; only :func:`fabkit.cli.main` turns them into
+exit codes and one printed line. Nothing in the library calls ``sys.exit``
+or prints.
+"""
+
+from __future__ import annotations
+
+
+class FabkitError(Exception):
+    """Base class of every error fabkit reports to a user."""
+
+    exit_code = 2
+
+
+class SpecError(FabkitError):
+    """Bad input: unreadable file, bad YAML, unknown/missing key, bad value,
+    unsafe expression, a design the machine cannot cut (depth over a limit),
+    or a request whose size would exceed a guard. Exit 2.
+
+    The message is one line: ``<file>: <key>: <what is wrong>``.
+    """
+
+    exit_code = 2
+
+    def __init__(self, message: str, *, file: str | None = None, key: str | None = None):
+        self.file = file
+        self.key = key
+        self.detail = message
+        super().__init__(message)
+
+    def with_location(self, file: str | None = None, key: str | None = None) -> "SpecError":
+        """A copy of this error that names ``file`` (and ``key`` if not set yet)."""
+        err = type(self)(self.detail, file=self.file or file, key=self.key or key)
+        return err
+
+    def __str__(self) -> str:
+        parts = [p for p in (self.file, self.key) if p]
+        parts.append(self.detail)
+        return ": ".join(parts)
+
+
+class DesignError(FabkitError):
+    """A check failed: the design is unsafe, or the verified cut is out of
+    tolerance. Exit 1. The command may still have written its outputs."""
+
+    exit_code = 1
+
+
+EXIT_OK = 0
+EXIT_CHECK_FAILED = DesignError.exit_code
+EXIT_BAD_INPUT = SpecError.exit_code
+EXIT_INTERRUPTED = 130
+EXIT_INTERNAL = 3

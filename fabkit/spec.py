@@ -1,0 +1,548 @@
+"""The spec: YAML -> validated, typed, unit-converted objects.
+
+Validated once, on load. Every problem is one :class:`SpecError` naming the
+file and the dotted key (``specs/x.yaml: tool.diameter: must be > 0, got -3``).
+Unknown keys are errors with a did-you-mean. After loading, the rest of fabkit
+trusts these objects.
+
+Units: ``units`` (mm | cm | in) is the design unit of the ``surface``,
+``ball``, ``ramp`` and ``simulation`` sections; ``stock``, ``tool`` and
+``machining`` lengths are millimetres. Any length may also be written as a
+string with its unit, ``"1/8 in"`` or ``"3.175 mm"``; it is converted.
+
+Sections a command does not need may be omitted; :meth:`Spec.require` makes a
+missing one a clear error for the commands that do need it. Defaults are
+listed in ``SCHEMA`` and in the README.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import math
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from .errors import SpecError
+from .units import MM_PER
+
+MAX_SPEC_BYTES = 1_000_000
+NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$")
+IDENT_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_]{0,31}$")
+REQUIRED = object()
+
+
+# ----------------------------------------------------------------------------
+# field kinds
+# ----------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Num:
+    """A real number. ``length`` is None (plain number), 'design' or 'mm'."""
+
+    default: Any = REQUIRED
+    gt: float | None = None
+    ge: float | None = None
+    lt: float | None = None
+    le: float | None = None
+    length: str | None = None
+    integer: bool = False
+    doc: str = ""
+
+
+@dataclass(frozen=True)
+class Choice:
+    options: tuple[str, ...]
+    default: Any = REQUIRED
+    doc: str = ""
+
+
+@dataclass(frozen=True)
+class Text:
+    default: Any = REQUIRED
+    doc: str = ""
+
+
+@dataclass(frozen=True)
+class Pair:
+    """An interval [lo, hi] with lo < hi."""
+
+    default: Any = REQUIRED
+    length: str | None = None
+    doc: str = ""
+
+
+@dataclass(frozen=True)
+class NumList:
+    """A list of numbers (at least ``min_len``)."""
+
+    default: Any = REQUIRED
+    ge: float | None = None
+    min_len: int = 1
+    max_len: int = 100_000
+    length: str | None = None
+    doc: str = ""
+
+
+@dataclass(frozen=True)
+class Params:
+    default: Any = dataclasses.field(default_factory=dict)
+    doc: str = ""
+
+
+@dataclass(frozen=True)
+class Inertia:
+    default: Any = "solid"
+    doc: str = ""
+
+
+SCHEMA: dict[str, dict[str, Any]] = {
+    "surface": {
+        "height": Text(doc="expression in x, y and the params"),
+        "params": Params(doc="name: number"),
+        "x": Pair(length="design", doc="footprint along the channel"),
+        "y": Pair(length="design", doc="footprint across"),
+        "top": Num(length="design", doc="height of the stock's top face; the surface is clipped here"),
+    },
+    "stock": {
+        "thickness": Num(gt=0, le=10_000, length="mm"),
+        "depth_limit": Num(default=None, gt=0, le=10_000, length="mm", doc="default: the thickness"),
+    },
+    "tool": {
+        "shape": Choice(("ball",), default="ball"),
+        "diameter": Num(gt=0, le=200, length="mm"),
+        "reach": Num(default=None, gt=0, le=10_000, length="mm", doc="default: unlimited"),
+    },
+    "machining": {
+        "scallop": Num(default=0.05, gt=0, le=100, length="mm"),
+        "tolerance": Num(default=0.01, gt=0, le=100, length="mm"),
+        "direction": Choice(("x", "y"), default="x"),
+        "pattern": Choice(("zigzag", "climb", "conventional"), default="zigzag"),
+        "feed": Num(default=2500, gt=0, le=1e6, doc="mm/min"),
+        "plunge": Num(default=600, gt=0, le=1e6, doc="mm/min"),
+        "spindle": Num(default=16000, gt=0, le=1e6, doc="rpm"),
+        "safe_height": Num(default=5, gt=0, le=1000, length="mm"),
+        "dialect": Choice(("linuxcnc", "grbl"), default="linuxcnc"),
+        "units": Choice(("mm", "in"), default="mm"),
+        "stepdown": Num(default=None, gt=0, le=1000, length="mm", doc="roughing z-step; default: no roughing"),
+        "leave": Num(default=0.5, ge=0, le=100, length="mm", doc="stock left by roughing for the finish pass"),
+        "verify_points": Num(default=40000, ge=100, le=2_000_000, integer=True,
+                             doc="points at which the cut is verified"),
+    },
+    "ball": {
+        "diameter": Num(default=2.5, gt=0, le=1e6, length="design"),
+        "inertia": Inertia(doc="solid | hollow | k = I/(m r^2)"),
+    },
+    "ramp": {
+        "heights": NumList(ge=0, min_len=1, length="design",
+                           doc="[min, max] (sampled densely) or a list of 3 or more heights"),
+        "samples": Num(default=400, ge=2, le=1_000_000, integer=True, doc="heights sampled in [min, max]"),
+    },
+    "simulation": {
+        "model": Choice(("full", "simplified"), default="full"),
+        "damping": Num(default=0.0, ge=0, le=1e9, doc="viscous coefficient, 1/s"),
+        "nonlinear_damping": Num(default=0.0, ge=0, le=1e9,
+                                 doc="the paper's localized damping, coefficient of F(x)^2 y^2 ydot"),
+        "start": Num(length="design", doc="x where the ball enters at y = 0 moving toward +x"),
+        "margin": Num(default=0.5, ge=0, le=1e6, length="design"),
+        "y0": Num(default=0.0, length="design", doc="transverse launch offset"),
+        "vy0": Num(default=0.0, doc="transverse launch velocity, design units/s"),
+        "t_max": Num(default=60.0, gt=0, le=1e6, doc="time limit, s: still trapped then = captured"),
+        "rtol": Num(default=1e-10, gt=0, le=0.1, doc="integrator relative tolerance"),
+        "atol": Num(default=1e-12, gt=0, le=1.0, doc="integrator absolute tolerance (design units)"),
+        "method": Choice(("fabkit", "DOP853", "RK45", "Radau", "LSODA"), default="fabkit"),
+    },
+}
+TOP_KEYS = {"name": Text(default=None), "units": Choice(("mm", "cm", "in"), default="mm")}
+
+
+# ----------------------------------------------------------------------------
+# typed spec
+# ----------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Section:
+    """A validated section: attribute access to its (converted) values."""
+
+    _name: str
+    _values: dict
+
+    def __getattr__(self, key: str) -> Any:
+        if key.startswith("_"):
+            raise AttributeError(key)
+        try:
+            return self._values[key]
+        except KeyError:
+            raise AttributeError(f"{self._name}.{key}") from None
+
+    def as_dict(self) -> dict:
+        return dict(self._values)
+
+
+@dataclass(frozen=True)
+class Spec:
+    """A validated spec. Lengths: design units in surface/ball/ramp/simulation,
+    mm in stock/tool/machining. ``scale`` is mm per design unit."""
+
+    path: str
+    name: str
+    units: str
+    sections: dict = field(default_factory=dict)
+    raw: dict = field(default_factory=dict, repr=False)
+
+    @property
+    def scale(self) -> float:
+        return MM_PER[self.units]
+
+    def has(self, section: str) -> bool:
+        return section in self.sections
+
+    def require(self, *names: str, command: str | None = None) -> None:
+        for n in names:
+            if n not in self.sections:
+                who = f" (needed by {command})" if command else ""
+                raise SpecError(f"missing section{who}", file=self.path, key=n)
+
+    def __getattr__(self, key: str) -> Section:
+        if key.startswith("_"):
+            raise AttributeError(key)
+        sections = object.__getattribute__(self, "sections")
+        if key in sections:
+            return sections[key]
+        if key in SCHEMA:
+            raise SpecError("missing section", file=object.__getattribute__(self, "path"), key=key)
+        raise AttributeError(key)
+
+    def surface_functions(self):
+        """The compiled surface functions (cached per spec)."""
+        cache = self.__dict__.setdefault("_cache", {})
+        if "fns" not in cache:
+            from .expr import compile_surface
+
+            try:
+                cache["fns"] = compile_surface(self.surface.height, self.surface.params)
+            except SpecError as exc:
+                raise exc.with_location(file=self.path) from None
+        return cache["fns"]
+
+    def with_overrides(self, overrides: dict[str, Any]) -> "Spec":
+        """A new, fully validated spec with dotted keys replaced (``surface.params.eps``)."""
+        import copy
+
+        raw = copy.deepcopy(self.raw)
+        for key, value in overrides.items():
+            parts = key.split(".")
+            node = raw
+            for p in parts[:-1]:
+                if not isinstance(node.get(p), dict):
+                    node[p] = {}
+                node = node[p]
+            node[parts[-1]] = value
+        return validate(raw, self.path)
+
+
+# ----------------------------------------------------------------------------
+# loading and validation
+# ----------------------------------------------------------------------------
+def load_spec(path: str | Path, need: tuple[str, ...] = (), command: str | None = None) -> Spec:
+    """Read, parse and validate a spec file. ``need``: sections the caller requires."""
+    import yaml
+
+    p = str(path)
+    try:
+        with open(p, "rb") as fh:
+            data = fh.read(MAX_SPEC_BYTES + 1)
+    except FileNotFoundError:
+        raise SpecError("file not found", file=p) from None
+    except IsADirectoryError:
+        raise SpecError("is a folder, not a spec file", file=p) from None
+    except OSError as exc:
+        raise SpecError(f"cannot read: {exc.strerror}", file=p) from None
+    if len(data) > MAX_SPEC_BYTES:
+        raise SpecError(f"file too large (limit {MAX_SPEC_BYTES} bytes)", file=p)
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError:
+        raise SpecError("not a text file (invalid UTF-8)", file=p) from None
+    if "\x00" in text:
+        raise SpecError("not a text file (NUL bytes)", file=p)
+    try:
+        raw = yaml.load(text, Loader=_SafeLoader)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f"line {mark.line + 1}: " if mark is not None else ""
+        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        raise SpecError(f"YAML error: {where}{problem}", file=p) from None
+    except RecursionError:
+        raise SpecError("YAML nested too deeply", file=p) from None
+    spec = validate(raw, p)
+    spec.require(*need, command=command)
+    return spec
+
+
+def _make_loader():
+    import yaml
+
+    class Loader(yaml.SafeLoader):
+        """SafeLoader that refuses aliases (no alias bombs) and duplicate keys."""
+
+        def compose_node(self, parent, index):  # noqa: D401
+            if self.check_event(yaml.events.AliasEvent):
+                event = self.peek_event()
+                raise yaml.constructor.ConstructorError(
+                    None, None, "aliases (*name) are not allowed in a spec", event.start_mark)
+            return super().compose_node(parent, index)
+
+        def construct_mapping(self, node, deep=False):
+            seen = set()
+            for key_node, _ in node.value:
+                key = self.construct_object(key_node, deep=deep)
+                try:
+                    hash(key)
+                except TypeError:
+                    raise yaml.constructor.ConstructorError(
+                        None, None, "a key must be a plain value", key_node.start_mark) from None
+                if key in seen:
+                    raise yaml.constructor.ConstructorError(
+                        None, None, f"duplicate key {key!r}", key_node.start_mark)
+                seen.add(key)
+            return super().construct_mapping(node, deep=deep)
+
+    return Loader
+
+
+class _LazyLoader:
+    _cls = None
+
+    def __call__(self, stream):
+        if _LazyLoader._cls is None:
+            _LazyLoader._cls = _make_loader()
+        return _LazyLoader._cls(stream)
+
+
+_SafeLoader = _LazyLoader()
+
+
+def _suggest(word: str, options) -> str:
+    close = difflib.get_close_matches(str(word), list(options), n=1, cutoff=0.5)
+    return f" (did you mean {close[0]!r}?)" if close else ""
+
+
+_LEN_RE = re.compile(r"^\s*([-+]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][-+]?\d+)?)(?:\s*/\s*(\d+(?:\.\d*)?))?\s*(mm|cm|in)\s*$")
+
+
+def _number(value: Any, key: str, file: str, length: str | None, design_unit: str) -> float:
+    """A finite float from a YAML value; length strings like '1/8 in' converted."""
+    if isinstance(value, bool) or value is None:
+        raise SpecError(f"must be a number, got {_show(value)}", file=file, key=key)
+    if isinstance(value, str):
+        m = _LEN_RE.match(value) if length else None
+        if not m:
+            hint = " (a number, or a length with its unit such as '3.175 mm' or '1/8 in')" if length else ""
+            raise SpecError(f"must be a number{hint}, got {_show(value)}", file=file, key=key)
+        num = float(m.group(1))
+        if m.group(2):
+            den = float(m.group(2))
+            if den == 0:
+                raise SpecError(f"division by zero in {value!r}", file=file, key=key)
+            num /= den
+        target = "mm" if length == "mm" else design_unit
+        value = num * MM_PER[m.group(3)] / MM_PER[target]
+    if isinstance(value, int):
+        if abs(value) > 10**15:
+            raise SpecError(f"out of range, got {value}", file=file, key=key)
+        value = float(value)
+    if not isinstance(value, float):
+        raise SpecError(f"must be a number, got {_show(value)}", file=file, key=key)
+    if not math.isfinite(value):
+        raise SpecError(f"must be finite, got {value}", file=file, key=key)
+    return value
+
+
+def _show(value: Any) -> str:
+    if isinstance(value, (dict, list)):
+        return type(value).__name__
+    s = repr(value)
+    return s if len(s) <= 40 else s[:37] + "..."
+
+
+def _check_range(v: float, f: Num, key: str, file: str) -> None:
+    def bad(rel, bound):
+        return SpecError(f"must be {rel} {bound:g}, got {v:g}", file=file, key=key)
+
+    if f.gt is not None and not v > f.gt:
+        raise bad(">", f.gt)
+    if f.ge is not None and not v >= f.ge:
+        raise bad(">=", f.ge)
+    if f.lt is not None and not v < f.lt:
+        raise bad("<", f.lt)
+    if f.le is not None and not v <= f.le:
+        raise bad("<=", f.le)
+    if f.integer and v != int(v):
+        raise SpecError(f"must be a whole number, got {v:g}", file=file, key=key)
+
+
+def _field(f: Any, value: Any, key: str, file: str, unit: str) -> Any:
+    if isinstance(f, Num):
+        if value is None and f.default is None:
+            return None
+        v = _number(value, key, file, f.length, unit)
+        _check_range(v, f, key, file)
+        return int(v) if f.integer else v
+    if isinstance(f, Choice):
+        if not isinstance(value, str) or value not in f.options:
+            raise SpecError(f"must be one of {' | '.join(f.options)}, got {_show(value)}"
+                            f"{_suggest(value, f.options) if isinstance(value, str) else ''}",
+                            file=file, key=key)
+        return value
+    if isinstance(f, Text):
+        if not isinstance(value, str):
+            raise SpecError(f"must be a string, got {_show(value)}", file=file, key=key)
+        return value
+    if isinstance(f, Pair):
+        if not isinstance(value, (list, tuple)) or len(value) != 2:
+            raise SpecError(f"must be a pair [lo, hi], got {_show(value)}", file=file, key=key)
+        lo = _number(value[0], key, file, f.length, unit)
+        hi = _number(value[1], key, file, f.length, unit)
+        if not lo < hi:
+            raise SpecError(f"must have lo < hi, got [{lo:g}, {hi:g}]", file=file, key=key)
+        if abs(lo) > 1e9 or abs(hi) > 1e9:
+            raise SpecError("out of range (|value| <= 1e9)", file=file, key=key)
+        return (lo, hi)
+    if isinstance(f, NumList):
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            value = [value]
+        if not isinstance(value, (list, tuple)):
+            raise SpecError(f"must be a list of numbers, got {_show(value)}", file=file, key=key)
+        if not f.min_len <= len(value) <= f.max_len:
+            raise SpecError(f"must have {f.min_len} to {f.max_len} entries, got {len(value)}", file=file, key=key)
+        out = []
+        for i, item in enumerate(value):
+            v = _number(item, f"{key}[{i}]", file, f.length, unit)
+            if f.ge is not None and v < f.ge:
+                raise SpecError(f"must be >= {f.ge:g}, got {v:g}", file=file, key=f"{key}[{i}]")
+            if abs(v) > 1e9:
+                raise SpecError(f"out of range, got {v:g}", file=file, key=f"{key}[{i}]")
+            out.append(v)
+        return tuple(out)
+    if isinstance(f, Params):
+        if value is None:
+            return {}
+        if not isinstance(value, dict):
+            raise SpecError(f"must be a mapping name: number, got {_show(value)}", file=file, key=key)
+        if len(value) > 64:
+            raise SpecError("too many parameters (limit 64)", file=file, key=key)
+        out = {}
+        from .expr import RESERVED
+
+        for name, v in value.items():
+            k = f"{key}.{name}"
+            if not isinstance(name, str) or not IDENT_RE.match(name):
+                raise SpecError("parameter names must be identifiers", file=file, key=k)
+            if name in RESERVED:
+                raise SpecError(f"{name!r} is reserved (x, y, pi and the function names)", file=file, key=k)
+            fv = _number(v, k, file, None, unit)
+            if abs(fv) > 1e12:
+                raise SpecError(f"out of range (|value| <= 1e12), got {fv:g}", file=file, key=k)
+            out[name] = fv
+        return out
+    if isinstance(f, Inertia):
+        if value in ("solid", "hollow"):
+            return {"solid": 0.4, "hollow": 2.0 / 3.0}[value]
+        if isinstance(value, str):
+            raise SpecError(f"must be solid | hollow | a number k = I/(m r^2), got {_show(value)}"
+                            f"{_suggest(value, ('solid', 'hollow'))}", file=file, key=key)
+        v = _number(value, key, file, None, unit)
+        if not 0 <= v <= 10:
+            raise SpecError(f"k = I/(m r^2) must be in [0, 10], got {v:g}", file=file, key=key)
+        return v
+    raise AssertionError(f)  # pragma: no cover
+
+
+def _default(f: Any) -> Any:
+    if isinstance(f, Params):
+        return {}
+    if isinstance(f, Inertia):
+        return 0.4
+    return f.default
+
+
+def validate(raw: Any, file: str = "<spec>") -> Spec:
+    """Validate a parsed YAML document into a :class:`Spec`."""
+    if raw is None:
+        raise SpecError("empty spec", file=file)
+    if not isinstance(raw, dict):
+        raise SpecError(f"top level must be a mapping of sections, got {type(raw).__name__}", file=file)
+    for key in raw:
+        if not isinstance(key, str):
+            raise SpecError(f"keys must be strings, got {_show(key)}", file=file)
+        if key not in SCHEMA and key not in TOP_KEYS:
+            raise SpecError(f"unknown key{_suggest(key, list(SCHEMA) + list(TOP_KEYS))}", file=file, key=key)
+    units = _field(TOP_KEYS["units"], raw.get("units", "mm"), "units", file, "mm")
+    name = raw.get("name")
+    if name is None:
+        name = Path(file).stem if file and not file.startswith("<") else "fabkit"
+        if not NAME_RE.match(name):
+            name = "fabkit"
+    elif not isinstance(name, str) or not NAME_RE.match(name):
+        raise SpecError("must be 1-64 characters of letters, digits, '_', '.', '-' (it names the output files), "
+                        f"got {_show(name)}", file=file, key="name")
+    sections: dict[str, Section] = {}
+    for sec, fields in SCHEMA.items():
+        if sec not in raw:
+            continue
+        body = raw[sec]
+        if body is None:
+            body = {}
+        if not isinstance(body, dict):
+            raise SpecError(f"must be a mapping, got {_show(body)}", file=file, key=sec)
+        values = {}
+        for key in body:
+            if not isinstance(key, str) or key not in fields:
+                raise SpecError(f"unknown key{_suggest(key, fields)}", file=file, key=f"{sec}.{key}")
+        for key, f in fields.items():
+            dotted = f"{sec}.{key}"
+            if key in body:
+                values[key] = _field(f, body[key], dotted, file, units)
+            else:
+                d = _default(f)
+                if d is REQUIRED:
+                    raise SpecError("missing key", file=file, key=dotted)
+                values[key] = d
+        sections[sec] = Section(sec, values)
+    _cross_checks(sections, file)
+    return Spec(path=file, name=name, units=units, sections=sections, raw=raw)
+
+
+def _cross_checks(s: dict[str, Section], file: str) -> None:
+    if "surface" in s:
+        from .expr import check_syntax
+
+        try:
+            check_syntax(s["surface"].height, frozenset(s["surface"].params))
+        except SpecError as exc:
+            raise exc.with_location(file=file) from None
+    if "stock" in s:
+        st = s["stock"]
+        if st.depth_limit is None:
+            st._values["depth_limit"] = st.thickness
+        elif st.depth_limit > st.thickness:
+            raise SpecError(f"must be <= stock.thickness ({st.thickness:g} mm), got {st.depth_limit:g}",
+                            file=file, key="stock.depth_limit")
+    if "tool" in s and s["tool"].reach is None:
+        s["tool"]._values["reach"] = math.inf
+    if "ramp" in s:
+        h = s["ramp"].heights
+        if len(h) == 2 and not h[0] < h[1]:
+            raise SpecError(f"a range [min, max] needs min < max, got [{h[0]:g}, {h[1]:g}]",
+                            file=file, key="ramp.heights")
+    if "simulation" in s and "surface" in s:
+        sim, sur = s["simulation"], s["surface"]
+        x0, x1 = sur.x
+        if not x0 <= sim.start <= x1:
+            raise SpecError(f"must lie in surface.x [{x0:g}, {x1:g}], got {sim.start:g}",
+                            file=file, key="simulation.start")
+        y0, y1 = sur.y
+        if not y0 < sim.y0 < y1:
+            raise SpecError(f"must lie inside surface.y [{y0:g}, {y1:g}], got {sim.y0:g}",
+                            file=file, key="simulation.y0")
