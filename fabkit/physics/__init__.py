@@ -1,0 +1,10 @@
+"""Physics stage: ramp calibration and the rolling-ball simulator.
+
+    calibrate.py    release height <-> entry speed (rolling without slipping)
+    models.py       Problem, right-hand sides of eq. (xyODE) and eq. (xyODE_simp), energy, outcomes
+    integrate.py    the batched adaptive integrator with per-lane events (fabkit's own method)
+    reference.py    single-launch scipy solve_ivp path (peers and converged references)
+    sweep.py        v_out(v_in), v_critical by bisection, n-bounce windows, the T_n fit (eq. tn)
+    check.py        the pre-fabrication check over the ramp's heights
+    cc.py           the collective-coordinate model eq. (CCODE) and its separatrix map eq. (themap)
+"""
