@@ -1,0 +1,418 @@
+"""Sweeps of the entry speed: v_out(v_in), v_critical, n-bounce windows, the T_n fit.
+
+Pure functions (no printing, no files). Launches go through a *launcher*: a
+callable ``launch(v_in (M,)) -> Launches`` that runs M launches of one problem.
+The default is fabkit's batched integrator (:func:`integrate.launch_batch`);
+:func:`make_launcher` with a scipy method name runs the single-launch reference
+path (:func:`reference.solve_launch`) instead, for tests and peers.
+
+What :func:`sweep` computes, and how accurately
+------------------------------------------------
+* ``v_critical``: the smallest v_in above which every launch escapes after
+  exactly one bounce. The largest sampled v_in that does not escape after one
+  bounce and the next sample up bracket it; the bracket is then narrowed by
+  batched k-section (``k`` launches per round, always keeping the largest
+  non-one-bounce launch as the lower end, so windows of higher bounce counts
+  inside the bracket cannot fool it) until its width is below ``rel_tol``
+  (default 1e-6) times v_critical. Reported value: the bracket's midpoint;
+  ``v_critical_error``: half its width (the integrator's own error, far smaller
+  at the default tolerances, adds to it). Launches that fly off or lose contact
+  at the top of the range are set aside first (the surface cannot hold them);
+  if no launch at the top escapes after one bounce, ``v_critical`` is None and
+  ``v_critical_reason`` says why.
+* ``windows``: maximal runs of consecutive samples that escape with the same
+  bounce count n >= 2, as ``{bounces, lo, hi, samples}``. For n = 2 the edges are
+  refined by k-section to ``rel_tol`` relative, toward the boundary of the
+  connected run of two-bounce launches (``edge_error`` gives the half-width);
+  for n >= 3 ``lo``/``hi`` are the outermost samples inside the run (accurate to
+  one sample spacing).
+* ``tn_fit`` (the paper's eq. tn): in each two-bounce window, v_out is
+  maximized by a few rounds of batched k-section; there T_n = t_2 - t_1 (time
+  between the two bounces). Each window gets n = the number of complete
+  transverse oscillations between its bounces: n_0 = floor(T_0 / T_shape) for
+  the first window (in the order of increasing v_in) and n_i = n_0 +
+  round((T_i - T_0) / T_shape) for the others, so consecutive windows differ
+  by one and a window missed by the sampling leaves a gap; T_shape = 2 pi /
+  omega_y, omega_y = sqrt(g~ h_yy) (= sqrt(2 g~ c) for c y^2) at the bottom of
+  the channel's well on y = 0. T and delta come from least squares of
+  T_n = T n + delta.
+* ``error_estimate``: a subset of escaped launches away from window edges is
+  re-run at ten times tighter rtol and atol; the largest change of v_out
+  (absolute and relative, where bounce counts agree) estimates the v_out error.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import SpecError
+from ..tolerances import DEFAULT
+
+ESCAPED, CAPTURED, FLEW_OFF, LOST_CONTACT = 0, 1, 2, 3
+
+
+@dataclass
+class Launches:
+    """Results of M launches (arrays of shape (M,), bounce_times (M, K))."""
+
+    v_in: np.ndarray
+    outcome: np.ndarray        # int8 index into models.OUTCOMES
+    bounces: np.ndarray        # int
+    v_out: np.ndarray          # design units/s, nan unless escaped
+    bounce_times: np.ndarray   # (M, K) s, nan padded
+
+    @property
+    def one_bounce(self) -> np.ndarray:
+        return (self.outcome == ESCAPED) & (self.bounces == 1)
+
+
+def make_launcher(problem, *, method: str = "fabkit", rtol: float | None = None, atol: float | None = None,
+                  progress=None):
+    """A callable ``launch(v_in (M,)) -> Launches`` for ``problem``.
+
+    method 'fabkit': the batched integrator (rtol/atol None: its defaults).
+    'DOP853' | 'RK45' | 'Radau' | 'LSODA': one scipy solve_ivp per launch
+    (rtol/atol None: 1e-12/1e-14, the converged reference).
+    ``progress``: passed to the batched integrator for the first call only.
+    """
+    state = {"progress": progress}
+    if method == "fabkit":
+        from .integrate import launch_batch
+
+        def launch(v):
+            v = np.asarray(v, dtype=float)
+            cb, state["progress"] = state["progress"], None
+            kw = {}
+            if cb is not None:
+                kw["progress"] = cb
+            r = launch_batch(problem, v, rtol=rtol, atol=atol, **kw)
+            return Launches(v, np.asarray(r.outcome, dtype=np.int8), np.asarray(r.bounces, dtype=int),
+                            np.asarray(r.v_out, dtype=float), np.asarray(r.bounce_times, dtype=float))
+
+        return launch
+
+    from .models import OUTCOMES
+    from .reference import solve_launch
+
+    kw = {"rtol": 1e-12 if rtol is None else rtol, "atol": 1e-14 if atol is None else atol}
+
+    def launch(v):
+        v = np.asarray(v, dtype=float)
+        rows = [solve_launch(problem, float(vi), float(problem.y0), float(problem.vy0), method=method, **kw)
+                for vi in v]
+        k = max([8] + [r["bounces"] for r in rows])
+        bt = np.full((len(v), k), np.nan)
+        for i, r in enumerate(rows):
+            bt[i, :r["bounces"]] = r["bounce_times"]
+        return Launches(v, np.array([OUTCOMES.index(r["outcome"]) for r in rows], dtype=np.int8),
+                        np.array([r["bounces"] for r in rows], dtype=int),
+                        np.array([r["v_out"] for r in rows], dtype=float), bt)
+
+    return launch
+
+
+def _concat(parts: list[Launches]) -> Launches:
+    k = max(p.bounce_times.shape[1] for p in parts)
+    bt = np.concatenate([np.pad(p.bounce_times, ((0, 0), (0, k - p.bounce_times.shape[1])),
+                                constant_values=np.nan) for p in parts])
+    return Launches(np.concatenate([p.v_in for p in parts]), np.concatenate([p.outcome for p in parts]),
+                    np.concatenate([p.bounces for p in parts]), np.concatenate([p.v_out for p in parts]), bt)
+
+
+def _split(res: Launches, sizes: list[int]) -> list[Launches]:
+    out, i = [], 0
+    for n in sizes:
+        sl = slice(i, i + n)
+        out.append(Launches(res.v_in[sl], res.outcome[sl], res.bounces[sl], res.v_out[sl],
+                            res.bounce_times[sl]))
+        i += n
+    return out
+
+
+# ----------------------------------------------------------------------------
+# v_critical
+# ----------------------------------------------------------------------------
+def critical_bracket(v: np.ndarray, res: Launches):
+    """From sorted samples: (lo, hi, reason). lo does not escape after one bounce,
+    every sample from hi up does (after setting aside launches flying off or
+    losing contact at the top). lo/hi None with a reason if there is no bracket."""
+    unsafe = (res.outcome == FLEW_OFF) | (res.outcome == LOST_CONTACT)
+    top = len(v)
+    while top > 0 and unsafe[top - 1]:
+        top -= 1
+    if top == 0:
+        return None, None, "every launch in the range flies off or loses contact"
+    e1 = res.one_bounce[:top]
+    if not e1[-1]:
+        note = " below the launches that fly off" if top < len(v) else ""
+        return None, None, (f"no one-bounce escape at the top of the range{note} "
+                            f"(v_in up to {v[top - 1]:.6g}): v_critical is above it")
+    bad = np.flatnonzero(~e1)
+    if len(bad) == 0:
+        return None, None, (f"every launch escapes after one bounce: v_critical is below the range "
+                            f"(v_in from {v[0]:.6g})")
+    i = int(bad[-1])
+    return float(v[i]), float(v[i + 1]), ""
+
+
+def refine_critical(launch, lo: float, hi: float, *, rel_tol: float = 1e-6, k: int = 32,
+                    max_rounds: int = 40) -> tuple[float, float, int]:
+    """Narrow [lo, hi] (lo: not a one-bounce escape, hi: one) by batched k-section
+    to width <= rel_tol * hi. Returns (lo, hi, launches used)."""
+    used = 0
+    for _ in range(max_rounds):
+        if hi - lo <= rel_tol * abs(hi):
+            break
+        pts = lo + (hi - lo) * np.arange(1, k + 1) / (k + 1)
+        r = launch(pts)
+        used += len(pts)
+        bad = np.flatnonzero(~r.one_bounce)
+        if len(bad):
+            j = int(bad[-1])
+            lo = float(pts[j])
+            hi = float(pts[j + 1]) if j + 1 < len(pts) else hi
+        else:
+            hi = float(pts[0])
+    return lo, hi, used
+
+
+# ----------------------------------------------------------------------------
+# windows
+# ----------------------------------------------------------------------------
+def find_runs(res: Launches) -> list[tuple[int, int, int]]:
+    """Maximal runs [i, j] (inclusive) of consecutive escaped samples with the same
+    bounce count n >= 2, as (n, i, j), in order of increasing index."""
+    n = np.where(res.outcome == ESCAPED, res.bounces, -1)
+    runs, i = [], 0
+    while i < len(n):
+        j = i
+        while j + 1 < len(n) and n[j + 1] == n[i]:
+            j += 1
+        if n[i] >= 2:
+            runs.append((int(n[i]), i, j))
+        i = j + 1
+    return runs
+
+
+def _refine_edges(launch, brackets: list[tuple[float, float, int]], rel_tol: float, k: int = 16,
+                  max_rounds: int = 40):
+    """Batched k-section of window edges. Each bracket (a, b, side): for side = -1
+    (left edge) b is inside the window and a outside; for +1 (right edge) a
+    inside, b outside. The edge kept is that of the connected two-bounce run
+    touching the inside end. Returns [(a, b)] narrowed to width <= rel_tol*|b|."""
+    br = [list(b) for b in brackets]
+    for _ in range(max_rounds):
+        todo = [i for i, (a, b, _s) in enumerate(br) if b - a > rel_tol * max(abs(a), abs(b))]
+        if not todo:
+            break
+        pts = [br[i][0] + (br[i][1] - br[i][0]) * np.arange(1, k + 1) / (k + 1) for i in todo]
+        res = _split(launch(np.concatenate(pts)), [k] * len(todo))
+        for i, p, r in zip(todo, pts, res):
+            inside = (r.outcome == ESCAPED) & (r.bounces == 2)
+            a, b, side = br[i]
+            if side < 0:   # inside at b: walk down from b while inside
+                j = k
+                while j > 0 and inside[j - 1]:
+                    j -= 1
+                # p[j:] inside; p[j-1] outside (or a)
+                br[i] = [float(p[j - 1]) if j > 0 else a, float(p[j]) if j < k else b, side]
+            else:          # inside at a: walk up from a while inside
+                j = -1
+                while j + 1 < k and inside[j + 1]:
+                    j += 1
+                br[i] = [float(p[j]) if j >= 0 else a, float(p[j + 1]) if j + 1 < k else b, side]
+    return [(a, b) for a, b, _ in br]
+
+
+def _maximize_vout(launch, intervals: list[tuple[float, float]], rounds: int = 4, k: int = 16):
+    """Batched k-section maximization of v_out on each interval; returns
+    [(v_in, v_out, t2 - t1)] at the best launch found (resolution
+    width / (k+1)^rounds)."""
+    iv = [list(x) for x in intervals]
+    best = [None] * len(iv)
+    for _ in range(rounds):
+        pts = [a + (b - a) * np.arange(0, k + 1) / k for a, b in iv]
+        res = _split(launch(np.concatenate(pts)), [k + 1] * len(iv))
+        for i, (p, r) in enumerate(zip(pts, res)):
+            ok = (r.outcome == ESCAPED) & (r.bounces == 2) & np.isfinite(r.v_out)
+            if not ok.any():
+                continue
+            vo = np.where(ok, r.v_out, -np.inf)
+            j = int(np.argmax(vo))
+            cand = (float(p[j]), float(r.v_out[j]), float(r.bounce_times[j, 1] - r.bounce_times[j, 0]))
+            if best[i] is None or cand[1] >= best[i][1]:
+                best[i] = cand
+            step = p[1] - p[0]
+            iv[i] = [max(iv[i][0], p[j] - step), min(iv[i][1], p[j] + step)]
+    return best
+
+
+def transverse_period(problem) -> tuple[float, float]:
+    """(omega_y, T_shape): the small transverse oscillation at the bottom of the
+    well on y = 0, omega_y = sqrt(g~ h_yy) in rad/s (eq. xyODE_simp linearized)."""
+    from scipy.optimize import minimize_scalar
+
+    x0, x1 = problem.x_range
+    xs = np.linspace(x0, x1, 2001)
+    hs = np.asarray(problem.fns.h(xs, np.zeros_like(xs)))
+    i = int(np.argmin(hs))
+    a, b = xs[max(i - 1, 0)], xs[min(i + 1, len(xs) - 1)]
+    xm = minimize_scalar(lambda x: float(problem.fns.h(x, 0.0)), bounds=(a, b), method="bounded",
+                         options={"xatol": 1e-10}).x if b > a else xs[i]
+    hyy = float(problem.fns.hess(xm, 0.0)[2])
+    if not hyy > 0:
+        return math.nan, math.nan
+    omega = math.sqrt(problem.g_tilde * hyy)
+    return omega, 2 * math.pi / omega
+
+
+def fit_tn(T_n: list[float], v_in: list[float], T_shape: float) -> dict:
+    """Eq. (tn): T_n = T n + delta by least squares (see the module docstring for n)."""
+    out = {"T": None, "delta": None, "n": [], "T_n": list(T_n), "v_in": list(v_in), "T_shape": T_shape,
+           "omega": 2 * math.pi / T_shape if T_shape and math.isfinite(T_shape) else None}
+    if not T_n or not math.isfinite(T_shape):
+        return out
+    n0 = max(int(math.floor(T_n[0] / T_shape)), 0)
+    n = [n0 + int(round((t - T_n[0]) / T_shape)) for t in T_n]
+    out["n"] = n
+    if len(set(n)) >= 2:
+        A = np.column_stack([n, np.ones(len(n))])
+        (T, delta), *_ = np.linalg.lstsq(A, np.asarray(T_n), rcond=None)
+        out["T"], out["delta"] = float(T), float(delta)
+        out["T_over_T_shape"] = float(T / T_shape)
+        out["residual_max"] = float(np.max(np.abs(A @ np.array([T, delta]) - np.asarray(T_n))))
+    return out
+
+
+# ----------------------------------------------------------------------------
+# the sweep
+# ----------------------------------------------------------------------------
+def sweep(problem, v_in, *, launcher=None, method: str = "fabkit", rtol: float | None = None,
+          atol: float | None = None, progress=None, rel_tol: float = 1e-6, k: int = 32,
+          refine: bool = True, error_samples: int = 48, tol=DEFAULT) -> dict:
+    """Launch at every ``v_in`` (N,) (design units/s, sorted ascending here) and analyse.
+
+    Returns a dict: ``v_in`` (N,) sorted, ``v_out`` (N,) (nan unless escaped),
+    ``bounces`` (N,), ``outcome`` (N,) names, ``v_critical`` (float or None),
+    ``v_critical_error``, ``v_critical_reason``, ``windows`` [{bounces, lo, hi,
+    samples, edge_error}], ``tn_fit`` {T, delta, n, T_n, v_in, T_shape, omega},
+    ``error_estimate`` {v_out_abs, v_out_rel, launches, rtol_ref}, ``launches``
+    (total run), ``seconds``. Accuracy: see the module docstring.
+    """
+    from .models import OUTCOMES
+
+    t0 = time.perf_counter()
+    v = np.sort(np.asarray(v_in, dtype=float).ravel())
+    if v.size == 0:
+        raise SpecError("no launch speeds given", key="v_in")
+    if v.size > tol.max_launches:
+        raise SpecError(f"{v.size} launches exceed the limit {tol.max_launches}", key="v_in")
+    if not np.all(np.isfinite(v)) or v[0] <= 0:
+        raise SpecError("launch speeds must be finite and > 0", key="v_in")
+    launch = launcher or make_launcher(problem, method=method, rtol=rtol, atol=atol, progress=progress)
+    counted = {"n": 0}
+
+    def counting(x):
+        counted["n"] += len(x)
+        return launch(x)
+
+    res = counting(v)
+    out: dict = {
+        "v_in": v, "v_out": res.v_out, "bounces": res.bounces,
+        "outcome": [OUTCOMES[int(i)] for i in res.outcome],
+    }
+
+    # v_critical
+    lo, hi, reason = critical_bracket(v, res)
+    if lo is not None and refine:
+        lo, hi, _ = refine_critical(counting, lo, hi, rel_tol=rel_tol, k=k)
+    out["v_critical"] = None if lo is None else 0.5 * (lo + hi)
+    out["v_critical_error"] = None if lo is None else 0.5 * (hi - lo)
+    out["v_critical_reason"] = reason
+
+    # windows
+    runs = find_runs(res)
+    windows = [{"bounces": n, "lo": float(v[i]), "hi": float(v[j]), "samples": j - i + 1, "edge_error": None}
+               for n, i, j in runs]
+    two = [w for w, (n, i, j) in zip(windows, runs) if n == 2]
+    two_runs = [(i, j) for n, i, j in runs if n == 2]
+    if refine and two:
+        brackets = []
+        for i, j in two_runs:
+            brackets.append((float(v[i - 1]) if i > 0 else float(v[i]), float(v[i]), -1))
+            brackets.append((float(v[j]), float(v[j + 1]) if j + 1 < len(v) else float(v[j]), +1))
+        edges = _refine_edges(counting, brackets, rel_tol)
+        for w, (i, j), (a1, b1), (a2, b2) in zip(two, two_runs, edges[0::2], edges[1::2]):
+            w["lo"] = 0.5 * (a1 + b1) if i > 0 else float(v[i])
+            w["hi"] = 0.5 * (a2 + b2) if j + 1 < len(v) else float(v[j])
+            w["edge_error"] = 0.5 * max(b1 - a1, b2 - a2)
+    out["windows"] = windows
+
+    # eq. (tn) fit
+    _, T_shape = transverse_period(problem)
+    if two and refine:
+        best = _maximize_vout(counting, [(w["lo"], w["hi"]) for w in two])
+    else:
+        best = []
+        for i, j in two_runs:
+            sl = slice(i, j + 1)
+            m = i + int(np.nanargmax(res.v_out[sl]))
+            best.append((float(v[m]), float(res.v_out[m]), float(res.bounce_times[m, 1] - res.bounce_times[m, 0])))
+    best = [b for b in best if b is not None]
+    for w, b in zip(two, best):
+        w["v_in_max"], w["v_out_max"], w["T_n"] = b
+    out["tn_fit"] = fit_tn([b[2] for b in best], [b[0] for b in best], T_shape)
+
+    # error estimate: re-run a subset of escaped interior launches 10x tighter
+    out["error_estimate"] = None
+    if error_samples and launcher is None:
+        out["error_estimate"] = estimate_error(problem, v, res, method=method, rtol=rtol, atol=atol,
+                                               samples=error_samples, counter=counted)
+    out["launches"] = counted["n"]
+    out["seconds"] = time.perf_counter() - t0
+    return out
+
+
+def estimate_error(problem, v, res: Launches, *, method: str, rtol, atol, samples: int = 48,
+                   counter=None) -> dict | None:
+    """Largest change of v_out when a subset of escaped launches (both neighbours
+    with the same bounce count, so away from window edges) is re-run with rtol and
+    atol ten times tighter."""
+    n = np.where(res.outcome == ESCAPED, res.bounces, -1)
+    interior = np.zeros(len(v), dtype=bool)
+    if len(v) >= 3:
+        interior[1:-1] = (n[1:-1] >= 1) & (n[:-2] == n[1:-1]) & (n[2:] == n[1:-1])
+    idx = np.flatnonzero(interior)
+    if len(idx) == 0:
+        return None
+    idx = idx[np.unique(np.linspace(0, len(idx) - 1, min(samples, len(idx))).round().astype(int))]
+    if method == "fabkit":
+        from .integrate import launch_batch  # noqa: F401  (same defaults as the sweep)
+        base_rtol = rtol if rtol is not None else _default_rtol(problem)
+        base_atol = atol if atol is not None else _default_atol(problem)
+    else:
+        base_rtol = 1e-12 if rtol is None else rtol
+        base_atol = 1e-14 if atol is None else atol
+    tight = make_launcher(problem, method=method, rtol=base_rtol / 10, atol=base_atol / 10)(v[idx])
+    if counter is not None:
+        counter["n"] += len(idx)
+    same = (tight.outcome == res.outcome[idx]) & (tight.bounces == res.bounces[idx]) & np.isfinite(tight.v_out)
+    if not same.any():
+        return None
+    d = np.abs(tight.v_out[same] - res.v_out[idx][same])
+    return {"v_out_abs": float(d.max()), "v_out_rel": float(np.max(d / np.abs(tight.v_out[same]))),
+            "launches": int(len(idx)), "agree": int(same.sum()), "rtol": base_rtol, "rtol_ref": base_rtol / 10}
+
+
+def _default_rtol(problem) -> float:
+    r = getattr(problem, "rtol", None)
+    return float(r) if r else 1e-10
+
+
+def _default_atol(problem) -> float:
+    a = getattr(problem, "atol", None)
+    return float(a) if a else 1e-12
