@@ -1,0 +1,309 @@
+"""G-code writer: a pure function from a :class:`~fabkit.toolpath.path.Toolpath` and a
+:class:`MachineProfile` to program text.
+
+The differences between controllers are DATA (:data:`DIALECTS`): the words a
+dialect accepts, its preamble, program end, comment style and line length. The
+writer has no per-dialect branches.
+
+Every program is: a header comment block, the modal preamble (G17 plane, G21 mm
+or G20 inch, G90 absolute, G94 feed per minute; LinuxCNC also G64 P: path
+blending held to half the machining tolerance), a rapid to the safe height,
+spindle on (M3 S), the moves (G0 and G1 only), a rapid back to the safe height,
+spindle off (M5) and the program end (M2 or M30). Modal words are not repeated:
+G0/G1, F and unchanged axis words are written only when they change. Coordinates
+have fixed decimals (4 in mm, 5 in inch, more if the tolerance needs them) so the
+rounding error (half a unit in the last place, per axis) stays below 1/20 of the
+tolerance; :mod:`fabkit.toolpath.verify` reads the TEXT back, so whatever rounding
+remains is part of the verified figures. Same toolpath and profile -> same text.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .path import CUT, PLUNGE, RAPID, Toolpath
+
+MM_PER_INCH = 25.4
+#: rapid rate assumed for time estimates, mm/min (G0 speed is set by the machine,
+#: not the program; 5000 mm/min is a typical hobby router/mill figure)
+DEFAULT_RAPID_MM_MIN = 5000.0
+
+
+@dataclass(frozen=True)
+class Dialect:
+    """What one controller accepts. Data, not code."""
+
+    name: str
+    words: frozenset            # G and M words the writer may emit
+    preamble: tuple             # modal words on the first line, in order ({units} is G20/G21)
+    program_end: str
+    comment_open: str = "("
+    comment_close: str = ")"
+    max_line: int = 70          # characters per line, comment lines included
+    path_blending: bool = False  # G64 P<tolerance/2> (LinuxCNC trajectory blending)
+
+
+DIALECTS: dict[str, Dialect] = {
+    "linuxcnc": Dialect(
+        name="linuxcnc",
+        words=frozenset({"G0", "G1", "G17", "G20", "G21", "G90", "G94", "G64", "M3", "M5", "M2"}),
+        preamble=("G17", "{units}", "G90", "G94"),
+        program_end="M2",
+        max_line=250,
+        path_blending=True,
+    ),
+    # grbl 1.1: no %, no O or N words needed, no tool change, comments in plain
+    # parentheses; 80-character line buffer, so lines are kept to 70.
+    "grbl": Dialect(
+        name="grbl",
+        words=frozenset({"G0", "G1", "G17", "G20", "G21", "G90", "G94", "M3", "M5", "M30"}),
+        preamble=("G17", "{units}", "G90", "G94"),
+        program_end="M30",
+        max_line=70,
+    ),
+}
+
+
+@dataclass(frozen=True)
+class Units:
+    """Program units: G word, mm per unit, coordinate and feed decimals."""
+
+    name: str
+    gword: str
+    mm_per_unit: float
+    decimals: int
+    feed_decimals: int
+
+
+UNITS: dict[str, Units] = {
+    "mm": Units("mm", "G21", 1.0, 4, 1),
+    "in": Units("in", "G20", MM_PER_INCH, 5, 3),
+}
+
+
+@dataclass(frozen=True)
+class MachineProfile:
+    """Everything the writer needs besides the moves. Lengths mm, feeds mm/min.
+
+    header: (key, value) pairs written as comments after the standard ones
+    """
+
+    dialect: str = "linuxcnc"
+    units: str = "mm"
+    feed: float = 2500.0
+    plunge: float = 600.0
+    spindle: float = 16000.0
+    safe_z: float = 5.0
+    tolerance: float = 0.01
+    rapid: float = DEFAULT_RAPID_MM_MIN
+    header: tuple = field(default_factory=tuple)
+
+    @property
+    def d(self) -> Dialect:
+        return DIALECTS[self.dialect]
+
+    @property
+    def u(self) -> Units:
+        return UNITS[self.units]
+
+    @property
+    def decimals(self) -> int:
+        """Coordinate decimals: the unit's default, raised until half a unit in the
+        last place is at most tolerance/20 (capped at 6)."""
+        u = self.u
+        dec = u.decimals
+        while dec < 6 and 0.5 * 10.0 ** -dec * u.mm_per_unit > self.tolerance / 20.0:
+            dec += 1
+        return dec
+
+    @property
+    def rounding_mm(self) -> float:
+        """Largest rounding error of one coordinate, mm (half a unit in the last place)."""
+        return 0.5 * 10.0 ** -self.decimals * self.u.mm_per_unit
+
+
+def profile_from_spec(spec, surface=None) -> MachineProfile:
+    """The machine profile of a spec (sections tool, stock, machining; surface for
+    the stock size). Header lines describe the job for the operator."""
+    m, t, st = spec.machining, spec.tool, spec.stock
+    header = [("spec", spec.path), ("name", spec.name),
+              ("tool", f"{t.shape}-end mill, diameter {t.diameter:g} mm")]
+    if surface is not None:
+        L, W = surface.stock_size_mm
+        header.append(("stock", f"{L:.6g} x {W:.6g} x {st.thickness:g} mm (X x Y x Z)"))
+    header += [("work zero", "X0 Y0 at the footprint corner of smallest x, y;"),
+               ("", "Z0 on the stock top face"),
+               ("scallop", f"{m.scallop:g} mm"), ("tolerance", f"{m.tolerance:g} mm")]
+    return MachineProfile(dialect=m.dialect, units=m.units, feed=m.feed, plunge=m.plunge,
+                          spindle=m.spindle, safe_z=m.safe_height, tolerance=m.tolerance,
+                          header=tuple(header))
+
+
+def _ascii_comment(text: str) -> str:
+    """Comment-safe text: ASCII printable, no parentheses or semicolons."""
+    out = []
+    for ch in text:
+        o = ord(ch)
+        if ch in "()":
+            ch = "[" if ch == "(" else "]"
+        elif ch == ";" or o < 32 or o > 126:
+            ch = "?"
+        out.append(ch)
+    return "".join(out)
+
+
+def _comment_lines(key: str, value: str, d: Dialect) -> list[str]:
+    """One header item as comment lines within the dialect's line length. Every
+    comment starts with a lower-case word or '-' (LinuxCNC treats comments starting
+    with MSG, DEBUG, PRINT, LOG, PROBE... specially; these never match)."""
+    body = _ascii_comment(f"{key}: {value}" if key else f"  {value}")
+    room = d.max_line - len(d.comment_open) - len(d.comment_close)
+    lines = []
+    while len(body) > room:
+        cut = body.rfind(" ", 0, room)
+        cut = cut if cut > room // 2 else room
+        lines.append(body[:cut])
+        body = "  " + body[cut:].lstrip()
+    lines.append(body)
+    return [f"{d.comment_open}{s}{d.comment_close}" for s in lines]
+
+
+def _fmt_duration(seconds: float) -> str:
+    m = int(round(seconds / 60.0))
+    return f"{m // 60} h {m % 60} min" if m >= 60 else f"{max(m, 0)} min" if m else f"{seconds:.0f} s"
+
+
+def estimate_seconds(points: np.ndarray, kinds: np.ndarray, start: np.ndarray, profile: MachineProfile) -> float:
+    """Run time, s, from move lengths: G1 at the plunge or cutting feed, G0 at
+    ``profile.rapid``. Acceleration is ignored, so short segments run slower than
+    this on a real machine (typically 5-30 % on dense finishing programs)."""
+    pts = np.vstack([start[None, :], points])
+    seg = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+    seg = np.nan_to_num(seg)
+    rate = np.where(kinds == RAPID, profile.rapid, np.where(kinds == PLUNGE, profile.plunge, profile.feed))
+    return float(np.sum(seg / rate) * 60.0)
+
+
+def _format_array(values: np.ndarray, dec: int) -> np.ndarray:
+    """(n, 3) floats -> (n, 3) shortest fixed-point strings with at most ``dec``
+    decimals ('12.5', '-0.0312', '0'; never '-0')."""
+    if values.size == 0:
+        return np.empty(values.shape, dtype="<U1")
+    txt = np.char.mod(f"%.{dec}f", values)
+    if dec > 0:
+        txt = np.char.rstrip(np.char.rstrip(txt, "0"), ".")
+    txt = np.where((txt == "-0") | (txt == ""), "0", txt)
+    return txt
+
+
+def write_program(toolpath: Toolpath, profile: MachineProfile) -> str:
+    """The program text for ``toolpath`` (tip positions, work mm) on ``profile``.
+
+    Pure and deterministic: no timestamps, no I/O. Coordinates are rounded to
+    ``profile.decimals`` in program units (error <= ``profile.rounding_mm`` per axis).
+    Moves that round to the previous position are dropped.
+    """
+    d, u = profile.d, profile.u
+    k = 1.0 / u.mm_per_unit
+    dec, fdec = profile.decimals, u.feed_decimals
+    units_word = u.gword
+
+    def num(v: float, nd: int) -> str:
+        s = f"{v:.{nd}f}"
+        if "." in s:
+            s = s.rstrip("0").rstrip(".")
+        if s in ("-0", ""):
+            s = "0"
+        return s
+
+    pts = np.asarray(toolpath.points, dtype=float) * k
+    kinds = np.asarray(toolpath.kinds)
+    # format every coordinate once; the same strings are compared (modality) and written
+    txt = _format_array(pts, dec)
+
+    safe = num(profile.safe_z * k, dec)
+    start = np.array([np.nan, np.nan, profile.safe_z])
+    if len(pts):
+        start = np.array([toolpath.points[0, 0], toolpath.points[0, 1], profile.safe_z])
+    est = estimate_seconds(toolpath.points, kinds, start, profile)
+
+    out: list[str] = []
+    add = out.append
+    items = [("fabkit", f"ball-end raster finishing program, {d.name} dialect")]
+    items += list(profile.header)
+    items += [("passes", f"{toolpath.passes}"),
+              ("stepover", (f"{toolpath.stepover_min:.4g}-" if toolpath.stepover_min < toolpath.stepover
+                            else "") + f"{toolpath.stepover:.4g} mm"),
+              ("units", f"{u.name} ({units_word}), feeds {u.name}/min, absolute (G90)"),
+              ("feeds", f"cut {num(profile.feed * k, fdec)}, plunge {num(profile.plunge * k, fdec)} "
+                        f"{u.name}/min, spindle {profile.spindle:.0f} rpm"),
+              ("safe height", f"Z{safe} {u.name}"),
+              ("estimated time", f"{_fmt_duration(est)} (rapids at {profile.rapid:g} mm/min, "
+                                 "no acceleration)")]
+    for key, value in items:
+        out.extend(_comment_lines(key, str(value), d))
+    pre = [w.format(units=units_word) for w in d.preamble]
+    add(" ".join(pre))
+    if d.path_blending:
+        add(f"G64 P{num(profile.tolerance * 0.5 * k, dec)}")
+    add(f"G0 Z{safe}")
+    add(f"M3 S{profile.spindle:.0f}")
+
+    motion = "G0"
+    last = ["", "", safe]          # X, Y, Z strings of the current position
+    last_f = ""
+    feed_s = num(profile.feed * k, fdec)
+    plunge_s = num(profile.plunge * k, fdec)
+    if len(pts):
+        # rapid across at the safe height to above the first point
+        add(f"G0 X{txt[0, 0]} Y{txt[0, 1]}")
+        last[0], last[1] = txt[0, 0], txt[0, 1]
+    for i in range(len(pts)):
+        row = txt[i]
+        words = []
+        for a, name in enumerate("XYZ"):
+            if row[a] != last[a]:
+                words.append(name + row[a])
+        if not words:
+            continue
+        kind = kinds[i]
+        g = "G0" if kind == RAPID else "G1"
+        head = []
+        if g != motion:
+            head.append(g)
+            motion = g
+        if g == "G1":
+            f = plunge_s if kind == PLUNGE else feed_s
+            if f != last_f:
+                words.append("F" + f)
+                last_f = f
+        add(" ".join(head + words))
+        last = [row[0], row[1], row[2]]
+    if last[2] != safe:
+        add(("G0 " if motion != "G0" else "") + f"Z{safe}")
+    add("M5")
+    add(d.program_end)
+    return "\n".join(out) + "\n"
+
+
+def used_words(text: str) -> set[str]:
+    """The G and M words (and other letter words) of a program, comments removed:
+    {'G0', 'G1', 'X', 'F', ...}: G/M with their number, other letters alone."""
+    import re
+
+    words = set()
+    for line in text.splitlines():
+        line = re.sub(r"\([^)]*\)", "", line).split(";")[0]
+        for letter, value in re.findall(r"([A-Za-z])\s*([-+]?[0-9.]*)", line):
+            letter = letter.upper()
+            if letter in "GM":
+                words.add(f"{letter}{int(float(value))}" if float(value).is_integer() else f"{letter}{value}")
+            else:
+                words.add(letter)
+    return words
+
+
+__all__ = ["Dialect", "DIALECTS", "UNITS", "MachineProfile", "profile_from_spec", "write_program",
+           "estimate_seconds", "used_words", "DEFAULT_RAPID_MM_MIN", "MM_PER_INCH"]

@@ -1,0 +1,428 @@
+"""Verification of a written program: read the TEXT back, sweep the ball-end tool
+along its moves, and compare the cut with the design.
+
+:func:`read_program` is an independent reader of the G-code subset fabkit writes
+(it shares no code with the writer): modal G0/G1, G20/G21, G90, F, X/Y/Z.
+
+:func:`verify_cut` computes the material surface left by the program at many
+sample points and compares it with the clipped design surface. The swept volume
+of a ball of radius R whose centre moves along a straight segment is a capsule;
+the lowest point of a capsule on the vertical line through (px, py) is, exactly,
+the lowest of (a) the lower surfaces of its two end spheres and (b) the lower
+intersection of the line with the capsule's infinite cylinder, when the axial
+parameter of that intersection lies in [0, 1] (outside that range the
+cylinder's end discs lie inside the end spheres). Closed form, vectorized; a
+spatial grid of segments keeps the work O(points x nearby segments). The cut
+height at a point is min(0, lowest capsule point over all moves) (0 = the top
+face: nothing is above it). Figures are exact at the sample points (floating
+point, ~1e-9 mm); between samples the cut is not checked, so the sample count
+(``machining.verify_points``) and the jitter set how sharp the check is.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import DesignError, SpecError
+from ..tolerances import DEFAULT, Tolerances
+
+RAPID, FEED = 0, 1
+MM_PER_INCH = 25.4
+_WORD = re.compile(r"([A-Z])\s*([-+]?(?:\d+\.?\d*|\.\d+))")
+
+
+@dataclass
+class Program:
+    """Moves read from a program.
+
+    start:  (3,) mm, the position before the first move (nan where the program
+            never set that axis before moving)
+    points: (n, 3) mm, end point of each move, work coordinates
+    kinds:  (n,) int8, RAPID (G0) | FEED (G1)
+    feed:   (n,) mm/min, the feed of G1 moves (nan for G0)
+    line:   (n,) int, 1-based line number of each move
+    units:  'mm' | 'in', the program's (last) length unit
+    """
+
+    start: np.ndarray
+    points: np.ndarray
+    kinds: np.ndarray
+    feed: np.ndarray
+    line: np.ndarray
+    units: str
+    lines: int
+
+    def segments(self):
+        """(a, b): (n, 3) start and end points of every move, mm."""
+        a = np.vstack([self.start[None, :], self.points[:-1]]) if len(self.points) else self.points
+        return a, self.points
+
+    def __len__(self) -> int:
+        return len(self.points)
+
+
+def read_program(text: str) -> Program:
+    """Parse G-code text (the subset fabkit emits) into moves in mm.
+
+    Understood: comments in parentheses or after ';', G0 G1 (modal motion), G17,
+    G20/G21 (units, modal), G90 (absolute; G91 is refused), G94, G64 P, M3 S, M5,
+    M2/M30 (end: later lines ignored), F (modal feed), X Y Z. Anything else raises
+    DesignError naming the line (a program the reader cannot follow is not verified).
+    """
+    scale = 1.0
+    units = "mm"
+    motion = None
+    feed = np.nan
+    pos = np.array([np.nan, np.nan, np.nan])
+    start = None
+    pts, kinds, feeds, where = [], [], [], []
+    n_lines = 0
+    for ln, raw in enumerate(text.splitlines(), start=1):
+        n_lines = ln
+        line = raw.split(";", 1)[0]
+        if "(" in line:
+            line = re.sub(r"\([^()]*\)", " ", line)
+            if "(" in line or ")" in line:
+                raise DesignError(f"program line {ln}: unbalanced or nested comment")
+        line = line.strip().upper()
+        if not line:
+            continue
+        words = _WORD.findall(line)
+        if re.sub(r"\s+", "", line) != "".join(a + b for a, b in words):
+            raise DesignError(f"program line {ln}: cannot read {raw.strip()!r}")
+        axes = {}
+        end = False
+        for letter, value in words:
+            v = float(value)
+            if letter == "G":
+                if v in (0, 1):
+                    motion = int(v)
+                elif v == 20:
+                    scale, units = MM_PER_INCH, "in"
+                elif v == 21:
+                    scale, units = 1.0, "mm"
+                elif v == 91:
+                    raise DesignError(f"program line {ln}: incremental mode G91 is not expected")
+                elif v not in (17, 90, 94, 64):
+                    raise DesignError(f"program line {ln}: unexpected G{value}")
+            elif letter == "M":
+                if v in (2, 30):
+                    end = True
+                elif v not in (3, 5):
+                    raise DesignError(f"program line {ln}: unexpected M{value}")
+            elif letter == "F":
+                feed = v * scale
+            elif letter in "XYZ":
+                axes[letter] = v * scale
+            elif letter not in "SP":
+                raise DesignError(f"program line {ln}: unexpected word {letter}{value}")
+        if axes:
+            if motion is None:
+                raise DesignError(f"program line {ln}: axis words before any G0/G1")
+            if start is None:
+                start = pos.copy()
+            new = pos.copy()
+            for a, i in (("X", 0), ("Y", 1), ("Z", 2)):
+                if a in axes:
+                    new[i] = axes[a]
+            if motion == FEED and not feed > 0:
+                raise DesignError(f"program line {ln}: G1 without a feed rate")
+            pts.append(new)
+            kinds.append(motion)
+            feeds.append(feed if motion == FEED else np.nan)
+            where.append(ln)
+            pos = new
+        if end:
+            break
+    if start is None:
+        start = pos.copy()
+    return Program(start=start, points=np.array(pts, dtype=float).reshape(-1, 3),
+                   kinds=np.array(kinds, dtype=np.int8), feed=np.array(feeds, dtype=float),
+                   line=np.array(where, dtype=int), units=units, lines=n_lines)
+
+
+def estimate_time(program: Program, rapid_mm_min: float) -> float:
+    """Run time, s: G1 length / its feed, G0 length / ``rapid_mm_min``. Acceleration is
+    ignored (a real machine is slower on short segments)."""
+    a, b = program.segments()
+    seg = np.nan_to_num(np.linalg.norm(b - a, axis=1))
+    rate = np.where(program.kinds == RAPID, rapid_mm_min, program.feed)
+    return float(np.sum(seg / rate) * 60.0)
+
+
+# ----------------------------------------------------------------------------
+# the swept ball
+# ----------------------------------------------------------------------------
+def capsule_lower(px, py, a, b, R: float) -> np.ndarray:
+    """Lowest point of the volume swept by a ball of radius R whose TIP moves
+    from ``a`` to ``b``, on the vertical lines through (px, py).
+
+    px, py: (m,) mm; a, b: (m, 3) tip positions, mm (pairs: point i with segment i).
+    Returns (m,) z of the lowest swept point, mm (+inf where the line misses the
+    capsule). Exact (closed form; floating point ~1e-12 relative).
+    """
+    R = float(R)
+    ca_z = a[:, 2] + R
+    cb_z = b[:, 2] + R
+    dxa, dya = px - a[:, 0], py - a[:, 1]
+    dxb, dyb = px - b[:, 0], py - b[:, 1]
+    R2 = R * R
+    with np.errstate(invalid="ignore"):
+        za = ca_z - np.sqrt(R2 - dxa * dxa - dya * dya)
+        zb = cb_z - np.sqrt(R2 - dxb * dxb - dyb * dyb)
+    za = np.where(np.isnan(za), np.inf, za)
+    zb = np.where(np.isnan(zb), np.inf, zb)
+    z = np.minimum(za, zb)
+    # cylinder around the centre line c(t) = ca + t d
+    d = b - a
+    dd = np.einsum("ij,ij->i", d, d)
+    ok = dd > 0
+    inv = np.where(ok, 1.0 / np.where(ok, np.sqrt(dd), 1.0), 0.0)
+    ux, uy, uz = d[:, 0] * inv, d[:, 1] * inv, d[:, 2] * inv
+    # w(z') = (dxa, dya, z') with z' = z - ca_z; |w|^2 - (w.u)^2 = R^2
+    k = dxa * ux + dya * uy
+    qa = 1.0 - uz * uz
+    beta = k * uz
+    c = dxa * dxa + dya * dya - k * k - R2
+    disc = beta * beta - qa * c
+    cyl = ok & (qa > 1e-12) & (disc >= 0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        sd = np.sqrt(np.where(cyl, disc, 0.0))
+        # lower root of qa z'^2 - 2 beta z' + c = 0, in the cancellation-free form
+        zl = np.where(beta >= 0, c / (beta + sd), (beta - sd) / np.where(cyl, qa, 1.0))
+        t = (dxa * d[:, 0] + dya * d[:, 1] + zl * d[:, 2]) / np.where(ok, dd, 1.0)
+    cyl &= np.isfinite(zl) & (t >= 0.0) & (t <= 1.0)
+    return np.where(cyl, np.minimum(z, ca_z + zl), z)
+
+
+class SegmentGrid:
+    """Segments binned by the cells their XY bounding box (grown by R) touches.
+
+    a, b: (n, 3) segment end points (tip), mm; R: tool radius, mm; cell: cell size, mm.
+    """
+
+    def __init__(self, a, b, R, cell, origin, shape, max_pairs):
+        self.a, self.b, self.R, self.cell = a, b, R, cell
+        self.origin, self.shape = origin, shape
+        nx, ny = shape
+        lo = np.minimum(a[:, :2], b[:, :2]) - R
+        hi = np.maximum(a[:, :2], b[:, :2]) + R
+        i0 = np.clip(np.floor((lo - origin) / cell).astype(np.int64), 0, [nx - 1, ny - 1])
+        i1 = np.clip(np.floor((hi - origin) / cell).astype(np.int64), 0, [nx - 1, ny - 1])
+        cx = i1[:, 0] - i0[:, 0] + 1
+        cy = i1[:, 1] - i0[:, 1] + 1
+        count = cx * cy
+        total = int(count.sum())
+        if total > max_pairs:
+            raise SpecError(f"verification needs {total} segment-cell entries (limit {max_pairs}); "
+                            "use fewer verify points or a coarser program", key="machining.verify_points")
+        seg = np.repeat(np.arange(len(a)), count)
+        off = np.arange(total) - np.repeat(np.cumsum(count) - count, count)
+        ix = i0[seg, 0] + off % cx[seg]
+        iy = i0[seg, 1] + off // cx[seg]
+        cid = ix * ny + iy
+        order = np.argsort(cid, kind="stable")
+        self.seg = seg[order]
+        self.ptr = np.searchsorted(cid[order], np.arange(nx * ny + 1))
+
+    def cell_of(self, px, py):
+        nx, ny = self.shape
+        ix = np.clip(np.floor((px - self.origin[0]) / self.cell).astype(np.int64), 0, nx - 1)
+        iy = np.clip(np.floor((py - self.origin[1]) / self.cell).astype(np.int64), 0, ny - 1)
+        return ix * ny + iy
+
+    def lowest(self, px, py, chunk=2_000_000, before=None):
+        """(m,) lowest swept z over the binned segments at the points (+inf if none).
+        ``before``: (m,) int, only segments with index < before[i] count."""
+        out = np.full(len(px), np.inf)
+        cid = self.cell_of(px, py)
+        cnt = self.ptr[cid + 1] - self.ptr[cid]
+        pos = 0
+        m = len(px)
+        while pos < m:
+            # as many points as fit in one chunk of pairs
+            csum = np.cumsum(cnt[pos:])
+            stop = pos + max(1, int(np.searchsorted(csum, chunk, side="right")))
+            idx = np.arange(pos, min(stop, m))
+            c = cnt[idx]
+            total = int(c.sum())
+            if total:
+                owner = np.repeat(idx, c)
+                off = np.arange(total) - np.repeat(np.cumsum(c) - c, c)
+                s = self.seg[self.ptr[cid[owner]] + off]
+                if before is not None:
+                    keep = s < before[owner]
+                    owner, s = owner[keep], s[keep]
+                z = capsule_lower(px[owner], py[owner], self.a[s], self.b[s], self.R)
+                np.minimum.at(out, owner, z)
+            pos = idx[-1] + 1
+        return out
+
+
+def sample_points(ws, n: int, seed: int = 0, tol: Tolerances = DEFAULT):
+    """At least ``n`` sample points (X, Y), work mm, across the whole footprint
+    [0, L] x [0, W]: a regular grid including the edges and corners (about half),
+    the same number jittered uniformly (deterministic ``seed``), and points on the
+    crease H = 0 where the surface meets the top face (found on the grid rows and
+    columns by a few secant/bisection steps)."""
+    if n > tol.max_verify_points:
+        raise SpecError(f"{n} verification points exceed the limit {tol.max_verify_points}",
+                        key="machining.verify_points")
+    L, W = ws.L, ws.W
+    half = max(n // 2, 4)
+    nx = max(2, int(round(np.sqrt(half * L / W))) + 1)
+    ny = max(2, int(np.ceil(half / nx)) + 1)
+    gx, gy = np.linspace(0.0, L, nx), np.linspace(0.0, W, ny)
+    GX, GY = np.meshgrid(gx, gy, indexing="ij")
+    rng = np.random.default_rng(seed)
+    nj = max(n - GX.size, n // 2)
+    jx, jy = rng.uniform(0.0, L, nj), rng.uniform(0.0, W, nj)
+    cx, cy = _crease_points(ws, gx, gy)
+    X = np.concatenate([GX.ravel(), jx, cx])
+    Y = np.concatenate([GY.ravel(), jy, cy])
+    return X, Y
+
+
+def _crease_points(ws, gx, gy):
+    xs, ys = [], []
+    for along_x in (True, False):
+        A, B = (gx, gy) if along_x else (gy, gx)
+        T, C = np.meshgrid(A, B, indexing="ij")  # T varies along the line, C constant per line
+        X, Y = (T, C) if along_x else (C, T)
+        H = ws.H(X, Y)
+        s = H >= 0
+        i, j = np.nonzero(s[1:, :] != s[:-1, :])
+        if i.size == 0:
+            continue
+        t0, t1 = A[i], A[i + 1]
+        c = B[j]
+        h0, h1 = H[i, j], H[i + 1, j]
+        for _ in range(30):  # bisection keeps the bracket; 30 steps -> 1e-9 of a cell
+            tm = 0.5 * (t0 + t1)
+            hm = ws.H(tm, c) if along_x else ws.H(c, tm)
+            same = (hm >= 0) == (h0 >= 0)
+            t0, h0 = np.where(same, tm, t0), np.where(same, hm, h0)
+            t1, h1 = np.where(same, t1, tm), np.where(same, h1, hm)
+        tm = 0.5 * (t0 + t1)
+        xs.append(tm if along_x else c)
+        ys.append(c if along_x else tm)
+    if not xs:
+        return np.empty(0), np.empty(0)
+    return np.concatenate(xs), np.concatenate(ys)
+
+
+def verify_cut(surface, program: Program, R: float, points: int = 40000, *, seed: int = 0,
+               depth_limit: float = np.inf, reach: float = np.inf, tol: Tolerances = DEFAULT,
+               detail: bool = False) -> dict:
+    """Sweep a ball-end tool of radius ``R`` mm along every move of ``program`` and
+    compare the cut with the design (``surface``: a Surface or WorkSurface).
+
+    Returns a dict (lengths mm, work coordinates):
+      max_gouge          largest (design - cut) over the sample points (>0: cut below design)
+      max_material_left  largest (cut - design)
+      gouge_at, material_at   (X, Y) where they occur
+      checked_points     number of sample points
+      rapid_clearance    smallest (material present when the rapid runs - lowest
+                         point of the ball during that rapid) over all rapids and
+                         points they pass over (>= 0: no rapid touches material)
+      rapids_checked     rapids that go below the top face over the stock
+      deepest_cut        deepest tip position below the top face, and the limits
+      first_move_ok      the first move is a Z-only rapid up to the top face or above
+    With ``detail`` also the arrays ``X``, ``Y``, ``design``, ``cut`` (per sample point).
+    """
+    from .compensate import WorkSurface
+
+    ws = surface if isinstance(surface, WorkSurface) else WorkSurface(surface)
+    L, W = ws.L, ws.W
+    R = float(R)
+    px, py = sample_points(ws, int(points), seed, tol)
+    design = np.minimum(ws.H(px, py), 0.0)
+    a, b = program.segments()
+    n = len(b)
+    # the first move comes from an unknown position: it must be a Z-only rapid
+    # up to at or above the top face; after it every move is fully known
+    # moves from a partly unknown position (before X, Y, Z were all set) must stay
+    # at or above the top face; they are then swept from the known components
+    unknown = ~np.isfinite(a).all(axis=1)
+    first_ok = bool(n and program.kinds[0] == RAPID and np.all(b[unknown, 2] >= 0)
+                    and np.all(a[unknown & np.isfinite(a[:, 2]), 2] >= 0))
+    a = np.where(np.isfinite(a), a, b)
+    known = np.isfinite(a).all(axis=1) & np.isfinite(b).all(axis=1)
+    # moves that can touch material: below the top face somewhere, within R of the footprint
+    low = known & (np.minimum(a[:, 2], b[:, 2]) < 0.0)
+    lo = np.minimum(a[:, :2], b[:, :2])
+    hi = np.maximum(a[:, :2], b[:, :2])
+    low &= (hi[:, 0] > -R) & (lo[:, 0] < L + R) & (hi[:, 1] > -R) & (lo[:, 1] < W + R)
+    idx = np.nonzero(low)[0]
+    cell = max(R, np.sqrt(L * W / max(len(px), 1)) * 2.0)
+    shape = (int(np.ceil(L / cell)) + 1, int(np.ceil(W / cell)) + 1)
+    grid = SegmentGrid(a[idx], b[idx], R, cell, np.array([0.0, 0.0]), shape,
+                       max_pairs=50 * tol.max_program_points)
+    cut = np.minimum(grid.lowest(px, py), 0.0)
+    gouge = design - cut
+    left = cut - design
+    ig, il = int(np.argmax(gouge)), int(np.argmax(left))
+
+    # rapids below the top face: the ball must stay above the material present at
+    # that moment (cut by the moves before it), at the sample points near the rapid
+    # and at points along its own path (every R/4)
+    rap = np.nonzero(program.kinds[idx] == RAPID)[0]
+    clearance = np.inf
+    clearance_at = None
+    for r in rap:
+        ra, rb = a[idx[r]], b[idx[r]]
+        ln = np.hypot(*(rb[:2] - ra[:2]))
+        t = np.linspace(0.0, 1.0, max(2, int(np.ceil(ln / (R / 4))) + 1))
+        qx = np.concatenate([ra[0] + t * (rb[0] - ra[0])])
+        qy = np.concatenate([ra[1] + t * (rb[1] - ra[1])])
+        # sample points within R of the segment's XY path
+        d = _dist_to_segment(px, py, ra[:2], rb[:2])
+        near = d < R
+        qx = np.concatenate([qx, px[near]])
+        qy = np.concatenate([qy, py[near]])
+        inside = (qx >= 0) & (qx <= L) & (qy >= 0) & (qy <= W)
+        qx, qy = qx[inside], qy[inside]
+        if qx.size == 0:
+            continue
+        before = np.full(qx.size, r)
+        material = np.minimum(grid.lowest(qx, qy, before=before), 0.0)
+        ball = capsule_lower(qx, qy, np.broadcast_to(ra, (qx.size, 3)), np.broadcast_to(rb, (qx.size, 3)), R)
+        gap = ball - material
+        j = int(np.argmin(gap))
+        if gap[j] < clearance:
+            clearance, clearance_at = float(gap[j]), (float(qx[j]), float(qy[j]))
+
+    zmin = float(np.min(b[:, 2])) if n else 0.0
+    out = {
+        "max_gouge": float(gouge[ig]),
+        "gouge_at": (float(px[ig]), float(py[ig])),
+        "max_material_left": float(left[il]),
+        "material_at": (float(px[il]), float(py[il])),
+        "checked_points": int(len(px)),
+        "rapid_clearance": clearance,
+        "rapid_clearance_at": clearance_at,
+        "rapids_checked": int(len(rap)),
+        "deepest_cut": max(0.0, -zmin),
+        "depth_ok": bool(-zmin <= min(depth_limit, reach) + 1e-9),
+        "first_move_ok": first_ok,
+        "segments": int(n),
+    }
+    if detail:
+        out.update(X=px, Y=py, design=design, cut=cut)
+    return out
+
+
+def _dist_to_segment(px, py, a, b):
+    d = b - a
+    dd = float(d @ d)
+    if dd == 0:
+        return np.hypot(px - a[0], py - a[1])
+    t = np.clip(((px - a[0]) * d[0] + (py - a[1]) * d[1]) / dd, 0.0, 1.0)
+    return np.hypot(px - a[0] - t * d[0], py - a[1] - t * d[1])
+
+
+__all__ = ["Program", "read_program", "estimate_time", "capsule_lower", "SegmentGrid", "sample_points",
+           "verify_cut", "RAPID", "FEED"]
