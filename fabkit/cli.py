@@ -20,7 +20,7 @@ import os
 import sys
 
 from . import __version__
-from .errors import EXIT_INTERNAL, EXIT_INTERRUPTED, FabkitError
+from .errors import EXIT_INTERNAL, EXIT_INTERRUPTED, FabkitError, one_line
 
 
 class _Parser(argparse.ArgumentParser):
@@ -119,7 +119,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         args = parser.parse_args(argv)
     except _UsageError as exc:
-        print(str(exc), file=sys.stderr)
+        print(one_line(exc, 4000), file=sys.stderr)
         return 2
     except SystemExit as exc:  # --help, --version
         return int(exc.code or 0)
@@ -131,7 +131,7 @@ def main(argv: list[str] | None = None) -> int:
         return int(module.run(args))
     except FabkitError as exc:
         where = "" if getattr(exc, "file", None) else f"fabkit {args.command}: "
-        print(f"{where}{exc}", file=sys.stderr)
+        print(f"{where}{one_line(exc, 4000)}", file=sys.stderr)
         return exc.exit_code
     except KeyboardInterrupt:
         print(f"fabkit {args.command}: interrupted; existing outputs left intact", file=sys.stderr)
@@ -144,7 +144,7 @@ def main(argv: list[str] | None = None) -> int:
     except Exception as exc:  # a bug: one line, traceback only on request
         if os.environ.get("FABKIT_DEBUG"):
             raise
-        print(f"fabkit {args.command}: internal error ({type(exc).__name__}: {exc}); "
+        print(f"fabkit {args.command}: internal error ({type(exc).__name__}: {one_line(exc, 300)}); "
               "please report it (FABKIT_DEBUG=1 shows the traceback)", file=sys.stderr)
         return EXIT_INTERNAL
 

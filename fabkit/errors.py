@@ -36,9 +36,18 @@ class SpecError(FabkitError):
         return err
 
     def __str__(self) -> str:
-        parts = [p for p in (self.file, self.key) if p]
-        parts.append(self.detail)
+        parts = [one_line(p, 200) for p in (self.file, self.key) if p]
+        parts.append(one_line(self.detail, 2000))
         return ": ".join(parts)
+
+
+def one_line(text: object, limit: int) -> str:
+    """``text`` as one printable line of at most ``limit`` characters: line breaks
+    and control characters (from keys and file names in a hostile spec) escaped."""
+    s = str(text)
+    if any(not ch.isprintable() and ch != " " for ch in s):
+        s = "".join(ch if ch.isprintable() or ch == " " else repr(ch)[1:-1] for ch in s)
+    return s if len(s) <= limit else s[: limit - 3] + "..."
 
 
 class DesignError(FabkitError):

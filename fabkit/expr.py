@@ -156,7 +156,7 @@ def to_sympy(text: str, params: Mapping[str, float], tol: Tolerances = DEFAULT):
                 if b == 0:
                     raise _fail("division by zero")
                 return a / b
-            return sp.Pow(a, b)
+            return _power(a, b, tol)
         if isinstance(node, ast.UnaryOp):
             v = build(node.operand)
             return -v if isinstance(node.op, ast.USub) else v
@@ -178,6 +178,41 @@ def to_sympy(text: str, params: Mapping[str, float], tol: Tolerances = DEFAULT):
     if h.has(sp.I):
         raise _fail("expression is complex")
     return h, x, y
+
+
+def _power(a, b, tol: Tolerances):
+    """``a ** b`` with numeric exponents bounded before sympy evaluates anything.
+
+    sympy computes numeric powers exactly, so ``9**9**9`` would try to build a
+    number of 370 million digits: a numeric exponent above
+    ``tol.expr_max_exponent`` is refused (whatever its own form), and so is a
+    numeric power whose magnitude would exceed 1e300 or that is not real.
+    """
+    import sympy as sp
+
+    if b.is_number:
+        try:
+            bv = complex(sp.N(b, 17))
+        except (TypeError, ValueError, OverflowError):
+            raise _fail("exponent is not a real number") from None
+        if bv.imag != 0 or not math.isfinite(bv.real):
+            raise _fail("exponent is not a finite real number")
+        if abs(bv.real) > tol.expr_max_exponent:
+            raise _fail(f"exponent {bv.real:g} too large (limit {tol.expr_max_exponent:g})")
+        if a.is_number:
+            try:
+                av = complex(sp.N(a, 17))
+            except (TypeError, ValueError, OverflowError):
+                raise _fail("base is not a real number") from None
+            if av.imag != 0:
+                raise _fail("expression is complex")
+            if av.real < 0 and bv.real != int(bv.real):
+                raise _fail("negative number to a fractional power (complex)")
+            if av.real != 0:
+                log10 = float(sp.N(sp.log(sp.Abs(a)), 17)) / math.log(10)
+                if abs(bv.real * log10) > 300:
+                    raise _fail("numeric power out of range (|value| > 1e300)")
+    return sp.Pow(a, b)
 
 
 @dataclass(frozen=True)

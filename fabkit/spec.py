@@ -275,6 +275,8 @@ def load_spec(path: str | Path, need: tuple[str, ...] = (), command: str | None 
         raise SpecError(f"YAML error: {where}{problem}", file=p) from None
     except RecursionError:
         raise SpecError("YAML nested too deeply", file=p) from None
+    except (ValueError, OverflowError) as exc:  # e.g. a 5000-digit integer, a date 2001-02-30
+        raise SpecError(f"YAML error: unreadable value ({str(exc).split(':')[0]})", file=p) from None
     spec = validate(raw, p)
     spec.require(*need, command=command)
     return spec
@@ -439,6 +441,8 @@ def _field(f: Any, value: Any, key: str, file: str, unit: str) -> Any:
             k = f"{key}.{name}"
             if not isinstance(name, str) or not IDENT_RE.match(name):
                 raise SpecError("parameter names must be identifiers", file=file, key=k)
+            if name.startswith("__"):
+                raise SpecError("names starting with '__' are not allowed", file=file, key=k)
             if name in RESERVED:
                 raise SpecError(f"{name!r} is reserved (x, y, pi and the function names)", file=file, key=k)
             fv = _number(v, k, file, None, unit)
