@@ -1,0 +1,134 @@
+"""``fabkit gcode SPEC [-o PATH] [--no-verify] [--json]``: the ball-end raster program,
+its setup sheet, and the verified cut.
+
+Reads only the sections surface, stock, tool and machining; never builds the
+solid or runs the simulator. The verification reads the WRITTEN TEXT back (not
+the planner's arrays), so formatting and rounding are part of what is checked.
+Exit 1 (outputs still written, for inspection) when the verified cut is out of
+tolerance; exit 2 on bad input (nothing written).
+"""
+
+from __future__ import annotations
+
+import os
+from datetime import datetime, timezone
+
+from ..errors import DesignError
+from ..io import atomic_outputs
+from ..spec import load_spec
+from ..surface import Surface, check_depth
+from ._common import Timer, default_output, emit, warn
+
+NEEDS = ("surface", "stock", "tool", "machining")
+
+
+def _generated_at() -> str:
+    """UTC time for the setup sheet (SOURCE_DATE_EPOCH honoured for reproducible builds)."""
+    epoch = os.environ.get("SOURCE_DATE_EPOCH")
+    when = datetime.fromtimestamp(int(epoch), timezone.utc) if epoch and epoch.isdigit() \
+        else datetime.now(timezone.utc)
+    return when.isoformat(timespec="seconds")
+
+
+def _hm(seconds: float) -> str:
+    m = int(round(seconds / 60.0))
+    return f"{m // 60} h {m % 60} min" if m >= 60 else f"{m} min"
+
+
+def failures(check: dict, spec) -> list[str]:
+    """The failed acceptance checks of a verification (empty: the cut is good)."""
+    m = spec.machining
+    bad = []
+    if check["max_gouge"] > m.tolerance:
+        x, y = check["gouge_at"]
+        bad.append(f"gouge {check['max_gouge']:.4f} mm > tolerance {m.tolerance:g} mm at X{x:.3f} Y{y:.3f}")
+    if check["max_material_left"] > m.scallop + m.tolerance:
+        x, y = check["material_at"]
+        bad.append(f"material left {check['max_material_left']:.4f} mm > scallop + tolerance "
+                   f"{m.scallop + m.tolerance:g} mm at X{x:.3f} Y{y:.3f}")
+    if check["rapid_clearance"] < -m.tolerance:
+        x, y = check["rapid_clearance_at"]
+        bad.append(f"a rapid passes {-check['rapid_clearance']:.4f} mm into material at X{x:.3f} Y{y:.3f}")
+    if not check["depth_ok"]:
+        bad.append(f"deepest cut {check['deepest_cut']:.3f} mm exceeds the depth limit or tool reach")
+    if not check["first_move_ok"]:
+        bad.append("the program does not start with a rapid up to the safe height")
+    return bad
+
+
+def run(args) -> int:
+    from ..toolpath.gcode import profile_from_spec, write_program
+    from ..toolpath.raster import plan_toolpath
+    from ..toolpath.setup import preview_png, setup_sheet, sheet_json, sheet_markdown, sheet_paths
+    from ..toolpath.verify import estimate_time, read_program, verify_cut
+
+    total = Timer()
+    spec = load_spec(args.spec, need=NEEDS, command="gcode")
+    surface = Surface.from_spec(spec)
+    check_depth(spec, surface)
+    R = spec.tool.diameter / 2.0
+    conc = surface.min_concave_radius()
+    if conc.z * spec.scale < R:
+        warn(f"tool radius {R:g} mm is larger than the smallest concave radius {conc.z * spec.scale:.3g} mm "
+             f"(at x={conc.x:.4g}, y={conc.y:.4g}): the tool bridges that valley and leaves material there")
+    out = default_output(spec, ".ngc", args.output)
+    paths = sheet_paths(out)
+
+    t = Timer()
+    toolpath = plan_toolpath(spec, surface)
+    t_plan = t.seconds
+
+    t = Timer()
+    profile = profile_from_spec(spec, surface)
+    text = write_program(toolpath, profile)
+    t_write = t.seconds
+
+    t = Timer()
+    program = read_program(text)
+    est = estimate_time(program, profile.rapid)
+    check = None
+    if not args.no_verify:
+        check = verify_cut(surface, program, R, spec.machining.verify_points,
+                           depth_limit=spec.stock.depth_limit, reach=spec.tool.reach)
+    t_verify = t.seconds
+
+    t = Timer()
+    lines = text.count("\n")
+    timings = {"plan": t_plan, "write": t_write, "verify": t_verify}
+    sheet = setup_sheet(spec, surface, toolpath, profile, out, check, est, lines, timings=timings,
+                        generated_at=_generated_at())
+    L, W = surface.stock_size_mm
+    png = preview_png(program, L, W, profile.units)
+    md = sheet_markdown(sheet, paths["png"].name)
+    with atomic_outputs() as files:
+        files.write(out, text)
+        files.write(paths["json"], sheet_json(sheet))
+        files.write(paths["md"], md)
+        files.write(paths["png"], png)
+    t_sheet = t.seconds
+
+    bad = failures(check, spec) if check else []
+    seconds = total.seconds
+    so = (f"{toolpath.stepover_min:.2f}-{toolpath.stepover:.2f}" if toolpath.stepover_min < toolpath.stepover
+          else f"{toolpath.stepover:.2f}")
+    head = f"gcode: {out}, {toolpath.passes} passes, stepover {so} mm, {lines} lines; "
+    if check:
+        head += (f"largest gouge {check['max_gouge']:.4f} mm, material left {check['max_material_left']:.4f} mm "
+                 f"(checked at {check['checked_points']} points); ")
+    else:
+        head += "not verified (--no-verify); "
+    head += (f"est. machining {_hm(est)}; {seconds:.1f} s (plan {t_plan:.1f}, write {t_write:.1f}, "
+             f"verify {t_verify:.1f}, sheet {t_sheet:.1f})")
+    summary = [head, f"setup sheet: {paths['json']}, {paths['md']}, {paths['png']}"]
+    payload = dict(sheet)
+    payload.update(program_path=str(out), setup_paths={k: str(v) for k, v in paths.items()},
+                   seconds=round(seconds, 3), ok=not bad, failures=bad)
+    payload["timings_s"] = {k: round(v, 3) for k, v in {**timings, "sheet": t_sheet, "total": seconds}.items()}
+    if check:
+        payload["deepest_cut_mm"] = check["deepest_cut"]
+        payload["rapids_checked"] = check["rapids_checked"]
+    emit(summary, payload, args.json)
+    if bad:
+        raise DesignError("verification failed: " + "; ".join(bad) +
+                          f" (outputs written to {out} and its setup sheet for inspection)")
+    return 0
