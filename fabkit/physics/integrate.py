@@ -1,0 +1,729 @@
+"""fabkit's batched integrator: many launches advanced at once, each with its own step.
+
+Method
+------
+An embedded explicit Runge-Kutta pair (default Dormand-Prince 8(5,3), the method
+of scipy's ``DOP853``; ``method='RK45'`` gives Dormand-Prince 5(4)) applied to
+all lanes (launches) of a batch with numpy: every lane has its own time, step
+size, accept/reject decision and events. The arithmetic is elementwise over
+lanes in a fixed order (no reductions across lanes, no BLAS), so a lane's
+result does not depend on which other lanes share its batch: results are
+bit-identical for any batch size, chunking or thread count. Lanes that finish
+are compacted away; launches are processed in chunks of at most ``CHUNK`` lanes
+and only per-lane summaries are kept (memory bounded for any number of launches).
+
+State per lane: (x, y, xd, yd, W) with W the energy dissipated by damping
+(only integrated when there is damping; it gives the energy-balance error).
+Step-size control and error norm are scipy's (so tolerances mean the same).
+
+Events (checked on every accepted step, from its start and end states):
+
+    bounce        xd crosses from + to -: a maximum of x(t). Located by Henon's trick:
+                  one extra RK step from the step's start with xd as the independent
+                  variable, to xd = 0 exactly. Not terminal; the first K times are kept.
+    escaped       x crosses ``start`` moving toward -x. Henon step with x as the
+                  independent variable to x = start exactly; v_out = |xd| there.
+    flew_off      h(x, y) reaches top - margin (Henon step in z), or x or y leaves the
+                  footprint shrunk by the margin (Henon step in x or y).
+    lost_contact  (full model) the normal-force bracket B of eq. (xyODE) falls to 0 or
+                  below; located by secant iterations on re-taken RK steps.
+    captured      still on the surface at ``t_max`` (including launches too slow to
+                  arrive anywhere, and runs stopped by the step guard, ``status`` 1).
+
+The event location is as accurate as a step (Henon's step has the step's own
+local error), so bounce times and v_out carry the integrator's tolerance.
+
+Stiff cases: where the damping rate times ``t_max`` is so large that an explicit
+method would need more than ``STIFF_STEPS`` steps (mu = 1e4 1/s and beyond), the
+lanes go to scipy's implicit Radau method (one launch at a time, same events),
+``status`` 2.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import SpecError
+from ..tolerances import DEFAULT
+from .models import CAPTURED, ESCAPED, FLEW_OFF, LOST_CONTACT, OUTCOMES
+
+CHUNK = 4096          # lanes per chunk (memory bound; the arithmetic does not depend on it)
+K_BOUNCES = 16        # bounce times kept per lane
+STIFF_STEPS = 50_000  # explicit steps beyond which a damped problem goes to Radau
+SAFETY, MIN_FACTOR, MAX_FACTOR = 0.9, 0.2, 10.0
+
+
+# ----------------------------------------------------------------------------
+# tableaux (data, as in scipy.integrate._ivp.rk)
+# ----------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Tableau:
+    name: str
+    n_stages: int
+    C: tuple
+    A: tuple          # A[s] = ((j, a_sj), ...) nonzero entries only
+    B: tuple          # ((j, b_j), ...)
+    E: tuple          # error weights over stages + f(y_new)
+    E3: tuple         # DOP853's second estimate (empty for RK45)
+    order: int        # error estimator order (the step-size exponent is -1/(order+1))
+
+
+def _nz(row):
+    return tuple((j, float(a)) for j, a in enumerate(row) if a != 0.0)
+
+
+_TABLEAUX: dict[str, Tableau] = {}
+
+
+def tableau(name: str) -> Tableau:
+    """The Butcher tableau of 'DOP853' or 'RK45' (from scipy's own coefficients)."""
+    if name not in _TABLEAUX:
+        if name == "DOP853":
+            from scipy.integrate._ivp import dop853_coefficients as d
+
+            n = d.N_STAGES
+            _TABLEAUX[name] = Tableau(
+                name, n, tuple(float(c) for c in d.C[:n]), tuple(_nz(d.A[s, :s]) for s in range(n)),
+                _nz(d.B), _nz(d.E5), _nz(d.E3), 7)
+        elif name == "RK45":
+            from scipy.integrate import RK45
+
+            n = RK45.n_stages
+            _TABLEAUX[name] = Tableau(
+                name, n, tuple(float(c) for c in RK45.C), tuple(_nz(RK45.A[s, :s]) for s in range(n)),
+                _nz(RK45.B), _nz(RK45.E), (), 4)
+        else:
+            raise ValueError(f"method must be DOP853 or RK45, got {name!r}")
+    return _TABLEAUX[name]
+
+
+# ----------------------------------------------------------------------------
+# results
+# ----------------------------------------------------------------------------
+@dataclass
+class LaunchResult:
+    """Per-launch summaries, arrays of shape (N,) unless stated.
+
+    outcome       int8, index into ``models.OUTCOMES``
+    bounces       int, maxima of x(t) before the end
+    v_out         |xd| at the escape crossing, design units/s (nan unless escaped)
+    bounce_times  (N, K) the first K bounce times, s (nan padded)
+    t_end, x_end, y_end, vx_end, vy_end   the final state (at the event that ended the run)
+    max_z, max_abs_y   the largest height and |y| over the step points
+    energy_error  |E(t_end) + W(t_end) - E(0)| / E_kin(0): the relative energy drift
+                  (undamped) or energy-balance error (damped, W = dissipated energy)
+    steps, rejected   accepted and rejected steps per launch
+    status        0 normal, 1 stopped by the step guard (outcome captured), 2 stiff: run by Radau
+    trajectories  with record=True: per launch a dict of arrays t, x, y, vx, vy, ax, ay
+    """
+
+    v_in: np.ndarray
+    outcome: np.ndarray
+    bounces: np.ndarray
+    v_out: np.ndarray
+    bounce_times: np.ndarray
+    t_end: np.ndarray
+    x_end: np.ndarray
+    y_end: np.ndarray
+    vx_end: np.ndarray
+    vy_end: np.ndarray
+    max_z: np.ndarray
+    max_abs_y: np.ndarray
+    energy_error: np.ndarray
+    steps: np.ndarray
+    rejected: np.ndarray
+    status: np.ndarray
+    method: str = "DOP853"
+    rtol: float = 1e-10
+    atol: float = 1e-12
+    seconds: float = 0.0
+    trajectories: list | None = field(default=None, repr=False)
+
+    @property
+    def outcome_names(self) -> list[str]:
+        return [OUTCOMES[i] for i in self.outcome]
+
+    def __len__(self) -> int:
+        return len(self.v_in)
+
+
+_FIELDS = ("outcome", "bounces", "v_out", "bounce_times", "t_end", "x_end", "y_end", "vx_end", "vy_end",
+           "max_z", "max_abs_y", "energy_error", "steps", "rejected", "status")
+
+
+def _empty(n: int, k: int) -> dict:
+    nan = np.full(n, np.nan)
+    return {
+        "outcome": np.full(n, CAPTURED, dtype=np.int8), "bounces": np.zeros(n, dtype=np.int64),
+        "v_out": nan.copy(), "bounce_times": np.full((n, k), np.nan), "t_end": nan.copy(),
+        "x_end": nan.copy(), "y_end": nan.copy(), "vx_end": nan.copy(), "vy_end": nan.copy(),
+        "max_z": nan.copy(), "max_abs_y": nan.copy(), "energy_error": nan.copy(),
+        "steps": np.zeros(n, dtype=np.int64), "rejected": np.zeros(n, dtype=np.int64),
+        "status": np.zeros(n, dtype=np.int8),
+    }
+
+
+# ----------------------------------------------------------------------------
+# the right-hand side on the batch
+# ----------------------------------------------------------------------------
+class _System:
+    """d/dt of (x, y, xd, yd, W) on (5, m) arrays, with aux (h, h_x, h_y, B)."""
+
+    def __init__(self, problem):
+        self.p = problem
+        self.full = problem.model == "full"
+        self.gt = problem.g_tilde
+        self.mu = float(problem.damping)
+        self.mu_nl = float(problem.nonlinear_damping)
+        self.damped = self.mu > 0 or self.mu_nl > 0
+        self.all = problem.fns.all
+        self.grad = problem.fns.grad
+
+    def __call__(self, S):
+        x, y, vx, vy = S[0], S[1], S[2], S[3]
+        h, hx, hy, hxx, hxy, hyy = self.all(x, y)
+        vxvx = vx * vx
+        br = hxx * vxvx
+        br += 2.0 * hxy * vx * vy
+        br += hyy * vy * vy
+        br += self.gt
+        F = np.empty_like(S)
+        F[0] = vx
+        F[1] = vy
+        if self.full:  # eq. (xyODE)
+            q = br / (1.0 + hx * hx + hy * hy)
+        else:          # eq. (xyODE_simp)
+            q = self.gt
+        np.multiply(hx, -q, out=F[2])
+        np.multiply(hy, -q, out=F[3])
+        if self.damped:
+            dx = -self.mu * vx
+            dy = -self.mu * vy
+            if self.mu_nl:
+                Fc = self.grad(x, np.zeros_like(y))[1]
+                dy -= self.mu_nl * Fc * Fc * y * y * vy
+            F[2] += dx
+            F[3] += dy
+            if self.full:
+                zd = hx * vx + hy * vy
+                F[4] = -(dx * (vx + zd * hx) + dy * (vy + zd * hy))
+            else:
+                F[4] = -(dx * vx + dy * vy)
+        else:
+            F[4] = 0.0
+        return F, (h, hx, hy, br)
+
+    def energy(self, S, aux):
+        h, hx, hy = aux[0], aux[1], aux[2]
+        vx, vy = S[2], S[3]
+        kin = vx * vx + vy * vy
+        if self.full:
+            zd = hx * vx + hy * vy
+            kin = kin + zd * zd
+        return 0.5 * kin + self.gt * h
+
+
+def _combine(Y, h, K, coeffs, out):
+    """out = Y + h * sum_j c_j K_j, elementwise in a fixed order (lane-independent)."""
+    acc = None
+    for j, c in coeffs:
+        term = K[j] * c
+        acc = term if acc is None else np.add(acc, term, out=acc)
+    if acc is None:
+        out[...] = Y
+        return out
+    np.multiply(acc, h, out=acc)
+    np.add(Y, acc, out=out)
+    return out
+
+
+def _rk_step(sys, tab, Y, F0, h, K):
+    """One step of size h (m,) from Y (5, m) with f(Y) = F0; K (n_stages + 1, 5, m) scratch.
+
+    Returns Ynew (5, m); K[0..n_stages-1] hold the stages.
+    """
+    K[0] = F0
+    Ys = np.empty_like(Y)
+    for s in range(1, tab.n_stages):
+        _combine(Y, h, K, tab.A[s], Ys)
+        K[s] = sys(Ys)[0]
+    Ynew = np.empty_like(Y)
+    _combine(Y, h, K, tab.B, Ynew)
+    return Ynew
+
+
+def _error_norm(tab, K, h, scale):
+    """scipy's error norm per lane (m,), over the 4 state components."""
+    def est(coeffs):
+        acc = None
+        for j, c in coeffs:
+            term = K[j, :4] * c
+            acc = term if acc is None else np.add(acc, term, out=acc)
+        acc /= scale
+        acc *= acc
+        return acc[0] + acc[1] + acc[2] + acc[3]
+
+    if tab.E3:  # DOP853: the 5th and 3rd order estimates combined (Hairer's DOP853)
+        e5 = est(tab.E)
+        e3 = est(tab.E3)
+        denom = e5 + 0.01 * e3
+        with np.errstate(invalid="ignore", divide="ignore"):
+            err = np.abs(h) * e5 / np.sqrt(denom * 4.0)
+        return np.where(denom > 0, err, 0.0)
+    e = est(tab.E)
+    return np.abs(h) * np.sqrt(e / 4.0)
+
+
+# ----------------------------------------------------------------------------
+# event location
+# ----------------------------------------------------------------------------
+def _henon(sys, tab, Y, t, kind, target):
+    """Henon's trick: one RK step from Y (5, m) at times t (m,) with the quantity
+    ``kind`` ('x' | 'y' | 'vx' | 'z') as the independent variable, to ``target`` (m,).
+
+    Returns (t_event (m,), Y_event (5, m)); accurate to the RK step's local error.
+    """
+    m = Y.shape[1]
+    Z = np.empty((6, m))
+    Z[:5] = Y
+    Z[5] = t
+    F0, aux = sys(Y)
+
+    def rate(Yc, Fc, auxc):
+        if kind == "x":
+            return Fc[0]
+        if kind == "y":
+            return Fc[1]
+        if kind == "vx":
+            return Fc[2]
+        return auxc[1] * Yc[2] + auxc[2] * Yc[3]  # z: dz/dt = h_x xd + h_y yd
+
+    def g(Zc):
+        Fc, auxc = sys(Zc[:5])
+        r = rate(Zc, Fc, auxc)
+        G = np.empty_like(Zc)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            G[:5] = Fc / r
+            G[5] = 1.0 / r
+        return G
+
+    if kind == "x":
+        s0 = Y[0]
+    elif kind == "y":
+        s0 = Y[1]
+    elif kind == "vx":
+        s0 = Y[2]
+    else:
+        s0 = aux[0]
+    ds = target - s0
+    K = np.empty((tab.n_stages + 1, 6, m))
+    K[0] = g(Z)
+    Zs = np.empty_like(Z)
+    for s in range(1, tab.n_stages):
+        _combine(Z, ds, K, tab.A[s], Zs)
+        with np.errstate(all="ignore"):
+            K[s] = g(Zs)
+    Znew = np.empty_like(Z)
+    with np.errstate(all="ignore"):
+        _combine(Z, ds, K, tab.B, Znew)
+    if kind == "x":
+        Znew[0] = target
+    elif kind == "y":
+        Znew[1] = target
+    elif kind == "vx":
+        Znew[2] = target
+    return Znew[5], Znew[:5]
+
+
+def _secant(sys, tab, Y, F0, t, h, b0, b1, iters: int = 4):
+    """Time and state where the bracket B crosses 0 inside steps of size h from Y,
+    by secant iterations on re-taken RK steps (each as accurate as the step)."""
+    m = Y.shape[1]
+    lo, hi = np.zeros(m), np.ones(m)
+    blo, bhi = b0.copy(), b1.copy()
+    K = np.empty((tab.n_stages + 1, 5, m))
+    Yt = Y.copy()
+    th = np.ones(m)
+    for _ in range(iters):
+        with np.errstate(all="ignore"):
+            th = lo + (hi - lo) * blo / (blo - bhi)
+        th = np.where(np.isfinite(th), np.clip(th, lo, hi), 0.5 * (lo + hi))
+        Yt = _rk_step(sys, tab, Y, F0, h * th, K)
+        b = sys(Yt)[1][3]
+        pos = b > 0
+        lo = np.where(pos, th, lo)
+        blo = np.where(pos, b, blo)
+        hi = np.where(pos, hi, th)
+        bhi = np.where(pos, bhi, b)
+    return t + h * th, Yt
+
+
+# ----------------------------------------------------------------------------
+# the chunk loop
+# ----------------------------------------------------------------------------
+def _initial_step(sys, tab, Y, F, rtol, atol, t_max):
+    scale = atol + np.abs(Y[:4]) * rtol
+
+    def rms(a):
+        a = a * a
+        return np.sqrt((a[0] + a[1] + a[2] + a[3]) / 4.0)
+
+    d0 = rms(Y[:4] / scale)
+    d1 = rms(F[:4] / scale)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        h0 = np.where((d0 < 1e-5) | (d1 < 1e-5), 1e-6, 0.01 * d0 / d1)
+    Y1 = Y + h0 * F
+    F1 = sys(Y1)[0]
+    d2 = rms((F1[:4] - F[:4]) / scale) / h0
+    dm = np.maximum(d1, d2)
+    with np.errstate(divide="ignore"):
+        h1 = np.where(dm <= 1e-15, np.maximum(1e-6, h0 * 1e-3), (0.01 / dm) ** (1.0 / (tab.order + 1)))
+    return np.minimum(np.minimum(100 * h0, h1), t_max)
+
+
+def _run_chunk(problem, v_in, y0, vy0, rtol, atol, t_max, max_steps, tab, record, k_keep):
+    """Integrate one chunk of lanes; returns the per-lane summary dict (and trajectories)."""
+    sys = _System(problem)
+    n = len(v_in)
+    out = _empty(n, k_keep)
+    x_lo, x_hi = problem.x_range[0] + problem.margin, problem.x_range[1] - problem.margin
+    y_lo, y_hi = problem.y_range[0] + problem.margin, problem.y_range[1] - problem.margin
+    z_lim = problem.top - problem.margin
+    start = problem.start
+
+    Y = np.zeros((5, n))
+    Y[0] = start
+    Y[1] = y0
+    Y[2] = v_in
+    Y[3] = vy0
+    F, aux = sys(Y)
+    E0 = sys.energy(Y, aux)
+    kin0 = 0.5 * (Y[2] ** 2 + Y[3] ** 2 + ((aux[1] * Y[2] + aux[2] * Y[3]) ** 2 if sys.full else 0.0))
+    escale = np.maximum(kin0, 1e-300)
+    t = np.zeros(n)
+    h = _initial_step(sys, tab, Y, F, rtol, atol, t_max)
+    idx = np.arange(n)
+    zmax = aux[0].copy()
+    ymax = np.abs(Y[1])
+    steps = np.zeros(n, dtype=np.int64)
+    rej = np.zeros(n, dtype=np.int64)
+    nb = np.zeros(n, dtype=np.int64)
+    was_rejected = np.zeros(n, dtype=bool)
+    expo = -1.0 / (tab.order + 1)
+    traj = [[(0.0, *Y[:4, i], *F[2:4, i])] for i in range(n)] if record else None
+
+    while idx.size:
+        m = idx.size
+        hstep = np.minimum(h, t_max - t)
+        last = hstep >= t_max - t
+        K = np.empty((tab.n_stages + 1, 5, m))
+        Ynew = _rk_step(sys, tab, Y, F, hstep, K)
+        Fnew, auxn = sys(Ynew)
+        K[tab.n_stages] = Fnew
+        scale = atol + np.maximum(np.abs(Y[:4]), np.abs(Ynew[:4])) * rtol
+        err = _error_norm(tab, K, hstep, scale)
+        finite = np.isfinite(err) & np.isfinite(Ynew).all(axis=0)
+        acc = finite & (err <= 1.0)
+        with np.errstate(divide="ignore"):
+            fac = np.where(err == 0, MAX_FACTOR, SAFETY * np.power(np.where(finite, err, 1.0), expo))
+        fac_acc = np.minimum(MAX_FACTOR, fac)
+        fac_acc = np.where(was_rejected, np.minimum(1.0, fac_acc), fac_acc)
+        fac_rej = np.where(finite, np.maximum(MIN_FACTOR, fac), MIN_FACTOR)
+        rej += ~acc
+        steps += acc
+        was_rejected = ~acc
+        h = np.where(acc, hstep * fac_acc, hstep * fac_rej)
+
+        # ---- events on accepted steps ----
+        done = np.zeros(m, dtype=bool)
+        code = np.full(m, -1, dtype=np.int8)
+        t_ev = np.full(m, np.inf)
+        Y_ev = np.empty((5, m))
+        tnew = t + hstep
+
+        def propose(mask, kind, target, outcome):
+            sel = np.flatnonzero(mask)
+            if sel.size == 0:
+                return
+            if kind == "B":
+                te, Ye = _secant(sys, tab, Y[:, sel], F[:, sel], t[sel], hstep[sel], aux[3][sel],
+                                 auxn[3][sel])
+            else:
+                te, Ye = _henon(sys, tab, Y[:, sel], t[sel], kind, target[sel] if np.ndim(target) else
+                                np.full(sel.size, target))
+            ok = np.isfinite(te) & (te >= t[sel]) & (te <= tnew[sel] + 1e-9 * hstep[sel]) & \
+                np.isfinite(Ye).all(axis=0)
+            te = np.where(ok, te, tnew[sel])
+            Ye = np.where(ok, Ye, Ynew[:, sel])
+            better = te < t_ev[sel]
+            b = sel[better]
+            t_ev[b] = te[better]
+            Y_ev[:, b] = Ye[:, better]
+            code[b] = outcome
+
+        xo, xn = Y[0], Ynew[0]
+        # bounce: xd from + to - (not terminal)
+        bmask = acc & (Y[2] > 0) & (Ynew[2] <= 0)
+        if bmask.any():
+            sel = np.flatnonzero(bmask)
+            tb, _ = _henon(sys, tab, Y[:, sel], t[sel], "vx", np.zeros(sel.size))
+            tb = np.where(np.isfinite(tb) & (tb >= t[sel]) & (tb <= tnew[sel]), tb, tnew[sel])
+            gl = idx[sel]
+            cnt = nb[sel]
+            keep = cnt < k_keep
+            out["bounce_times"][gl[keep], cnt[keep]] = tb[keep]
+            nb[sel] += 1
+        propose(acc & (xo > start) & (xn <= start) & (Ynew[2] < 0), "x", start, ESCAPED)
+        propose(acc & (auxn[0] >= z_lim) & (aux[0] < z_lim), "z", z_lim, FLEW_OFF)
+        propose(acc & (xn >= x_hi) & (xo < x_hi), "x", x_hi, FLEW_OFF)
+        propose(acc & (xn <= x_lo) & (xo > x_lo), "x", x_lo, FLEW_OFF)
+        propose(acc & (Ynew[1] >= y_hi) & (Y[1] < y_hi), "y", y_hi, FLEW_OFF)
+        propose(acc & (Ynew[1] <= y_lo) & (Y[1] > y_lo), "y", y_lo, FLEW_OFF)
+        if sys.full:
+            propose(acc & (auxn[3] <= 0) & (aux[3] > 0), "B", 0.0, LOST_CONTACT)
+        # already outside at the start of the run (start outside the shrunk footprint): ignore
+        term = code >= 0
+        # a bounce located after the terminal event does not count
+        if term.any() and bmask.any():
+            late = term & bmask & (nb > 0)
+            sel = np.flatnonzero(late)
+            if sel.size:
+                gl = idx[sel]
+                cnt = nb[sel] - 1
+                tb_rec = np.where(cnt < k_keep, out["bounce_times"][gl, np.minimum(cnt, k_keep - 1)], -np.inf)
+                drop = tb_rec > t_ev[sel]
+                nb[sel[drop]] -= 1
+                keepc = drop & (cnt < k_keep)
+                out["bounce_times"][gl[keepc], cnt[keepc]] = np.nan
+
+        # ---- advance accepted lanes ----
+        Y = np.where(acc, Ynew, Y)
+        F = np.where(acc, Fnew, F)
+        aux = tuple(np.where(acc, a1, a0) for a0, a1 in zip(aux, auxn))
+        t = np.where(acc, tnew, t)
+        zmax = np.where(acc, np.maximum(zmax, aux[0]), zmax)
+        ymax = np.where(acc, np.maximum(ymax, np.abs(Y[1])), ymax)
+        if record:
+            for i in np.flatnonzero(acc & ~term):
+                traj[idx[i]].append((t[i], *Y[:4, i], *F[2:4, i]))
+
+        captured = acc & last & ~term
+        guard = (steps + rej >= max_steps) & ~term & ~captured
+        tiny = ~acc & (h <= 1e-14 * np.maximum(1.0, np.abs(t)))
+        guard |= tiny & ~term & ~captured
+        done = term | captured | guard
+        if done.any():
+            sel = np.flatnonzero(done)
+            gl = idx[sel]
+            Yend = np.where(term[sel], Y_ev[:, sel], Y[:, sel])
+            tend = np.where(term[sel], t_ev[sel], t[sel])
+            oc = np.where(term[sel], code[sel], CAPTURED).astype(np.int8)
+            out["outcome"][gl] = oc
+            out["t_end"][gl] = tend
+            out["x_end"][gl], out["y_end"][gl] = Yend[0], Yend[1]
+            out["vx_end"][gl], out["vy_end"][gl] = Yend[2], Yend[3]
+            out["v_out"][gl] = np.where(oc == ESCAPED, np.abs(Yend[2]), np.nan)
+            F_end, aux_end = sys(Yend)
+            E = sys.energy(Yend, aux_end)
+            out["energy_error"][gl] = np.abs(E + Yend[4] - E0[gl]) / escale[gl]
+            out["max_z"][gl] = np.maximum(zmax[sel], aux_end[0])
+            out["max_abs_y"][gl] = np.maximum(ymax[sel], np.abs(Yend[1]))
+            out["bounces"][gl] = nb[sel]
+            out["steps"][gl] = steps[sel]
+            out["rejected"][gl] = rej[sel]
+            out["status"][gl] = np.where(guard[sel], 1, 0)
+            if record:
+                for j, i in enumerate(sel):
+                    if term[i]:
+                        traj[idx[i]].append((tend[j], *Yend[:4, j], *F_end[2:4, j]))
+            keep = ~done
+            idx, Y, F, t, h = idx[keep], Y[:, keep], F[:, keep], t[keep], h[keep]
+            aux = tuple(a[keep] for a in aux)
+            zmax, ymax, steps, rej, nb, was_rejected = (zmax[keep], ymax[keep], steps[keep], rej[keep],
+                                                        nb[keep], was_rejected[keep])
+    if record:
+        trajs = []
+        for rows in traj:
+            a = np.array(rows, dtype=float)
+            trajs.append({"t": a[:, 0], "x": a[:, 1], "y": a[:, 2], "vx": a[:, 3], "vy": a[:, 4],
+                          "ax": a[:, 5], "ay": a[:, 6]})
+        out["_traj"] = trajs
+    return out
+
+
+# ----------------------------------------------------------------------------
+# stiff path
+# ----------------------------------------------------------------------------
+def stiffness_rate(problem) -> float:
+    """An upper estimate of the damping rate (1/s) that limits an explicit step."""
+    rate = float(problem.damping)
+    if problem.nonlinear_damping:
+        xs = np.linspace(problem.x_range[0], problem.x_range[1], 401) if np.all(
+            np.isfinite(problem.x_range)) else np.linspace(-10, 10, 401)
+        F = problem.fns.grad(xs, np.zeros_like(xs))[1]
+        ym = max(abs(problem.y_range[0]), abs(problem.y_range[1])) if np.all(
+            np.isfinite(problem.y_range)) else 10.0
+        rate += float(problem.nonlinear_damping) * float(np.nanmax(F * F)) * ym * ym
+    return rate
+
+
+def is_stiff(problem, t_max: float) -> bool:
+    """True when an explicit method would need more than STIFF_STEPS steps
+    just to stay stable against the damping (|h mu| <= ~6 for DOP853)."""
+    return stiffness_rate(problem) * t_max / 6.0 > STIFF_STEPS
+
+
+def _run_stiff(problem, v_in, y0, vy0, rtol, atol, t_max, k_keep):
+    from .reference import solve_launch
+
+    n = len(v_in)
+    out = _empty(n, k_keep)
+    for i in range(n):
+        r = solve_launch(problem, float(v_in[i]), float(y0[i]), float(vy0[i]), method="Radau",
+                         rtol=max(rtol, 1e-10), atol=max(atol, 1e-12), t_max=t_max)
+        out["outcome"][i] = OUTCOMES.index(r["outcome"])
+        out["bounces"][i] = r["bounces"]
+        tb = np.asarray(r["bounce_times"])[:k_keep]
+        out["bounce_times"][i, :len(tb)] = tb
+        out["v_out"][i] = r["v_out"]
+        out["t_end"][i] = r["t_end"]
+        out["x_end"][i], out["y_end"][i] = r["x_end"], r["y_end"]
+        out["vx_end"][i], out["vy_end"][i] = r["xdot_end"], r["ydot_end"]
+        out["max_z"][i], out["max_abs_y"][i] = r["max_z"], r["max_abs_y"]
+        out["energy_error"][i] = np.nan  # the Radau path does not track the dissipated work
+        out["steps"][i] = r["nfev"]
+        out["status"][i] = 2
+    return out
+
+
+# ----------------------------------------------------------------------------
+# public entry points
+# ----------------------------------------------------------------------------
+def _lanes(values, n, name):
+    if values is None:
+        return None
+    a = np.asarray(values, dtype=float)
+    a = np.broadcast_to(a, (n,)) if a.ndim == 0 or a.shape == (1,) else a
+    if a.shape != (n,):
+        raise SpecError(f"must be a number or one value per launch ({n}), got shape {a.shape}", key=name)
+    if not np.all(np.isfinite(a)):
+        raise SpecError("must be finite", key=name)
+    return np.ascontiguousarray(a, dtype=float)
+
+
+def launch_batch(problem, v_in, y0=None, vy0=None, *, rtol: float | None = None, atol: float | None = None,
+                 t_max: float | None = None, max_bounces: int = K_BOUNCES, record: bool = False,
+                 progress=None, method: str = "DOP853", workers: int | None = None,
+                 chunk: int = CHUNK, tol=DEFAULT) -> LaunchResult:
+    """Launch N balls at x = ``problem.start`` with xd = ``v_in`` (N,), y = ``y0``, yd = ``vy0``.
+
+    Parameters
+    ----------
+    problem : models.Problem
+    v_in : (N,) entry speeds, design units/s (>= 0)
+    y0, vy0 : scalars or (N,): transverse offset and speed (default problem.y0, problem.vy0)
+    rtol, atol : tolerances (default problem.rtol, problem.atol: 1e-10, 1e-12)
+    t_max : time limit, s (default problem.t_max)
+    max_bounces : K, bounce times kept per launch (>= 8)
+    record : keep each launch's step points (for plots; only for small N)
+    progress : callable(done, total) called as chunks finish
+    method : 'DOP853' (default) or 'RK45'
+    workers : threads over chunks (default: min(2, cpu count)); results do not depend on it
+    chunk : lanes per chunk (results do not depend on it)
+
+    Returns a :class:`LaunchResult`. Accuracy: each launch is integrated to the
+    given tolerances; events are located to the same accuracy (see the module doc).
+    """
+    t0 = time.perf_counter()
+    v = np.atleast_1d(np.asarray(v_in, dtype=float)).ravel()
+    n = v.size
+    if n > tol.max_launches:
+        raise SpecError(f"too many launches: {n} (limit {tol.max_launches})", key="v_in")
+    if not np.all(np.isfinite(v)) or np.any(v < 0):
+        raise SpecError("entry speeds must be finite and >= 0", key="v_in")
+    y0a = _lanes(problem.y0 if y0 is None else y0, n, "y0")
+    vy0a = _lanes(problem.vy0 if vy0 is None else vy0, n, "vy0")
+    rtol = float(problem.rtol if rtol is None else rtol)
+    atol = float(problem.atol if atol is None else atol)
+    t_max = float(problem.t_max if t_max is None else t_max)
+    if not (rtol > 0 and atol > 0 and t_max > 0):
+        raise SpecError("rtol, atol and t_max must be > 0", key="simulation")
+    k_keep = max(8, int(max_bounces))
+    tab = tableau(method)
+    max_steps = int(tol.max_sim_steps)
+    if record and n > 64:
+        raise SpecError(f"record=True keeps every step: at most 64 launches, got {n}", key="v_in")
+    stiff = is_stiff(problem, t_max)
+
+    chunk = max(1, int(chunk))
+    if workers is None:
+        workers = min(2, os.cpu_count() or 1)
+    n_chunks = max(1, math.ceil(n / chunk))
+    if workers > 1 and n_chunks < workers and n >= 256 and not stiff:
+        n_chunks = workers
+    bounds = np.linspace(0, n, n_chunks + 1).round().astype(int)
+    pieces = [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
+
+    def job(ab):
+        a, b = ab
+        if stiff:
+            return _run_stiff(problem, v[a:b], y0a[a:b], vy0a[a:b], rtol, atol, t_max, k_keep)
+        return _run_chunk(problem, v[a:b], y0a[a:b], vy0a[a:b], rtol, atol, t_max, max_steps, tab,
+                          record, k_keep)
+
+    results = []
+    done = 0
+    if workers > 1 and len(pieces) > 1:
+        from concurrent.futures import ThreadPoolExecutor
+
+        with ThreadPoolExecutor(max_workers=workers) as ex:
+            for (a, b), r in zip(pieces, ex.map(job, pieces)):
+                results.append(r)
+                done += b - a
+                if progress is not None:
+                    progress(done, n)
+    else:
+        for a, b in pieces:
+            results.append(job((a, b)))
+            done += b - a
+            if progress is not None:
+                progress(done, n)
+
+    if not results:
+        merged = _empty(0, k_keep)
+    else:
+        merged = {f: np.concatenate([r[f] for r in results]) for f in _FIELDS}
+    trajs = None
+    if record:
+        trajs = [tr for r in results for tr in r.get("_traj", [])]
+    return LaunchResult(v_in=v, **merged, method="Radau" if stiff else method, rtol=rtol, atol=atol,
+                        seconds=time.perf_counter() - t0, trajectories=trajs)
+
+
+def simulate_one(problem, v_in: float, record: bool = True, **kw) -> dict:
+    """One launch as a dict of plain values (and its trajectory when ``record``)."""
+    r = launch_batch(problem, [float(v_in)], record=record, workers=1, **kw)
+    nb = int(r.bounces[0])
+    bt = r.bounce_times[0]
+    out = {
+        "outcome": OUTCOMES[int(r.outcome[0])],
+        "bounces": nb,
+        "bounce_times": [float(b) for b in bt[: min(nb, bt.size)]],
+        "v_out": float(r.v_out[0]),
+        "t_end": float(r.t_end[0]),
+        "x_end": float(r.x_end[0]), "y_end": float(r.y_end[0]),
+        "vx_end": float(r.vx_end[0]), "vy_end": float(r.vy_end[0]),
+        "max_height": float(r.max_z[0]),
+        "max_abs_y": float(r.max_abs_y[0]),
+        "energy_error": float(r.energy_error[0]),
+        "steps": int(r.steps[0]), "rejected": int(r.rejected[0]), "status": int(r.status[0]),
+        "method": r.method, "rtol": r.rtol, "atol": r.atol,
+    }
+    if record and r.trajectories:
+        out["trajectory"] = r.trajectories[0]
+    return out

@@ -1,0 +1,200 @@
+"""The rolling-ball models: a point particle on the surface z = h(x, y).
+
+Two models (the paper, section "A mechanical analog"):
+
+``full``, eq. (xyODE): the exact equations of a particle on z = h(x, y) with the
+ball's rotational inertia folded into g~ = g / (1 + k) (g~ = 5/7 g for a solid
+ball):
+
+    [xdd, ydd] = - B / (1 + h_x^2 + h_y^2) [h_x, h_y],
+    B = h_xx xd^2 + 2 h_xy xd yd + h_yy yd^2 + g~     (the normal-force bracket)
+
+``simplified``, eq. (xyODE_simp): [xdd, ydd] = - g~ [h_x, h_y].
+
+Dissipation (section "Effects of dissipation"), added to both models:
+
+* viscous damping ``damping`` = mu (1/s) on both velocities: - mu [xd, yd];
+* the paper's localized nonlinear damping (after Goodman, Holmes & Weinstein),
+  coefficient ``nonlinear_damping`` = mu_nl (1/(s length^2)): the y equation gets
+  ``- mu_nl F(x)^2 y^2 yd`` with F(x) = h_y(x, 0), the coefficient of the term
+  linear in y of h (for the paper's surface F(x) = eps exp(d x)); it acts only
+  where the coupling F is large and only on large transverse amplitude.
+
+State layout: ``state`` has shape (4, ...) = (x, y, xd, yd) along the first
+axis; any trailing shape (a scalar launch (4,), a batch (4, N)).
+Lengths in design units, times in seconds.
+
+Energy (per unit (1 + k) m, so a length^2/s^2):
+    full:       E = 1/2 (xd^2 + yd^2 + (h_x xd + h_y yd)^2) + g~ h
+    simplified: E = 1/2 (xd^2 + yd^2) + g~ h
+Both are conserved exactly by their model without damping.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+
+from ..errors import SpecError
+from ..units import gravity
+
+#: outcome names; the index is the integer outcome code of the simulator's results.
+#: ``captured`` also covers a launch too slow to arrive anywhere before ``t_max``
+#: (it is still on the surface, trapped, when time runs out).
+OUTCOMES = ("escaped", "captured", "flew_off", "lost_contact")
+ESCAPED, CAPTURED, FLEW_OFF, LOST_CONTACT = range(4)
+MODELS = ("full", "simplified")
+
+
+@dataclass(frozen=True, eq=False)
+class Problem:
+    """Everything a launch needs, in design units and seconds.
+
+    fns       compiled surface functions (``spec.surface_functions()``): ``.all(x, y)`` ->
+              (h, h_x, h_y, h_xx, h_xy, h_yy), ``.accel``, ``.h``
+    g, k      gravity (design units/s^2) and k = I/(m r^2); ``g_tilde`` = g / (1 + k)
+    model     'full' (eq. xyODE) | 'simplified' (eq. xyODE_simp)
+    damping   viscous coefficient mu, 1/s;  nonlinear_damping: mu_nl (see module doc)
+    start     launch x; y0, vy0: transverse launch offset and speed
+    x_range, y_range   the footprint; top: the stock's top face; margin: the safety margin
+    t_max     time limit, s; rtol, atol: default integrator tolerances
+    """
+
+    fns: Any
+    g: float
+    k: float
+    model: str = "full"
+    damping: float = 0.0
+    nonlinear_damping: float = 0.0
+    start: float = 0.0
+    x_range: tuple = (-np.inf, np.inf)
+    y_range: tuple = (-np.inf, np.inf)
+    top: float = np.inf
+    margin: float = 0.0
+    t_max: float = 60.0
+    y0: float = 0.0
+    vy0: float = 0.0
+    rtol: float = 1e-10
+    atol: float = 1e-12
+    units: str = "mm"
+
+    @property
+    def g_tilde(self) -> float:
+        return self.g / (1.0 + self.k)
+
+    @property
+    def surface(self):
+        return self.fns
+
+    def with_(self, **changes) -> "Problem":
+        """A copy with fields replaced."""
+        return replace(self, **changes)
+
+
+def problem_from_spec(spec, **overrides) -> Problem:
+    """The :class:`Problem` of a spec (sections surface, ball, simulation needed).
+
+    ``overrides``: Problem fields to replace (``model='simplified'``, ``damping=0`` ...).
+    """
+    spec.require("surface", "simulation", command=None)
+    sim, sur = spec.simulation, spec.surface
+    k = float(spec.ball.inertia) if spec.has("ball") else 0.4
+    fields = dict(
+        fns=spec.surface_functions(), g=gravity(spec.units), k=k, model=sim.model,
+        damping=float(sim.damping), nonlinear_damping=float(sim.nonlinear_damping),
+        start=float(sim.start), x_range=(float(sur.x[0]), float(sur.x[1])),
+        y_range=(float(sur.y[0]), float(sur.y[1])), top=float(sur.top), margin=float(sim.margin),
+        t_max=float(sim.t_max), y0=float(sim.y0), vy0=float(sim.vy0), rtol=float(sim.rtol),
+        atol=float(sim.atol), units=spec.units,
+    )
+    unknown = set(overrides) - set(fields)
+    if unknown:
+        raise TypeError(f"unknown Problem fields: {sorted(unknown)}")
+    fields.update(overrides)
+    if fields["model"] not in MODELS:
+        raise SpecError(f"must be one of {' | '.join(MODELS)}, got {fields['model']!r}",
+                        file=spec.path, key="simulation.model")
+    return Problem(**fields)
+
+
+def _unpack(args):
+    if len(args) == 1:
+        s = np.asarray(args[0], dtype=float)
+        return s[0], s[1], s[2], s[3]
+    if len(args) == 4:
+        return tuple(np.asarray(a, dtype=float) for a in args)
+    raise TypeError("pass a state (4, ...) or x, y, xd, yd")
+
+
+def accelerations(problem: Problem, x, y, vx, vy):
+    """(xdd, ydd, parts) at the given positions and velocities (arrays of one shape).
+
+    ``parts`` = (h, h_x, h_y, B) with B the normal-force bracket of eq. (xyODE)
+    (for the simplified model B is still reported, computed the same way).
+    """
+    h, hx, hy, hxx, hxy, hyy = problem.fns.all(x, y)
+    gt = problem.g_tilde
+    bracket = hxx * vx * vx + 2.0 * hxy * vx * vy + hyy * vy * vy + gt
+    if problem.model == "full":  # eq. (xyODE)
+        q = bracket / (1.0 + hx * hx + hy * hy)
+    else:  # eq. (xyODE_simp)
+        q = gt
+    ax = -q * hx
+    ay = -q * hy
+    mu = problem.damping
+    if mu:
+        ax = ax - mu * vx
+        ay = ay - mu * vy
+    if problem.nonlinear_damping:
+        F = problem.fns.grad(x, np.zeros_like(y))[1]
+        ay = ay - problem.nonlinear_damping * F * F * y * y * vy
+    return ax, ay, (h, hx, hy, bracket)
+
+
+def rhs(problem: Problem, state):
+    """d(state)/dt for ``state`` (4, ...) = (x, y, xd, yd): returns an array (4, ...)."""
+    x, y, vx, vy = _unpack((state,))
+    ax, ay, _ = accelerations(problem, x, y, vx, vy)
+    return np.stack(np.broadcast_arrays(vx, vy, ax, ay))
+
+
+def energy(problem: Problem, *args):
+    """Mechanical energy per unit (1 + k) m (length^2/s^2): ``energy(problem, state)``
+    with state (4, ...) or ``energy(problem, x, y, xd, yd)``; see the module doc."""
+    x, y, vx, vy = _unpack(args)
+    h, hx, hy = problem.fns.all(x, y)[:3]
+    kin = vx * vx + vy * vy
+    if problem.model == "full":
+        zd = hx * vx + hy * vy
+        kin = kin + zd * zd
+    return 0.5 * kin + problem.g_tilde * h
+
+
+def normal_bracket(problem: Problem, *args):
+    """B = h_xx xd^2 + 2 h_xy xd yd + h_yy yd^2 + g~ (eq. xyODE), length/s^2.
+
+    The normal force is proportional to B / sqrt(1 + |grad h|^2): in the full model
+    the ball loses contact with the surface where B <= 0.
+    """
+    x, y, vx, vy = _unpack(args)
+    _, _, _, hxx, hxy, hyy = problem.fns.all(x, y)
+    return hxx * vx * vx + 2.0 * hxy * vx * vy + hyy * vy * vy + problem.g_tilde
+
+
+def dissipated_power(problem: Problem, x, y, vx, vy, hx, hy):
+    """Rate at which damping removes energy E (per unit (1 + k) m), >= 0.
+
+    With the damping acceleration D added to the xy equations, dE/dt = D . (v + zd grad h)
+    for the full model (zd = h_x xd + h_y yd) and D . v for the simplified one.
+    """
+    dx = -problem.damping * vx
+    dy = -problem.damping * vy
+    if problem.nonlinear_damping:
+        F = problem.fns.grad(x, np.zeros_like(y))[1]
+        dy = dy - problem.nonlinear_damping * F * F * y * y * vy
+    if problem.model == "full":
+        zd = hx * vx + hy * vy
+        return -(dx * (vx + zd * hx) + dy * (vy + zd * hy))
+    return -(dx * vx + dy * vy)
