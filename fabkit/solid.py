@@ -155,10 +155,7 @@ def _split(points: np.ndarray, tris: np.ndarray, h, grad, top: float, xtol: floa
     o, p, q = rot[:, 0], rot[:, 1], rot[:, 2]
 
     # one crossing per unique straddling edge (shared by both neighbours)
-    e = np.concatenate([np.stack([o, p], 1), np.stack([o, q], 1)])
-    e.sort(axis=1)
-    uniq, inv = np.unique(e, axis=0, return_inverse=True)
-    inv = inv.ravel()
+    uniq, inv = _unique_pairs(np.concatenate([np.stack([o, p], 1), np.stack([o, q], 1)]))
     lo_is_below = ~above[uniq[:, 0]]
     below_end = np.where(lo_is_below, uniq[:, 0], uniq[:, 1])
     above_end = np.where(lo_is_below, uniq[:, 1], uniq[:, 0])
@@ -215,20 +212,30 @@ def _edges(tris):
     """Unique edges (e, 2) sorted per row, and the edge id of each triangle's
     edges (v0 v1, v1 v2, v2 v0), shape (m, 3)."""
     e = np.stack([tris[:, [0, 1]], tris[:, [1, 2]], tris[:, [2, 0]]], axis=1).reshape(-1, 2)
-    e.sort(axis=1)
-    uniq, inv = np.unique(e, axis=0, return_inverse=True)
+    uniq, inv = _unique_pairs(e)
     return uniq, inv.reshape(-1, 3)
 
 
-def _bisect(points, tris, ok, fail_all, fail_long):
+def _unique_pairs(e):
+    """Unique unordered index pairs of (k, 2) ``e``: (u, 2) rows sorted (lo, hi) and in
+    lexicographic order, and the (k,) inverse. An int64 key sorts far faster than
+    ``np.unique(axis=0)``."""
+    lo, hi = np.minimum(e[:, 0], e[:, 1]).astype(np.int64), np.maximum(e[:, 0], e[:, 1]).astype(np.int64)
+    base = int(hi.max(initial=0)) + 1
+    keys, inv = np.unique(lo * base + hi, return_inverse=True)
+    return np.stack([keys // base, keys % base], axis=1), inv.ravel()
+
+
+def _bisect(points, tris, terr, fail_all, fail_long):
     """Conforming longest-edge refinement of a triangulation.
 
     fail_all : triangles to split into 4 (all edges marked); fail_long : triangles
     whose longest edge is marked. The closure marks the longest edge of every
     triangle with a marked edge, so each triangle splits into 2, 3 or 4 (no
     hanging vertices). Midpoints are computed from the edge's lower vertex index,
-    so both neighbours of an edge share one exact vertex. Returns (points, tris, ok)
-    with ``ok`` False for the new triangles.
+    so both neighbours of an edge share one exact vertex. Returns (points, tris, terr):
+    ``terr`` (m,) the measured error of each kept triangle carried over, NaN
+    (not measured yet) for the new ones.
     """
     edges, te = _edges(tris)
     m = len(tris)
@@ -270,8 +277,8 @@ def _bisect(points, tris, ok, fail_all, fail_long):
     parts.append(np.stack([r0, mm, m20], 1)[s20])
     parts.append(np.stack([mm, r2, m20], 1)[s20])
     new_tris = np.concatenate(parts)
-    new_ok = np.concatenate([ok[keep], np.zeros(len(new_tris) - len(keep), bool)])
-    return points, new_tris, new_ok
+    new_err = np.concatenate([terr[keep], np.full(len(new_tris) - len(keep), np.nan)])
+    return points, new_tris, new_err
 
 
 def _initial_mesh(surface):
@@ -308,33 +315,34 @@ def top_skin(surface, tolerance_mm: float, tol: Tolerances = DEFAULT, key: str =
         raise SpecError(f"a tolerance of {tolerance_mm:g} mm needs about {est:.2g} triangles, more than the "
                         f"limit {limit}; use a larger tolerance", file=surface.source, key=key)
     points, tris = _initial_mesh(surface)
-    ok = np.zeros(len(tris), bool)
+    terr = np.full(len(tris), np.nan)     # largest sampled error of each triangle's pieces
     target = SAFETY * tolerance_mm / s          # design units
     bary = barycentric_grid(SAMPLE_LEVEL)
     for rounds in range(1, MAX_ROUNDS + 1):
-        sub = np.nonzero(~ok)[0]
+        sub = np.nonzero(np.isnan(terr))[0]
         if sub.size == 0:
             break
         P, Z, pieces, parent, _ = _split(points, tris[sub], h, grad, top, tol.root_xtol)
         err = _piece_errors(P, Z, pieces, clipped, bary)
         ratio = np.zeros(len(sub))
         np.maximum.at(ratio, parent, err / target)
-        ok[sub] = ratio <= 1.0
-        if ok.all():
+        terr[sub] = ratio * target
+        if not (terr > target).any():
             break
         fail_all = sub[ratio > 2.0]
         fail_long = sub[(ratio > 1.0) & (ratio <= 2.0)]
-        points, tris, ok = _bisect(points, tris, ok, fail_all, fail_long)
+        points, tris, terr = _bisect(points, tris, terr, fail_all, fail_long)
         if len(tris) > limit:
             raise SpecError(f"a tolerance of {tolerance_mm:g} mm needs more than the limit of {limit} "
                             "triangles on this surface; use a larger tolerance", file=surface.source, key=key)
     else:
         raise DesignError(f"the mesh did not reach the tolerance {tolerance_mm:g} mm in {MAX_ROUNDS} "
                           "refinement rounds (is the surface smooth?)")
-    # the output: crease split of the whole mesh, measured again on the final pieces
+    # The output: the crease split of the whole mesh. A triangle's pieces depend on
+    # its own vertices only (crossings are per edge, elementwise), so they are the
+    # very pieces measured when the triangle was made: their errors carry over.
     P, Z, pieces, _, cidx = _split(points, tris, h, grad, top, tol.root_xtol)
-    err = _piece_errors(P, Z, pieces, clipped, bary)
-    return P, Z, pieces, cidx, float(err.max(initial=0.0) * s), int(len(pieces) * len(bary)), rounds
+    return P, Z, pieces, cidx, float(terr.max(initial=0.0) * s), int(len(pieces) * len(bary)), rounds
 
 
 # ----------------------------------------------------------------------------
@@ -412,8 +420,8 @@ def build_solid(surface, thickness_mm: float, tolerance_mm: float = DEFAULT.mesh
         raise RuntimeError(f"manifold3d rejected the block mesh: {status.name}")
     bodies = len(m.decompose())
     volume = float(m.volume())
-    if bodies != 1:
-        raise RuntimeError(f"the block mesh has {bodies} bodies, expected 1")
+    if bodies != 1 or m.genus() != 0:
+        raise RuntimeError(f"the block mesh has {bodies} bodies and genus {m.genus()}, expected 1 and 0")
     return SolidMesh(vertices=V, faces=F, volume_mm3=volume, max_deviation_mm=dev, checked_points=checked,
                      surface_triangles=int(len(pieces)), crease=P[cidx], tolerance_mm=float(tolerance_mm),
                      bodies=bodies, watertight=True, rounds=rounds)
