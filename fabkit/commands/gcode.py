@@ -13,7 +13,7 @@ from __future__ import annotations
 import os
 from datetime import datetime, timezone
 
-from ..errors import DesignError
+from ..errors import DesignError, SpecError
 from ..io import atomic_outputs
 from ..spec import load_spec
 from ..surface import Surface, check_depth
@@ -73,6 +73,9 @@ def run(args) -> int:
              f"(at x={conc.x:.4g}, y={conc.y:.4g}): the tool bridges that valley and leaves material there")
     out = default_output(spec, ".ngc", args.output)
     paths = sheet_paths(out)
+    for p in (out, *paths.values()):
+        if p.is_dir():   # refuse now, not after minutes of planning
+            raise SpecError("output path is a folder", file=str(p))
 
     t = Timer()
     toolpath = plan_toolpath(spec, surface)

@@ -97,6 +97,7 @@ class MachineProfile:
     spindle: float = 16000.0
     safe_z: float = 5.0
     tolerance: float = 0.01
+    scallop: float = 0.05
     rapid: float = DEFAULT_RAPID_MM_MIN
     header: tuple = field(default_factory=tuple)
 
@@ -133,12 +134,9 @@ def profile_from_spec(spec, surface=None) -> MachineProfile:
     if surface is not None:
         L, W = surface.stock_size_mm
         header.append(("stock", f"{L:.6g} x {W:.6g} x {st.thickness:g} mm (X x Y x Z)"))
-    header += [("work zero", "X0 Y0 at the footprint corner of smallest x, y;"),
-               ("", "Z0 on the stock top face"),
-               ("scallop", f"{m.scallop:g} mm"), ("tolerance", f"{m.tolerance:g} mm")]
     return MachineProfile(dialect=m.dialect, units=m.units, feed=m.feed, plunge=m.plunge,
                           spindle=m.spindle, safe_z=m.safe_height, tolerance=m.tolerance,
-                          header=tuple(header))
+                          scallop=m.scallop, header=tuple(header))
 
 
 def _ascii_comment(text: str) -> str:
@@ -233,6 +231,9 @@ def write_program(toolpath: Toolpath, profile: MachineProfile) -> str:
     add = out.append
     items = [("fabkit", f"ball-end raster finishing program, {d.name} dialect")]
     items += list(profile.header)
+    items += [("work zero", "X0 Y0 at the footprint corner of smallest x, y;"),
+              ("", "Z0 on the stock top face"),
+              ("scallop", f"{profile.scallop:g} mm"), ("tolerance", f"{profile.tolerance:g} mm")]
     items += [("passes", f"{toolpath.passes}"),
               ("stepover", (f"{toolpath.stepover_min:.4g}-" if toolpath.stepover_min < toolpath.stepover
                             else "") + f"{toolpath.stepover:.4g} mm"),
@@ -258,7 +259,7 @@ def write_program(toolpath: Toolpath, profile: MachineProfile) -> str:
     plunge_s = num(profile.plunge * k, fdec)
     if len(pts):
         # rapid across at the safe height to above the first point
-        add(f"G0 X{txt[0, 0]} Y{txt[0, 1]}")
+        add(f"X{txt[0, 0]} Y{txt[0, 1]}")  # G0 is modal from "G0 Z<safe>"
         last[0], last[1] = txt[0, 0], txt[0, 1]
     for i in range(len(pts)):
         row = txt[i]

@@ -35,8 +35,8 @@ def sheet_paths(program_path) -> dict:
             "png": Path(f"{stem}.preview.png")}
 
 
-def _r(v, nd=6):
-    """Round for the sheet (floats to ``nd`` significant decimals); None for non-finite."""
+def _r(v, nd=9):
+    """Round for the sheet (floats to ``nd`` significant digits); None for non-finite."""
     if v is None:
         return None
     v = float(v)

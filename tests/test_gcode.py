@@ -1,0 +1,152 @@
+"""The G-code writer: round trip through the reader, LinuxCNC's interpreter on
+every dialect and unit, grbl's word subset and line limits, modal words, determinism."""
+
+from __future__ import annotations
+
+import re
+import shutil
+import subprocess
+
+import numpy as np
+import pytest
+
+from fabkit.toolpath.gcode import DIALECTS, MachineProfile, used_words, write_program
+from fabkit.toolpath.path import CUT, PLUNGE, RAPID, Toolpath
+from fabkit.toolpath.verify import read_program
+
+RS274 = shutil.which("rs274")
+COMBOS = [("linuxcnc", "mm"), ("linuxcnc", "in"), ("grbl", "mm"), ("grbl", "in")]
+
+
+def wavy_toolpath(seed=0):
+    """Three zigzag passes of random-walk heights, a link, repeated points and
+    axis-aligned runs (so some axis words are unchanged), plunges and rapids."""
+    rng = np.random.default_rng(seed)
+    pts, kinds = [(0.0, 0.0, 1.0)], [RAPID]
+    y = 0.0
+    for p in range(3):
+        x = np.linspace(0, 50, 40)[:: 1 if p % 2 == 0 else -1]
+        z = -2 + np.cumsum(rng.normal(0, 0.05, x.size))
+        z[10:15] = z[10]                      # flat run: Z unchanged
+        if p == 0:
+            pts.append((x[0], y, z[0]))
+            kinds.append(PLUNGE)
+        for xi, zi in zip(x, z):
+            pts.append((xi, y, zi))
+            kinds.append(CUT)
+        pts.append(pts[-1])                   # a repeated point: dropped
+        kinds.append(CUT)
+        y += 1.234567
+        pts.append((x[-1], y, z[-1] + 0.5))   # a link at clearance
+        kinds.append(RAPID)
+        pts.append((x[-1], y, z[-1]))
+        kinds.append(PLUNGE)
+    pts.append((pts[-1][0], pts[-1][1], 5.0))
+    kinds.append(RAPID)
+    return Toolpath(np.array(pts), np.array(kinds), tool_radius=3.0, safe_z=5.0, passes=3, stepover=1.234567,
+                    stepover_min=1.234567, info={})
+
+
+def profile(dialect, units, **kw):
+    return MachineProfile(dialect=dialect, units=units, feed=2500, plunge=600, spindle=16000, safe_z=5.0,
+                          tolerance=0.01, header=(("spec", "specs/a (b).yaml"), ("name", "wavy"),
+                                                  ("note", "x" * 150)), **kw)
+
+
+@pytest.mark.parametrize("dialect, units", COMBOS)
+def test_round_trip_through_reader(dialect, units):
+    tp = wavy_toolpath()
+    prof = profile(dialect, units)
+    prog = read_program(write_program(tp, prof))
+    # every distinct point is reached, in order, within the rounding of one coordinate
+    keep = np.r_[True, np.any(tp.points[1:] != tp.points[:-1], axis=1)]
+    expected = tp.points[keep]
+    # after "G0 Z<safe>" and "G0 X Y" (the toolpath ends at the safe height: no extra retract)
+    got = prog.points[2:]
+    assert got.shape == expected.shape
+    np.testing.assert_allclose(got, expected, atol=prof.rounding_mm * (1 + 1e-9), rtol=0)
+    assert prof.rounding_mm <= prof.tolerance / 20
+    kinds = tp.kinds[keep]
+    np.testing.assert_array_equal(prog.kinds[2:], (kinds != RAPID).astype(int))
+    feed = prog.feed[2:]
+    k = 25.4 if units == "in" else 1.0
+    rounding = 0.5 * 10.0 ** -(3 if units == "in" else 1) * k
+    np.testing.assert_allclose(feed[kinds == CUT], 2500, atol=rounding)
+    np.testing.assert_allclose(feed[kinds == PLUNGE], 600, atol=rounding)
+    assert prog.points[0, 2] == pytest.approx(5.0, abs=prof.rounding_mm)  # first: up to the safe height
+    assert prog.points[-1, 2] == pytest.approx(5.0, abs=prof.rounding_mm)
+    assert prog.units == units
+
+
+@pytest.mark.parametrize("dialect, units", COMBOS)
+def test_structure_and_modal_words(dialect, units):
+    text = write_program(wavy_toolpath(), profile(dialect, units))
+    lines = text.splitlines()
+    code = [ln for ln in lines if not ln.startswith("(")]
+    d = DIALECTS[dialect]
+    assert code[0].split() == ["G17", "G21" if units == "mm" else "G20", "G90", "G94"]
+    assert "M3 S16000" in code and code[-2:] == ["M5", d.program_end]
+    assert code.index("M3 S16000") < next(i for i, c in enumerate(code) if c.split()[0] == "G1")
+    # header: comment block first, with the required items
+    header = " ".join(ln for ln in lines if ln.startswith("("))
+    for item in ("spec:", "name:", "work zero", "X0 Y0", "Z0 on the stock top face", "scallop",
+                 "tolerance", "passes", "stepover", "estimated time"):
+        assert item in header
+    # modal: no G0/G1 twice in a row, no repeated F, no axis word that does not change the position
+    motion, feed, pos = None, None, {}
+    for ln in code:
+        for w in re.findall(r"[A-Z][-0-9.]+", ln):
+            letter, val = w[0], w[1:]
+            if w in ("G0", "G1"):
+                assert w != motion, ln
+                motion = w
+            elif letter == "F":
+                assert val != feed, ln
+                feed = val
+            elif letter in "XYZ":
+                assert pos.get(letter) != float(val), ln
+                pos[letter] = float(val)
+    # G0 and G1 are the only motions; fixed decimals at most
+    nd = 4 if units == "mm" else 5
+    for x in re.findall(r"[XYZ](-?\d+\.?\d*)", text):
+        assert len(x.split(".")[1]) <= nd if "." in x else True
+
+
+@pytest.mark.parametrize("units", ["mm", "in"])
+def test_grbl_subset(units):
+    text = write_program(wavy_toolpath(), profile("grbl", units))
+    allowed = {"G0", "G1", "G17", "G20", "G21", "G90", "G94", "M3", "M5", "M2", "M30", "S", "F", "X", "Y", "Z"}
+    assert used_words(text) <= allowed
+    for ln in text.splitlines():
+        assert len(ln) <= 70 and ln.isascii() and "%" not in ln
+        if "(" in ln:
+            assert ln.startswith("(") and ln.endswith(")") and ln.count("(") == 1 and ln.count(")") == 1
+
+
+def test_deterministic_and_decimals_follow_the_tolerance():
+    tp = wavy_toolpath()
+    assert write_program(tp, profile("linuxcnc", "mm")) == write_program(wavy_toolpath(), profile("linuxcnc", "mm"))
+    fine = MachineProfile(tolerance=0.0005)
+    assert fine.decimals == 5 and fine.rounding_mm <= 0.0005 / 20
+    assert MachineProfile(units="in", tolerance=0.001).decimals == 6
+
+
+@pytest.mark.skipif(RS274 is None, reason="LinuxCNC rs274 not installed")
+@pytest.mark.parametrize("dialect, units", COMBOS)
+def test_linuxcnc_interpreter_reads_every_dialect(tmp_path, dialect, units):
+    tp = wavy_toolpath(1)
+    text = write_program(tp, profile(dialect, units))
+    path = tmp_path / "p.ngc"
+    path.write_text(text)
+    run = subprocess.run([RS274, "-g", str(path)], stdin=subprocess.DEVNULL, capture_output=True, text=True,
+                         timeout=60)
+    assert run.returncode == 0 and run.stderr.strip() in ("", "executing"), run.stderr
+    # LinuxCNC's canonical moves (in program units, 4 decimals) are our moves
+    moves = re.findall(r"STRAIGHT_(?:FEED|TRAVERSE)\(([-0-9.]+), ([-0-9.]+), ([-0-9.]+)", run.stdout)
+    got = np.array(moves, dtype=float) * (25.4 if units == "in" else 1.0)
+    ours = read_program(text).points
+    assert got.shape == ours.shape
+    assert got[0, 2] == ours[0, 2]            # "G0 Z<safe>" (rs274 starts at the origin; we leave X, Y unknown)
+    np.testing.assert_allclose(got[1:], ours[1:], atol=0.5e-4 * (25.4 if units == "in" else 1.0) + 1e-9)
+    if dialect == "linuxcnc":
+        assert "SET_MOTION_CONTROL_MODE" in run.stdout   # G64 P blending held to the tolerance
