@@ -1,0 +1,212 @@
+"""Interrupted runs (issue 8, item 2): Ctrl-C or a crash while writing leaves any
+existing output intact and no temporary file behind.
+
+Three levels: :func:`fabkit.io.atomic_outputs` directly; the CLI in-process with
+the writer patched to raise KeyboardInterrupt between staging and renaming
+(exit 130); and a real SIGINT sent to ``python -m fabkit stl`` while it works.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import yaml
+
+import fabkit.io
+from fabkit.errors import SpecError
+from fabkit.io import atomic_outputs, write_atomic
+
+from conftest import ROOT, paper_raw
+
+OLD = b"previous output: must survive\n"
+
+
+def has_command(name: str) -> bool:
+    return importlib.util.find_spec(f"fabkit.commands.{name}") is not None
+
+
+def tiny_raw() -> dict:
+    """The paper's formula on a small footprint with coarse machining: each run is short."""
+    raw = paper_raw()
+    raw["name"] = "tiny"
+    raw["surface"].update(x=[-10, 4], y=[-4, 4])
+    raw["machining"].update(scallop=0.5, tolerance=0.1, verify_points=2000)
+    raw["ramp"] = {"heights": [0.2, 1.0], "samples": 4}
+    raw["simulation"].update(start=-8, t_max=5.0, rtol=1e-6, atol=1e-8)
+    return raw
+
+
+def temporaries(folder: Path) -> list[Path]:
+    return sorted(p for p in folder.rglob(".*.tmp"))
+
+
+# ----------------------------------------------------------------------------
+# atomic_outputs directly
+# ----------------------------------------------------------------------------
+@pytest.mark.parametrize("exc", [KeyboardInterrupt, RuntimeError, SystemExit])
+def test_interrupt_inside_block_keeps_both_old_files(tmp_path, exc):
+    a, b = tmp_path / "out" / "a.ngc", tmp_path / "out" / "a.setup.json"
+    a.parent.mkdir()
+    a.write_bytes(OLD)
+    b.write_bytes(OLD + b"2")
+    with pytest.raises(exc):
+        with atomic_outputs() as out:
+            out.write(a, "new program")
+            raise exc()
+    assert a.read_bytes() == OLD and b.read_bytes() == OLD + b"2"
+    assert temporaries(tmp_path) == []
+
+
+def test_interrupt_during_a_write_leaves_no_temporary(tmp_path, monkeypatch):
+    a, b = tmp_path / "a.ngc", tmp_path / "b.ngc"
+    a.write_bytes(OLD)
+
+    def interrupted_fsync(fd):
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        with atomic_outputs() as out:
+            out.write(b, "staged first")
+            monkeypatch.setattr(os, "fsync", interrupted_fsync)
+            out.write(a, "new")
+    assert a.read_bytes() == OLD and not b.exists()
+    assert temporaries(tmp_path) == []
+
+
+def test_refused_second_output_discards_the_first(tmp_path):
+    a = tmp_path / "a.ngc"
+    a.write_bytes(OLD)
+    (tmp_path / "folder.json").mkdir()
+    with pytest.raises(SpecError, match="folder"):
+        with atomic_outputs() as out:
+            out.write(a, "new")
+            out.write(tmp_path / "folder.json", "{}")
+    assert a.read_bytes() == OLD and temporaries(tmp_path) == []
+
+
+def test_clean_exit_replaces_all_and_leaves_no_temporary(tmp_path):
+    a, b = tmp_path / "a.ngc", tmp_path / "sub" / "b.json"
+    a.write_bytes(OLD)
+    with atomic_outputs() as out:
+        out.write(a, "new program\n")
+        out.write(b, b"{}")
+    assert a.read_bytes() == b"new program\n" and b.read_bytes() == b"{}"
+    write_atomic(a, "again")
+    assert a.read_text() == "again" and temporaries(tmp_path) == []
+
+
+# ----------------------------------------------------------------------------
+# through the CLI, in-process: interrupted between staging and renaming
+# ----------------------------------------------------------------------------
+def _interrupt_after_staging(monkeypatch, after: int):
+    """Make the ``after``-th staged write raise KeyboardInterrupt once its data is on disk."""
+    original = fabkit.io._Outputs.write
+    calls = {"n": 0}
+
+    def write(self, path, data):
+        result = original(self, path, data)
+        calls["n"] += 1
+        if calls["n"] >= after:
+            raise KeyboardInterrupt
+        return result
+
+    monkeypatch.setattr(fabkit.io._Outputs, "write", write)
+    return calls
+
+
+@pytest.mark.parametrize("command,outputs,extra", [
+    ("stl", ["tiny.stl"], ["--tolerance", "0.05"]),
+    ("gcode", ["tiny.ngc", "tiny.setup.json"], ["--no-verify"]),
+])
+def test_cli_interrupted_while_writing(cli, tmp_path, monkeypatch, command, outputs, extra):
+    if not has_command(command):
+        pytest.skip(f"fabkit {command} not implemented yet")
+    spec = tmp_path / "tiny.yaml"
+    spec.write_text(yaml.safe_dump(tiny_raw(), sort_keys=False))
+    out_dir = tmp_path / "toolpaths"
+    out_dir.mkdir()
+    for name in outputs:
+        (out_dir / name).write_bytes(OLD + name.encode())
+    calls = _interrupt_after_staging(monkeypatch, after=len(outputs))
+    code, out, err = cli(command, spec, *extra)
+    assert code == 130, err
+    assert calls["n"] == len(outputs)            # every output was staged, none renamed
+    assert err.count("\n") == 1 and "interrupted" in err and "Traceback" not in err
+    for name in outputs:
+        assert (out_dir / name).read_bytes() == OLD + name.encode()
+    assert temporaries(tmp_path) == []
+
+
+def test_cli_gcode_interrupted_during_verification(cli, tmp_path, monkeypatch):
+    if not has_command("gcode"):
+        pytest.skip("fabkit gcode not implemented yet")
+    import fabkit.toolpath.verify as verify
+
+    def interrupted(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(verify, "verify_cut", interrupted)
+    spec = tmp_path / "tiny.yaml"
+    spec.write_text(yaml.safe_dump(tiny_raw(), sort_keys=False))
+    old = tmp_path / "prev.ngc"
+    old.write_bytes(OLD)
+    code, out, err = cli("gcode", spec, "-o", old)
+    assert code == 130 and old.read_bytes() == OLD
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["prev.ngc", "tiny.yaml"]
+
+
+# ----------------------------------------------------------------------------
+# a real SIGINT to a running process
+# ----------------------------------------------------------------------------
+def _cpu_seconds(pid: int) -> float:
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except (FileNotFoundError, ProcessLookupError):
+        return -1.0
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc")
+@pytest.mark.parametrize("busy_cpu_s", [1.2, 2.0])
+def test_sigint_to_running_stl(tmp_path, busy_cpu_s):
+    """Ctrl-C once the process has used ``busy_cpu_s`` of CPU (past start-up,
+    inside surface compilation or the mesh build): exit 130, one line, the
+    previous STL byte-identical, no temporary file."""
+    if not has_command("stl"):
+        pytest.skip("fabkit stl not implemented yet")
+    spec = tmp_path / "tiny.yaml"
+    raw = tiny_raw()
+    raw["surface"].update(x=[-44, 6], y=[-12.5, 12.5])        # the paper's block: a few seconds of work
+    spec.write_text(yaml.safe_dump(raw, sort_keys=False))
+    target = tmp_path / "out" / "block.stl"
+    target.parent.mkdir()
+    target.write_bytes(OLD)
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    proc = subprocess.Popen([sys.executable, "-m", "fabkit", "stl", str(spec), "-o", str(target)],
+                            cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    deadline = time.monotonic() + 60
+    while proc.poll() is None and _cpu_seconds(proc.pid) < busy_cpu_s and time.monotonic() < deadline:
+        time.sleep(0.02)
+    sent = proc.poll() is None
+    if sent:
+        proc.send_signal(signal.SIGINT)
+    try:
+        out, err = proc.communicate(timeout=60)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.communicate()
+        pytest.fail("fabkit stl did not stop within 60 s of SIGINT")
+    err = err.decode("utf-8", "replace")
+    if not sent:
+        pytest.skip(f"the run finished before SIGINT could be sent (exit {proc.returncode})")
+    assert proc.returncode == 130, err
+    assert "Traceback" not in err and len(err.splitlines()) == 1 and "interrupted" in err
+    assert target.read_bytes() == OLD
+    assert temporaries(tmp_path) == []
