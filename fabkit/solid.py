@@ -183,15 +183,26 @@ def _split(points: np.ndarray, tris: np.ndarray, h, grad, top: float, xtol: floa
     return P, Z, pieces[good], parent[good], np.unique(cidx)
 
 
-def _piece_errors(P, Z, pieces, clipped, bary) -> np.ndarray:
+def _piece_errors(P, Z, pieces, clipped, bary, source="<spec>") -> np.ndarray:
     """Largest |linear interpolation - min(h, top)| per piece at barycentric points
-    ``bary`` (s, 3); design units, shape (q,)."""
+    ``bary`` (s, 3); design units, shape (q,). Raises SpecError (key
+    ``surface.height``) where h is not finite."""
     A, B, C = P[pieces[:, 0]], P[pieces[:, 1]], P[pieces[:, 2]]
     x = bary[:, 0] * A[:, None, 0] + bary[:, 1] * B[:, None, 0] + bary[:, 2] * C[:, None, 0]
     y = bary[:, 0] * A[:, None, 1] + bary[:, 1] * B[:, None, 1] + bary[:, 2] * C[:, None, 1]
+    zc = clipped(x, y)
+    bad = ~np.isfinite(zc)
+    if bad.any() or not np.isfinite(Z).all():
+        if bad.any():
+            i = np.argmax(bad.ravel())
+            px, py = x.ravel()[i], y.ravel()[i]
+        else:
+            j = np.argmax(~np.isfinite(Z))
+            px, py = P[j]
+        raise SpecError(f"h is not finite at x={px:.6g}, y={py:.6g} (check the formula and the footprint)",
+                        file=source, key="surface.height")
     zl = bary @ Z[pieces].T
-    err = np.abs(zl.T - clipped(x, y))
-    return np.where(np.isfinite(err), err, np.inf).max(axis=1)
+    return np.abs(zl.T - zc).max(axis=1, initial=0.0)
 
 
 def estimate_triangles(surface, tolerance_mm: float) -> float:
@@ -323,7 +334,7 @@ def top_skin(surface, tolerance_mm: float, tol: Tolerances = DEFAULT, key: str =
         if sub.size == 0:
             break
         P, Z, pieces, parent, _ = _split(points, tris[sub], h, grad, top, tol.root_xtol)
-        err = _piece_errors(P, Z, pieces, clipped, bary)
+        err = _piece_errors(P, Z, pieces, clipped, bary, surface.source)
         ratio = np.zeros(len(sub))
         np.maximum.at(ratio, parent, err / target)
         terr[sub] = ratio * target

@@ -250,3 +250,24 @@ def test_tiny_tolerance_refused_before_allocating():
     surface = Surface.from_spec(spec)
     with pytest.raises(SpecError, match="--tolerance.*limit"):
         build_solid(surface, spec.stock.thickness, 1e-9)
+
+
+def test_not_finite_inside_footprint_is_bad_input():
+    """log(x - 0.0001) is finite on the loader's check grid but not on the whole footprint."""
+    raw = {"units": "mm", "surface": {"height": "log(x - 0.0001)", "x": [0, 10], "y": [0, 10], "top": 5.0},
+           "stock": {"thickness": 50}}
+    spec = validate(raw)
+    surface = Surface(spec.surface_functions(), (0, 10), (0, 10), 5.0, 1.0)   # loader check skipped
+    with pytest.raises(SpecError, match="surface.height.*not finite"):
+        build_solid(surface, 50.0, 0.01)
+
+
+def test_mesh_precision_rows():
+    from fabkit.solid import mesh_precision
+
+    rows = mesh_precision(load_spec(SPECS / "bowl.yaml"), tolerances=(0.1, 0.03))
+    assert [r["tolerance"] for r in rows] == [0.1, 0.03]
+    for r in rows:
+        assert 0 < r["max_deviation"] <= r["tolerance"] and r["seconds"] > 0
+    assert rows[1]["triangles"] > rows[0]["triangles"]
+    assert rows[1]["max_deviation"] < rows[0]["max_deviation"]
