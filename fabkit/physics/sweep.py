@@ -30,9 +30,10 @@ What :func:`sweep` computes, and how accurately
   maximized by a few rounds of batched k-section; there T_n = t_2 - t_1 (time
   between the two bounces). Each window gets n = the number of complete
   transverse oscillations between its bounces: n_0 = floor(T_0 / T_shape) for
-  the first window (in the order of increasing v_in) and n_i = n_0 +
-  round((T_i - T_0) / T_shape) for the others, so consecutive windows differ
-  by one and a window missed by the sampling leaves a gap; T_shape = 2 pi /
+  the first window (in the order of increasing v_in) and n_i = n_{i-1} +
+  max(1, round((T_i - T_{i-1}) / d)) for the others, d = T_shape first and then
+  the fitted T (iterated), so consecutive windows differ by one and a window
+  missed by the sampling leaves a gap; T_shape = 2 pi /
   omega_y, omega_y = sqrt(g~ h_yy) (= sqrt(2 g~ c) for c y^2) at the bottom of
   the channel's well on y = 0. T and delta come from least squares of
   T_n = T n + delta.
@@ -159,17 +160,14 @@ def critical_bracket(v: np.ndarray, res: Launches):
     return float(v[i]), float(v[i + 1]), ""
 
 
-def refine_critical(launch, lo: float, hi: float, *, rel_tol: float = 1e-6, k: int = 32,
-                    max_rounds: int = 40) -> tuple[float, float, int]:
-    """Narrow [lo, hi] (lo: not a one-bounce escape, hi: one) by batched k-section
-    to width <= rel_tol * hi. Returns (lo, hi, launches used)."""
-    used = 0
+def _critical_task(lo: float, hi: float, rel_tol: float, k: int, max_rounds: int = 40):
+    """Generator: narrows [lo, hi] (lo: not a one-bounce escape, hi: one) by
+    k-section; yields speeds to launch, receives their Launches; returns (lo, hi)."""
     for _ in range(max_rounds):
         if hi - lo <= rel_tol * abs(hi):
             break
         pts = lo + (hi - lo) * np.arange(1, k + 1) / (k + 1)
-        r = launch(pts)
-        used += len(pts)
+        r = yield pts
         bad = np.flatnonzero(~r.one_bounce)
         if len(bad):
             j = int(bad[-1])
@@ -177,7 +175,38 @@ def refine_critical(launch, lo: float, hi: float, *, rel_tol: float = 1e-6, k: i
             hi = float(pts[j + 1]) if j + 1 < len(pts) else hi
         else:
             hi = float(pts[0])
-    return lo, hi, used
+    return lo, hi
+
+
+def run_tasks(launch, tasks: list) -> list:
+    """Drive refinement generators together: every round, the speeds all live
+    tasks ask for go to the launcher in ONE batch (a batch costs about as much
+    as its slowest launch, so merging rounds is what makes refinement cheap).
+    Returns each task's return value."""
+    results = [None] * len(tasks)
+    pending = {}
+    for i, t in enumerate(tasks):
+        try:
+            pending[i] = next(t)
+        except StopIteration as stop:
+            results[i] = stop.value
+    while pending:
+        ids = sorted(pending)
+        sizes = [len(pending[i]) for i in ids]
+        parts = _split(launch(np.concatenate([pending[i] for i in ids])), sizes)
+        pending = {}
+        for i, r in zip(ids, parts):
+            try:
+                pending[i] = tasks[i].send(r)
+            except StopIteration as stop:
+                results[i] = stop.value
+    return results
+
+
+def refine_critical(launch, lo: float, hi: float, *, rel_tol: float = 1e-6, k: int = 64) -> tuple[float, float]:
+    """Narrow [lo, hi] (lo: not a one-bounce escape, hi: one) by batched k-section
+    to width <= rel_tol * hi. Returns (lo, hi)."""
+    return run_tasks(launch, [_critical_task(lo, hi, rel_tol, k)])[0]
 
 
 # ----------------------------------------------------------------------------
@@ -198,56 +227,47 @@ def find_runs(res: Launches) -> list[tuple[int, int, int]]:
     return runs
 
 
-def _refine_edges(launch, brackets: list[tuple[float, float, int]], rel_tol: float, k: int = 16,
-                  max_rounds: int = 40):
-    """Batched k-section of window edges. Each bracket (a, b, side): for side = -1
-    (left edge) b is inside the window and a outside; for +1 (right edge) a
-    inside, b outside. The edge kept is that of the connected two-bounce run
-    touching the inside end. Returns [(a, b)] narrowed to width <= rel_tol*|b|."""
-    br = [list(b) for b in brackets]
+def _edge_task(a: float, b: float, side: int, rel_tol: float, k: int = 16, max_rounds: int = 40):
+    """Generator: k-section of one window edge. side -1 (left edge): b inside the
+    two-bounce window, a outside; +1 (right edge): a inside, b outside. Keeps the
+    edge of the connected two-bounce run touching the inside end; returns (a, b)
+    narrowed to width <= rel_tol * max(|a|, |b|)."""
     for _ in range(max_rounds):
-        todo = [i for i, (a, b, _s) in enumerate(br) if b - a > rel_tol * max(abs(a), abs(b))]
-        if not todo:
+        if b - a <= rel_tol * max(abs(a), abs(b)):
             break
-        pts = [br[i][0] + (br[i][1] - br[i][0]) * np.arange(1, k + 1) / (k + 1) for i in todo]
-        res = _split(launch(np.concatenate(pts)), [k] * len(todo))
-        for i, p, r in zip(todo, pts, res):
-            inside = (r.outcome == ESCAPED) & (r.bounces == 2)
-            a, b, side = br[i]
-            if side < 0:   # inside at b: walk down from b while inside
-                j = k
-                while j > 0 and inside[j - 1]:
-                    j -= 1
-                # p[j:] inside; p[j-1] outside (or a)
-                br[i] = [float(p[j - 1]) if j > 0 else a, float(p[j]) if j < k else b, side]
-            else:          # inside at a: walk up from a while inside
-                j = -1
-                while j + 1 < k and inside[j + 1]:
-                    j += 1
-                br[i] = [float(p[j]) if j >= 0 else a, float(p[j + 1]) if j + 1 < k else b, side]
-    return [(a, b) for a, b, _ in br]
+        p = a + (b - a) * np.arange(1, k + 1) / (k + 1)
+        r = yield p
+        inside = (r.outcome == ESCAPED) & (r.bounces == 2)
+        if side < 0:   # walk down from b while inside: p[j:] inside, p[j-1] outside
+            j = k
+            while j > 0 and inside[j - 1]:
+                j -= 1
+            a, b = (float(p[j - 1]) if j > 0 else a), (float(p[j]) if j < k else b)
+        else:          # walk up from a while inside: p[:j+1] inside, p[j+1] outside
+            j = -1
+            while j + 1 < k and inside[j + 1]:
+                j += 1
+            a, b = (float(p[j]) if j >= 0 else a), (float(p[j + 1]) if j + 1 < k else b)
+    return a, b
 
 
-def _maximize_vout(launch, intervals: list[tuple[float, float]], rounds: int = 4, k: int = 16):
-    """Batched k-section maximization of v_out on each interval; returns
-    [(v_in, v_out, t2 - t1)] at the best launch found (resolution
-    width / (k+1)^rounds)."""
-    iv = [list(x) for x in intervals]
-    best = [None] * len(iv)
+def _maximize_task(a: float, b: float, rounds: int = 3, k: int = 24):
+    """Generator: k-section maximization of v_out over two-bounce launches in
+    [a, b]; returns (v_in, v_out, t2 - t1) at the best launch found (resolution
+    (b - a) / k^rounds), or None if no two-bounce launch was found."""
+    best = None
     for _ in range(rounds):
-        pts = [a + (b - a) * np.arange(0, k + 1) / k for a, b in iv]
-        res = _split(launch(np.concatenate(pts)), [k + 1] * len(iv))
-        for i, (p, r) in enumerate(zip(pts, res)):
-            ok = (r.outcome == ESCAPED) & (r.bounces == 2) & np.isfinite(r.v_out)
-            if not ok.any():
-                continue
-            vo = np.where(ok, r.v_out, -np.inf)
-            j = int(np.argmax(vo))
-            cand = (float(p[j]), float(r.v_out[j]), float(r.bounce_times[j, 1] - r.bounce_times[j, 0]))
-            if best[i] is None or cand[1] >= best[i][1]:
-                best[i] = cand
-            step = p[1] - p[0]
-            iv[i] = [max(iv[i][0], p[j] - step), min(iv[i][1], p[j] + step)]
+        p = a + (b - a) * np.arange(0, k + 1) / k
+        r = yield p
+        ok = (r.outcome == ESCAPED) & (r.bounces == 2) & np.isfinite(r.v_out)
+        if not ok.any():
+            break
+        j = int(np.argmax(np.where(ok, r.v_out, -np.inf)))
+        cand = (float(p[j]), float(r.v_out[j]), float(r.bounce_times[j, 1] - r.bounce_times[j, 0]))
+        if best is None or cand[1] >= best[1]:
+            best = cand
+        step = p[1] - p[0]
+        a, b = max(a, p[j] - step), min(b, p[j] + step)
     return best
 
 
@@ -277,7 +297,19 @@ def fit_tn(T_n: list[float], v_in: list[float], T_shape: float) -> dict:
     if not T_n or not math.isfinite(T_shape):
         return out
     n0 = max(int(math.floor(T_n[0] / T_shape)), 0)
-    n = [n0 + int(round((t - T_n[0]) / T_shape)) for t in T_n]
+    d = T_shape
+    n = [n0]
+    for _ in range(4):   # number by consecutive differences; re-estimate the spacing from the fit
+        n = [n0]
+        for a, b in zip(T_n[:-1], T_n[1:]):
+            n.append(n[-1] + max(1, int(round((b - a) / d))))
+        if len(set(n)) < 2:
+            break
+        A = np.column_stack([n, np.ones(len(n))])
+        (T, delta), *_ = np.linalg.lstsq(A, np.asarray(T_n), rcond=None)
+        if not T > 0 or abs(T - d) < 1e-12 * d:
+            break
+        d = float(T)
     out["n"] = n
     if len(set(n)) >= 2:
         A = np.column_stack([n, np.ones(len(n))])
@@ -292,7 +324,7 @@ def fit_tn(T_n: list[float], v_in: list[float], T_shape: float) -> dict:
 # the sweep
 # ----------------------------------------------------------------------------
 def sweep(problem, v_in, *, launcher=None, method: str = "fabkit", rtol: float | None = None,
-          atol: float | None = None, progress=None, rel_tol: float = 1e-6, k: int = 32,
+          atol: float | None = None, progress=None, rel_tol: float = 1e-6, k: int = 64,
           refine: bool = True, error_samples: int = 48, tol=DEFAULT) -> dict:
     """Launch at every ``v_in`` (N,) (design units/s, sorted ascending here) and analyse.
 
@@ -326,45 +358,45 @@ def sweep(problem, v_in, *, launcher=None, method: str = "fabkit", rtol: float |
         "outcome": [OUTCOMES[int(i)] for i in res.outcome],
     }
 
-    # v_critical
+    # v_critical, window edges and v_out maxima: refinement tasks run together
     lo, hi, reason = critical_bracket(v, res)
-    if lo is not None and refine:
-        lo, hi, _ = refine_critical(counting, lo, hi, rel_tol=rel_tol, k=k)
+    runs = find_runs(res)
+    windows = [{"bounces": n, "lo": float(v[i]), "hi": float(v[j]), "samples": j - i + 1, "edge_error": None}
+               for n, i, j in runs]
+    two = [(w, i, j) for w, (n, i, j) in zip(windows, runs) if n == 2]
+    tasks = []
+    if refine:
+        if lo is not None:
+            tasks.append(_critical_task(lo, hi, rel_tol, k))
+        for w, i, j in two:
+            tasks.append(_edge_task(float(v[i - 1]) if i > 0 else float(v[i]), float(v[i]), -1, rel_tol))
+            tasks.append(_edge_task(float(v[j]), float(v[j + 1]) if j + 1 < len(v) else float(v[j]), +1,
+                                    rel_tol))
+            tasks.append(_maximize_task(float(v[max(i - 1, 0)]), float(v[min(j + 1, len(v) - 1)])))
+    done = run_tasks(counting, tasks)
+    if refine and lo is not None:
+        lo, hi = done.pop(0)
     out["v_critical"] = None if lo is None else 0.5 * (lo + hi)
     out["v_critical_error"] = None if lo is None else 0.5 * (hi - lo)
     out["v_critical_reason"] = reason
 
-    # windows
-    runs = find_runs(res)
-    windows = [{"bounces": n, "lo": float(v[i]), "hi": float(v[j]), "samples": j - i + 1, "edge_error": None}
-               for n, i, j in runs]
-    two = [w for w, (n, i, j) in zip(windows, runs) if n == 2]
-    two_runs = [(i, j) for n, i, j in runs if n == 2]
-    if refine and two:
-        brackets = []
-        for i, j in two_runs:
-            brackets.append((float(v[i - 1]) if i > 0 else float(v[i]), float(v[i]), -1))
-            brackets.append((float(v[j]), float(v[j + 1]) if j + 1 < len(v) else float(v[j]), +1))
-        edges = _refine_edges(counting, brackets, rel_tol)
-        for w, (i, j), (a1, b1), (a2, b2) in zip(two, two_runs, edges[0::2], edges[1::2]):
+    best = []
+    for q, (w, i, j) in enumerate(two):
+        if refine:
+            (a1, b1), (a2, b2), b = done[3 * q: 3 * q + 3]
             w["lo"] = 0.5 * (a1 + b1) if i > 0 else float(v[i])
             w["hi"] = 0.5 * (a2 + b2) if j + 1 < len(v) else float(v[j])
             w["edge_error"] = 0.5 * max(b1 - a1, b2 - a2)
+        else:
+            m = i + int(np.nanargmax(res.v_out[i:j + 1]))
+            b = (float(v[m]), float(res.v_out[m]), float(res.bounce_times[m, 1] - res.bounce_times[m, 0]))
+        if b is not None:
+            w["v_in_max"], w["v_out_max"], w["T_n"] = b
+            best.append(b)
     out["windows"] = windows
 
     # eq. (tn) fit
     _, T_shape = transverse_period(problem)
-    if two and refine:
-        best = _maximize_vout(counting, [(w["lo"], w["hi"]) for w in two])
-    else:
-        best = []
-        for i, j in two_runs:
-            sl = slice(i, j + 1)
-            m = i + int(np.nanargmax(res.v_out[sl]))
-            best.append((float(v[m]), float(res.v_out[m]), float(res.bounce_times[m, 1] - res.bounce_times[m, 0])))
-    best = [b for b in best if b is not None]
-    for w, b in zip(two, best):
-        w["v_in_max"], w["v_out_max"], w["T_n"] = b
     out["tn_fit"] = fit_tn([b[2] for b in best], [b[0] for b in best], T_shape)
 
     # error estimate: re-run a subset of escaped interior launches 10x tighter
