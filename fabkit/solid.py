@@ -43,6 +43,8 @@ SAFETY = 0.7
 SAMPLE_LEVEL = 6
 #: initial grid: cells along the footprint's longer side
 INITIAL_CELLS = 16
+#: first-round probe lattice: steps per initial grid cell (the samples give ~6)
+PROBES_PER_CELL = 16
 MAX_ROUNDS = 80
 STL_HEADER = b"fabkit binary STL: milled block, work coordinates, mm".ljust(80, b" ")
 EXPORT_FORMATS = ("stl", "ply", "obj", "off", "glb", "gltf", "3mf", "dae")
@@ -294,7 +296,7 @@ def _bisect(points, tris, terr, fail_all, fail_long):
 
 def _initial_mesh(surface):
     """A grid of the footprint, about INITIAL_CELLS cells along its longer side,
-    each cell cut into 2 counter-clockwise triangles. Returns (points, tris)."""
+    each cell cut into 2 counter-clockwise triangles. Returns (points, tris, (nx, ny))."""
     (x0, x1), (y0, y1) = surface.x_range, surface.y_range
     big = max(x1 - x0, y1 - y0)
     nx = max(2, int(math.ceil(INITIAL_CELLS * (x1 - x0) / big)))
@@ -305,7 +307,47 @@ def _initial_mesh(surface):
     a = (j * (nx + 1) + i).ravel()
     b, c, d = a + 1, a + nx + 2, a + nx + 1          # (i+1, j), (i+1, j+1), (i, j+1)
     tris = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
-    return points, tris
+    return points, tris, (nx, ny)
+
+
+def _grid_probes(surface, nx: int, ny: int, per_cell: int = PROBES_PER_CELL):
+    """Probe points on a lattice ``per_cell`` times finer than the initial grid,
+    with the initial triangle containing each: (k, 2) design points, (k,) ids
+    (cell (i, j) holds triangles j nx + i (below its diagonal) and nx ny + j nx + i)."""
+    (x0, x1), (y0, y1) = surface.x_range, surface.y_range
+    I, J = np.meshgrid(np.arange(nx * per_cell + 1), np.arange(ny * per_cell + 1))
+    I, J = I.ravel(), J.ravel()
+    i, j = np.minimum(I // per_cell, nx - 1), np.minimum(J // per_cell, ny - 1)
+    u, v = I - i * per_cell, J - j * per_cell          # lattice steps inside the cell
+    tri = np.where(u >= v, j * nx + i, nx * ny + j * nx + i)
+    xy = np.column_stack([x0 + (x1 - x0) * I / (nx * per_cell), y0 + (y1 - y0) * J / (ny * per_cell)])
+    return xy, tri
+
+
+def _probe_errors(P, Z, pieces, parent, m, xy, tri, clipped):
+    """|mesh - min(h, top)| at probe points ``xy`` (k, 2) lying in triangles ``tri``
+    (k,) of a triangulation with ``m`` triangles whose crease pieces are ``pieces``
+    with ``parent``; design units, shape (k,)."""
+    order = np.argsort(parent, kind="stable")
+    count = np.bincount(parent, minlength=m)
+    start = np.concatenate([[0], np.cumsum(count)[:-1]])
+    best = np.full(len(xy), -np.inf)
+    zmesh = np.zeros(len(xy))
+    for k in range(3):
+        has = count[tri] > k
+        pid = order[np.minimum(start[tri] + k, len(order) - 1)]
+        A, B, C = P[pieces[pid, 0]], P[pieces[pid, 1]], P[pieces[pid, 2]]
+        det = (B[:, 0] - A[:, 0]) * (C[:, 1] - A[:, 1]) - (B[:, 1] - A[:, 1]) * (C[:, 0] - A[:, 0])
+        with np.errstate(all="ignore"):
+            wb = ((xy[:, 0] - A[:, 0]) * (C[:, 1] - A[:, 1]) - (xy[:, 1] - A[:, 1]) * (C[:, 0] - A[:, 0])) / det
+            wc = ((B[:, 0] - A[:, 0]) * (xy[:, 1] - A[:, 1]) - (B[:, 1] - A[:, 1]) * (xy[:, 0] - A[:, 0])) / det
+        wa = 1 - wb - wc
+        inside = np.where(has & np.isfinite(wa), np.minimum(np.minimum(wa, wb), wc), -np.inf)
+        take = inside > best
+        best = np.where(take, inside, best)
+        z = wa * Z[pieces[pid, 0]] + wb * Z[pieces[pid, 1]] + wc * Z[pieces[pid, 2]]
+        zmesh = np.where(take, z, zmesh)
+    return np.abs(zmesh - clipped(xy[:, 0], xy[:, 1]))
 
 
 def top_skin(surface, tolerance_mm: float, tol: Tolerances = DEFAULT, key: str = "--tolerance"):
@@ -325,7 +367,8 @@ def top_skin(surface, tolerance_mm: float, tol: Tolerances = DEFAULT, key: str =
     if not est <= limit:
         raise SpecError(f"a tolerance of {tolerance_mm:g} mm needs about {est:.2g} triangles, more than the "
                         f"limit {limit}; use a larger tolerance", file=surface.source, key=key)
-    points, tris = _initial_mesh(surface)
+    points, tris, (nx, ny) = _initial_mesh(surface)
+    probe_xy, probe_tri = _grid_probes(surface, nx, ny)
     terr = np.full(len(tris), np.nan)     # largest sampled error of each triangle's pieces
     target = SAFETY * tolerance_mm / s          # design units
     bary = barycentric_grid(SAMPLE_LEVEL)
@@ -337,6 +380,11 @@ def top_skin(surface, tolerance_mm: float, tol: Tolerances = DEFAULT, key: str =
         err = _piece_errors(P, Z, pieces, clipped, bary, surface.source)
         ratio = np.zeros(len(sub))
         np.maximum.at(ratio, parent, err / target)
+        if rounds == 1:
+            # a lattice of probes finer than the samples, so that a feature smaller
+            # than the initial triangles is seen before the first split
+            perr = _probe_errors(P, Z, pieces, parent, len(tris), probe_xy, probe_tri, clipped)
+            np.maximum.at(ratio, probe_tri, perr / target)
         terr[sub] = ratio * target
         if not (terr > target).any():
             break

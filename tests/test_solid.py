@@ -271,3 +271,17 @@ def test_mesh_precision_rows():
         assert 0 < r["max_deviation"] <= r["tolerance"] and r["seconds"] > 0
     assert rows[1]["triangles"] > rows[0]["triangles"]
     assert rows[1]["max_deviation"] < rows[0]["max_deviation"]
+
+
+def test_narrow_dimple_between_initial_samples_is_found():
+    """A Gaussian pit of width 0.08 mm in a 100 x 50 mm footprint falls between the
+    first triangles' sample points; the first-round probe lattice must find it.
+    Removed volume: 2 * 2 pi sigma^2 (tails outside the footprint negligible)."""
+    surface, T = surface_of("-2*exp(-((x-3.3)**2+(y-1.7)**2)/(2*0.08**2))", (-50, 50), (-25, 25), top=0.0,
+                            thickness=20.0)
+    solid = build_solid(surface, T, 0.01)
+    skin = solid.faces[: solid.surface_triangles]
+    assert solid.vertices[skin, 2].min() < -2 + 0.01
+    removed = 100 * 50 * 20 - solid.volume_mm3
+    assert removed == pytest.approx(2 * 2 * math.pi * 0.08 ** 2, rel=0.02)
+    edge_check(solid.faces)
