@@ -325,7 +325,8 @@ def fit_tn(T_n: list[float], v_in: list[float], T_shape: float) -> dict:
 # ----------------------------------------------------------------------------
 def sweep(problem, v_in, *, launcher=None, method: str = "fabkit", rtol: float | None = None,
           atol: float | None = None, progress=None, rel_tol: float = 1e-6, k: int = 64,
-          refine: bool = True, error_samples: int = 48, tol=DEFAULT) -> dict:
+          refine: bool = True, error_samples: int = 48, initial: Launches | None = None,
+          tol=DEFAULT) -> dict:
     """Launch at every ``v_in`` (N,) (design units/s, sorted ascending here) and analyse.
 
     Returns a dict: ``v_in`` (N,) sorted, ``v_out`` (N,) (nan unless escaped),
@@ -334,6 +335,7 @@ def sweep(problem, v_in, *, launcher=None, method: str = "fabkit", rtol: float |
     samples, edge_error}], ``tn_fit`` {T, delta, n, T_n, v_in, T_shape, omega},
     ``error_estimate`` {v_out_abs, v_out_rel, launches, rtol_ref}, ``launches``
     (total run), ``seconds``. Accuracy: see the module docstring.
+    ``initial``: results already computed for the sorted ``v_in`` (not re-run).
     """
     from .models import OUTCOMES
 
@@ -352,7 +354,7 @@ def sweep(problem, v_in, *, launcher=None, method: str = "fabkit", rtol: float |
         counted["n"] += len(x)
         return launch(x)
 
-    res = counting(v)
+    res = initial if initial is not None else counting(v)
     out: dict = {
         "v_in": v, "v_out": res.v_out, "bounces": res.bounces,
         "outcome": [OUTCOMES[int(i)] for i in res.outcome],

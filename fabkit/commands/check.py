@@ -1,0 +1,73 @@
+"""``fabkit check SPEC [--json] [--no-progress]``: the pre-fabrication check.
+
+Exit 0 when every ramp height keeps the ball on the milled part (and the cut
+is machinable), 1 (DesignError, one line naming the first failing height and
+why) otherwise, 2 on bad input.
+"""
+
+from __future__ import annotations
+
+from ..errors import DesignError
+from ._common import Timer, emit
+
+
+def run(args) -> int:
+    from ..physics.calibrate import ramp_heights
+    from ..physics.check import check
+    from ..spec import load_spec
+    from .sweep import progress_bar
+
+    timer = Timer()
+    spec = load_spec(args.spec, need=("surface", "ball", "ramp", "simulation"), command="check")
+    cb, close = progress_bar(len(ramp_heights(spec)), getattr(args, "no_progress", False), "check")
+    try:
+        r = check(spec, progress=cb)
+    finally:
+        close()
+    r["seconds"] = timer.seconds
+    u = spec.units
+    lines = [f"check: {len(r['heights'])} release heights {r['heights'][0]:.4g}..{r['heights'][-1]:.4g} {u} "
+             f"(v_in {r['v_in'][0]:.4g}..{r['v_in'][-1]:.4g} {u}/s), {r['model']} model, "
+             f"damping {r['damping']:g} 1/s"]
+    vc = r["v_critical"]
+    if vc is not None:
+        lines.append(f"check: v_critical {vc:.6f} {u}/s at release height {r['critical_height']:.4f} {u}")
+    else:
+        lines.append(f"check: v_critical not reached by the ramp ({r['v_critical_reason']})")
+    lines.append(f"check: {len(r['reachable_windows'])} two-bounce windows reachable from the ramp"
+                 + ("".join(f"; {w['height_lo']:.4f}..{w['height_hi']:.4f} {u}" for w in r["reachable_windows"][:4])))
+    m = r["machining"]
+    if m is not None:
+        txt = f"check: cut depth {m['depth_mm']:.2f} mm"
+        if m["limits_mm"]:
+            txt += " (limits " + ", ".join(f"{kk} {vv:g}" for kk, vv in m["limits_mm"].items() if vv is not None) + " mm)"
+        if "tool_radius_mm" in m:
+            mr = m["min_concave_radius_mm"]
+            txt += (f"; tool radius {m['tool_radius_mm']:.3f} mm vs smallest concave radius "
+                    f"{mr:.3f} mm" if mr is not None else "; no concave curvature")
+            if not m["radius_ok"]:
+                txt += " (TOOL TOO LARGE: concave regions will be undercut)"
+        lines.append(txt)
+    first = r["first_failure"]
+    hs = r["highest_safe_height"]
+    lines.append(f"check: highest safe release height "
+                 + (f"{hs:.4f} {u}" if hs is not None else "none (the lowest height already fails)")
+                 + f", {r['seconds']:.1f} s")
+    payload = {kk: r[kk] for kk in ("safe", "highest_safe_height", "first_failure", "v_critical", "critical_height",
+                                    "reachable_windows", "machining", "heights", "outcomes", "seconds")}
+    payload["v_in"] = r["v_in"]
+    payload["model"] = r["model"]
+    payload["units"] = u
+    safe = r["safe"] and (m is None or m["feasible"])
+    payload["safe"] = safe
+    if not args.json:
+        lines.append("check: SAFE" if safe else "check: UNSAFE")
+    emit(lines, payload, args.json)
+    if first is not None:
+        raise DesignError(f"check: UNSAFE: release height {first['height']:.4f} {u} (v_in {first['v_in']:.4g} {u}/s) "
+                          f"{first['outcome'].replace('_', ' ')} at x={first['x']:.4g}, y={first['y']:.4g}, "
+                          f"t={first['t']:.3g} s ({first['reason']})")
+    if m is not None and not m["feasible"]:
+        key, over = next(iter(m["depth_over_mm"].items()))
+        raise DesignError(f"check: UNMACHINABLE: the cut is {m['depth_mm']:.2f} mm deep, {over:.2f} mm over {key}")
+    return 0

@@ -1,0 +1,145 @@
+"""``fabkit sweep SPEC [--v-in LO HI N] [--json] [--plot PNG] [--no-progress]``.
+
+v_out against v_in (the paper's Fig. 1 for the apparatus), v_critical, the
+n-bounce windows and the eq. (tn) fit. Default speeds: the ramp's heights
+calibrated to v_in (``ramp.samples`` points). The summary states the estimated
+v_out error and the run time.
+"""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+
+from ..errors import SpecError
+from ._common import Timer, emit
+
+
+def progress_bar(total: int, disabled: bool, desc: str):
+    """A tqdm bar on stderr shown only after 2 s, or None; returns (callback, close)."""
+    if disabled or not sys.stderr.isatty():
+        return None, lambda: None
+    from tqdm import tqdm
+
+    bar = tqdm(total=total, desc=desc, unit="launch", file=sys.stderr, delay=2.0, leave=False)
+
+    def cb(done, _total):
+        bar.update(max(0, int(done) - bar.n))
+
+    return cb, bar.close
+
+
+def speeds(spec, v_in_arg, tol=None) -> np.ndarray:
+    """The sweep's v_in (N,): ``--v-in LO HI N`` or the ramp's calibrated range."""
+    from ..tolerances import DEFAULT
+
+    tol = tol or DEFAULT
+    if v_in_arg is not None:
+        lo, hi, n = v_in_arg
+        if not (np.isfinite(lo) and np.isfinite(hi) and lo > 0 and hi > lo):
+            raise SpecError(f"need 0 < LO < HI, got {lo:g} {hi:g}", key="--v-in")
+        if not (n == int(n) and n >= 2):
+            raise SpecError(f"N must be a whole number >= 2, got {n:g}", key="--v-in")
+        if n > tol.max_launches:
+            raise SpecError(f"N = {int(n)} exceeds the limit {tol.max_launches}", key="--v-in")
+        return np.linspace(lo, hi, int(n))
+    spec.require("ramp", "ball", command="sweep (without --v-in)")
+    from .. import units
+    from ..physics.calibrate import ball_k, ramp_heights, v_in_from_height
+
+    H = ramp_heights(spec)
+    if len(H) > tol.max_launches:
+        raise SpecError(f"{len(H)} heights exceed the limit {tol.max_launches}", file=spec.path,
+                        key="ramp.samples")
+    return np.unique(v_in_from_height(H, units.gravity(spec.units), ball_k(spec)))
+
+
+def sweep_figure(result: dict, title: str = "") -> bytes:
+    """PNG bytes: v_out against v_in coloured by bounce count, v_critical marked."""
+    import io
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    v = np.asarray(result["v_in"], dtype=float)
+    vo = np.asarray([np.nan if x is None else x for x in result["v_out"]], dtype=float)
+    nb = np.asarray(result["bounces"])
+    esc = np.array([o == "escaped" for o in result["outcome"]])
+    colors = {1: "black", 2: "tab:blue", 3: "tab:green", 4: "tab:red"}
+    fig, ax = plt.subplots(figsize=(7, 4), dpi=120)
+    for n in sorted(set(nb[esc].tolist())):
+        m = esc & (nb == n)
+        ax.plot(v[m], vo[m], ".", ms=3, color=colors.get(n, "tab:gray"),
+                label=f"{n} bounce{'s' if n > 1 else ''}" if n <= 4 else None)
+    if (esc & (nb > 4)).any():
+        ax.plot([], [], ".", color="tab:gray", label="5+ bounces")
+    lost = ~esc
+    if lost.any():
+        ax.plot(v[lost], np.zeros(lost.sum()), "|", color="0.6", ms=6, label="captured / off")
+    vc = result.get("v_critical")
+    if vc is not None:
+        ax.axvline(vc, color="tab:orange", lw=1, ls="--", label=f"v_critical {vc:.4f}")
+    ax.set_xlabel("v_in")
+    ax.set_ylabel("v_out")
+    if title:
+        ax.set_title(title)
+    ax.legend(fontsize=7, loc="upper left")
+    ax.grid(alpha=0.3)
+    buf = io.BytesIO()
+    fig.tight_layout()
+    fig.savefig(buf, format="png", metadata={"Software": None})
+    plt.close(fig)
+    return buf.getvalue()
+
+
+def run(args) -> int:
+    from ..io import write_atomic
+    from ..physics.models import problem_from_spec
+    from ..physics.sweep import sweep
+    from ..spec import load_spec
+
+    timer = Timer()
+    spec = load_spec(args.spec, need=("surface", "simulation"), command="sweep")
+    if args.v_in is None:
+        spec.require("ball", "ramp", command="sweep (without --v-in)")
+    v = speeds(spec, args.v_in)
+    problem = problem_from_spec(spec)
+    cb, close = progress_bar(len(v), getattr(args, "no_progress", False), "sweep")
+    try:
+        res = sweep(problem, v, progress=cb)
+    finally:
+        close()
+    res["seconds"] = timer.seconds
+    if args.plot:
+        write_atomic(args.plot, sweep_figure(res, f"{spec.name}: {problem.model} model"))
+    u = spec.units
+    vc = res["v_critical"]
+    err = res["error_estimate"]
+    err_txt = f"v_out error < {err['v_out_abs']:.1e} {u}/s (estimated)" if err else "v_out error: not estimated"
+    vc_txt = (f"v_critical {vc:.6f} {u}/s ± {res['v_critical_error']:.1e}" if vc is not None
+              else f"v_critical: none ({res['v_critical_reason']})")
+    counts = {}
+    for o in res["outcome"]:
+        counts[o] = counts.get(o, 0) + 1
+    lines = [f"sweep: {len(v)} launches, v_in {v[0]:.4g}..{v[-1]:.4g} {u}/s, {problem.model} model, "
+             f"damping {problem.damping:g} 1/s: " + ", ".join(f"{kk} {n}" for kk, n in sorted(counts.items()))]
+    two = [w for w in res["windows"] if w["bounces"] == 2]
+    lines.append(f"sweep: {len(res['windows'])} windows of 2+ bounces, {len(two)} of two bounces")
+    for w in two[:12]:
+        lines.append(f"  2-bounce window {w['lo']:.6f} .. {w['hi']:.6f} {u}/s"
+                     + (f", T_n {w['T_n']:.4f} s" if "T_n" in w else ""))
+    fit = res["tn_fit"]
+    if fit.get("T") is not None:
+        lines.append(f"sweep: T_n = {fit['T']:.4f} n + {fit['delta']:.4f} s (eq. tn, {len(fit['n'])} windows); "
+                     f"2 pi/omega_y = {fit['T_shape']:.4f} s")
+    lines.append(f"sweep: {err_txt}, {vc_txt}, {res['seconds']:.1f} s")
+    payload = {kk: res[kk] for kk in ("v_in", "v_out", "bounces", "outcome", "v_critical", "windows", "tn_fit",
+                                      "seconds", "error_estimate", "v_critical_error", "v_critical_reason",
+                                      "launches")}
+    payload["model"] = problem.model
+    payload["units"] = u
+    emit(lines, payload, args.json)
+    return 0
