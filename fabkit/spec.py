@@ -103,7 +103,8 @@ SCHEMA: dict[str, dict[str, Any]] = {
         "params": Params(doc="name: number"),
         "x": Pair(length="design", doc="footprint along the channel"),
         "y": Pair(length="design", doc="footprint across"),
-        "top": Num(length="design", doc="height of the stock's top face; the surface is clipped here"),
+        "top": Num(length="design", ge=-1e9, le=1e9,
+                   doc="height of the stock's top face; the surface is clipped here"),
     },
     "stock": {
         "thickness": Num(gt=0, le=10_000, length="mm"),
@@ -147,7 +148,7 @@ SCHEMA: dict[str, dict[str, Any]] = {
         "start": Num(length="design", doc="x where the ball enters at y = 0 moving toward +x"),
         "margin": Num(default=0.5, ge=0, le=1e6, length="design"),
         "y0": Num(default=0.0, length="design", doc="transverse launch offset"),
-        "vy0": Num(default=0.0, doc="transverse launch velocity, design units/s"),
+        "vy0": Num(default=0.0, ge=-1e6, le=1e6, doc="transverse launch velocity, design units/s"),
         "t_max": Num(default=60.0, gt=0, le=1e6, doc="time limit, s: still trapped then = captured"),
         "rtol": Num(default=1e-10, gt=0, le=0.1, doc="integrator relative tolerance"),
         "atol": Num(default=1e-12, gt=0, le=1.0, doc="integrator absolute tolerance (design units)"),

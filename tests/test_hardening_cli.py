@@ -1,0 +1,410 @@
+"""Hardening of every command (issue 8, items 1 and the acceptance).
+
+* Property-based runs of ``fabkit.cli.main(argv)`` in-process: random values for
+  random keys of a tiny version of the paper's spec, for each command. Every run
+  ends with exit 0, 1 or 2, at most one line on stderr besides ``warning:``
+  lines, never a traceback or "internal error", and writes nothing on exit 2.
+* Guards on sizes derived from user numbers (scallop 1e-9 mm, tolerance 1e-12
+  mm, ``--tolerance 1e-9``, ramp.samples 1e6, t_max 1e6 with rtol 1e-14): refused
+  with a message naming the key and the limit, or a bounded run.
+* The acceptance of issue 8: forty mutated versions of ``specs/surface.yaml`` and
+  junk files, each run through ``python -m fabkit stl`` and ``check`` in a
+  subprocess with a 30 s timeout.
+
+A command whose module ``fabkit.commands.<cmd>`` does not exist is skipped.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import copy
+import importlib.util
+import io
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import pytest
+import yaml
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from fabkit.cli import main
+
+from conftest import PAPER, ROOT, paper_raw
+
+
+def has_command(name: str) -> bool:
+    return importlib.util.find_spec(f"fabkit.commands.{name}") is not None
+
+
+def needs(name: str):
+    return pytest.mark.skipif(not has_command(name), reason=f"fabkit {name} not implemented yet")
+
+
+def tiny_raw() -> dict:
+    """The paper's formula on a 14 x 8 cm footprint, coarse machining, few ramp
+    samples, short time limit: every command runs in about a second."""
+    raw = paper_raw()
+    raw["name"] = "tiny"
+    raw["surface"].update(x=[-10, 4], y=[-4, 4])
+    raw["machining"].update(scallop=0.5, tolerance=0.1, verify_points=2000)
+    raw["ramp"] = {"heights": [0.2, 1.0], "samples": 4}
+    raw["simulation"].update(start=-8, t_max=5.0, rtol=1e-6, atol=1e-8)
+    return raw
+
+
+ARGS = {
+    "stl": ["--tolerance", "0.05"],
+    "gcode": [],
+    "calibrate": [],
+    "simulate": ["--v-in", "40"],
+    "sweep": ["--v-in", "20", "60", "4", "--no-progress"],
+    "check": ["--no-progress"],
+}
+
+
+class Hang(BaseException):
+    """Raised by the alarm: not an Exception, so fabkit's handler cannot swallow it."""
+
+
+@contextlib.contextmanager
+def bounded(seconds: int):
+    def on_alarm(signum, frame):
+        raise Hang(f"still running after {seconds} s")
+
+    old = signal.signal(signal.SIGALRM, on_alarm)
+    signal.alarm(seconds)
+    try:
+        yield
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, old)
+
+
+def run_inprocess(argv: list[str], cwd: Path, seconds: int = 120) -> tuple[int, str, str]:
+    out, err = io.StringIO(), io.StringIO()
+    old = os.getcwd()
+    os.chdir(cwd)
+    try:
+        with bounded(seconds), contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            code = main([str(a) for a in argv])
+    finally:
+        os.chdir(old)
+    return code, out.getvalue(), err.getvalue()
+
+
+def assert_clean_exit(code: int, err: str, expect=(0, 1, 2), out: str = "") -> None:
+    """Exit 0/1/2 as expected; at most one non-warning line on stderr; no traceback.
+    (``fabkit`` with no command prints its help on stdout and exits 2.)"""
+    assert "Traceback" not in err and "internal error" not in err, err
+    lines = [ln for ln in err.splitlines() if ln.strip() and not ln.startswith("warning:")]
+    assert len(lines) <= 1, err
+    assert code in expect, f"exit {code}, expected {expect}: {err}"
+    if code == 2 and not out.startswith("usage:"):
+        assert len(lines) == 1, "exit 2 must say why in one line"
+
+
+def written(folder: Path, spec_name: str) -> list[str]:
+    return sorted(str(p.relative_to(folder)) for p in folder.rglob("*") if p.name != spec_name)
+
+
+# ----------------------------------------------------------------------------
+# property-based CLI runs
+# ----------------------------------------------------------------------------
+def _leaves(raw: dict, prefix: str = "") -> list[str]:
+    out = []
+    for k, v in raw.items():
+        if isinstance(v, dict) and k != "params":
+            out.extend(_leaves(v, f"{prefix}{k}."))
+        else:
+            out.append(f"{prefix}{k}")
+    return out
+
+
+TINY = tiny_raw()
+KEYS = _leaves(TINY) + [k for k, v in TINY.items() if isinstance(v, dict)] + [
+    "surface.params.eps", "machining.stepdown", "machining.pattern", "simulation.y0", "simulation.vy0",
+    "simulation.nonlinear_damping", "simulation.method", "ramp.samples", "tool.reach"]
+cli_values = st.one_of(
+    st.none(), st.booleans(),
+    st.sampled_from([0, -1, 1, 2, -0.0, 1e-300, 1e-12, 1e-9, 1e-6, 0.5, 3, 7.5, 100, 1e6, 1e9, 1e12, 1e300,
+                     float("nan"), float("inf"), -float("inf"), 10**16, "1/8 in", "2 mm", "-1 cm", "0 mm",
+                     "grbl", "y", "climb", "simplified", "hollow", "Radau", [0.2, 4.5], [1, 2, 3], [-1, 2],
+                     [], {}, "x" * 5000, "ü", "exp(exp(x))", "x**x**x", "sqrt(x)", "1/y", "0*x"]),
+    st.floats(allow_nan=True, allow_infinity=True),
+    st.integers(min_value=-(10**20), max_value=10**20),
+    st.text(max_size=20),
+)
+
+
+def _set(raw: dict, key: str, value) -> dict:
+    raw = copy.deepcopy(raw)
+    node = raw
+    parts = key.split(".")
+    for p in parts[:-1]:
+        node = node.setdefault(p, {})
+    node[parts[-1]] = value
+    return raw
+
+
+def _cli_property(command: str, key: str, value) -> None:
+    with tempfile.TemporaryDirectory() as d:
+        folder = Path(d)
+        spec = folder / "tiny.yaml"
+        spec.write_text(yaml.safe_dump(_set(TINY, key, value), sort_keys=False, allow_unicode=True))
+        code, out, err = run_inprocess([command, spec.name, *ARGS[command]], folder)
+        assert_clean_exit(code, err)
+        if code == 2:
+            assert written(folder, spec.name) == [], err
+
+
+def _property_test(command: str, examples: int):
+    @needs(command)
+    @settings(max_examples=examples, deadline=None, derandomize=True, database=None,
+              suppress_health_check=[HealthCheck.too_slow])
+    @given(key=st.sampled_from(KEYS), value=cli_values)
+    def test(key, value):
+        _cli_property(command, key, value)
+
+    test.__name__ = f"test_random_spec_values_{command}"
+    test.__doc__ = f"fabkit {command} on the tiny spec with one key set to a random value."
+    return test
+
+
+test_random_spec_values_stl = _property_test("stl", 25)
+test_random_spec_values_gcode = _property_test("gcode", 15)
+test_random_spec_values_calibrate = _property_test("calibrate", 30)
+test_random_spec_values_simulate = _property_test("simulate", 20)
+test_random_spec_values_sweep = _property_test("sweep", 12)
+test_random_spec_values_check = _property_test("check", 12)
+
+
+@settings(max_examples=30, deadline=None, derandomize=True, database=None)
+@given(argv=st.lists(st.one_of(
+    st.sampled_from(["stl", "gcode", "calibrate", "simulate", "sweep", "check", "precision", "explore",
+                     "robustness", "--json", "-o", "--tolerance", "--v-in", "--height", "--plot", "--vary",
+                     "nan", "inf", "-1", "1e308", "0", "--", "-", "--help-me", "specs/surface.yaml"]),
+    st.text(max_size=12)), max_size=6))
+def test_random_argv(argv):
+    """Random argument lists: usage errors exit 2 with one line; nothing crashes."""
+    argv = [a for a in argv if a not in ("-h", "--help", "--version")]
+    cmd = next((a for a in argv if a in ARGS or a in ("precision", "explore", "robustness")), None)
+    if cmd is not None and not has_command(cmd):
+        argv = [a for a in argv if a != cmd]
+    with tempfile.TemporaryDirectory() as d:
+        (Path(d) / "specs").mkdir()
+        (Path(d) / "specs" / "surface.yaml").write_text(yaml.safe_dump(TINY))
+        code, out, err = run_inprocess(argv, Path(d))
+    assert_clean_exit(code, err, out=out)
+
+
+@pytest.mark.parametrize("argv", [
+    [], ["nosuch"], ["stl"], ["stl", "a.yaml", "b.yaml"], ["stl", "a.yaml", "--tolerance", "x"],
+    ["simulate", "a.yaml"], ["sweep", "a.yaml", "--v-in", "1", "2"], ["stl", "\n\u2028"], ["\x00"],
+])
+def test_usage_errors_are_one_line(argv, tmp_path):
+    code, out, err = run_inprocess(argv, tmp_path)
+    assert_clean_exit(code, err, (2,), out=out)
+
+
+# ----------------------------------------------------------------------------
+# guards on sizes derived from user numbers
+# ----------------------------------------------------------------------------
+GUARDS = [
+    # (command, extra argv, key set in the tiny spec, value, key the refusal must name)
+    ("gcode", [], "machining.scallop", 1e-9, "machining.scallop"),
+    ("gcode", [], "machining.tolerance", 1e-12, "machining.tolerance"),
+    ("stl", ["--tolerance", "1e-9"], None, None, "--tolerance"),
+    ("check", ["--no-progress"], "ramp.samples", 1_000_000, "ramp.samples"),
+    ("simulate", ["--v-in", "40"], "simulation.t_max", 1e6, "simulation"),
+    ("sweep", ["--v-in", "1", "60", "1e9", "--no-progress"], None, None, "v-in"),
+]
+
+
+@pytest.mark.parametrize("command,extra,key,value,names", GUARDS, ids=[f"{g[0]}-{g[2] or g[1][0]}" for g in GUARDS])
+def test_guards_refuse_or_bound(tmp_path, command, extra, key, value, names):
+    """Refused quickly (exit 2, one line naming the key and a limit), or a bounded
+    run (the subprocess timeout is a hang guard, not a speed assertion)."""
+    if not has_command(command):
+        pytest.skip(f"fabkit {command} not implemented yet")
+    raw = copy.deepcopy(TINY)
+    if key:
+        raw = _set(raw, key, value)
+    if key == "simulation.t_max":
+        raw["simulation"]["rtol"] = 1e-14
+    spec = tmp_path / "tiny.yaml"
+    spec.write_text(yaml.safe_dump(raw, sort_keys=False))
+    code, out, err = run_subprocess([command, spec.name, *extra], tmp_path, timeout=120)
+    assert_clean_exit(code, err)
+    if code == 2:
+        assert names in err and "limit" in err, err
+        assert written(tmp_path, spec.name) == []
+
+
+# ----------------------------------------------------------------------------
+# acceptance: forty mutated paper specs and junk files through stl and check
+# ----------------------------------------------------------------------------
+def run_subprocess(argv: list[str], cwd: Path, timeout: float = 30) -> tuple[int, str, str]:
+    env = dict(os.environ, PYTHONPATH=str(ROOT), PYTHONWARNINGS="ignore")
+    env.pop("FABKIT_DEBUG", None)
+    try:
+        proc = subprocess.run([sys.executable, "-m", "fabkit", *map(str, argv)], cwd=cwd, env=env,
+                              capture_output=True, timeout=timeout)
+    except subprocess.TimeoutExpired:
+        pytest.fail(f"fabkit {' '.join(map(str, argv))} still running after {timeout} s")
+    return proc.returncode, proc.stdout.decode("utf-8", "replace"), proc.stderr.decode("utf-8", "replace")
+
+
+def _m(**changes):
+    """A mutation: dotted key -> value (``None`` deletes the key)."""
+    def apply(raw):
+        for key, value in changes.items():
+            parts = key.split(".")
+            node = raw
+            for p in parts[:-1]:
+                node = node[p]
+            if value is None:
+                node.pop(parts[-1], None)
+            else:
+                node[parts[-1]] = value
+        return raw
+    return apply
+
+
+def _swap_sections(a, b):
+    def apply(raw):
+        raw[a], raw[b] = raw[b], raw[a]
+        return raw
+    return apply
+
+
+def _swap_height_params(raw):
+    raw["surface"]["height"], raw["surface"]["params"] = raw["surface"]["params"], raw["surface"]["height"]
+    return raw
+
+
+BAD, OK = "bad", "ok"      # OK: valid input, exit 0 or 1 (a full run); BAD: exit 2, nothing written
+MUTATIONS = {
+    # deleted keys and sections
+    "drop_height": (_m(**{"surface.height": None}), BAD),
+    "drop_surface": (_m(surface=None), BAD),
+    "drop_thickness": (_m(**{"stock.thickness": None}), BAD),
+    "drop_start": (_m(**{"simulation.start": None}), BAD),
+    "drop_ramp_heights": (_m(**{"ramp.heights": None}), BAD),
+    # wrong types
+    "diameter_word": (_m(**{"tool.diameter": "big"}), BAD),
+    "x_scalar": (_m(**{"surface.x": 5}), BAD),
+    "params_list": (_m(**{"surface.params": [1, 2]}), BAD),
+    "stock_string": (_m(stock="foam"), BAD),
+    "scallop_bool": (_m(**{"machining.scallop": True}), BAD),
+    "inertia_word": (_m(**{"ball.inertia": "lead"}), BAD),
+    "heights_mapping": (_m(**{"ramp.heights": {"a": 1}}), BAD),
+    "model_number": (_m(**{"simulation.model": 3}), BAD),
+    # out-of-range numbers
+    "diameter_negative": (_m(**{"tool.diameter": -3}), BAD),
+    "thickness_zero": (_m(**{"stock.thickness": 0}), BAD),
+    "top_nan": (_m(**{"surface.top": float("nan")}), BAD),
+    "damping_negative": (_m(**{"simulation.damping": -1}), BAD),
+    "depth_limit_huge": (_m(**{"stock.depth_limit": 1e9}), BAD),
+    "top_1e300": (_m(**{"surface.top": 1e300}), BAD),
+    "eta_1e12": (_m(**{"surface.params.eta": 1e12}), BAD),
+    "eps_inf": (_m(**{"surface.params.eps": float("inf")}), BAD),
+    # typos
+    "typo_diamter": (_m(**{"tool.diamter": 6.35, "tool.diameter": None}), BAD),
+    "typo_section": (lambda raw: {("surfac" if k == "surface" else k): v for k, v in raw.items()}, BAD),
+    "typo_modle": (_m(**{"simulation.modle": "full", "simulation.model": None}), BAD),
+    "typo_dialect": (_m(**{"machining.dialect": "linuxcn"}), BAD),
+    "units_word": (_m(units="centimeters"), BAD),
+    # swapped pairs
+    "x_swapped": (_m(**{"surface.x": [6, -44]}), BAD),
+    "y_swapped": (_m(**{"surface.y": [12.5, -12.5]}), BAD),
+    "height_params_swapped": (_swap_height_params, BAD),
+    "tool_stock_swapped": (_swap_sections("tool", "stock"), BAD),
+    # hostile expressions
+    "expr_import": (_m(**{"surface.height": "__import__('os').system('touch PWNED')"}), BAD),
+    "expr_tower": (_m(**{"surface.height": "9**9**9*x"}), BAD),
+    "expr_overflow": (_m(**{"surface.height": "exp(exp(exp(x)))"}), BAD),
+    "expr_long": (_m(**{"surface.height": "x+" * 3000 + "x"}), BAD),
+    "expr_log_negative": (_m(**{"surface.height": "log(x)"}), BAD),
+    # unit changes
+    "units_inch": (_m(units="in"), BAD),                                    # 135 mm deep: over the limit
+    "units_mm": (_m(units="mm"), OK),
+    "tool_inch_string": (_m(**{"tool.diameter": "1/8 in", "stock.thickness": "3 in"}), OK),
+    # other edits a user makes
+    "name_path": (_m(name="../../etc/evil"), BAD),
+    "grbl_inch_y": (_m(**{"machining.dialect": "grbl", "machining.units": "in",
+                          "machining.direction": "y", "name": "edited"}), OK),
+}
+assert len(MUTATIONS) == 40
+
+
+def _junk_file(name: str, data: bytes | None):
+    def make(folder: Path) -> str:
+        if data is None:
+            (folder / name).mkdir()
+        else:
+            (folder / name).write_bytes(data)
+        return name
+    return make
+
+
+JUNK = {
+    "binary": _junk_file("junk.yaml", bytes(range(256)) * 64),
+    "empty": _junk_file("empty.yaml", b""),
+    "huge_line": _junk_file("line.yaml", b"name: " + b"x" * 2_000_000),
+    "directory": _junk_file("folder.yaml", None),
+    "missing": lambda folder: "does-not-exist.yaml",
+    "yaml_bomb": _junk_file("bomb.yaml", (ROOT / "tests" / "fixtures" / "junk" / "billion_laughs.yaml").read_bytes()),
+}
+
+
+ACCEPTANCE_COMMANDS = ["stl", "check"]
+CASES = [(cmd, kind, name) for cmd in ACCEPTANCE_COMMANDS
+         for kind, names in (("mutation", MUTATIONS), ("junk", JUNK)) for name in names]
+
+
+def _run_case(cmd: str, kind: str, name: str, root: Path) -> dict:
+    folder = root / f"{cmd}-{kind}-{name}"
+    folder.mkdir()
+    if kind == "mutation":
+        mutate, expect = MUTATIONS[name]
+        raw = mutate(paper_raw())
+        (folder / "spec.yaml").write_text(yaml.safe_dump(raw, sort_keys=False, allow_unicode=True))
+        spec = "spec.yaml"
+    else:
+        spec, expect = JUNK[name](folder), BAD
+    before = set(folder.rglob("*"))
+    extra = ["--no-progress"] if cmd == "check" else []
+    code, out, err = run_subprocess([cmd, spec, *extra], folder, timeout=30)
+    after = set(folder.rglob("*"))
+    return {"code": code, "out": out, "err": err, "expect": expect, "new": sorted(map(str, after - before)),
+            "pwned": (folder / "PWNED").exists()}
+
+
+@pytest.fixture(scope="module")
+def acceptance(tmp_path_factory):
+    """Run every (command, case) once, two at a time (the machine has two cores)."""
+    root = tmp_path_factory.mktemp("acceptance")
+    cases = [c for c in CASES if has_command(c[0])]
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        results = list(pool.map(lambda c: _run_case(*c, root), cases))
+    return dict(zip(cases, results))
+
+
+@pytest.mark.parametrize("cmd,kind,name", [
+    pytest.param(*c, marks=needs(c[0])) for c in CASES], ids=[f"{c[0]}-{c[2]}" for c in CASES])
+def test_acceptance_mutations_and_junk(acceptance, cmd, kind, name):
+    r = acceptance[(cmd, kind, name)]
+    assert not r["pwned"]
+    if r["expect"] == BAD:
+        assert_clean_exit(r["code"], r["err"], (2,))
+        assert r["new"] == [], f"exit 2 but wrote {r['new']}"
+    else:
+        assert_clean_exit(r["code"], r["err"], (0, 1))
+        if cmd == "stl":
+            assert r["code"] == 0 and any(p.endswith(".stl") for p in r["new"]), r
