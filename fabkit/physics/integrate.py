@@ -52,7 +52,7 @@ from ..errors import SpecError
 from ..tolerances import DEFAULT
 from .models import CAPTURED, ESCAPED, FLEW_OFF, LOST_CONTACT, OUTCOMES
 
-CHUNK = 4096          # lanes per chunk (memory bound; the arithmetic does not depend on it)
+CHUNK = 16384         # lanes per chunk (memory bound; the arithmetic does not depend on it)
 K_BOUNCES = 16        # bounce times kept per lane
 STIFF_STEPS = 50_000  # explicit steps beyond which a damped problem goes to Radau
 SAFETY, MIN_FACTOR, MAX_FACTOR = 0.9, 0.2, 10.0
@@ -172,50 +172,29 @@ def _empty(n: int, k: int) -> dict:
 # the right-hand side on the batch
 # ----------------------------------------------------------------------------
 class _System:
-    """d/dt of (x, y, xd, yd, W) on (5, m) arrays, with aux (h, h_x, h_y, B)."""
+    """d/dt of the lane states on (nv, m) arrays, nv = 4 (x, y, xd, yd) or 5 (+ W, the
+    dissipated energy, when damped), with aux (h, h_x, h_y, B) from the same evaluation."""
 
     def __init__(self, problem):
+        from .models import fused
+
         self.p = problem
         self.full = problem.model == "full"
         self.gt = problem.g_tilde
-        self.mu = float(problem.damping)
-        self.mu_nl = float(problem.nonlinear_damping)
-        self.damped = self.mu > 0 or self.mu_nl > 0
-        self.all = problem.fns.all
-        self.grad = problem.fns.grad
+        self.damped = float(problem.damping) > 0 or float(problem.nonlinear_damping) > 0
+        self.nv = 5 if self.damped else 4
+        self.f = fused(problem)
 
     def __call__(self, S):
-        x, y, vx, vy = S[0], S[1], S[2], S[3]
-        h, hx, hy, hxx, hxy, hyy = self.all(x, y)
-        vxvx = vx * vx
-        br = hxx * vxvx
-        br += 2.0 * hxy * vx * vy
-        br += hyy * vy * vy
-        br += self.gt
+        with np.errstate(all="ignore"):
+            ax, ay, h, hx, hy, br, P = self.f(S[0], S[1], S[2], S[3])
         F = np.empty_like(S)
-        F[0] = vx
-        F[1] = vy
-        if self.full:  # eq. (xyODE)
-            q = br / (1.0 + hx * hx + hy * hy)
-        else:          # eq. (xyODE_simp)
-            q = self.gt
-        np.multiply(hx, -q, out=F[2])
-        np.multiply(hy, -q, out=F[3])
+        F[0] = S[2]
+        F[1] = S[3]
+        F[2] = ax
+        F[3] = ay
         if self.damped:
-            dx = -self.mu * vx
-            dy = -self.mu * vy
-            if self.mu_nl:
-                Fc = self.grad(x, np.zeros_like(y))[1]
-                dy -= self.mu_nl * Fc * Fc * y * y * vy
-            F[2] += dx
-            F[3] += dy
-            if self.full:
-                zd = hx * vx + hy * vy
-                F[4] = -(dx * (vx + zd * hx) + dy * (vy + zd * hy))
-            else:
-                F[4] = -(dx * vx + dy * vy)
-        else:
-            F[4] = 0.0
+            F[4] = P
         return F, (h, hx, hy, br)
 
     def energy(self, S, aux):
@@ -282,71 +261,59 @@ def _error_norm(tab, K, h, scale):
 # ----------------------------------------------------------------------------
 # event location
 # ----------------------------------------------------------------------------
-def _henon(sys, tab, Y, t, kind, target):
-    """Henon's trick: one RK step from Y (5, m) at times t (m,) with the quantity
-    ``kind`` ('x' | 'y' | 'vx' | 'z') as the independent variable, to ``target`` (m,).
+_KINDS = {"x": 0, "y": 1, "vx": 2, "z": 3}
 
-    Returns (t_event (m,), Y_event (5, m)); accurate to the RK step's local error.
+
+def _henon(sys, tab, Y, t, kind, target):
+    """Henon's trick: one RK step from Y (nv, m) at times t (m,) with a quantity of the
+    state as the independent variable, to ``target`` (m,).
+
+    ``kind``: 'x' | 'y' | 'vx' | 'z', or an int array (m,) of codes 0..3 (one per lane).
+    Returns (t_event (m,), Y_event (nv, m)); accurate to the RK step's local error.
     """
-    m = Y.shape[1]
-    Z = np.empty((6, m))
-    Z[:5] = Y
-    Z[5] = t
-    F0, aux = sys(Y)
+    nv, m = Y.shape
+    code = np.broadcast_to(np.asarray(_KINDS[kind] if isinstance(kind, str) else kind), (m,))
+    Z = np.empty((nv + 1, m))
+    Z[:nv] = Y
+    Z[nv] = t
+    aux0 = sys(Y)[1]
 
     def rate(Yc, Fc, auxc):
-        if kind == "x":
-            return Fc[0]
-        if kind == "y":
-            return Fc[1]
-        if kind == "vx":
-            return Fc[2]
-        return auxc[1] * Yc[2] + auxc[2] * Yc[3]  # z: dz/dt = h_x xd + h_y yd
+        zd = auxc[1] * Yc[2] + auxc[2] * Yc[3]  # dz/dt = h_x xd + h_y yd
+        return np.choose(code, (Fc[0], Fc[1], Fc[2], zd))
 
     def g(Zc):
-        Fc, auxc = sys(Zc[:5])
+        Fc, auxc = sys(Zc[:nv])
         r = rate(Zc, Fc, auxc)
         G = np.empty_like(Zc)
         with np.errstate(divide="ignore", invalid="ignore"):
-            G[:5] = Fc / r
-            G[5] = 1.0 / r
+            G[:nv] = Fc / r
+            G[nv] = 1.0 / r
         return G
 
-    if kind == "x":
-        s0 = Y[0]
-    elif kind == "y":
-        s0 = Y[1]
-    elif kind == "vx":
-        s0 = Y[2]
-    else:
-        s0 = aux[0]
+    s0 = np.choose(code, (Y[0], Y[1], Y[2], aux0[0]))
     ds = target - s0
-    K = np.empty((tab.n_stages + 1, 6, m))
+    K = np.empty((tab.n_stages + 1, nv + 1, m))
     K[0] = g(Z)
     Zs = np.empty_like(Z)
-    for s in range(1, tab.n_stages):
-        _combine(Z, ds, K, tab.A[s], Zs)
-        with np.errstate(all="ignore"):
-            K[s] = g(Zs)
-    Znew = np.empty_like(Z)
     with np.errstate(all="ignore"):
+        for s in range(1, tab.n_stages):
+            _combine(Z, ds, K, tab.A[s], Zs)
+            K[s] = g(Zs)
+        Znew = np.empty_like(Z)
         _combine(Z, ds, K, tab.B, Znew)
-    if kind == "x":
-        Znew[0] = target
-    elif kind == "y":
-        Znew[1] = target
-    elif kind == "vx":
-        Znew[2] = target
-    return Znew[5], Znew[:5]
+    for c in range(3):  # the independent variable lands on its target exactly
+        Znew[c] = np.where(code == c, target, Znew[c])
+    return Znew[nv], Znew[:nv]
 
 
 def _secant(sys, tab, Y, F0, t, h, b0, b1, iters: int = 4):
     """Time and state where the bracket B crosses 0 inside steps of size h from Y,
     by secant iterations on re-taken RK steps (each as accurate as the step)."""
-    m = Y.shape[1]
+    nv, m = Y.shape
     lo, hi = np.zeros(m), np.ones(m)
     blo, bhi = b0.copy(), b1.copy()
-    K = np.empty((tab.n_stages + 1, 5, m))
+    K = np.empty((tab.n_stages + 1, nv, m))
     Yt = Y.copy()
     th = np.ones(m)
     for _ in range(iters):
@@ -396,7 +363,7 @@ def _run_chunk(problem, v_in, y0, vy0, rtol, atol, t_max, max_steps, tab, record
     z_lim = problem.top - problem.margin
     start = problem.start
 
-    Y = np.zeros((5, n))
+    Y = np.zeros((sys.nv, n))
     Y[0] = start
     Y[1] = y0
     Y[2] = v_in
@@ -421,7 +388,7 @@ def _run_chunk(problem, v_in, y0, vy0, rtol, atol, t_max, max_steps, tab, record
         m = idx.size
         hstep = np.minimum(h, t_max - t)
         last = hstep >= t_max - t
-        K = np.empty((tab.n_stages + 1, 5, m))
+        K = np.empty((tab.n_stages + 1, sys.nv, m))
         Ynew = _rk_step(sys, tab, Y, F, hstep, K)
         Fnew, auxn = sys(Ynew)
         K[tab.n_stages] = Fnew
@@ -443,49 +410,62 @@ def _run_chunk(problem, v_in, y0, vy0, rtol, atol, t_max, max_steps, tab, record
         done = np.zeros(m, dtype=bool)
         code = np.full(m, -1, dtype=np.int8)
         t_ev = np.full(m, np.inf)
-        Y_ev = np.empty((5, m))
+        Y_ev = np.empty((sys.nv, m))
         tnew = t + hstep
+
+        # candidates (lane, kind, target, outcome), located together in one Henon step
+        cand = []
 
         def propose(mask, kind, target, outcome):
             sel = np.flatnonzero(mask)
-            if sel.size == 0:
-                return
-            if kind == "B":
-                te, Ye = _secant(sys, tab, Y[:, sel], F[:, sel], t[sel], hstep[sel], aux[3][sel],
-                                 auxn[3][sel])
-            else:
-                te, Ye = _henon(sys, tab, Y[:, sel], t[sel], kind, target[sel] if np.ndim(target) else
-                                np.full(sel.size, target))
-            ok = np.isfinite(te) & (te >= t[sel]) & (te <= tnew[sel] + 1e-9 * hstep[sel]) & \
-                np.isfinite(Ye).all(axis=0)
-            te = np.where(ok, te, tnew[sel])
-            Ye = np.where(ok, Ye, Ynew[:, sel])
-            better = te < t_ev[sel]
-            b = sel[better]
-            t_ev[b] = te[better]
-            Y_ev[:, b] = Ye[:, better]
-            code[b] = outcome
+            if sel.size:
+                cand.append((sel, np.full(sel.size, _KINDS.get(kind, -1)), np.broadcast_to(
+                    np.asarray(target, dtype=float), (m,))[sel], outcome))
 
         xo, xn = Y[0], Ynew[0]
-        # bounce: xd from + to - (not terminal)
-        bmask = acc & (Y[2] > 0) & (Ynew[2] <= 0)
-        if bmask.any():
-            sel = np.flatnonzero(bmask)
-            tb, _ = _henon(sys, tab, Y[:, sel], t[sel], "vx", np.zeros(sel.size))
-            tb = np.where(np.isfinite(tb) & (tb >= t[sel]) & (tb <= tnew[sel]), tb, tnew[sel])
-            gl = idx[sel]
-            cnt = nb[sel]
-            keep = cnt < k_keep
-            out["bounce_times"][gl[keep], cnt[keep]] = tb[keep]
-            nb[sel] += 1
+        bmask = acc & (Y[2] > 0) & (Ynew[2] <= 0)   # bounce: xd from + to - (not terminal)
+        propose(bmask, "vx", 0.0, -2)
         propose(acc & (xo > start) & (xn <= start) & (Ynew[2] < 0), "x", start, ESCAPED)
         propose(acc & (auxn[0] >= z_lim) & (aux[0] < z_lim), "z", z_lim, FLEW_OFF)
         propose(acc & (xn >= x_hi) & (xo < x_hi), "x", x_hi, FLEW_OFF)
         propose(acc & (xn <= x_lo) & (xo > x_lo), "x", x_lo, FLEW_OFF)
         propose(acc & (Ynew[1] >= y_hi) & (Y[1] < y_hi), "y", y_hi, FLEW_OFF)
         propose(acc & (Ynew[1] <= y_lo) & (Y[1] > y_lo), "y", y_lo, FLEW_OFF)
+        if cand:
+            sel = np.concatenate([c[0] for c in cand])
+            kinds = np.concatenate([c[1] for c in cand])
+            targ = np.concatenate([c[2] for c in cand])
+            outc = np.concatenate([np.full(c[0].size, c[3]) for c in cand])
+            te, Ye = _henon(sys, tab, Y[:, sel], t[sel], kinds, targ)
+            ok = np.isfinite(te) & (te >= t[sel]) & (te <= tnew[sel] + 1e-9 * hstep[sel]) & \
+                np.isfinite(Ye).all(axis=0)
+            te = np.where(ok, te, tnew[sel])
+            Ye = np.where(ok, Ye, Ynew[:, sel])
+            isb = outc == -2
+            if isb.any():
+                bs, tb = sel[isb], te[isb]
+                gl = idx[bs]
+                cnt = nb[bs]
+                keep = cnt < k_keep
+                out["bounce_times"][gl[keep], cnt[keep]] = tb[keep]
+                nb[bs] += 1
+            for j in np.flatnonzero(~isb):  # terminal candidates: the earliest wins
+                i = sel[j]
+                if te[j] < t_ev[i]:
+                    t_ev[i] = te[j]
+                    Y_ev[:, i] = Ye[:, j]
+                    code[i] = outc[j]
         if sys.full:
-            propose(acc & (auxn[3] <= 0) & (aux[3] > 0), "B", 0.0, LOST_CONTACT)
+            lm = acc & (auxn[3] <= 0) & (aux[3] > 0)
+            if lm.any():
+                sel = np.flatnonzero(lm)
+                te, Ye = _secant(sys, tab, Y[:, sel], F[:, sel], t[sel], hstep[sel], aux[3][sel],
+                                 auxn[3][sel])
+                better = te < t_ev[sel]
+                b = sel[better]
+                t_ev[b] = te[better]
+                Y_ev[:, b] = Ye[:, better]
+                code[b] = LOST_CONTACT
         # already outside at the start of the run (start outside the shrunk footprint): ignore
         term = code >= 0
         # a bounce located after the terminal event does not count
@@ -530,7 +510,8 @@ def _run_chunk(problem, v_in, y0, vy0, rtol, atol, t_max, max_steps, tab, record
             out["v_out"][gl] = np.where(oc == ESCAPED, np.abs(Yend[2]), np.nan)
             F_end, aux_end = sys(Yend)
             E = sys.energy(Yend, aux_end)
-            out["energy_error"][gl] = np.abs(E + Yend[4] - E0[gl]) / escale[gl]
+            W = Yend[4] if sys.damped else 0.0
+            out["energy_error"][gl] = np.abs(E + W - E0[gl]) / escale[gl]
             out["max_z"][gl] = np.maximum(zmax[sel], aux_end[0])
             out["max_abs_y"][gl] = np.maximum(ymax[sel], np.abs(Yend[1]))
             out["bounces"][gl] = nb[sel]
@@ -616,6 +597,26 @@ def _lanes(values, n, name):
     return np.ascontiguousarray(a, dtype=float)
 
 
+_JOB = None
+
+
+def _run_job(ab):
+    return _JOB(ab)
+
+
+def _fork_pool(workers: int):
+    """A process pool by fork (None where fork is unavailable)."""
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor
+
+    if "fork" not in mp.get_all_start_methods():
+        return None
+    try:
+        return ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("fork"))
+    except (OSError, ValueError):
+        return None
+
+
 def launch_batch(problem, v_in, y0=None, vy0=None, *, rtol: float | None = None, atol: float | None = None,
                  t_max: float | None = None, max_bounces: int = K_BOUNCES, record: bool = False,
                  progress=None, method: str = "DOP853", workers: int | None = None,
@@ -633,7 +634,8 @@ def launch_batch(problem, v_in, y0=None, vy0=None, *, rtol: float | None = None,
     record : keep each launch's step points (for plots; only for small N)
     progress : callable(done, total) called as chunks finish
     method : 'DOP853' (default) or 'RK45'
-    workers : threads over chunks (default: min(2, cpu count)); results do not depend on it
+    workers : processes over chunks (default: min(2, cpu count); only for 2000 launches
+              or more); results do not depend on it
     chunk : lanes per chunk (results do not depend on it)
 
     Returns a :class:`LaunchResult`. Accuracy: each launch is integrated to the
@@ -662,10 +664,10 @@ def launch_batch(problem, v_in, y0=None, vy0=None, *, rtol: float | None = None,
 
     chunk = max(1, int(chunk))
     if workers is None:
-        workers = min(2, os.cpu_count() or 1)
+        workers = 1  # measured: two processes gain nothing on this 2-core machine (docs/simulator.md)
     n_chunks = max(1, math.ceil(n / chunk))
-    if workers > 1 and n_chunks < workers and n >= 256 and not stiff:
-        n_chunks = workers
+    if workers > 1 and n >= 256 and not stiff:  # equal chunks, a multiple of the workers
+        n_chunks = workers * math.ceil(n_chunks / workers)
     bounds = np.linspace(0, n, n_chunks + 1).round().astype(int)
     pieces = [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
 
@@ -678,15 +680,24 @@ def launch_batch(problem, v_in, y0=None, vy0=None, *, rtol: float | None = None,
 
     results = []
     done = 0
-    if workers > 1 and len(pieces) > 1:
-        from concurrent.futures import ThreadPoolExecutor
-
-        with ThreadPoolExecutor(max_workers=workers) as ex:
-            for (a, b), r in zip(pieces, ex.map(job, pieces)):
-                results.append(r)
-                done += b - a
-                if progress is not None:
-                    progress(done, n)
+    pool = None
+    if workers > 1 and len(pieces) > 1 and not record:
+        pool = _fork_pool(workers)
+    if pool is not None:
+        # Processes, not threads: the per-step Python work holds the GIL. Forked
+        # workers inherit the problem (its compiled functions do not pickle); only
+        # the per-lane summaries come back. Same arithmetic per lane, same results.
+        global _JOB
+        _JOB = job
+        try:
+            with pool:
+                for (a, b), r in zip(pieces, pool.map(_run_job, pieces)):
+                    results.append(r)
+                    done += b - a
+                    if progress is not None:
+                        progress(done, n)
+        finally:
+            _JOB = None
     else:
         for a, b in pieces:
             results.append(job((a, b)))
