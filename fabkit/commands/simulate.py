@@ -1,0 +1,65 @@
+"""``fabkit simulate SPEC --v-in V [--json] [--plot PNG]``: one launch of the rolling ball."""
+
+from __future__ import annotations
+
+import math
+
+from ..errors import SpecError
+from ..spec import load_spec
+from ._common import Timer, emit
+
+
+def run(args) -> int:
+    from ..physics.integrate import simulate_one
+    from ..physics.models import problem_from_spec
+
+    timer = Timer()
+    spec = load_spec(args.spec, need=("surface", "simulation"), command="simulate")
+    v = float(args.v_in)
+    if not math.isfinite(v) or v < 0:
+        raise SpecError(f"must be finite and >= 0, got {v:g}", key="--v-in")
+    problem = problem_from_spec(spec)
+    rtol, atol = problem.rtol, problem.atol
+    r = simulate_one(problem, v, record=bool(args.plot))
+    seconds = timer.seconds
+    # error estimate: the same launch at ten times tighter tolerances
+    tight = simulate_one(problem, v, record=False, rtol=rtol / 10, atol=atol / 10)
+    est = {"rtol": rtol, "rtol_ref": rtol / 10, "same_outcome": tight["outcome"] == r["outcome"]
+           and tight["bounces"] == r["bounces"]}
+    if est["same_outcome"] and r["outcome"] == "escaped":
+        est["v_out_abs"] = abs(tight["v_out"] - r["v_out"])
+    if est["same_outcome"] and r["bounces"]:
+        est["bounce_time_abs"] = max(abs(a - b) for a, b in zip(r["bounce_times"], tight["bounce_times"]))
+    traj = r.pop("trajectory", None)
+    payload = {k: r[k] for k in ("outcome", "bounces", "bounce_times", "v_out", "max_height", "max_abs_y",
+                                 "energy_error", "t_end", "steps", "rejected", "status", "method")}
+    payload.update({"v_in": v, "model": problem.model, "damping": problem.damping, "rtol": rtol,
+                    "atol": atol, "seconds": seconds, "error_estimate": est})
+    u = spec.units
+    lines = [
+        f"simulate: {problem.model} model, v_in = {v:g} {u}/s, damping {problem.damping:g} 1/s, "
+        f"start x = {problem.start:g} {u}",
+        f"outcome: {r['outcome']}" + (f", v_out = {r['v_out']:.10g} {u}/s" if r["outcome"] == "escaped" else ""),
+        f"bounces: {r['bounces']}" + (f" at t = {', '.join(f'{t:.6f}' for t in r['bounce_times'])} s"
+                                      if r["bounce_times"] else ""),
+        f"max height {r['max_height']:.6g} {u} (top - margin = {problem.top - problem.margin:g}), "
+        f"max |y| {r['max_abs_y']:.6g} {u}, ended at t = {r['t_end']:.6g} s",
+        f"energy error {r['energy_error']:.2e} (relative), {r['steps']} steps ({r['rejected']} rejected), "
+        f"rtol {rtol:g}",
+    ]
+    if "v_out_abs" in est:
+        lines.append(f"simulate: v_out error < {est['v_out_abs']:.1e} {u}/s (estimated at rtol {rtol / 10:g}), "
+                     f"{seconds:.3f} s")
+    else:
+        lines.append(f"simulate: {seconds:.3f} s")
+    if args.plot:
+        from ..io import write_atomic
+        from ..plots import trajectory_png
+
+        png = trajectory_png(traj, r, title=f"{spec.name}: {problem.model} model, v_in = {v:g} {u}/s",
+                             units=u)
+        write_atomic(args.plot, png)
+        payload["plot"] = str(args.plot)
+        lines.append(f"wrote {args.plot}")
+    emit(lines, payload, args.json)
+    return 0
