@@ -386,8 +386,16 @@ def top_skin(surface, tolerance_mm: float, tol: Tolerances = DEFAULT, key: str =
             perr = _probe_errors(P, Z, pieces, parent, len(tris), probe_xy, probe_tri, clipped)
             np.maximum.at(ratio, probe_tri, perr / target)
         terr[sub] = ratio * target
-        if not (terr > target).any():
+        fail = terr > target
+        if not fail.any():
             break
+        # a failing triangle needs about `ratio` triangles (error ~ size^2 on smooth
+        # ground, ~ size along a kink): refuse early instead of refining to the limit
+        need = np.count_nonzero(~fail) + np.sum(terr[fail] / target)
+        if need > limit:
+            raise SpecError(f"a tolerance of {tolerance_mm:g} mm needs about {need:.2g} triangles on this "
+                            f"surface, more than the limit {limit}; use a larger tolerance",
+                            file=surface.source, key=key)
         fail_all = sub[ratio > 2.0]
         fail_long = sub[(ratio > 1.0) & (ratio <= 2.0)]
         points, tris, terr = _bisect(points, tris, terr, fail_all, fail_long)

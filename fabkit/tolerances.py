@@ -25,7 +25,7 @@ class Tolerances:
     expr_max_exponent: float = 64.0    # |constant exponent| in a ** b
     expr_max_number: float = 1e12      # |numeric literal|
     # guards on sizes derived from user numbers
-    max_mesh_triangles: int = 5_000_000
+    max_mesh_triangles: int = 1_000_000    # ~25 s and 50 MB of STL on a 2-core machine
     max_program_points: int = 20_000_000
     max_passes: int = 200_000
     max_verify_points: int = 2_000_000
