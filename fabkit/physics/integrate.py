@@ -115,8 +115,9 @@ class LaunchResult:
     bounce_times  (N, K) the first K bounce times, s (nan padded)
     t_end, x_end, y_end, vx_end, vy_end   the final state (at the event that ended the run)
     max_z, max_abs_y   the largest height and |y| over the step points
-    energy_error  |E(t_end) + W(t_end) - E(0)| / E_kin(0): the relative energy drift
-                  (undamped) or energy-balance error (damped, W = dissipated energy)
+    energy_error  |E(t_end) + W(t_end) - E(0)| / (E_kin(0) + g~ (z_max - z_min)): the
+                  relative energy drift (undamped) or energy-balance error (damped, W =
+                  dissipated energy); the scale is the largest kinetic energy the run can reach
     steps, rejected   accepted and rejected steps per launch
     status        0 normal, 1 stopped by the step guard (outcome captured), 2 stiff: run by Radau
     trajectories  with record=True: per launch a dict of arrays t, x, y, vx, vy, ax, ay
@@ -371,11 +372,11 @@ def _run_chunk(problem, v_in, y0, vy0, rtol, atol, t_max, max_steps, tab, record
     F, aux = sys(Y)
     E0 = sys.energy(Y, aux)
     kin0 = 0.5 * (Y[2] ** 2 + Y[3] ** 2 + ((aux[1] * Y[2] + aux[2] * Y[3]) ** 2 if sys.full else 0.0))
-    escale = np.maximum(kin0, 1e-300)
     t = np.zeros(n)
     h = _initial_step(sys, tab, Y, F, rtol, atol, t_max)
     idx = np.arange(n)
     zmax = aux[0].copy()
+    zmin = aux[0].copy()
     ymax = np.abs(Y[1])
     steps = np.zeros(n, dtype=np.int64)
     rej = np.zeros(n, dtype=np.int64)
@@ -487,6 +488,7 @@ def _run_chunk(problem, v_in, y0, vy0, rtol, atol, t_max, max_steps, tab, record
         aux = tuple(np.where(acc, a1, a0) for a0, a1 in zip(aux, auxn))
         t = np.where(acc, tnew, t)
         zmax = np.where(acc, np.maximum(zmax, aux[0]), zmax)
+        zmin = np.where(acc, np.minimum(zmin, aux[0]), zmin)
         ymax = np.where(acc, np.maximum(ymax, np.abs(Y[1])), ymax)
         if record:
             for i in np.flatnonzero(acc & ~term):
@@ -511,7 +513,9 @@ def _run_chunk(problem, v_in, y0, vy0, rtol, atol, t_max, max_steps, tab, record
             F_end, aux_end = sys(Yend)
             E = sys.energy(Yend, aux_end)
             W = Yend[4] if sys.damped else 0.0
-            out["energy_error"][gl] = np.abs(E + W - E0[gl]) / escale[gl]
+            # scale: the largest kinetic energy the run can have had (launch + height lost)
+            escale = kin0[gl] + sys.gt * (np.maximum(zmax[sel], aux_end[0]) - np.minimum(zmin[sel], aux_end[0]))
+            out["energy_error"][gl] = np.abs(E + W - E0[gl]) / np.maximum(escale, 1e-300)
             out["max_z"][gl] = np.maximum(zmax[sel], aux_end[0])
             out["max_abs_y"][gl] = np.maximum(ymax[sel], np.abs(Yend[1]))
             out["bounces"][gl] = nb[sel]
@@ -525,8 +529,8 @@ def _run_chunk(problem, v_in, y0, vy0, rtol, atol, t_max, max_steps, tab, record
             keep = ~done
             idx, Y, F, t, h = idx[keep], Y[:, keep], F[:, keep], t[keep], h[keep]
             aux = tuple(a[keep] for a in aux)
-            zmax, ymax, steps, rej, nb, was_rejected = (zmax[keep], ymax[keep], steps[keep], rej[keep],
-                                                        nb[keep], was_rejected[keep])
+            zmax, zmin, ymax, steps, rej, nb, was_rejected = (zmax[keep], zmin[keep], ymax[keep], steps[keep],
+                                                              rej[keep], nb[keep], was_rejected[keep])
     if record:
         trajs = []
         for rows in traj:
