@@ -64,10 +64,10 @@ def run(args) -> int:
         lines.append("check: SAFE" if safe else "check: UNSAFE")
     emit(lines, payload, args.json)
     if first is not None:
-        raise DesignError(f"check: UNSAFE: release height {first['height']:.4f} {u} (v_in {first['v_in']:.4g} {u}/s) "
+        raise DesignError(f"UNSAFE: release height {first['height']:.4f} {u} (v_in {first['v_in']:.4g} {u}/s) "
                           f"{first['outcome'].replace('_', ' ')} at x={first['x']:.4g}, y={first['y']:.4g}, "
                           f"t={first['t']:.3g} s ({first['reason']})")
     if m is not None and not m["feasible"]:
         key, over = next(iter(m["depth_over_mm"].items()))
-        raise DesignError(f"check: UNMACHINABLE: the cut is {m['depth_mm']:.2f} mm deep, {over:.2f} mm over {key}")
+        raise DesignError(f"UNMACHINABLE: the cut is {m['depth_mm']:.2f} mm deep, {over:.2f} mm over {key}")
     return 0

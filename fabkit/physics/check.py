@@ -12,7 +12,7 @@ margin) or loses contact (full model). It reports:
   boundary between the last safe and the first failing sampled height,
   narrowed by batched k-section to ``rel_tol`` (1e-4) relative (the reported
   height is the safe end of the final bracket);
-* ``v_critical`` (by :func:`sweep.sweep` over the ramp's speeds, 1e-6 relative)
+* ``v_critical`` (by :func:`sweep.sweep` over the ramp's speeds, 1e-5 relative)
   and the release height that gives it; the two-bounce windows the ramp can
   reach (both edges inside the ramp's v_in range);
 * machining feasibility when the spec has stock and tool: the depth of the cut
@@ -60,7 +60,7 @@ def _full_launches(problem, v, progress=None, rtol=None, atol=None):
     return r
 
 
-def check(spec, *, progress=None, rel_tol: float = 1e-4, v_rel_tol: float = 1e-6) -> dict:
+def check(spec, *, progress=None, rel_tol: float = 1e-4, v_rel_tol: float = 1e-5) -> dict:
     """Run the pre-fabrication check of ``spec`` (sections surface, ball, ramp,
     simulation; stock and tool optional). Returns the report dict (see module doc):
     safe, highest_safe_height, first_failure {height, v_in, outcome, reason, x, y, t},
@@ -97,7 +97,7 @@ def check(spec, *, progress=None, rel_tol: float = 1e-4, v_rel_tol: float = 1e-6
 
     # v_critical and windows over the ramp's speeds (reusing these launches)
     initial = Launches(v, lr.outcome, lr.bounces, lr.v_out, lr.bounce_times)
-    sw = sweep(problem, v, initial=initial, rel_tol=v_rel_tol, error_samples=0)
+    sw = sweep(problem, v, initial=initial, rel_tol=v_rel_tol, error_samples=0, tn=False, k=256, k_edge=64)
     vc = sw["v_critical"]
     out["v_critical"] = vc
     out["v_critical_reason"] = sw["v_critical_reason"]
@@ -119,7 +119,7 @@ def check(spec, *, progress=None, rel_tol: float = 1e-4, v_rel_tol: float = 1e-6
     return out
 
 
-def _boundary(problem, h_safe: float, h_fail: float, g: float, k: float, rel_tol: float, m: int = 16) -> float:
+def _boundary(problem, h_safe: float, h_fail: float, g: float, k: float, rel_tol: float, m: int = 64) -> float:
     """Highest safe height in [h_safe, h_fail] by batched k-section (m launches a
     round) to width <= rel_tol * h_fail; returns the safe end of the bracket."""
     from .calibrate import v_in_from_height

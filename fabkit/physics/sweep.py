@@ -325,7 +325,8 @@ def fit_tn(T_n: list[float], v_in: list[float], T_shape: float) -> dict:
 # ----------------------------------------------------------------------------
 def sweep(problem, v_in, *, launcher=None, method: str = "fabkit", rtol: float | None = None,
           atol: float | None = None, progress=None, rel_tol: float = 1e-6, k: int = 64,
-          refine: bool = True, error_samples: int = 48, initial: Launches | None = None,
+          refine: bool = True, error_samples: int = 48, initial: Launches | None = None, tn: bool = True,
+          k_edge: int = 32,
           tol=DEFAULT) -> dict:
     """Launch at every ``v_in`` (N,) (design units/s, sorted ascending here) and analyse.
 
@@ -336,6 +337,9 @@ def sweep(problem, v_in, *, launcher=None, method: str = "fabkit", rtol: float |
     ``error_estimate`` {v_out_abs, v_out_rel, launches, rtol_ref}, ``launches``
     (total run), ``seconds``. Accuracy: see the module docstring.
     ``initial``: results already computed for the sorted ``v_in`` (not re-run).
+    ``tn``: False skips the v_out maximization (no T_n fit). ``k``, ``k_edge``:
+    launches per refinement round for v_critical and for each window edge (a
+    round costs about its slowest launch, so wide rounds are cheap).
     """
     from .models import OUTCOMES
 
@@ -371,10 +375,11 @@ def sweep(problem, v_in, *, launcher=None, method: str = "fabkit", rtol: float |
         if lo is not None:
             tasks.append(_critical_task(lo, hi, rel_tol, k))
         for w, i, j in two:
-            tasks.append(_edge_task(float(v[i - 1]) if i > 0 else float(v[i]), float(v[i]), -1, rel_tol))
+            tasks.append(_edge_task(float(v[i - 1]) if i > 0 else float(v[i]), float(v[i]), -1, rel_tol, k_edge))
             tasks.append(_edge_task(float(v[j]), float(v[j + 1]) if j + 1 < len(v) else float(v[j]), +1,
-                                    rel_tol))
-            tasks.append(_maximize_task(float(v[max(i - 1, 0)]), float(v[min(j + 1, len(v) - 1)])))
+                                    rel_tol, k_edge))
+            tasks.append(_maximize_task(float(v[max(i - 1, 0)]), float(v[min(j + 1, len(v) - 1)]))
+                         if tn else iter(()))
     done = run_tasks(counting, tasks)
     if refine and lo is not None:
         lo, hi = done.pop(0)

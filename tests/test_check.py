@@ -1,0 +1,56 @@
+"""fabkit check: the acceptance cases (paper's design passes, the wall clipped at 2 cm fails)."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from conftest import PAPER, ROOT, mutated, write_spec
+
+CLIPPED = ROOT / "tests" / "fixtures" / "check" / "clipped_top2.yaml"
+
+
+@pytest.mark.slow
+def test_paper_design_passes(cli, tmp_path):
+    # specs/surface.yaml as is, but 60 ramp samples instead of 400 (test time)
+    code, out, err = cli("check", write_spec(tmp_path, mutated({"ramp.samples": 60})), "--json", "--no-progress")
+    assert code == 0, err
+    r = json.loads(out)
+    assert r["safe"] is True
+    assert r["first_failure"] is None
+    assert r["highest_safe_height"] == pytest.approx(4.5)
+    # energy bound: z never exceeds the release height, and top - margin = 4.5 = the highest height
+    assert set(r["outcomes"]) <= {"escaped", "captured"}
+    assert r["machining"]["depth_ok"] and r["machining"]["radius_ok"]
+    assert 40 < r["v_critical"] < 60
+
+
+def test_wall_clipped_at_2cm_fails_naming_the_first_height(cli, tmp_path):
+    raw = mutated({"surface.top": 2, "ramp.samples": 40})
+    spec = write_spec(tmp_path, raw)
+    code, out, err = cli("check", spec, "--no-progress")
+    assert code == 1
+    assert err.count("\n") == 1 and "UNSAFE: release height" in err and "top - margin" in err
+    # undamped energy bound: a launch from H can reach at most z = H, so every height
+    # <= top - margin = 1.5 cm is safe; the first failure lies above it.
+    h = float(err.split("release height ")[1].split()[0])
+    assert h > 1.5
+    assert "check: highest safe release height" in out
+
+
+def test_clipped_fixture_is_the_paper_with_top_2():
+    import yaml
+
+    a = yaml.safe_load(CLIPPED.read_text())
+    b = yaml.safe_load(PAPER.read_text())
+    assert a["surface"]["top"] == 2
+    a["surface"]["top"] = b["surface"]["top"]
+    a["name"] = b["name"]
+    assert a == b
+
+
+def test_bad_input_exit_2(cli, tmp_path):
+    raw = mutated({}, drop=("ramp",))
+    code, out, err = cli("check", write_spec(tmp_path, raw), "--no-progress")
+    assert code == 2 and "ramp" in err and out == ""
