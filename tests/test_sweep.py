@@ -1,0 +1,119 @@
+"""Sweeps against the converged scipy reference (rtol 1e-12) for the paper's apparatus,
+damping 0, start -30 cm, both models (issue: accuracy)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from conftest import mutated
+from fabkit.physics import models
+from fabkit.physics.integrate import launch_batch
+from fabkit.physics.reference import solve_launch
+from fabkit.physics.sweep import Launches, critical_bracket, find_runs, fit_tn, sweep
+from fabkit.spec import validate
+
+
+def _paper(model):
+    spec = validate(mutated({"simulation.damping": 0.0, "simulation.start": -30}), "paper.yaml")
+    return models.problem_from_spec(spec, model=model)
+
+
+def _one_bounce(p, v):
+    r = solve_launch(p, v)
+    return r["outcome"] == "escaped" and r["bounces"] == 1
+
+
+def _reference_vc(p, lo, hi, rel=1e-5):
+    """Plain bisection with the rtol-1e-12 reference, from a verified bracket."""
+    assert not _one_bounce(p, lo) and _one_bounce(p, hi)
+    while hi - lo > rel * hi:
+        m = 0.5 * (lo + hi)
+        if _one_bounce(p, m):
+            hi = m
+        else:
+            lo = m
+    return 0.5 * (lo + hi)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("model,lo,hi", [("full", 43.9, 44.4), ("simplified", 48.6, 49.1)])
+def test_v_critical_agrees_with_converged_reference(model, lo, hi):
+    p = _paper(model)
+    res = sweep(p, np.linspace(lo, hi, 6), error_samples=0, tn=False, k=128, k_edge=32)
+    vc = res["v_critical"]
+    assert vc is not None and res["v_critical_error"] <= 1e-6 * vc
+    ref = _reference_vc(p, vc * (1 - 3e-5), vc * (1 + 3e-5))
+    assert vc == pytest.approx(ref, rel=1e-4)
+    # every sample above v_critical escapes after one bounce
+    v = res["v_in"]
+    above = v > vc
+    assert all(o == "escaped" for o, a in zip(res["outcome"], above) if a)
+    assert all(b == 1 for b, a in zip(res["bounces"], above) if a)
+
+
+@pytest.mark.parametrize("model,speeds", [("full", [28.0, 39.2]), ("simplified", [28.0, 43.3])])
+def test_v_out_inside_wide_two_bounce_windows(model, speeds):
+    p = _paper(model)
+    fast = launch_batch(p, speeds)
+    for i, v in enumerate(speeds):
+        ref = solve_launch(p, v)
+        assert ref["outcome"] == "escaped" and ref["bounces"] == 2
+        assert fast.bounces[i] == 2
+        assert fast.v_out[i] == pytest.approx(ref["v_out"], rel=1e-3)
+        assert fast.v_out[i] == pytest.approx(ref["v_out"], rel=1e-6)   # what the fast path actually gives
+        np.testing.assert_allclose(fast.bounce_times[i, :2], ref["bounce_times"][:2], rtol=1e-6)
+
+
+def test_eps_zero_sweep_is_one_bounce_with_v_out_equal_v_in():
+    spec = validate(mutated({"surface.params.eps": 0.0, "simulation.damping": 0.0}), "eps0.yaml")
+    p = models.problem_from_spec(spec)
+    v = np.linspace(20, 70, 11)
+    res = sweep(p, v, error_samples=0)
+    assert list(res["bounces"]) == [1] * 11 and res["windows"] == []
+    np.testing.assert_allclose(res["v_out"], v, rtol=1e-7)
+    assert res["v_critical"] is None and "below the range" in res["v_critical_reason"]
+
+
+def _fake(outcomes, bounces):
+    n = len(outcomes)
+    return Launches(np.arange(1.0, n + 1), np.array(outcomes, dtype=np.int8), np.array(bounces),
+                    np.full(n, 1.0), np.full((n, 8), np.nan))
+
+
+def test_bracket_and_runs_logic():
+    # samples: captured, 2, 2, 3, 2, 1, 1, flew_off, flew_off
+    r = _fake([1, 0, 0, 0, 0, 0, 0, 2, 2], [3, 2, 2, 3, 2, 1, 1, 0, 0])
+    lo, hi, why = critical_bracket(r.v_in, r)
+    assert (lo, hi) == (5.0, 6.0) and why == ""
+    assert find_runs(r) == [(2, 1, 2), (3, 3, 3), (2, 4, 4)]
+    r2 = _fake([0, 0, 1], [1, 1, 4])
+    assert critical_bracket(r2.v_in, r2)[0] is None
+
+
+def test_tn_fit_recovers_a_line_with_gaps():
+    T, delta, Ts = 0.67, 0.25, 0.607
+    n = [3, 4, 5, 6, 8, 9, 12]
+    fit = fit_tn([T * k + delta for k in n], list(range(len(n))), Ts)
+    assert fit["n"] == n
+    assert fit["T"] == pytest.approx(T, rel=1e-12) and fit["delta"] == pytest.approx(delta, rel=1e-10)
+
+
+@pytest.mark.slow
+def test_simplified_windows_follow_eq_tn_with_the_transverse_period():
+    # eq. (xyODE_simp) on c y^2: the transverse mode has period 2 pi / sqrt(2 g~ c) exactly
+    p = _paper("simplified")
+    res = sweep(p, np.linspace(41.0, 47.5, 27), error_samples=8)
+    fit = res["tn_fit"]
+    T_shape = 2 * math.pi / math.sqrt(2 * p.g_tilde * 0.0764)
+    assert fit["T_shape"] == pytest.approx(T_shape, rel=1e-9)
+    assert len(fit["n"]) >= 3 and np.all(np.diff(fit["n"]) >= 1)
+    assert fit["T"] == pytest.approx(T_shape, rel=0.01)
+    assert res["error_estimate"]["v_out_rel"] < 1e-6
+    # at the v_out maximum of each two-bounce window the reference agrees
+    for w in [w for w in res["windows"] if w["bounces"] == 2 and "v_in_max" in w][:2]:
+        ref = solve_launch(p, w["v_in_max"])
+        assert ref["bounces"] == 2 and ref["outcome"] == "escaped"
+        assert w["v_out_max"] == pytest.approx(ref["v_out"], rel=1e-6)
