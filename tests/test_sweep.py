@@ -117,3 +117,21 @@ def test_simplified_windows_follow_eq_tn_with_the_transverse_period():
         ref = solve_launch(p, w["v_in_max"])
         assert ref["bounces"] == 2 and ref["outcome"] == "escaped"
         assert w["v_out_max"] == pytest.approx(ref["v_out"], rel=1e-6)
+
+
+def test_sweep_cli_json_and_plot(cli, tmp_path):
+    import json
+
+    from conftest import write_spec
+
+    spec = write_spec(tmp_path, mutated({"surface.params.eps": 0.0, "simulation.damping": 0.0}))
+    code, out, err = cli("sweep", spec, "--v-in", "20", "70", "6", "--json", "--plot", "fig.png", "--no-progress")
+    assert code == 0, err
+    r = json.loads(out)
+    for key in ("v_in", "v_out", "bounces", "outcome", "v_critical", "windows", "tn_fit", "seconds",
+                "error_estimate"):
+        assert key in r
+    np.testing.assert_allclose(r["v_out"], r["v_in"], rtol=1e-7)       # eps = 0: v_out = v_in
+    assert (tmp_path / "fig.png").read_bytes()[:4] == b"\x89PNG"
+    code, out, err = cli("sweep", spec, "--v-in", "70", "20", "6")
+    assert code == 2 and "--v-in" in err

@@ -55,46 +55,6 @@ def speeds(spec, v_in_arg, tol=None) -> np.ndarray:
     return np.unique(v_in_from_height(H, units.gravity(spec.units), ball_k(spec)))
 
 
-def sweep_figure(result: dict, title: str = "") -> bytes:
-    """PNG bytes: v_out against v_in coloured by bounce count, v_critical marked."""
-    import io
-
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    v = np.asarray(result["v_in"], dtype=float)
-    vo = np.asarray([np.nan if x is None else x for x in result["v_out"]], dtype=float)
-    nb = np.asarray(result["bounces"])
-    esc = np.array([o == "escaped" for o in result["outcome"]])
-    colors = {1: "black", 2: "tab:blue", 3: "tab:green", 4: "tab:red"}
-    fig, ax = plt.subplots(figsize=(7, 4), dpi=120)
-    for n in sorted(set(nb[esc].tolist())):
-        m = esc & (nb == n)
-        ax.plot(v[m], vo[m], ".", ms=3, color=colors.get(n, "tab:gray"),
-                label=f"{n} bounce{'s' if n > 1 else ''}" if n <= 4 else None)
-    if (esc & (nb > 4)).any():
-        ax.plot([], [], ".", color="tab:gray", label="5+ bounces")
-    lost = ~esc
-    if lost.any():
-        ax.plot(v[lost], np.zeros(lost.sum()), "|", color="0.6", ms=6, label="captured / off")
-    vc = result.get("v_critical")
-    if vc is not None:
-        ax.axvline(vc, color="tab:orange", lw=1, ls="--", label=f"v_critical {vc:.4f}")
-    ax.set_xlabel("v_in")
-    ax.set_ylabel("v_out")
-    if title:
-        ax.set_title(title)
-    ax.legend(fontsize=7, loc="upper left")
-    ax.grid(alpha=0.3)
-    buf = io.BytesIO()
-    fig.tight_layout()
-    fig.savefig(buf, format="png", metadata={"Software": None})
-    plt.close(fig)
-    return buf.getvalue()
-
-
 def run(args) -> int:
     from ..io import write_atomic
     from ..physics.models import problem_from_spec
@@ -114,6 +74,8 @@ def run(args) -> int:
         close()
     res["seconds"] = timer.seconds
     if args.plot:
+        from ..plots import sweep_figure
+
         write_atomic(args.plot, sweep_figure(res, f"{spec.name}: {problem.model} model"))
     u = spec.units
     vc = res["v_critical"]
