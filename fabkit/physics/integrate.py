@@ -56,6 +56,7 @@ CHUNK = 16384         # lanes per chunk (memory bound; the arithmetic does not d
 K_BOUNCES = 16        # bounce times kept per lane
 STIFF_STEPS = 50_000  # explicit steps beyond which a damped problem goes to Radau
 SAFETY, MIN_FACTOR, MAX_FACTOR = 0.9, 0.2, 10.0
+BETA = 0.0            # PI step control exponent (0: scipy's controller)
 
 
 # ----------------------------------------------------------------------------
@@ -186,10 +187,10 @@ class _System:
         self.nv = 5 if self.damped else 4
         self.f = fused(problem)
 
-    def __call__(self, S):
+    def __call__(self, S, out=None):
         with np.errstate(all="ignore"):
             ax, ay, h, hx, hy, br, P = self.f(S[0], S[1], S[2], S[3])
-        F = np.empty_like(S)
+        F = np.empty_like(S) if out is None else out
         F[0] = S[2]
         F[1] = S[3]
         F[2] = ax
@@ -209,17 +210,35 @@ class _System:
 
 
 def _combine(Y, h, K, coeffs, out):
-    """out = Y + h * sum_j c_j K_j, elementwise in a fixed order (lane-independent)."""
-    acc = None
-    for j, c in coeffs:
-        term = K[j] * c
-        acc = term if acc is None else np.add(acc, term, out=acc)
-    if acc is None:
+    """out = Y + h * sum_j c_j K_j (K: (S, nv, m), coeffs: ((j, c_j), ...)).
+
+    The stage sum is one multiply and one reduction over the leading (stage) axis:
+    numpy adds the rows in order, element by element, so each lane's value depends
+    only on that lane (no pairwise or BLAS reordering across lanes).
+    """
+    if not coeffs:
         out[...] = Y
         return out
+    n = coeffs[-1][0] + 1
+    col = _dense(coeffs, n)
+    acc = np.multiply(K[:n], col).sum(axis=0)
     np.multiply(acc, h, out=acc)
     np.add(Y, acc, out=out)
     return out
+
+
+_DENSE: dict = {}
+
+
+def _dense(coeffs, n):
+    """The coefficients as a dense (n, 1, 1) column (cached)."""
+    col = _DENSE.get(coeffs)
+    if col is None:
+        col = np.zeros((n, 1, 1))
+        for j, c in coeffs:
+            col[j, 0, 0] = c
+        _DENSE[coeffs] = col
+    return col
 
 
 def _rk_step(sys, tab, Y, F0, h, K):
@@ -231,7 +250,7 @@ def _rk_step(sys, tab, Y, F0, h, K):
     Ys = np.empty_like(Y)
     for s in range(1, tab.n_stages):
         _combine(Y, h, K, tab.A[s], Ys)
-        K[s] = sys(Ys)[0]
+        sys(Ys, out=K[s])
     Ynew = np.empty_like(Y)
     _combine(Y, h, K, tab.B, Ynew)
     return Ynew
@@ -240,10 +259,8 @@ def _rk_step(sys, tab, Y, F0, h, K):
 def _error_norm(tab, K, h, scale):
     """scipy's error norm per lane (m,), over the 4 state components."""
     def est(coeffs):
-        acc = None
-        for j, c in coeffs:
-            term = K[j, :4] * c
-            acc = term if acc is None else np.add(acc, term, out=acc)
+        n = coeffs[-1][0] + 1
+        acc = np.multiply(K[:n, :4], _dense(coeffs, n)).sum(axis=0)
         acc /= scale
         acc *= acc
         return acc[0] + acc[1] + acc[2] + acc[3]
@@ -382,6 +399,7 @@ def _run_chunk(problem, v_in, y0, vy0, rtol, atol, t_max, max_steps, tab, record
     rej = np.zeros(n, dtype=np.int64)
     nb = np.zeros(n, dtype=np.int64)
     was_rejected = np.zeros(n, dtype=bool)
+    err_prev = np.ones(n)
     expo = -1.0 / (tab.order + 1)
     traj = [[(0.0, *Y[:4, i], *F[2:4, i])] for i in range(n)] if record else None
 
@@ -391,16 +409,20 @@ def _run_chunk(problem, v_in, y0, vy0, rtol, atol, t_max, max_steps, tab, record
         last = hstep >= t_max - t
         K = np.empty((tab.n_stages + 1, sys.nv, m))
         Ynew = _rk_step(sys, tab, Y, F, hstep, K)
-        Fnew, auxn = sys(Ynew)
-        K[tab.n_stages] = Fnew
+        Fnew, auxn = sys(Ynew, out=K[tab.n_stages])
         scale = atol + np.maximum(np.abs(Y[:4]), np.abs(Ynew[:4])) * rtol
         err = _error_norm(tab, K, hstep, scale)
         finite = np.isfinite(err) & np.isfinite(Ynew).all(axis=0)
         acc = finite & (err <= 1.0)
         with np.errstate(divide="ignore"):
             fac = np.where(err == 0, MAX_FACTOR, SAFETY * np.power(np.where(finite, err, 1.0), expo))
-        fac_acc = np.minimum(MAX_FACTOR, fac)
+        fac_acc = fac
+        if BETA:  # PI control (Gustafsson): damp the step growth by the previous error
+            with np.errstate(divide="ignore", over="ignore"):
+                fac_acc = fac * np.power(np.maximum(err, 1e-4), 0.75 * BETA) * np.power(err_prev, BETA)
+        fac_acc = np.minimum(MAX_FACTOR, fac_acc)
         fac_acc = np.where(was_rejected, np.minimum(1.0, fac_acc), fac_acc)
+        err_prev = np.where(acc, np.maximum(err, 1e-4), err_prev)
         fac_rej = np.where(finite, np.maximum(MIN_FACTOR, fac), MIN_FACTOR)
         rej += ~acc
         steps += acc
@@ -529,8 +551,9 @@ def _run_chunk(problem, v_in, y0, vy0, rtol, atol, t_max, max_steps, tab, record
             keep = ~done
             idx, Y, F, t, h = idx[keep], Y[:, keep], F[:, keep], t[keep], h[keep]
             aux = tuple(a[keep] for a in aux)
-            zmax, zmin, ymax, steps, rej, nb, was_rejected = (zmax[keep], zmin[keep], ymax[keep], steps[keep],
-                                                              rej[keep], nb[keep], was_rejected[keep])
+            zmax, zmin, ymax, steps, rej, nb, was_rejected, err_prev = (
+                zmax[keep], zmin[keep], ymax[keep], steps[keep], rej[keep], nb[keep], was_rejected[keep],
+                err_prev[keep])
     if record:
         trajs = []
         for rows in traj:
