@@ -54,6 +54,7 @@ from .models import CAPTURED, ESCAPED, FLEW_OFF, LOST_CONTACT, OUTCOMES
 
 CHUNK = 16384         # lanes per chunk (memory bound; the arithmetic does not depend on it)
 K_BOUNCES = 16        # bounce times kept per lane
+QUEUE = 1024          # bounces located together
 STIFF_STEPS = 50_000  # explicit steps beyond which a damped problem goes to Radau
 SAFETY, MIN_FACTOR, MAX_FACTOR = 0.9, 0.2, 10.0
 BETA = 0.0            # PI step control exponent (0: scipy's controller)
@@ -348,6 +349,25 @@ def _secant(sys, tab, Y, F0, t, h, b0, b1, iters: int = 4):
     return t + h * th, Yt
 
 
+def _flush_bounces(sys, tab, queue, out, k_keep):
+    """Locate the queued bounces (one Henon step in xd for all) and store their times."""
+    if not queue:
+        return
+    Y = np.concatenate([q[0] for q in queue], axis=1)
+    t = np.concatenate([q[1] for q in queue])
+    lane = np.concatenate([q[2] for q in queue])
+    order = np.concatenate([q[3] for q in queue])
+    h = np.concatenate([q[4] for q in queue])
+    queue.clear()
+    keep = order < k_keep
+    if not keep.any():
+        return
+    Y, t, lane, order, h = Y[:, keep], t[keep], lane[keep], order[keep], h[keep]
+    te, _ = _henon(sys, tab, Y, t, "vx", np.zeros(t.size))
+    ok = np.isfinite(te) & (te >= t) & (te <= t + h)
+    out["bounce_times"][lane, order] = np.where(ok, te, t + h)
+
+
 # ----------------------------------------------------------------------------
 # the chunk loop
 # ----------------------------------------------------------------------------
@@ -403,6 +423,7 @@ def _run_chunk(problem, v_in, y0, vy0, rtol, atol, t_max, max_steps, tab, record
     expo = -1.0 / (tab.order + 1)
     traj = [[(0.0, *Y[:4, i], *F[2:4, i])] for i in range(n)] if record else None
 
+    queue, queued = [], [0]
     while idx.size:
         m = idx.size
         hstep = np.minimum(h, t_max - t)
@@ -446,14 +467,29 @@ def _run_chunk(problem, v_in, y0, vy0, rtol, atol, t_max, max_steps, tab, record
                     np.asarray(target, dtype=float), (m,))[sel], outcome))
 
         xo, xn = Y[0], Ynew[0]
-        bmask = acc & (Y[2] > 0) & (Ynew[2] <= 0)   # bounce: xd from + to - (not terminal)
-        propose(bmask, "vx", 0.0, -2)
         propose(acc & (xo > start) & (xn <= start) & (Ynew[2] < 0), "x", start, ESCAPED)
         propose(acc & (auxn[0] >= z_lim) & (aux[0] < z_lim), "z", z_lim, FLEW_OFF)
         propose(acc & (xn >= x_hi) & (xo < x_hi), "x", x_hi, FLEW_OFF)
         propose(acc & (xn <= x_lo) & (xo > x_lo), "x", x_lo, FLEW_OFF)
         propose(acc & (Ynew[1] >= y_hi) & (Y[1] < y_hi), "y", y_hi, FLEW_OFF)
         propose(acc & (Ynew[1] <= y_lo) & (Y[1] > y_lo), "y", y_lo, FLEW_OFF)
+        bmask = acc & (Y[2] > 0) & (Ynew[2] <= 0)   # bounce: xd from + to - (not terminal)
+        if bmask.any():
+            # bounces in steps without a terminal event are located later, many at once
+            # (nothing in the step loop depends on their times); the others right now
+            tany = np.zeros(m, dtype=bool)
+            for c in cand:
+                tany[c[0]] = True
+            later = np.flatnonzero(bmask & ~tany)
+            if later.size:
+                queue.append((Y[:, later].copy(), t[later].copy(), idx[later], nb[later].copy(),
+                              hstep[later].copy()))
+                nb[later] += 1
+                queued[0] += later.size
+                if queued[0] >= QUEUE:
+                    _flush_bounces(sys, tab, queue, out, k_keep)
+                    queued[0] = 0
+            propose(bmask & tany, "vx", 0.0, -2)
         if cand:
             sel = np.concatenate([c[0] for c in cand])
             kinds = np.concatenate([c[1] for c in cand])
@@ -554,6 +590,7 @@ def _run_chunk(problem, v_in, y0, vy0, rtol, atol, t_max, max_steps, tab, record
             zmax, zmin, ymax, steps, rej, nb, was_rejected, err_prev = (
                 zmax[keep], zmin[keep], ymax[keep], steps[keep], rej[keep], nb[keep], was_rejected[keep],
                 err_prev[keep])
+    _flush_bounces(sys, tab, queue, out, k_keep)
     if record:
         trajs = []
         for rows in traj:
