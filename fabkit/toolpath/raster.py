@@ -1,0 +1,523 @@
+"""Raster planning for a ball-end mill: passes, slope-aware stepover, adaptive
+point spacing, air skipping, links, optional z-level roughing.
+
+Work coordinates, mm (see :mod:`fabkit.toolpath.path`). A pass runs along ``u``
+(X for ``direction: x``, Y for ``direction: y``) at a fixed ``v`` across; tip
+heights come from the exact drop cutter (:func:`compensate`).
+
+Rules (accuracy in brackets):
+
+* Stepover, pass by pass: the next pass is the farthest (never beyond the
+  flat-ground stepover) for which the material left between the two balls,
+  measured VERTICALLY above the design in each cross-section u = const, stays
+  <= 0.95 * scallop. The bound is computed from the actual ball centres of both
+  passes on a grid along u (1 mm or R/2) at the exact cusp and 7 points between
+  the passes, so it holds on steep walls (on a plane of slope angle theta across
+  the passes the vertical cusp is (R - sqrt(R^2 - (s / (2 cos theta))^2)) / cos theta).
+  It ignores the extra material removed by neighbouring ball positions along the
+  pass, so it is an upper bound of the material left.
+* Spacing along a pass: segments are halved until the exact path at each
+  segment's midpoint is within tolerance/2 of the chord; then nodes are dropped
+  while every evaluated point between the surviving nodes stays within
+  tolerance/2 of the chord.
+* Air: portions where the tip is at or above the top face (touching nothing) are
+  left out; passes that cut nothing are dropped. Along u a pass stops, beyond the
+  stock, at the first position whose contact is on the stock edge (that position
+  mills the edge exactly; farther ones cut nothing more). Across, the first and
+  last passes run along the footprint edges v = 0 and v = W.
+* Links: between runs less than max(4 R, 4 stepover) apart: up to a local
+  clearance (1 mm above the highest material along the straight link, checked
+  with :func:`compensate`), across, plunge (feed moves); otherwise retract to
+  safe_z, rapid, rapid down to the clearance above the top face, plunge.
+  Rapids only move vertically out of a drop-cutter position, at safe_z, or above
+  the top face.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..errors import SpecError
+from ..tolerances import DEFAULT, Tolerances
+from .compensate import WorkSurface, compensate
+from .path import CUT, PLUNGE, RAPID, Toolpath
+
+AIR_EPS = 1e-7          # mm: a tip this close below the top face touches nothing worth a move
+SCALLOP_SAFETY = 0.95   # stepover keeps the cross-section bound below this fraction of the scallop
+CHORD_SAFETY = 0.5      # evaluated chord errors kept below this fraction of the tolerance
+LINK_CLEARANCE = 1.0    # mm above material for short links and approaches (<= safe_height)
+
+
+def flat_stepover(R: float, scallop: float) -> float:
+    """Stepover leaving cusps of height ``scallop`` on flat ground, mm (exact)."""
+    if scallop >= R:
+        return 2.0 * R
+    return 2.0 * math.sqrt(2.0 * R * scallop - scallop * scallop)
+
+
+def tilted_plane_cusp(R: float, s: float, theta: float) -> float:
+    """Vertical cusp height between two balls of radius R on a plane of slope angle
+    ``theta`` across passes ``s`` apart horizontally, mm (closed form)."""
+    half = s / (2.0 * math.cos(theta))
+    return (R - math.sqrt(R * R - half * half)) / math.cos(theta)
+
+
+class _Frame:
+    """Pass coordinates (u along, v across) <-> work (X, Y)."""
+
+    def __init__(self, direction: str, L: float, W: float):
+        self.direction = direction
+        self.Lu, self.Lv = (L, W) if direction == "x" else (W, L)
+
+    def xy(self, u, v):
+        return (u, v) if self.direction == "x" else (v, u)
+
+
+def _profile(ws, fr, R, u, v, info=False):
+    X, Y = fr.xy(*np.broadcast_arrays(np.asarray(u, float), np.asarray(v, float)))
+    return compensate(ws, X, Y, R, return_info=info)
+
+
+def _hermite(ug, Z, dZ, uf):
+    """Cubic Hermite interpolation of the pass profile (exact values and slopes at
+    the nodes ug) at uf; +inf outside the finite nodes."""
+    i = np.clip(np.searchsorted(ug, uf, side="right") - 1, 0, len(ug) - 2)
+    h = ug[i + 1] - ug[i]
+    t = (uf - ug[i]) / h
+    t2, t3 = t * t, t * t * t
+    z = ((2 * t3 - 3 * t2 + 1) * Z[i] + (t3 - 2 * t2 + t) * h * dZ[i]
+         + (-2 * t3 + 3 * t2) * Z[i + 1] + (t3 - t2) * h * dZ[i + 1])
+    return np.where(np.isfinite(z), z, np.inf)
+
+
+class _Pass:
+    """One pass: v, exact tip heights Z and slopes dZ/du at the grid ug, the nodes
+    kept, and the profile on a fine grid uf (Hermite; +inf where not machined)."""
+
+    def __init__(self, ws, fr, R, ug, uf, v):
+        X, Y = fr.xy(ug, np.full_like(ug, v))
+        Z, ci = compensate(ws, X, Y, R, return_info=True)
+        pu = ci.contact_x if fr.direction == "x" else ci.contact_y
+        d2 = (ci.contact_x - X) ** 2 + (ci.contact_y - Y) ** 2
+        with np.errstate(all="ignore"):
+            dZ = np.clip(np.nan_to_num((pu - ug) / np.sqrt(np.maximum(R * R - d2, 0.0))), -20, 20)
+        self.v, self.Z, self.dZ, self.bridged = v, Z, dZ, ci.bridged
+        # the contact curve where it crosses each cross-section u (contacts lie up to
+        # R along the pass from their ball's centre on steep ground)
+        cv = ci.contact_y if fr.direction == "x" else ci.contact_x
+        ok = np.isfinite(pu) & np.isfinite(cv)
+        if ok.any():
+            o = np.argsort(pu[ok], kind="stable")
+            self.cv = np.interp(ug, pu[ok][o], cv[ok][o])
+        else:
+            self.cv = np.full_like(ug, v)
+        self.keep = _trim_outside(ug, Z[None, :], pu[None, :], fr.Lu)[0]
+        k = np.nonzero(self.keep)[0]
+        f = _hermite(ug, Z, dZ, uf)
+        self.fine = np.where((uf >= ug[k[0]]) & (uf <= ug[k[-1]]), f, np.inf) if k.size \
+            else np.full_like(uf, np.inf)
+
+
+def sweep_material(ws, fr, R, uq, vs, cutters, uf):
+    """Upper bound of the material left vertically above the design at the points
+    (uq, vs) (mm; vs (m, nq) across, uq (nq,) along) after the passes ``cutters``
+    (list of :class:`_Pass`). Each point is cut by the lowest of the balls at the
+    fine positions uf of those passes: a discrete subset of the continuous sweep,
+    so the bound is conservative (by at most (du/4)^2 / (8 R) along steep slopes).
+    Returns (m, nq) mm (0 where the top face is untouched and not cut)."""
+    df = uf[1] - uf[0]
+    K = int(math.ceil(R / df))
+    j0 = np.clip(np.rint((uq - uf[0]) / df).astype(int), 0, len(uf) - 1)
+    J = np.clip(j0[:, None] + np.arange(-K, K + 1)[None, :], 0, len(uf) - 1)
+    du2 = (uq[:, None] - uf[J]) ** 2                     # (nq, 2K+1)
+    cut = np.full(vs.shape, np.inf)
+    for p in cutters:
+        dv2 = (vs - p.v) ** 2
+        near = (dv2 < R * R).any(axis=1)
+        if not near.any():
+            continue
+        r2 = R * R - du2[None, :, :] - dv2[near][:, :, None]
+        with np.errstate(invalid="ignore"):
+            b = (p.fine[J] + R)[None, :, :] - np.sqrt(r2)
+        b = np.where(r2 >= 0, b, np.inf)
+        cut[near] = np.minimum(cut[near], b.min(axis=2))
+    X, Y = fr.xy(np.broadcast_to(uq, vs.shape), vs)
+    design = np.minimum(ws.H(X, Y), 0.0)
+    return np.minimum(cut, 0.0) - design
+
+
+def _between(lo, hi, Lv, n=9):
+    """(n, nq) sample points across from lo to hi per position, clipped to [0, Lv]."""
+    a, b = np.minimum(lo, hi), np.maximum(lo, hi)
+    a, b = np.clip(a, 0.0, Lv), np.clip(b, 0.0, Lv)
+    w = np.linspace(0.0, 1.0, n)[:, None]
+    return a[None, :] + (b - a)[None, :] * w
+
+
+def _u_grid(fr, R):
+    du = min(1.0, R / 2.0)
+    n_in = max(2, int(math.ceil(fr.Lu / du)) + 1)
+    side = np.linspace(0.0, R, 9)
+    return np.concatenate([-side[:0:-1], np.linspace(0.0, fr.Lu, n_in), fr.Lu + side[1:]])
+
+
+def _trim_outside(ug, Z, cu, Lu):
+    """Per pass (rows), mark nodes to keep along u: inside the footprint, plus the
+    outside ones up to and including the first whose contact is on the edge."""
+    keep = (ug >= 0) & (ug <= Lu)
+    keep = np.broadcast_to(keep, Z.shape).copy()
+    left = np.nonzero(ug < 0)[0][::-1]      # from the edge outward
+    right = np.nonzero(ug > Lu)[0]
+    for idx, edge in ((left, 0.0), (right, Lu)):
+        on_edge = np.abs(cu[:, idx] - edge) <= 1e-9 * max(1.0, Lu)
+        on_edge |= ~np.isfinite(Z[:, idx])
+        first = np.where(on_edge.any(axis=1), np.argmax(on_edge, axis=1), len(idx) - 1)
+        rank = np.arange(len(idx))[None, :]
+        keep[:, idx] = (rank <= first[:, None]) & np.isfinite(Z[:, idx])
+    return keep
+
+
+def plan_toolpath(spec, surface, tol: Tolerances = DEFAULT) -> Toolpath:
+    """Plan the finishing raster (and roughing when ``machining.stepdown`` is set).
+
+    spec:    validated spec (tool, stock, machining sections)
+    surface: :class:`fabkit.surface.Surface` of the spec
+    Returns a :class:`Toolpath` (tip positions, work mm). Raises SpecError when the
+    pass or point count would exceed the guards in ``tol`` or the tip would go
+    deeper than ``stock.depth_limit`` / ``tool.reach``.
+    """
+    m = spec.machining
+    R = 0.5 * float(spec.tool.diameter)
+    scallop, tolerance = float(m.scallop), float(m.tolerance)
+    ws = WorkSurface(surface)
+    fr = _Frame(m.direction, ws.L, ws.W)
+    safe_z = float(m.safe_height)
+    clr = min(LINK_CLEARANCE, safe_z)
+    s_flat = flat_stepover(R, SCALLOP_SAFETY * scallop)
+
+    # -- guards before allocating ---------------------------------------------
+    n_pass_est = int(math.ceil(fr.Lv / s_flat)) + 1
+    if n_pass_est > tol.max_passes:
+        raise SpecError(f"needs about {n_pass_est} passes (limit {tol.max_passes}); "
+                        "raise the scallop", file=spec.path, key="machining.scallop")
+    ug = _u_grid(fr, R)
+    bend = math.sqrt(8.0 * CHORD_SAFETY * tolerance * R)   # spacing on an arc of radius R
+    n_pts_est = n_pass_est * max(len(ug), (fr.Lu + 2 * R) / bend)
+    if n_pts_est > tol.max_program_points:
+        raise SpecError(f"needs about {n_pts_est:.3g} program points (limit "
+                        f"{tol.max_program_points}); raise the tolerance or the scallop",
+                        file=spec.path, key="machining.tolerance")
+
+    # -- passes across, pass by pass (slope-aware stepover) -------------------
+    inside_u = (ug >= 0) & (ug <= fr.Lu)
+    uq = ug[inside_u]
+    uf = np.linspace(ug[0], ug[-1], 4 * (len(ug) - 1) + 1)
+    target = SCALLOP_SAFETY * scallop
+    Lv = fr.Lv
+
+    def material(pa, pb, older):
+        """Per u, worst material between the contact lines of pa and pb (the region
+        those two passes finish), cut by pa, pb and the passes before."""
+        vs = _between(pa.cv[inside_u], pb.cv[inside_u], Lv)
+        ml = sweep_material(ws, fr, R, uq, vs, [pb, pa] + older, uf)
+        return np.nan_to_num(ml, nan=np.inf).max(axis=0)
+
+    def edge_material(p, older, edge):
+        vs = _between(p.cv[inside_u], np.full(uq.shape, edge), Lv)
+        return np.nan_to_num(sweep_material(ws, fr, R, uq, vs, [p] + older, uf),
+                             nan=np.inf).max(axis=0)
+
+    # first pass: on the edge v = 0, or beyond it until the edge is milled
+    v0 = 0.0
+    while True:
+        p0 = _Pass(ws, fr, R, ug, uf, v0)
+        if edge_material(p0, [], 0.0).max(initial=0.0) <= target or v0 <= -R:
+            break
+        v0 = max(v0 - R / 8, -R)
+    passes = [p0]
+    s_next = s_flat
+    unreachable = (0.0, 0.0, 0.0)        # (mm above the design, u, v): material no stepover removes
+    while True:
+        pa = passes[-1]
+        older = passes[-3:-1]
+        if pa.v >= Lv and edge_material(pa, older, Lv).max(initial=0.0) <= target:
+            break
+        if pa.v >= Lv + R:
+            break
+        vmax = Lv if pa.v < Lv else Lv + R
+        s = min(s_next, s_flat)
+        allowed = np.full(uq.shape, target)
+        floor_done = False
+        for _ in range(60):
+            vb = min(pa.v + s, vmax)
+            pb = _Pass(ws, fr, R, ug, uf, vb)
+            mlu = material(pa, pb, older)
+            if vb >= Lv:
+                mlu = np.maximum(mlu, edge_material(pb, [pa] + older, Lv))
+            ratio = float((mlu / allowed).max(initial=0.0))
+            if ratio <= 1.0:
+                break
+            if not floor_done:
+                # material a pass right beside this one leaves too (the ball cannot
+                # reach it: a concave region tighter than the tool); no stepover
+                # removes it, so allow it (reported)
+                floor_done = True
+                pt = _Pass(ws, fr, R, ug, uf, pa.v + 0.02 * s_flat)
+                floor = material(pa, pt, older)
+                allowed = np.maximum(target, floor + 0.1 * target)
+                if floor.max() > unreachable[0]:
+                    i = int(np.argmax(floor))
+                    unreachable = (float(floor[i]), float(uq[i]), pa.v)
+                ratio = float((mlu / allowed).max(initial=0.0))
+                if ratio <= 1.0:
+                    break
+            s = (vb - pa.v) * min(0.97, max(0.3, 0.99 / math.sqrt(ratio)))
+        else:
+            raise SpecError("cannot reach the scallop with any stepover (surface too steep "
+                            "or the tool too large)", file=spec.path, key="machining.scallop")
+        passes.append(pb)
+        if len(passes) > tol.max_passes:
+            raise SpecError(f"needs more than {tol.max_passes} passes; raise the scallop",
+                            file=spec.path, key="machining.scallop")
+        # predict the next stepover from this one's margin (cusp ~ s^2)
+        s_next = max((vb - pa.v), 0.05 * s_flat) * min(1.25, 0.99 / math.sqrt(max(ratio, 1e-12)))
+    V = np.array([p.v for p in passes])
+    Z = np.vstack([p.Z for p in passes])
+    bridged = np.vstack([p.bridged for p in passes])
+    keep = np.vstack([p.keep for p in passes])
+
+    # -- refinement along each pass (all passes at once) -----------------------
+    etol = CHORD_SAFETY * tolerance
+    P = len(V)
+    pid0, j0 = np.nonzero(keep)
+    node_p, node_u, node_z = pid0, ug[j0], Z[pid0, j0]
+    # segments between consecutive kept nodes of the same pass
+    same = node_p[1:] == node_p[:-1]
+    sp, sa, sb = node_p[:-1][same], np.nonzero(same)[0], np.nonzero(same)[0] + 1
+    seg = (sp, node_u[sa], node_z[sa], node_u[sb], node_z[sb])
+    samp_p, samp_u, samp_z, samp_node = [node_p], [node_u], [node_z], [np.ones(len(node_p), bool)]
+    total = len(node_p)
+    for _ in range(40):
+        p, ua, za, ub, zb = seg
+        if p.size == 0:
+            break
+        um = 0.5 * (ua + ub)
+        zm = _profile(ws, fr, R, um, V[p])
+        err = np.abs(zm - 0.5 * (za + zb))
+        both_air = (za >= -AIR_EPS) & (zb >= -AIR_EPS) & (zm >= -AIR_EPS)
+        bad = (err > etol) & (ub - ua > 1e-4) & ~both_air
+        samp_p.append(p)
+        samp_u.append(um)
+        samp_z.append(zm)
+        samp_node.append(bad)
+        total += p.size
+        if total > 4 * tol.max_program_points:
+            raise SpecError("too many program points; raise the tolerance", file=spec.path,
+                            key="machining.tolerance")
+        b = bad
+        seg = (np.concatenate([p[b], p[b]]), np.concatenate([ua[b], um[b]]),
+               np.concatenate([za[b], zm[b]]), np.concatenate([um[b], ub[b]]),
+               np.concatenate([zm[b], zb[b]]))
+    sp_ = np.concatenate(samp_p)
+    su = np.concatenate(samp_u)
+    sz = np.concatenate(samp_z)
+    sn = np.concatenate(samp_node)
+    order = np.lexsort((su, sp_))
+    sp_, su, sz, sn = sp_[order], su[order], sz[order], sn[order]
+    nodes = _simplify(sp_, su, sz, sn, etol)
+
+    # -- runs of cut segments per pass ----------------------------------------
+    runs = _runs(sp_, su, sz, nodes)          # list per pass of lists of (k, 2) [u, z] arrays
+    passes_cut = [p for p in range(P) if runs[p]]
+    Vc = V[passes_cut]
+    steps = np.diff(V)
+    depth_lim = min(float(spec.stock.depth_limit), float(spec.tool.reach))
+
+    # -- roughing (optional) then finishing, ordered, with links ---------------
+    pts, kinds = [], []
+    order_runs = []
+    forward_climb = fr.direction == "x"     # M3: material on the left of the feed
+    for k, p in enumerate(passes_cut):
+        rr = runs[p]
+        if m.pattern == "zigzag":
+            fwd = k % 2 == 0
+        else:
+            fwd = forward_climb if m.pattern == "climb" else not forward_climb
+        if not fwd:
+            rr = [r[::-1] for r in rr[::-1]]
+        for r in rr:
+            X, Y = fr.xy(r[:, 0], np.full(len(r), V[p]))
+            order_runs.append((p, np.column_stack([X, Y, r[:, 1]])))
+    rough = _roughing(spec, ws, fr, R, V, runs, passes_cut, depth_lim) \
+        if getattr(m, "stepdown", None) else []
+    all_runs = rough + [(("f", p), r) for p, r in order_runs]
+    link_max = max(4 * R, 4 * s_flat)
+    one_way = m.pattern != "zigzag"
+    prev = None
+    for key, r in all_runs:
+        if prev is None:
+            _approach(pts, kinds, r[0], safe_z, clr, first=True)
+        else:
+            pkey, a = prev
+            b = r[0]
+            d = math.hypot(b[0] - a[0], b[1] - a[1])
+            local = d <= link_max and not (one_way and pkey != key)
+            zl = None
+            if local:
+                n = max(2, int(math.ceil(d / (R / 4))) + 1)
+                t = np.linspace(0.0, 1.0, n)
+                zc = compensate(ws, a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1]), R)
+                zl = max(a[2], b[2], float(np.max(zc))) + clr
+                if zl > safe_z:
+                    zl = None
+            if zl is not None:
+                pts += [(a[0], a[1], zl), (b[0], b[1], zl), tuple(b)]
+                kinds += [CUT, CUT, PLUNGE]
+            else:
+                pts += [(a[0], a[1], safe_z)]
+                kinds += [RAPID]
+                _approach(pts, kinds, b, safe_z, clr)
+        pts += [tuple(q) for q in r[1:]]
+        kinds += [CUT] * (len(r) - 1)
+        prev = (key, r[-1])
+    if prev is not None:
+        a = prev[1]
+        pts.append((a[0], a[1], safe_z))
+        kinds.append(RAPID)
+    points = np.array(pts, float).reshape(-1, 3)
+    kinds = np.array(kinds, np.int8)
+    if len(points) > tol.max_program_points:
+        raise SpecError(f"{len(points)} program points (limit {tol.max_program_points}); raise "
+                        "the tolerance", file=spec.path, key="machining.tolerance")
+    zmin = float(points[:, 2].min()) if len(points) else 0.0
+    for key, lim in (("stock.depth_limit", float(spec.stock.depth_limit)),
+                     ("tool.reach", float(spec.tool.reach))):
+        if -zmin > lim + 1e-9:
+            raise SpecError(f"the tool tip goes {-zmin:.3f} mm deep, {-zmin - lim:.3f} mm more "
+                            f"than the limit {lim:g} mm", file=spec.path, key=key)
+
+    seglen = np.linalg.norm(np.diff(points, axis=0), axis=1) if len(points) > 1 else np.zeros(0)
+    feed = kinds[1:] != RAPID
+    nb = int(bridged[keep].sum())
+    info = {
+        "passes": len(passes_cut),
+        "stepover_max": float(steps.max()) if steps.size else 0.0,
+        "stepover_min": float(steps.min()) if steps.size else 0.0,
+        "stepover_flat": s_flat,
+        "points": int(len(points)),
+        "cutting_length_mm": float(seglen[feed].sum()),
+        "rapid_length_mm": float(seglen[~feed].sum()),
+        "deepest_tip_mm": zmin,
+        "roughing_runs": len(rough),
+        "bridged_positions": nb,
+        "pass_positions": [float(v) for v in Vc],
+    }
+    if unreachable[0] > scallop:
+        X, Y = fr.xy(unreachable[1], unreachable[2])
+        info["unreachable_material_mm"] = unreachable[0]
+        info["unreachable_warning"] = (
+            f"up to {unreachable[0]:.3f} mm of material is left where the design is narrower "
+            f"than the tool (near X={float(X):.2f}, Y={float(Y):.2f} mm)")
+    if nb:
+        pi, ji = np.nonzero(bridged & keep)
+        X, Y = fr.xy(ug[ji[0]], V[pi[0]])
+        info["concave_warning"] = (f"{nb} tool positions span a concave region tighter than the "
+                                   f"tool (first at X={float(X):.2f}, Y={float(Y):.2f} mm): the "
+                                   "tool cannot reach the bottom there")
+    return Toolpath(points, kinds, tool_radius=R, safe_z=safe_z, passes=len(passes_cut),
+                    stepover=info["stepover_max"], stepover_min=info["stepover_min"], info=info)
+
+
+def _approach(pts, kinds, b, safe_z, clr, first=False):
+    """Rapid above b at safe_z, rapid down to clr above the top face, plunge to b."""
+    pts += [(b[0], b[1], safe_z), (b[0], b[1], max(clr, b[2]))]
+    kinds += [RAPID, RAPID]
+    if b[2] < max(clr, b[2]):
+        pts.append(tuple(b))
+        kinds.append(PLUNGE)
+
+
+def _simplify(sp, su, sz, sn, etol, rounds=64):
+    """Drop nodes (sn) while every sample between the surviving neighbours stays
+    within etol of their chord. Nodes flanked by air (tip at/above the top face)
+    or at pass ends stay. Returns the boolean node mask over the samples."""
+    nodes = sn.copy()
+    air = sz >= -AIR_EPS
+    idle = 0
+    for r in range(rounds):
+        ni = np.nonzero(nodes)[0]
+        if ni.size < 3:
+            break
+        npass = sp[ni]
+        interior = np.zeros(ni.size, bool)
+        interior[1:-1] = (npass[1:-1] == npass[:-2]) & (npass[1:-1] == npass[2:])
+        # node k removable if the chord (k-1, k+1) covers all samples in between
+        seg_of = np.searchsorted(ni, np.arange(len(su)), side="right") - 1   # node at left
+        seg_of = np.clip(seg_of, 0, ni.size - 1)
+        k_left = np.clip(seg_of - 1, 0, ni.size - 1)
+        k_right = np.clip(seg_of + 1, 0, ni.size - 1)
+        # samples in segment j (between node j and j+1), chord of candidate j (j-1 .. j+1)
+        # and of candidate j+1 (j .. j+2)
+        errA = _chord_err(su, sz, su[ni[k_left]], sz[ni[k_left]], su[ni[k_right]], sz[ni[k_right]])
+        k_r2 = np.clip(seg_of + 2, 0, ni.size - 1)
+        errB = _chord_err(su, sz, su[ni[seg_of]], sz[ni[seg_of]], su[ni[k_r2]], sz[ni[k_r2]])
+        # a sample at node j (itself) belongs to segment j and to candidate j's range only
+        isn = nodes
+        errB = np.where(isn, 0.0, errB)
+        worst = np.zeros(ni.size)
+        np.maximum.at(worst, seg_of, errA)                       # candidate j: its segment j
+        np.maximum.at(worst, np.clip(seg_of + 1, 0, ni.size - 1), errB)  # candidate j+1
+        airseg = np.zeros(ni.size, bool)                         # segment j touches air
+        np.logical_or.at(airseg, seg_of, air)
+        airseg |= np.r_[air[ni][1:], True]
+        ok = interior & (worst <= etol)
+        ok[1:] &= ~airseg[:-1]
+        ok &= ~airseg
+        ok &= np.arange(ni.size) % 2 == r % 2
+        if ok.any():
+            nodes[ni[ok]] = False
+            idle = 0
+        else:
+            idle += 1
+            if idle >= 2:
+                break
+    return nodes
+
+
+def _chord_err(u, z, ua, za, ub, zb):
+    with np.errstate(all="ignore"):
+        t = np.where(ub > ua, (u - ua) / (ub - ua), 0.0)
+    return np.abs(z - (za + t * (zb - za)))
+
+
+def _runs(sp, su, sz, nodes):
+    """Per pass, the runs of consecutive cut segments as (k, 2) arrays of [u, z]."""
+    P = int(sp.max()) + 1 if sp.size else 0
+    out = [[] for _ in range(P)]
+    ni = np.nonzero(nodes)[0]
+    air = sz >= -AIR_EPS
+    # a segment (node j .. j+1, same pass) cuts if any sample in [j, j+1] is below the top
+    seg_of = np.clip(np.searchsorted(ni, np.arange(len(su)), side="right") - 1, 0, max(ni.size - 1, 0))
+    cuts = np.zeros(ni.size, bool)
+    np.logical_or.at(cuts, seg_of, ~air)
+    cuts[:-1] |= ~air[ni[1:]]
+    samepass = np.r_[sp[ni][1:] == sp[ni][:-1], False]
+    cuts &= samepass
+    j = 0
+    while j < ni.size:
+        if not cuts[j]:
+            j += 1
+            continue
+        k = j
+        while k < ni.size and cuts[k]:
+            k += 1
+        idx = ni[j:k + 1]
+        out[int(sp[idx[0]])].append(np.column_stack([su[idx], sz[idx]]))
+        j = k + 1
+    return out
+
+
+def _roughing(spec, ws, fr, R, V, runs, passes_cut, depth_lim):
+    return []
