@@ -17,7 +17,7 @@ Pipeline (pure array functions; nothing here writes files or prints):
    boundary vertices along that side plus the two bottom corners, triangulated
    by ``manifold3d.triangulate`` without new vertices; the bottom is 2 triangles.
 4. **Check.** The mesh is handed to ``manifold3d`` (status must be NoError), which
-   gives the volume and the number of bodies (must be 1).
+   gives the volume, the number of bodies (must be 1) and the genus (must be 0).
 
 Work coordinates (mm): design (x, y, z) -> ((x - x0) s, (y - y0) s, (z - top) s);
 the stock is [0, L] x [0, W] x [-thickness, 0].
@@ -34,8 +34,8 @@ import numpy as np
 from .errors import DesignError, SpecError
 from .tolerances import DEFAULT, Tolerances
 
-__all__ = ["SolidMesh", "build_solid", "stl_bytes", "export_bytes", "mesh_precision",
-           "barycentric_grid", "EXPORT_FORMATS"]
+__all__ = ["SolidMesh", "build_solid", "top_skin", "estimate_triangles", "stl_bytes", "export_bytes",
+           "mesh_precision", "barycentric_grid", "EXPORT_FORMATS"]
 
 #: refine until every sampled error is below this fraction of the tolerance
 SAFETY = 0.7
