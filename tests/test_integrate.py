@@ -130,9 +130,11 @@ def test_deterministic_across_chunks():
     a = launch_batch(p, v, chunk=1000)
     b = launch_batch(p, v, chunk=4)
     c = launch_batch(p, v[7:12])
+    d = launch_batch(p, v, chunk=6, workers=2)  # forked worker processes where available
     for name in ("outcome", "bounces", "v_out", "bounce_times", "t_end", "x_end", "energy_error", "steps"):
         assert np.array_equal(getattr(a, name), getattr(b, name), equal_nan=True), name
         assert np.array_equal(getattr(a, name)[7:12], getattr(c, name), equal_nan=True), name
+        assert np.array_equal(getattr(a, name), getattr(d, name), equal_nan=True), name
 
 
 def test_heavy_damping_ends_with_named_outcome():

@@ -673,7 +673,12 @@ def _fork_pool(workers: int):
     import multiprocessing as mp
     from concurrent.futures import ProcessPoolExecutor
 
-    if "fork" not in mp.get_all_start_methods():
+    import threading
+
+    # fork only from a single-threaded main program (forking a threaded process, e.g. a
+    # Dask worker, can deadlock): elsewhere the chunks run serially
+    if "fork" not in mp.get_all_start_methods() or threading.active_count() > 1 \
+            or threading.current_thread() is not threading.main_thread():
         return None
     try:
         return ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("fork"))
@@ -698,8 +703,8 @@ def launch_batch(problem, v_in, y0=None, vy0=None, *, rtol: float | None = None,
     record : keep each launch's step points (for plots; only for small N)
     progress : callable(done, total) called as chunks finish
     method : 'DOP853' (default) or 'RK45'
-    workers : processes over chunks (default: min(2, cpu count); only for 2000 launches
-              or more); results do not depend on it
+    workers : processes over chunks (default 1; forked, and only from a single-threaded
+              main program, else serial); results do not depend on it
     chunk : lanes per chunk (results do not depend on it)
 
     Returns a :class:`LaunchResult`. Accuracy: each launch is integrated to the
@@ -728,7 +733,9 @@ def launch_batch(problem, v_in, y0=None, vy0=None, *, rtol: float | None = None,
 
     chunk = max(1, int(chunk))
     if workers is None:
-        workers = 1  # measured: two processes gain nothing on this 2-core machine (docs/simulator.md)
+        # measured on the 2-core machine (docs/simulator.md): two processes were not
+        # reliably faster than one, so one is the default; pass workers=2 to try
+        workers = 1
     n_chunks = max(1, math.ceil(n / chunk))
     if workers > 1 and n >= 256 and not stiff:  # equal chunks, a multiple of the workers
         n_chunks = workers * math.ceil(n_chunks / workers)
