@@ -391,7 +391,7 @@ def _initial_step(sys, tab, Y, F, rtol, atol, t_max):
     return np.minimum(np.minimum(100 * h0, h1), t_max)
 
 
-def _run_chunk(problem, v_in, y0, vy0, rtol, atol, t_max, max_steps, tab, record, k_keep):
+def _run_chunk(problem, v_in, y0, vy0, rtol, atol, t_max, max_steps, tab, record, k_keep, tick=None):
     """Integrate one chunk of lanes; returns the per-lane summary dict (and trajectories)."""
     sys = _System(problem)
     n = len(v_in)
@@ -585,6 +585,8 @@ def _run_chunk(problem, v_in, y0, vy0, rtol, atol, t_max, max_steps, tab, record
                     if term[i]:
                         traj[idx[i]].append((tend[j], *Yend[:4, j], *F_end[2:4, j]))
             keep = ~done
+            if tick is not None:
+                tick(n - int(keep.sum()))
             idx, Y, F, t, h = idx[keep], Y[:, keep], F[:, keep], t[keep], h[keep]
             aux = tuple(a[keep] for a in aux)
             zmax, zmin, ymax, steps, rej, nb, was_rejected, err_prev = (
@@ -701,7 +703,8 @@ def launch_batch(problem, v_in, y0=None, vy0=None, *, rtol: float | None = None,
     t_max : time limit, s (default problem.t_max)
     max_bounces : K, bounce times kept per launch (>= 8)
     record : keep each launch's step points (for plots; only for small N)
-    progress : callable(done, total) called as chunks finish
+    progress : callable(done, total) called as launches finish (at most 5 times a second,
+               and once at the end of each chunk)
     method : 'DOP853' (default) or 'RK45'
     workers : processes over chunks (default 1; forked, and only from a single-threaded
               main program, else serial); results do not depend on it
@@ -742,12 +745,12 @@ def launch_batch(problem, v_in, y0=None, vy0=None, *, rtol: float | None = None,
     bounds = np.linspace(0, n, n_chunks + 1).round().astype(int)
     pieces = [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
 
-    def job(ab):
+    def job(ab, tick=None):
         a, b = ab
         if stiff:
             return _run_stiff(problem, v[a:b], y0a[a:b], vy0a[a:b], rtol, atol, t_max, k_keep)
         return _run_chunk(problem, v[a:b], y0a[a:b], vy0a[a:b], rtol, atol, t_max, max_steps, tab,
-                          record, k_keep)
+                          record, k_keep, tick)
 
     results = []
     done = 0
@@ -770,8 +773,18 @@ def launch_batch(problem, v_in, y0=None, vy0=None, *, rtol: float | None = None,
         finally:
             _JOB = None
     else:
+        last = [time.perf_counter()]
+
+        def ticker(base):
+            def tick(finished):  # progress within a chunk, at most 5 times a second
+                now = time.perf_counter()
+                if now - last[0] >= 0.2:
+                    last[0] = now
+                    progress(base + finished, n)
+            return tick
+
         for a, b in pieces:
-            results.append(job((a, b)))
+            results.append(job((a, b), ticker(done) if progress is not None else None))
             done += b - a
             if progress is not None:
                 progress(done, n)
