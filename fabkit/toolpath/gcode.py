@@ -187,13 +187,37 @@ def estimate_seconds(points: np.ndarray, kinds: np.ndarray, start: np.ndarray, p
 def _format_array(values: np.ndarray, dec: int) -> np.ndarray:
     """(n, 3) floats -> (n, 3) shortest fixed-point strings with at most ``dec``
     decimals ('12.5', '-0.0312', '0'; never '-0')."""
-    if values.size == 0:
-        return np.empty(values.shape, dtype="<U1")
-    txt = np.char.mod(f"%.{dec}f", values)
-    if dec > 0:
-        txt = np.char.rstrip(np.char.rstrip(txt, "0"), ".")
-    txt = np.where((txt == "-0") | (txt == ""), "0", txt)
-    return txt
+    fmt = f"%.{dec}f"
+
+    def one(v: float) -> str:
+        t = (fmt % v).rstrip("0").rstrip(".") if dec > 0 else fmt % v
+        return "0" if t in ("-0", "") else t
+
+    flat = [one(v) for v in values.ravel().tolist()]
+    return np.array(flat, dtype=object).reshape(values.shape) if flat else np.empty(values.shape, dtype=object)
+
+
+def _move_lines(txt: np.ndarray, kinds: np.ndarray, safe: str, feed_s: str, plunge_s: str) -> list[str]:
+    """Program lines for the moves, modal words omitted. ``txt``: (n, 3) coordinate
+    strings; the position before the first move is (txt[0, 0], txt[0, 1], safe) in G0.
+    Vectorized: a move whose three strings equal its predecessor's is dropped (so the
+    predecessor of a kept move is always the last written position)."""
+    prev = np.vstack([[txt[0, 0], txt[0, 1], safe], txt[:-1]])
+    changed = txt != prev
+    keep = changed.any(axis=1)
+    txt, changed, kinds = txt[keep], changed[keep], kinds[keep]
+    g = np.where(kinds == RAPID, "G0", "G1")
+    g_prev = np.concatenate([["G0"], g[:-1]]) if len(g) else g
+    g_word = np.where(g != g_prev, g, "")
+    feed = np.where(kinds == RAPID, "", np.where(kinds == PLUNGE, plunge_s, feed_s))
+    fi = np.nonzero(feed != "")[0]
+    f_word = np.full(len(g), "", dtype=object)
+    if fi.size:
+        fv = feed[fi]
+        new = np.concatenate([[True], fv[1:] != fv[:-1]])
+        f_word[fi[new]] = "F" + fv[new].astype(object)
+    words = [np.where(changed[:, a], name + txt[:, a].astype(object), "") for a, name in enumerate("XYZ")]
+    return [" ".join(w for w in row if w) for row in zip(g_word, *words, f_word)]
 
 
 def write_program(toolpath: Toolpath, profile: MachineProfile) -> str:
@@ -252,38 +276,15 @@ def write_program(toolpath: Toolpath, profile: MachineProfile) -> str:
     add(f"G0 Z{safe}")
     add(f"M3 S{profile.spindle:.0f}")
 
-    motion = "G0"
-    last = ["", "", safe]          # X, Y, Z strings of the current position
-    last_f = ""
-    feed_s = num(profile.feed * k, fdec)
-    plunge_s = num(profile.plunge * k, fdec)
     if len(pts):
-        # rapid across at the safe height to above the first point
-        add(f"X{txt[0, 0]} Y{txt[0, 1]}")  # G0 is modal from "G0 Z<safe>"
-        last[0], last[1] = txt[0, 0], txt[0, 1]
-    for i in range(len(pts)):
-        row = txt[i]
-        words = []
-        for a, name in enumerate("XYZ"):
-            if row[a] != last[a]:
-                words.append(name + row[a])
-        if not words:
-            continue
-        kind = kinds[i]
-        g = "G0" if kind == RAPID else "G1"
-        head = []
-        if g != motion:
-            head.append(g)
-            motion = g
-        if g == "G1":
-            f = plunge_s if kind == PLUNGE else feed_s
-            if f != last_f:
-                words.append("F" + f)
-                last_f = f
-        add(" ".join(head + words))
-        last = [row[0], row[1], row[2]]
-    if last[2] != safe:
-        add(("G0 " if motion != "G0" else "") + f"Z{safe}")
+        # rapid across at the safe height to above the first point (G0 is modal from "G0 Z<safe>")
+        add(f"X{txt[0, 0]} Y{txt[0, 1]}")
+        out.extend(_move_lines(txt, kinds, safe, num(profile.feed * k, fdec), num(profile.plunge * k, fdec)))
+        last_z = txt[-1, 2]
+    else:
+        last_z = safe
+    if last_z != safe:
+        add(("G0 " if len(pts) and kinds[-1] != RAPID else "") + f"Z{safe}")
     add("M5")
     add(d.program_end)
     return "\n".join(out) + "\n"

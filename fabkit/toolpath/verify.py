@@ -32,6 +32,8 @@ from ..tolerances import DEFAULT, Tolerances
 RAPID, FEED = 0, 1
 MM_PER_INCH = 25.4
 _WORD = re.compile(r"([A-Z])\s*([-+]?(?:\d+\.?\d*|\.\d+))")
+_LINE = re.compile(r"(?:\s*[A-Z]\s*[-+]?(?:\d+\.?\d*|\.\d+))*\s*")
+_COMMENT = re.compile(r"\([^()]*\)")
 
 
 @dataclass
@@ -84,15 +86,15 @@ def read_program(text: str) -> Program:
         n_lines = ln
         line = raw.split(";", 1)[0]
         if "(" in line:
-            line = re.sub(r"\([^()]*\)", " ", line)
+            line = _COMMENT.sub(" ", line)
             if "(" in line or ")" in line:
                 raise DesignError(f"program line {ln}: unbalanced or nested comment")
         line = line.strip().upper()
         if not line:
             continue
-        words = _WORD.findall(line)
-        if re.sub(r"\s+", "", line) != "".join(a + b for a, b in words):
+        if not _LINE.fullmatch(line):
             raise DesignError(f"program line {ln}: cannot read {raw.strip()!r}")
+        words = _WORD.findall(line)
         axes = {}
         end = False
         for letter, value in words:
