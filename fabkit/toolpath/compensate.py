@@ -79,7 +79,8 @@ class WorkSurface:
             s = self.s
             shape = np.shape(X)
             out = [s * (h - self.top), hx, hy, hxx / s, hxy / s, hyy / s]
-            return [np.broadcast_to(np.asarray(v, dtype=float), shape) for v in out]
+            return [v if np.shape(v) == shape else np.broadcast_to(np.asarray(v, dtype=float), shape)
+                    for v in out]
 
     def inside(self, X, Y):
         return (X >= 0.0) & (X <= self.L) & (Y >= 0.0) & (Y <= self.W)
@@ -262,6 +263,8 @@ def _edges(ws, cx, cy, R, best, idx_all, nsamp, iters):
                 st = np.where(J < 0, -G / J, G * 0.05 * R)
             st = np.clip(np.nan_to_num(st), -0.25 * R, 0.25 * R)
             t = np.clip(t + st, lo, hi)
+            if np.abs(st).max(initial=0.0) < 1e-13 * R:
+                break
         X, Y = pts(t)
         best.offer(idx, val(t), X, Y, EDGE)
         # crease crossings on the edge: safeguarded Newton inside each sign change
@@ -284,7 +287,9 @@ def _edges(ws, cx, cy, R, best, idx_all, nsamp, iters):
                 with np.errstate(all="ignore"):
                     tn = t - H / Ht
                 bad = ~np.isfinite(tn) | (tn <= np.minimum(a_, b_)) | (tn >= np.maximum(a_, b_))
-                t = np.where(bad, 0.5 * (a_ + b_), tn)
+                t_old, t = t, np.where(bad, 0.5 * (a_ + b_), tn)
+                if np.abs(t - t_old).max(initial=0.0) < 1e-13 * R:
+                    break
             # evaluate on both sides of the root: the top side carries the flat value
             for tt in (t, np.where(Ha >= 0, a_, b_)):
                 X, Y = pts(tt)
@@ -359,8 +364,8 @@ def compensate(surface, X, Y, R: float, *, return_info: bool = False, rings: int
         near = np.argmin(np.where(top_s, r2[None, :], np.inf), axis=1)
         seeds_i = [np.nonzero(has_top)[0], np.arange(todo.size)]
         seeds_k = [near[has_top], order[:, 0]]
-        # only where the top region is near: some sample within 2 R of reaching top
-        nearish = np.where(inF, HS, -np.inf).max(axis=1) > -2 * R
+        # only where the top region is near: a sample on top or within R/4 of it
+        nearish = has_top | (np.where(inF, HS, -np.inf).max(axis=1) > -0.25 * R)
         for si, sk in zip(seeds_i, seeds_k):
             m = nearish[si]
             si, sk = si[m], sk[m]

@@ -96,7 +96,7 @@ class _Pass:
     """One pass: v, exact tip heights Z and slopes dZ/du at the grid ug, the nodes
     kept, and the profile on a fine grid uf (Hermite; +inf where not machined)."""
 
-    def __init__(self, ws, fr, R, ug, uf, v):
+    def __init__(self, ws, fr, R, ug, uf, v, depth_lim=math.inf):
         X, Y = fr.xy(ug, np.full_like(ug, v))
         Z, ci = compensate(ws, X, Y, R, return_info=True)
         pu = ci.contact_x if fr.direction == "x" else ci.contact_y
@@ -113,39 +113,49 @@ class _Pass:
             self.cv = np.interp(ug, pu[ok][o], cv[ok][o])
         else:
             self.cv = np.full_like(ug, v)
-        self.keep = _trim_outside(ug, Z[None, :], pu[None, :], fr.Lu)[0]
+        self.keep = _trim_outside(ug, Z, fr.Lu, depth_lim)
         k = np.nonzero(self.keep)[0]
         f = _hermite(ug, Z, dZ, uf)
         self.fine = np.where((uf >= ug[k[0]]) & (uf <= ug[k[-1]]), f, np.inf) if k.size \
             else np.full_like(uf, np.inf)
 
 
-def sweep_material(ws, fr, R, uq, vs, cutters, uf):
+def sweep_material(ws, fr, R, uq, vs, cutters, uf, threshold=0.0):
     """Upper bound of the material left vertically above the design at the points
     (uq, vs) (mm; vs (m, nq) across, uq (nq,) along) after the passes ``cutters``
     (list of :class:`_Pass`). Each point is cut by the lowest of the balls at the
     fine positions uf of those passes: a discrete subset of the continuous sweep,
     so the bound is conservative (by at most (du/4)^2 / (8 R) along steep slopes).
-    Returns (m, nq) mm (0 where the top face is untouched and not cut)."""
+    Where a first bound from the balls at the same u alone is <= ``threshold`` it
+    is returned as is (the caller needs no better). Returns (m, nq) mm."""
     df = uf[1] - uf[0]
     K = int(math.ceil(R / df))
     j0 = np.clip(np.rint((uq - uf[0]) / df).astype(int), 0, len(uf) - 1)
-    J = np.clip(j0[:, None] + np.arange(-K, K + 1)[None, :], 0, len(uf) - 1)
-    du2 = (uq[:, None] - uf[J]) ** 2                     # (nq, 2K+1)
-    cut = np.full(vs.shape, np.inf)
-    for p in cutters:
-        dv2 = (vs - p.v) ** 2
-        near = (dv2 < R * R).any(axis=1)
-        if not near.any():
-            continue
-        r2 = R * R - du2[None, :, :] - dv2[near][:, :, None]
-        with np.errstate(invalid="ignore"):
-            b = (p.fine[J] + R)[None, :, :] - np.sqrt(r2)
-        b = np.where(r2 >= 0, b, np.inf)
-        cut[near] = np.minimum(cut[near], b.min(axis=2))
     X, Y = fr.xy(np.broadcast_to(uq, vs.shape), vs)
     design = np.minimum(ws.H(X, Y), 0.0)
-    return np.minimum(cut, 0.0) - design
+
+    def bound(cols, offsets):
+        """Material at the columns ``cols`` using the balls at fine offsets."""
+        J = np.clip(j0[cols, None] + offsets[None, :], 0, len(uf) - 1)
+        du2 = (uq[cols, None] - uf[J]) ** 2
+        v = vs[:, cols]
+        cut = np.full(v.shape, np.inf)
+        for p in cutters:
+            dv2 = (v - p.v) ** 2
+            r2 = R * R - du2[None, :, :] - dv2[:, :, None]
+            with np.errstate(invalid="ignore"):
+                b = (p.fine[J] + R)[None, :, :] - np.sqrt(r2)
+            cut = np.minimum(cut, np.where(r2 >= 0, b, np.inf).min(axis=2))
+        return np.minimum(cut, 0.0) - design[:, cols]
+
+    # stage 1: balls at the same u only (fewer balls: a higher, still valid bound)
+    all_cols = np.arange(len(uq))
+    ml = bound(all_cols, np.zeros(1, int))
+    # stage 2: the whole sweep within R along the pass, where stage 1 is not enough
+    hot = np.nonzero((ml > threshold).any(axis=0))[0]
+    if hot.size:
+        ml[:, hot] = bound(hot, np.arange(-K, K + 1))
+    return ml
 
 
 def _between(lo, hi, Lv, n=9):
@@ -163,20 +173,12 @@ def _u_grid(fr, R):
     return np.concatenate([-side[:0:-1], np.linspace(0.0, fr.Lu, n_in), fr.Lu + side[1:]])
 
 
-def _trim_outside(ug, Z, cu, Lu):
-    """Per pass (rows), mark nodes to keep along u: inside the footprint, plus the
-    outside ones up to and including the first whose contact is on the edge."""
-    keep = (ug >= 0) & (ug <= Lu)
-    keep = np.broadcast_to(keep, Z.shape).copy()
-    left = np.nonzero(ug < 0)[0][::-1]      # from the edge outward
-    right = np.nonzero(ug > Lu)[0]
-    for idx, edge in ((left, 0.0), (right, Lu)):
-        on_edge = np.abs(cu[:, idx] - edge) <= 1e-9 * max(1.0, Lu)
-        on_edge |= ~np.isfinite(Z[:, idx])
-        first = np.where(on_edge.any(axis=1), np.argmax(on_edge, axis=1), len(idx) - 1)
-        rank = np.arange(len(idx))[None, :]
-        keep[:, idx] = (rank <= first[:, None]) & np.isfinite(Z[:, idx])
-    return keep
+def _trim_outside(ug, Z, Lu, depth_lim):
+    """Nodes kept along u: all inside the footprint; outside, while the ball still
+    overlaps the stock (within R of the edge: it mills the edge from the side) and
+    the tip stays within the depth limit."""
+    inside = (ug >= 0) & (ug <= Lu)
+    return inside | (np.isfinite(Z) & (Z >= -depth_lim))
 
 
 def plan_toolpath(spec, surface, tol: Tolerances = DEFAULT) -> Toolpath:
@@ -216,23 +218,24 @@ def plan_toolpath(spec, surface, tol: Tolerances = DEFAULT) -> Toolpath:
     uf = np.linspace(ug[0], ug[-1], 4 * (len(ug) - 1) + 1)
     target = SCALLOP_SAFETY * scallop
     Lv = fr.Lv
+    dl = min(float(spec.stock.depth_limit), float(spec.tool.reach))
 
     def material(pa, pb, older):
         """Per u, worst material between the contact lines of pa and pb (the region
         those two passes finish), cut by pa, pb and the passes before."""
         vs = _between(pa.cv[inside_u], pb.cv[inside_u], Lv)
-        ml = sweep_material(ws, fr, R, uq, vs, [pb, pa] + older, uf)
+        ml = sweep_material(ws, fr, R, uq, vs, [pb, pa] + older, uf, 0.5 * target)
         return np.nan_to_num(ml, nan=np.inf).max(axis=0)
 
     def edge_material(p, older, edge):
         vs = _between(p.cv[inside_u], np.full(uq.shape, edge), Lv)
-        return np.nan_to_num(sweep_material(ws, fr, R, uq, vs, [p] + older, uf),
+        return np.nan_to_num(sweep_material(ws, fr, R, uq, vs, [p] + older, uf, 0.5 * target),
                              nan=np.inf).max(axis=0)
 
     # first pass: on the edge v = 0, or beyond it until the edge is milled
     v0 = 0.0
     while True:
-        p0 = _Pass(ws, fr, R, ug, uf, v0)
+        p0 = _Pass(ws, fr, R, ug, uf, v0, dl)
         if edge_material(p0, [], 0.0).max(initial=0.0) <= target or v0 <= -R:
             break
         v0 = max(v0 - R / 8, -R)
@@ -241,7 +244,7 @@ def plan_toolpath(spec, surface, tol: Tolerances = DEFAULT) -> Toolpath:
     unreachable = (0.0, 0.0, 0.0)        # (mm above the design, u, v): material no stepover removes
     while True:
         pa = passes[-1]
-        older = passes[-3:-1]
+        older = passes[-2:-1]
         if pa.v >= Lv and edge_material(pa, older, Lv).max(initial=0.0) <= target:
             break
         if pa.v >= Lv + R:
@@ -252,7 +255,7 @@ def plan_toolpath(spec, surface, tol: Tolerances = DEFAULT) -> Toolpath:
         floor_done = False
         for _ in range(60):
             vb = min(pa.v + s, vmax)
-            pb = _Pass(ws, fr, R, ug, uf, vb)
+            pb = _Pass(ws, fr, R, ug, uf, vb, dl)
             mlu = material(pa, pb, older)
             if vb >= Lv:
                 mlu = np.maximum(mlu, edge_material(pb, [pa] + older, Lv))
@@ -264,7 +267,7 @@ def plan_toolpath(spec, surface, tol: Tolerances = DEFAULT) -> Toolpath:
                 # reach it: a concave region tighter than the tool); no stepover
                 # removes it, so allow it (reported)
                 floor_done = True
-                pt = _Pass(ws, fr, R, ug, uf, pa.v + 0.02 * s_flat)
+                pt = _Pass(ws, fr, R, ug, uf, pa.v + 0.02 * s_flat, dl)
                 floor = material(pa, pt, older)
                 allowed = np.maximum(target, floor + 0.1 * target)
                 if floor.max() > unreachable[0]:
@@ -282,7 +285,7 @@ def plan_toolpath(spec, surface, tol: Tolerances = DEFAULT) -> Toolpath:
             raise SpecError(f"needs more than {tol.max_passes} passes; raise the scallop",
                             file=spec.path, key="machining.scallop")
         # predict the next stepover from this one's margin (cusp ~ s^2)
-        s_next = max((vb - pa.v), 0.05 * s_flat) * min(1.25, 0.99 / math.sqrt(max(ratio, 1e-12)))
+        s_next = max((vb - pa.v), 0.05 * s_flat) * min(1.15, 0.97 / math.sqrt(max(ratio, 1e-12)))
     V = np.array([p.v for p in passes])
     Z = np.vstack([p.Z for p in passes])
     bridged = np.vstack([p.bridged for p in passes])
