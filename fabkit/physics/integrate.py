@@ -189,8 +189,9 @@ class _System:
         self.f = fused(problem)
 
     def __call__(self, S, out=None):
-        with np.errstate(all="ignore"):
-            ax, ay, h, hx, hy, br, P = self.f(S[0], S[1], S[2], S[3])
+        # floating-point warnings are silenced by the caller (np.errstate around the run):
+        # overflow in a rejected trial step is expected and handled by the step control
+        ax, ay, h, hx, hy, br, P = self.f(S[0], S[1], S[2], S[3])
         F = np.empty_like(S) if out is None else out
         F[0] = S[2]
         F[1] = S[3]
@@ -222,23 +223,26 @@ def _combine(Y, h, K, coeffs, out):
         return out
     n = coeffs[-1][0] + 1
     col = _dense(coeffs, n)
-    acc = np.multiply(K[:n], col).sum(axis=0)
+    acc = _add_reduce(np.multiply(K[:n], col), axis=0)
     np.multiply(acc, h, out=acc)
     np.add(Y, acc, out=out)
     return out
 
 
 _DENSE: dict = {}
+_add_reduce = np.add.reduce
 
 
 def _dense(coeffs, n):
-    """The coefficients as a dense (n, 1, 1) column (cached)."""
-    col = _DENSE.get(coeffs)
-    if col is None:
+    """The coefficients as a dense (n, 1, 1) column (cached by identity of ``coeffs``)."""
+    col = _DENSE.get(id(coeffs))
+    if col is not None and col[0] is coeffs:
+        return col[1]
+    if True:
         col = np.zeros((n, 1, 1))
         for j, c in coeffs:
             col[j, 0, 0] = c
-        _DENSE[coeffs] = col
+        _DENSE[id(coeffs)] = (coeffs, col)  # keeps coeffs alive, so its id stays unique
     return col
 
 
@@ -261,7 +265,7 @@ def _error_norm(tab, K, h, scale):
     """scipy's error norm per lane (m,), over the 4 state components."""
     def est(coeffs):
         n = coeffs[-1][0] + 1
-        acc = np.multiply(K[:n, :4], _dense(coeffs, n)).sum(axis=0)
+        acc = _add_reduce(np.multiply(K[:n, :4], _dense(coeffs, n)), axis=0)
         acc /= scale
         acc *= acc
         return acc[0] + acc[1] + acc[2] + acc[3]
@@ -270,8 +274,7 @@ def _error_norm(tab, K, h, scale):
         e5 = est(tab.E)
         e3 = est(tab.E3)
         denom = e5 + 0.01 * e3
-        with np.errstate(invalid="ignore", divide="ignore"):
-            err = np.abs(h) * e5 / np.sqrt(denom * 4.0)
+        err = np.abs(h) * e5 / np.sqrt(denom * 4.0)
         return np.where(denom > 0, err, 0.0)
     e = est(tab.E)
     return np.abs(h) * np.sqrt(e / 4.0)
@@ -305,9 +308,8 @@ def _henon(sys, tab, Y, t, kind, target):
         Fc, auxc = sys(Zc[:nv])
         r = rate(Zc, Fc, auxc)
         G = np.empty_like(Zc)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            G[:nv] = Fc / r
-            G[nv] = 1.0 / r
+        G[:nv] = Fc / r
+        G[nv] = 1.0 / r
         return G
 
     s0 = np.choose(code, (Y[0], Y[1], Y[2], aux0[0]))
@@ -315,12 +317,11 @@ def _henon(sys, tab, Y, t, kind, target):
     K = np.empty((tab.n_stages + 1, nv + 1, m))
     K[0] = g(Z)
     Zs = np.empty_like(Z)
-    with np.errstate(all="ignore"):
-        for s in range(1, tab.n_stages):
-            _combine(Z, ds, K, tab.A[s], Zs)
-            K[s] = g(Zs)
-        Znew = np.empty_like(Z)
-        _combine(Z, ds, K, tab.B, Znew)
+    for s in range(1, tab.n_stages):
+        _combine(Z, ds, K, tab.A[s], Zs)
+        K[s] = g(Zs)
+    Znew = np.empty_like(Z)
+    _combine(Z, ds, K, tab.B, Znew)
     for c in range(3):  # the independent variable lands on its target exactly
         Znew[c] = np.where(code == c, target, Znew[c])
     return Znew[nv], Znew[:nv]
@@ -336,8 +337,7 @@ def _secant(sys, tab, Y, F0, t, h, b0, b1, iters: int = 4):
     Yt = Y.copy()
     th = np.ones(m)
     for _ in range(iters):
-        with np.errstate(all="ignore"):
-            th = lo + (hi - lo) * blo / (blo - bhi)
+        th = lo + (hi - lo) * blo / (blo - bhi)
         th = np.where(np.isfinite(th), np.clip(th, lo, hi), 0.5 * (lo + hi))
         Yt = _rk_step(sys, tab, Y, F0, h * th, K)
         b = sys(Yt)[1][3]
@@ -380,19 +380,22 @@ def _initial_step(sys, tab, Y, F, rtol, atol, t_max):
 
     d0 = rms(Y[:4] / scale)
     d1 = rms(F[:4] / scale)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        h0 = np.where((d0 < 1e-5) | (d1 < 1e-5), 1e-6, 0.01 * d0 / d1)
+    h0 = np.where((d0 < 1e-5) | (d1 < 1e-5), 1e-6, 0.01 * d0 / d1)
     Y1 = Y + h0 * F
     F1 = sys(Y1)[0]
     d2 = rms((F1[:4] - F[:4]) / scale) / h0
     dm = np.maximum(d1, d2)
-    with np.errstate(divide="ignore"):
-        h1 = np.where(dm <= 1e-15, np.maximum(1e-6, h0 * 1e-3), (0.01 / dm) ** (1.0 / (tab.order + 1)))
+    h1 = np.where(dm <= 1e-15, np.maximum(1e-6, h0 * 1e-3), (0.01 / dm) ** (1.0 / (tab.order + 1)))
     return np.minimum(np.minimum(100 * h0, h1), t_max)
 
 
-def _run_chunk(problem, v_in, y0, vy0, rtol, atol, t_max, max_steps, tab, record, k_keep, tick=None):
+def _run_chunk(*args, **kw):
     """Integrate one chunk of lanes; returns the per-lane summary dict (and trajectories)."""
+    with np.errstate(all="ignore"):
+        return _run_chunk_body(*args, **kw)
+
+
+def _run_chunk_body(problem, v_in, y0, vy0, rtol, atol, t_max, max_steps, tab, record, k_keep, tick=None):
     sys = _System(problem)
     n = len(v_in)
     out = _empty(n, k_keep)
@@ -435,12 +438,10 @@ def _run_chunk(problem, v_in, y0, vy0, rtol, atol, t_max, max_steps, tab, record
         err = _error_norm(tab, K, hstep, scale)
         finite = np.isfinite(err) & np.isfinite(Ynew).all(axis=0)
         acc = finite & (err <= 1.0)
-        with np.errstate(divide="ignore"):
-            fac = np.where(err == 0, MAX_FACTOR, SAFETY * np.power(np.where(finite, err, 1.0), expo))
+        fac = np.where(err == 0, MAX_FACTOR, SAFETY * np.power(np.where(finite, err, 1.0), expo))
         fac_acc = fac
         if BETA:  # PI control (Gustafsson): damp the step growth by the previous error
-            with np.errstate(divide="ignore", over="ignore"):
-                fac_acc = fac * np.power(np.maximum(err, 1e-4), 0.75 * BETA) * np.power(err_prev, BETA)
+            fac_acc = fac * np.power(np.maximum(err, 1e-4), 0.75 * BETA) * np.power(err_prev, BETA)
         fac_acc = np.minimum(MAX_FACTOR, fac_acc)
         fac_acc = np.where(was_rejected, np.minimum(1.0, fac_acc), fac_acc)
         err_prev = np.where(acc, np.maximum(err, 1e-4), err_prev)
