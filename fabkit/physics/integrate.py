@@ -368,6 +368,54 @@ def _flush_bounces(sys, tab, queue, out, k_keep):
     out["bounce_times"][lane, order] = np.where(ok, te, t + h)
 
 
+PENDING = 100  # placeholder outcome of a lane whose terminal event is located later
+
+
+def _flush_terminal(sys, tab, pending, out, k_keep):
+    """Locate the terminal events (and bounces in the same steps) of lanes retired with
+    a placeholder: one Henon step for all; per lane the earliest terminal event wins;
+    a bounce counts if it comes before it. Writes the lanes' final summaries."""
+    if not pending:
+        return
+    cat = {k: np.concatenate([p[k] for p in pending], axis=-1) for k in pending[0]}
+    pending.clear()
+    te, Ye = _henon(sys, tab, cat["Y"], cat["t"], cat["kind"], cat["target"])
+    t_hi = cat["t"] + cat["h"]
+    ok = np.isfinite(te) & (te >= cat["t"]) & (te <= t_hi + 1e-9 * cat["h"]) & np.isfinite(Ye).all(axis=0)
+    te = np.where(ok, te, t_hi)
+    Ye = np.where(ok, Ye, cat["Yfb"])
+    lane, oc = cat["lane"], cat["outcome"]
+    term = np.flatnonzero(oc >= 0)
+    order = term[np.lexsort((te[term], lane[term]))]
+    first = order[np.r_[True, lane[order][1:] != lane[order][:-1]]]  # earliest per lane
+    gl = lane[first]
+    Yend, tend = Ye[:, first], te[first]
+    out["outcome"][gl] = oc[first]
+    out["t_end"][gl] = tend
+    out["x_end"][gl], out["y_end"][gl] = Yend[0], Yend[1]
+    out["vx_end"][gl], out["vy_end"][gl] = Yend[2], Yend[3]
+    out["v_out"][gl] = np.where(oc[first] == ESCAPED, np.abs(Yend[2]), np.nan)
+    aux_end = sys(Yend)[1]
+    E = sys.energy(Yend, aux_end)
+    W = Yend[4] if sys.damped else 0.0
+    zmax = np.maximum(cat["zmax"][first], aux_end[0])
+    zmin = np.minimum(cat["zmin"][first], aux_end[0])
+    escale = cat["kin0"][first] + sys.gt * (zmax - zmin)
+    out["energy_error"][gl] = np.abs(E + W - cat["E0"][first]) / np.maximum(escale, 1e-300)
+    out["max_z"][gl] = zmax
+    out["max_abs_y"][gl] = np.maximum(cat["ymax"][first], np.abs(Yend[1]))
+    out["bounces"][gl] = cat["nb"][first]
+    b = np.flatnonzero(oc == -2)
+    if b.size:
+        t_end = np.full(out["t_end"].shape, np.inf)
+        t_end[gl] = tend
+        counts = te[b] <= t_end[lane[b]]
+        b = b[counts]
+        out["bounces"][lane[b]] = cat["nb"][b] + 1
+        keep = cat["nb"][b] < k_keep
+        out["bounce_times"][lane[b][keep], cat["nb"][b][keep]] = te[b][keep]
+
+
 # ----------------------------------------------------------------------------
 # the chunk loop
 # ----------------------------------------------------------------------------
@@ -426,7 +474,7 @@ def _run_chunk_body(problem, v_in, y0, vy0, rtol, atol, t_max, max_steps, tab, r
     expo = -1.0 / (tab.order + 1)
     traj = [[(0.0, *Y[:4, i], *F[2:4, i])] for i in range(n)] if record else None
 
-    queue, queued = [], [0]
+    queue, queued, pending = [], [0], []
     while idx.size:
         m = idx.size
         hstep = np.minimum(h, t_max - t)
@@ -491,11 +539,30 @@ def _run_chunk_body(problem, v_in, y0, vy0, rtol, atol, t_max, max_steps, tab, r
                     _flush_bounces(sys, tab, queue, out, k_keep)
                     queued[0] = 0
             propose(bmask & tany, "vx", 0.0, -2)
+        lm = (acc & (auxn[3] <= 0) & (aux[3] > 0)) if sys.full else None
         if cand:
             sel = np.concatenate([c[0] for c in cand])
             kinds = np.concatenate([c[1] for c in cand])
             targ = np.concatenate([c[2] for c in cand])
             outc = np.concatenate([np.full(c[0].size, c[3]) for c in cand])
+            if not record:
+                # lanes ending in this step (without a loss of contact) retire now with a
+                # placeholder; their events are located together at the end of the chunk
+                later = ~lm[sel] if lm is not None else np.ones(sel.size, dtype=bool)
+                if later.any():
+                    ls = sel[later]
+                    lanes = np.unique(ls)
+                    pending.append({
+                        "lane": idx[ls], "Y": Y[:, ls].copy(), "t": t[ls].copy(), "h": hstep[ls].copy(),
+                        "Yfb": Ynew[:, ls].copy(), "kind": kinds[later], "target": targ[later],
+                        "outcome": outc[later], "E0": E0[idx[ls]], "kin0": kin0[idx[ls]],
+                        "zmax": zmax[ls].copy(), "zmin": zmin[ls].copy(), "ymax": ymax[ls].copy(),
+                        "nb": nb[ls].copy()})
+                    code[lanes] = PENDING
+                    t_ev[lanes] = tnew[lanes]
+                    Y_ev[:, lanes] = Ynew[:, lanes]
+                    sel, kinds, targ, outc = sel[~later], kinds[~later], targ[~later], outc[~later]
+        if cand and sel.size:
             te, Ye = _henon(sys, tab, Y[:, sel], t[sel], kinds, targ)
             ok = np.isfinite(te) & (te >= t[sel]) & (te <= tnew[sel] + 1e-9 * hstep[sel]) & \
                 np.isfinite(Ye).all(axis=0)
@@ -516,7 +583,6 @@ def _run_chunk_body(problem, v_in, y0, vy0, rtol, atol, t_max, max_steps, tab, r
                     Y_ev[:, i] = Ye[:, j]
                     code[i] = outc[j]
         if sys.full:
-            lm = acc & (auxn[3] <= 0) & (aux[3] > 0)
             if lm.any():
                 sel = np.flatnonzero(lm)
                 te, Ye = _secant(sys, tab, Y[:, sel], F[:, sel], t[sel], hstep[sel], aux[3][sel],
@@ -594,6 +660,7 @@ def _run_chunk_body(problem, v_in, y0, vy0, rtol, atol, t_max, max_steps, tab, r
                 zmax[keep], zmin[keep], ymax[keep], steps[keep], rej[keep], nb[keep], was_rejected[keep],
                 err_prev[keep])
     _flush_bounces(sys, tab, queue, out, k_keep)
+    _flush_terminal(sys, tab, pending, out, k_keep)
     if record:
         trajs = []
         for rows in traj:
