@@ -138,7 +138,8 @@ SCHEMA: dict[str, dict[str, Any]] = {
     "ramp": {
         "heights": NumList(ge=0, min_len=1, length="design",
                            doc="[min, max] (sampled densely) or a list of 3 or more heights"),
-        "samples": Num(default=400, ge=2, le=1_000_000, integer=True, doc="heights sampled in [min, max]"),
+        "samples": Num(default=400, ge=2, le=10_000, integer=True,
+                       doc="heights sampled in [min, max] (each is a full simulation: at most 10000)"),
     },
     "simulation": {
         "model": Choice(("full", "simplified"), default="full"),
@@ -149,8 +150,9 @@ SCHEMA: dict[str, dict[str, Any]] = {
         "margin": Num(default=0.5, ge=0, le=1e6, length="design"),
         "y0": Num(default=0.0, length="design", doc="transverse launch offset"),
         "vy0": Num(default=0.0, ge=-1e6, le=1e6, doc="transverse launch velocity, design units/s"),
-        "t_max": Num(default=60.0, gt=0, le=1e6, doc="time limit, s: still trapped then = captured"),
-        "rtol": Num(default=1e-10, gt=0, le=0.1, doc="integrator relative tolerance"),
+        "t_max": Num(default=60.0, gt=0, le=3600, doc="time limit, s: still trapped then = captured"),
+        "rtol": Num(default=1e-10, ge=1e-13, le=0.1,
+                    doc="integrator relative tolerance (below 1e-13 double precision cannot follow)"),
         "atol": Num(default=1e-12, gt=0, le=1.0, doc="integrator absolute tolerance (design units)"),
         "method": Choice(("fabkit", "DOP853", "RK45", "Radau", "LSODA"), default="fabkit"),
     },
