@@ -41,10 +41,12 @@ def main() -> int:
                 with contextlib.redirect_stdout(buf):
                     code = fabkit(["gcode", spec, "--json"])
                 wall = time.perf_counter() - t0
-                if code != 0:
+                if code not in (0, 1):
                     print(f"run {i + 1}: exit {code}", file=sys.stderr)
                     return code
                 s = json.loads(buf.getvalue())
+                if code == 1:
+                    print(f"run {i + 1}: verification FAILED: {'; '.join(s['failures'])}")
                 print(f"run {i + 1}: {wall:.2f} s (plan {s['timings_s']['plan']:.2f}, write "
                       f"{s['timings_s']['write']:.2f}, verify {s['timings_s']['verify']:.2f}, sheet "
                       f"{s['timings_s']['sheet']:.2f})")
