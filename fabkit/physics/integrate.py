@@ -31,7 +31,11 @@ Events (checked on every accepted step, from its start and end states):
                   arrive anywhere, and runs stopped by the step guard, ``status`` 1).
 
 The event location is as accurate as a step (Henon's step has the step's own
-local error), so bounce times and v_out carry the integrator's tolerance.
+local error), so bounce times and v_out carry the integrator's tolerance. Nothing
+in the step loop depends on where exactly an event lies, so events are located in
+batches: bounces are queued and located many at once; a lane whose step crosses a
+terminal event retires at once and its event (the earliest, if several; a bounce in
+the same step counts only if it comes first) is located at the end of the chunk.
 
 Stiff cases: where the damping rate times ``t_max`` is so large that an explicit
 method would need more than ``STIFF_STEPS`` steps (mu = 1e4 1/s and beyond), the
