@@ -37,10 +37,10 @@ batches: bounces are queued and located many at once; a lane whose step crosses 
 terminal event retires at once and its event (the earliest, if several; a bounce in
 the same step counts only if it comes first) is located at the end of the chunk.
 
-Stiff cases: where the damping rate times ``t_max`` is so large that an explicit
-method would need more than ``STIFF_STEPS`` steps (mu = 1e4 1/s and beyond), the
-lanes go to scipy's implicit Radau method (one launch at a time, same events),
-``status`` 2.
+Stiff cases: where the damping rate times ``t_max`` is so large that the explicit
+method would need more than ``STIFF_STEPS`` stability-bound steps (mu above about
+200 1/s at t_max = 60 s), the lanes go to scipy's implicit Radau method (one launch
+at a time, about a second each, same events), ``status`` 2.
 """
 
 from __future__ import annotations
@@ -59,7 +59,7 @@ from .models import CAPTURED, ESCAPED, FLEW_OFF, LOST_CONTACT, OUTCOMES
 CHUNK = 16384         # lanes per chunk (memory bound; the arithmetic does not depend on it)
 K_BOUNCES = 16        # bounce times kept per lane
 QUEUE = 1024          # bounces located together
-STIFF_STEPS = 50_000  # explicit steps beyond which a damped problem goes to Radau
+STIFF_STEPS = 2_000   # stability-bound explicit steps beyond which a damped problem goes to Radau
 SAFETY, MIN_FACTOR, MAX_FACTOR = 0.9, 0.2, 10.0
 BETA = 0.0            # PI step control exponent (0: scipy's controller)
 
@@ -692,8 +692,11 @@ def stiffness_rate(problem) -> float:
 
 
 def is_stiff(problem, t_max: float) -> bool:
-    """True when an explicit method would need more than STIFF_STEPS steps
-    just to stay stable against the damping (|h mu| <= ~6 for DOP853)."""
+    """True when the explicit method's step is bounded by stability against the damping
+    (|h mu| <= ~6 for DOP853) for more than STIFF_STEPS steps: then scipy's implicit
+    Radau is cheaper per launch. Measured for one launch at mu = 3000 1/s, t_max = 60 s:
+    explicit 18 s, Radau 0.7 s. The choice depends on the problem only (not on the batch
+    size), so results stay identical for any batching."""
     return stiffness_rate(problem) * t_max / 6.0 > STIFF_STEPS
 
 
