@@ -46,7 +46,6 @@ at a time, about a second each, same events), ``status`` 2.
 from __future__ import annotations
 
 import math
-import os
 import time
 from dataclasses import dataclass, field
 
