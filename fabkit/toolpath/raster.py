@@ -97,9 +97,7 @@ class _Pass:
     """One pass: v, exact tip heights Z and slopes dZ/du at the grid ug, the nodes
     kept, and the profile on a fine grid uf (Hermite; +inf where not machined)."""
 
-    def __init__(self, ws, fr, R, ug, uf, v, depth_lim=math.inf):
-        X, Y = fr.xy(ug, np.full_like(ug, v))
-        Z, ci = compensate(ws, X, Y, R, return_info=True)
+    def __init__(self, fr, R, ug, uf, v, X, Y, Z, ci, depth_lim=math.inf):
         pu = ci.contact_x if fr.direction == "x" else ci.contact_y
         d2 = (ci.contact_x - X) ** 2 + (ci.contact_y - Y) ** 2
         with np.errstate(all="ignore"):
@@ -119,6 +117,19 @@ class _Pass:
         f = _hermite(ug, Z, dZ, uf)
         self.fine = np.where((uf >= ug[k[0]]) & (uf <= ug[k[-1]]), f, np.inf) if k.size \
             else np.full_like(uf, np.inf)
+
+
+def _passes(ws, fr, R, ug, uf, vlist, depth_lim):
+    """Several passes at once (one vectorized compensation call)."""
+    vv = np.asarray(vlist, float)[:, None] + 0 * ug[None, :]
+    uu = np.broadcast_to(ug, vv.shape)
+    X, Y = fr.xy(uu, vv)
+    Z, ci = compensate(ws, X, Y, R, return_info=True)
+    out = []
+    for k, v in enumerate(vlist):
+        row = type(ci)(ci.contact_x[k], ci.contact_y[k], ci.kind[k], ci.bridged[k])
+        out.append(_Pass(fr, R, ug, uf, float(v), X[k], Y[k], Z[k], row, depth_lim))
+    return out
 
 
 def sweep_material(ws, fr, R, uq, vs, cutters, uf, threshold=0.0):
@@ -233,16 +244,20 @@ def plan_toolpath(spec, surface, tol: Tolerances = DEFAULT) -> Toolpath:
         return np.nan_to_num(sweep_material(ws, fr, R, uq, vs, [p] + older, uf, 0.5 * target),
                              nan=np.inf).max(axis=0)
 
+    def make(vlist):
+        return _passes(ws, fr, R, ug, uf, vlist, dl)
+
     # first pass: on the edge v = 0, or beyond it until the edge is milled
     v0 = 0.0
     while True:
-        p0 = _Pass(ws, fr, R, ug, uf, v0, dl)
+        p0 = make([v0])[0]
         if edge_material(p0, [], 0.0).max(initial=0.0) <= target or v0 <= -R:
             break
         v0 = max(v0 - R / 8, -R)
     passes = [p0]
     s_next = s_flat
     unreachable = (0.0, 0.0, 0.0)        # (mm above the design, u, v): material no stepover removes
+    ahead = []                           # passes computed speculatively at the same stepover
     while True:
         pa = passes[-1]
         older = passes[-2:-1]
@@ -251,42 +266,70 @@ def plan_toolpath(spec, surface, tol: Tolerances = DEFAULT) -> Toolpath:
         if pa.v >= Lv + R:
             break
         vmax = Lv if pa.v < Lv else Lv + R
-        s = min(s_next, s_flat)
         allowed = np.full(uq.shape, target)
-        floor_done = False
-        for _ in range(60):
-            vb = min(pa.v + s, vmax)
-            pb = _Pass(ws, fr, R, ug, uf, vb, dl)
+
+        def check(pb):
             mlu = material(pa, pb, older)
-            if vb >= Lv:
+            if pb.v >= Lv:
                 mlu = np.maximum(mlu, edge_material(pb, [pa] + older, Lv))
-            ratio = float((mlu / allowed).max(initial=0.0))
+            return float((mlu / allowed).max(initial=0.0))
+
+        pb = None
+        if ahead and ahead[0].v > pa.v:
+            cand = ahead.pop(0)
+            ratio = check(cand)
             if ratio <= 1.0:
-                break
-            if not floor_done:
+                pb = cand
+        if pb is None:
+            ahead = []
+            s = min(s_next, s_flat)
+            # this stepover and two more passes at it, in one call (cheap: the cost
+            # of a compensation call is mostly fixed)
+            vl = sorted({min(pa.v + k * s, vmax) for k in (1, 2, 3)})
+            cands = make(vl)
+            ratio = check(cands[0])
+            if ratio <= 1.0:
+                pb, ahead = cands[0], cands[1:]
+        floor_done = False
+        tries = 0
+        while pb is None:
+            tries += 1
+            if tries > 30:
+                raise SpecError("cannot reach the scallop with any stepover (surface too steep "
+                                "or the tool too large)", file=spec.path, key="machining.scallop")
+            if ratio > 1.0 and not floor_done:
                 # material a pass right beside this one leaves too (the ball cannot
                 # reach it: a concave region tighter than the tool); no stepover
                 # removes it, so allow it (reported)
                 floor_done = True
-                pt = _Pass(ws, fr, R, ug, uf, pa.v + 0.02 * s_flat, dl)
+                pt = make([pa.v + 0.02 * s_flat])[0]
                 floor = material(pa, pt, older)
                 allowed = np.maximum(target, floor + 0.1 * target)
                 if floor.max() > unreachable[0]:
                     i = int(np.argmax(floor))
                     unreachable = (float(floor[i]), float(uq[i]), pa.v)
-                ratio = float((mlu / allowed).max(initial=0.0))
-                if ratio <= 1.0:
+                if (floor > target).any():
+                    ratio = check(cands[0])
+                    if ratio <= 1.0:
+                        pb = cands[0]
+                        break
+            s0 = cands[0].v - pa.v
+            f = min(0.97, max(0.3, 0.99 / math.sqrt(ratio)))
+            trial = [pa.v + s0 * f * g for g in (1.0, 0.85, 0.7, 0.55)]
+            cands = make(trial)
+            for c in cands:
+                r = check(c)
+                if r <= 1.0:
+                    pb, ratio = c, r
                     break
-            s = (vb - pa.v) * min(0.97, max(0.3, 0.99 / math.sqrt(ratio)))
-        else:
-            raise SpecError("cannot reach the scallop with any stepover (surface too steep "
-                            "or the tool too large)", file=spec.path, key="machining.scallop")
+            else:
+                cands, ratio = cands[-1:], r
         passes.append(pb)
         if len(passes) > tol.max_passes:
             raise SpecError(f"needs more than {tol.max_passes} passes; raise the scallop",
                             file=spec.path, key="machining.scallop")
         # predict the next stepover from this one's margin (cusp ~ s^2)
-        s_next = max((vb - pa.v), 0.05 * s_flat) * min(1.15, 0.97 / math.sqrt(max(ratio, 1e-12)))
+        s_next = max(pb.v - pa.v, 0.05 * s_flat) * min(1.15, 0.97 / math.sqrt(max(ratio, 1e-12)))
     V = np.array([p.v for p in passes])
     Z = np.vstack([p.Z for p in passes])
     bridged = np.vstack([p.bridged for p in passes])
@@ -359,23 +402,36 @@ def plan_toolpath(spec, surface, tol: Tolerances = DEFAULT) -> Toolpath:
     all_runs = rough + [(("f", p), r) for p, r in order_runs]
     link_max = max(4 * R, 4 * s_flat)
     one_way = m.pattern != "zigzag"
+    # local link heights, all links at once: 1 mm above the highest material along
+    # the straight link (drop cutter every R/4), None where a full retract is needed
+    zlink = [None] * len(all_runs)
+    idx, TX, TY, owner = [], [], [], []
+    for i in range(1, len(all_runs)):
+        (pkey, pr), (key, r) = all_runs[i - 1], all_runs[i]
+        a, b = pr[-1], r[0]
+        d = math.hypot(b[0] - a[0], b[1] - a[1])
+        if d <= link_max and not (one_way and pkey != key):
+            n = max(2, int(math.ceil(d / (R / 4))) + 1)
+            t = np.linspace(0.0, 1.0, n)
+            TX.append(a[0] + t * (b[0] - a[0]))
+            TY.append(a[1] + t * (b[1] - a[1]))
+            owner.append(np.full(n, len(idx)))
+            idx.append(i)
+    if idx:
+        zc = compensate(ws, np.concatenate(TX), np.concatenate(TY), R)
+        high = np.full(len(idx), -np.inf)
+        np.maximum.at(high, np.concatenate(owner), zc)
+        for j, i in enumerate(idx):
+            a, b = all_runs[i - 1][1][-1], all_runs[i][1][0]
+            zl = max(a[2], b[2], float(high[j])) + clr
+            zlink[i] = zl if zl <= safe_z else None
     prev = None
-    for key, r in all_runs:
+    for i, (key, r) in enumerate(all_runs):
         if prev is None:
             _approach(pts, kinds, r[0], safe_z, clr, first=True)
         else:
-            pkey, a = prev
-            b = r[0]
-            d = math.hypot(b[0] - a[0], b[1] - a[1])
-            local = d <= link_max and not (one_way and pkey != key)
-            zl = None
-            if local:
-                n = max(2, int(math.ceil(d / (R / 4))) + 1)
-                t = np.linspace(0.0, 1.0, n)
-                zc = compensate(ws, a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1]), R)
-                zl = max(a[2], b[2], float(np.max(zc))) + clr
-                if zl > safe_z:
-                    zl = None
+            a, b = prev[1], r[0]
+            zl = zlink[i]
             if zl is not None:
                 pts += [(a[0], a[1], zl), (b[0], b[1], zl), tuple(b)]
                 kinds += [CUT, CUT, PLUNGE]
