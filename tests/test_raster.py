@@ -166,3 +166,17 @@ def test_paper_surface_coarse_scallop():
     assert -tp.points[:, 2].min() <= spec.stock.depth_limit
     cut = tp.points[tp.kinds == CUT]
     assert cut[:, 0].min() <= 0 and cut[:, 0].max() >= L
+
+
+def test_roughing_levels_leave_stock_above_the_finish_path():
+    spec, surf = _spec(DIMPLE, machining={"stepdown": 2.0, "leave": 0.5, "scallop": 0.2,
+                                          "tolerance": 0.03})
+    tp = plan_toolpath(spec, surf)
+    assert tp.info["roughing_runs"] > 0
+    P = tp.points[tp.kinds == CUT]
+    Z = compensate(surf, P[:, 0], P[:, 1], R)
+    assert np.all(P[:, 2] >= Z - spec.machining.tolerance)       # nothing below the finish path
+    for level in (-2.0, -4.0):
+        at = np.abs(P[:, 2] - level) < 1e-12
+        assert at.sum() > 10
+        assert np.all(P[at, 2] - Z[at] >= 0.5 - 1e-9)             # the stock to leave
