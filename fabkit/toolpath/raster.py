@@ -619,7 +619,7 @@ def _roughing(spec, ws, fr, R, V, runs, passes_cut, depth_lim):
                         j += 1
                     if j - i >= 2:
                         X, Y = fr.xy(r[i:j, 0], np.full(j - i, V[p]))
-                        pieces.append(np.column_stack([X, Y, np.minimum(z[i:j], prev)]))
+                        pieces.append(np.column_stack([X, Y, z[i:j]]))
                     i = j
             if n % 2:
                 pieces = [q[::-1] for q in pieces[::-1]]
