@@ -339,20 +339,35 @@ def plan_toolpath(spec, surface, tol: Tolerances = DEFAULT) -> Toolpath:
     etol = CHORD_SAFETY * tolerance
     P = len(V)
     pid0, j0 = np.nonzero(keep)
-    node_p, node_u, node_z = pid0, ug[j0], Z[pid0, j0]
+    dZ = np.vstack([p.dZ for p in passes])
+    node_p, node_u, node_z, node_d = pid0, ug[j0], Z[pid0, j0], dZ[pid0, j0]
     # segments between consecutive kept nodes of the same pass
     same = node_p[1:] == node_p[:-1]
     sp, sa, sb = node_p[:-1][same], np.nonzero(same)[0], np.nonzero(same)[0] + 1
-    seg = (sp, node_u[sa], node_z[sa], node_u[sb], node_z[sb])
+    seg = (sp, node_u[sa], node_z[sa], node_d[sa], node_u[sb], node_z[sb], node_d[sb])
     samp_p, samp_u, samp_z, samp_node = [node_p], [node_u], [node_z], [np.ones(len(node_p), bool)]
     total = len(node_p)
+    th = np.array([0.1, 0.25, 0.75, 0.9])
     for _ in range(40):
-        p, ua, za, ub, zb = seg
+        p, ua, za, da, ub, zb, db = seg
         if p.size == 0:
             break
         um = 0.5 * (ua + ub)
-        zm = _profile(ws, fr, R, um, V[p])
+        X, Y = fr.xy(um, V[p])
+        zm, ci = compensate(ws, X, Y, R, return_info=True)
+        pu = ci.contact_x if fr.direction == "x" else ci.contact_y
+        with np.errstate(all="ignore"):
+            q = np.sqrt(np.maximum(R * R - (ci.contact_x - X) ** 2 - (ci.contact_y - Y) ** 2, 0.0))
+            dm = np.clip(np.nan_to_num((pu - um) / q), -20, 20)
         err = np.abs(zm - 0.5 * (za + zb))
+        # and the deviation of the Hermite cubic (exact end values and slopes) from the
+        # chord: catches a sharp rise between a midpoint and an end
+        h = (ub - ua)[:, None]
+        t = th[None, :]
+        herm = ((2 * t**3 - 3 * t**2 + 1) * za[:, None] + (t**3 - 2 * t**2 + t) * h * da[:, None]
+                + (-2 * t**3 + 3 * t**2) * zb[:, None] + (t**3 - t**2) * h * db[:, None])
+        chord = za[:, None] + t * (zb - za)[:, None]
+        err = np.maximum(err, np.nan_to_num(np.abs(herm - chord), nan=np.inf).max(axis=1))
         both_air = (za >= -AIR_EPS) & (zb >= -AIR_EPS) & (zm >= -AIR_EPS)
         bad = (err > etol) & (ub - ua > 1e-4) & ~both_air
         samp_p.append(p)
@@ -365,8 +380,9 @@ def plan_toolpath(spec, surface, tol: Tolerances = DEFAULT) -> Toolpath:
                             key="machining.tolerance")
         b = bad
         seg = (np.concatenate([p[b], p[b]]), np.concatenate([ua[b], um[b]]),
-               np.concatenate([za[b], zm[b]]), np.concatenate([um[b], ub[b]]),
-               np.concatenate([zm[b], zb[b]]))
+               np.concatenate([za[b], zm[b]]), np.concatenate([da[b], dm[b]]),
+               np.concatenate([um[b], ub[b]]), np.concatenate([zm[b], zb[b]]),
+               np.concatenate([dm[b], db[b]]))
     sp_ = np.concatenate(samp_p)
     su = np.concatenate(samp_u)
     sz = np.concatenate(samp_z)
