@@ -492,10 +492,11 @@ def plan_toolpath(spec, surface, tol: Tolerances = DEFAULT) -> Toolpath:
     }
     if unreachable[0] > scallop:
         X, Y = fr.xy(unreachable[1], unreachable[2])
-        info["unreachable_material_mm"] = unreachable[0]
-        info["unreachable_warning"] = (
-            f"up to {unreachable[0]:.3f} mm of material is left where the design is narrower "
-            f"than the tool (near X={float(X):.2f}, Y={float(Y):.2f} mm)")
+        info["scallop_bound_relaxed_mm"] = unreachable[0]
+        info["scallop_warning"] = (
+            f"near X={float(X):.2f}, Y={float(Y):.2f} mm even passes right beside each other "
+            f"leave up to {unreachable[0]:.3f} mm by the planner's conservative bound (a design "
+            "narrower than the tool, or a loose bound there); the stepover was relaxed there")
     if nb:
         pi, ji = np.nonzero(bridged & keep)
         X, Y = fr.xy(ug[ji[0]], V[pi[0]])
