@@ -134,10 +134,10 @@ def test_deterministic_and_direction_y_one_way():
     a, b = plan_toolpath(spec, surf), plan_toolpath(spec, surf)
     assert np.array_equal(a.points, b.points) and np.array_equal(a.kinds, b.kinds)
     # one-way: every cut run moves the same way along y (climb with M3, passes stepping +x)
-    for run in _cut_runs(a):
-        dy = np.diff(run[:, 1])
-        assert np.all(dy <= 1e-9)
-        assert np.ptp(run[:, 0]) < 1e-9 or np.ptp(run[:, 1]) < 1e-9 or True
+    runs = [r for r in _cut_runs(a) if np.ptp(r[:, 1]) > 1e-6]    # cutting runs along y
+    assert len(runs) > 10
+    for run in runs:
+        assert np.all(np.diff(run[:, 1]) <= 1e-9)
 
 
 def test_guards_name_the_keys():
