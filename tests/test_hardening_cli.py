@@ -11,7 +11,8 @@
   junk files, each run through ``python -m fabkit stl`` and ``check`` in a
   subprocess with a 30 s timeout.
 
-A command whose module ``fabkit.commands.<cmd>`` does not exist is skipped.
+Property runs of a command whose module ``fabkit.commands.<cmd>`` does not exist
+are skipped.
 """
 
 from __future__ import annotations
@@ -399,7 +400,7 @@ def _run_case(cmd: str, kind: str, name: str, root: Path) -> dict:
 def acceptance(tmp_path_factory):
     """Run every (command, case) once, two at a time (the machine has two cores)."""
     root = tmp_path_factory.mktemp("acceptance")
-    cases = [c for c in CASES if has_command(c[0])]
+    cases = list(CASES)
     with ThreadPoolExecutor(max_workers=2) as pool:
         results = list(pool.map(lambda c: _run_case(*c, root), cases))
     return dict(zip(cases, results))
@@ -411,7 +412,7 @@ SLOW = {("check", "mutation", "units_mm"): pytest.mark.xfail(strict=False, reaso
 
 
 @pytest.mark.parametrize("cmd,kind,name", [
-    pytest.param(*c, marks=[needs(c[0])] + ([SLOW[c]] if c in SLOW else [])) for c in CASES],
+    pytest.param(*c, marks=[SLOW[c]] if c in SLOW else []) for c in CASES],
     ids=[f"{c[0]}-{c[2]}" for c in CASES])
 def test_acceptance_mutations_and_junk(acceptance, cmd, kind, name):
     r = acceptance[(cmd, kind, name)]
@@ -428,3 +429,40 @@ def test_acceptance_mutations_and_junk(acceptance, cmd, kind, name):
         assert_clean_exit(r["code"], r["err"], (0, 1))
         if cmd == "stl":
             assert r["code"] == 0 and any(p.endswith(".stl") for p in r["new"]), r
+
+
+# ----------------------------------------------------------------------------
+# known bugs in the commands, kept visible
+# ----------------------------------------------------------------------------
+@pytest.mark.xfail(strict=False, reason="integrator never finishes for a huge entry speed: "
+                   "fabkit/physics/integrate.py:486 _run_chunk_body -> _rk_step loops (non-finite state); "
+                   "v_in is checked only for finite >= 0")
+@pytest.mark.parametrize("argv", [["simulate", "tiny.yaml", "--v-in", "1e100"],
+                                  ["sweep", "tiny.yaml", "--v-in", "1", "1e308", "3", "--no-progress"]],
+                         ids=["simulate", "sweep"])
+def test_huge_entry_speed_ends(tmp_path, argv):
+    (tmp_path / "tiny.yaml").write_text(yaml.safe_dump(TINY, sort_keys=False))
+    code, out, err = run_subprocess(argv, tmp_path, timeout=10, fail=False)
+    assert code is not None, err
+    assert_clean_exit(code, err)
+
+
+@pytest.mark.xfail(strict=False, reason="simulate --v-in 1e20 reports 'captured': the state overflows "
+                   "instead of the ball leaving the footprint")
+def test_absurd_entry_speed_flies_off(tmp_path):
+    """At 1e20 cm/s the ball leaves the 14 x 8 cm footprint at once: flew_off (or a refusal)."""
+    (tmp_path / "tiny.yaml").write_text(yaml.safe_dump(TINY, sort_keys=False))
+    code, out, err = run_inprocess(["simulate", "tiny.yaml", "--v-in", "1e20", "--json"], tmp_path, seconds=60)
+    assert_clean_exit(code, err, (0, 2))
+    if code == 0:
+        import json
+        assert json.loads(out)["outcome"] == "flew_off"
+
+
+@pytest.mark.xfail(strict=False, reason="calibrate --height 1e308 prints v_in = inf and a numpy "
+                   "RuntimeWarning (fabkit/physics/calibrate.py:33) instead of refusing the height")
+def test_calibrate_huge_height(tmp_path):
+    (tmp_path / "tiny.yaml").write_text(yaml.safe_dump(TINY, sort_keys=False))
+    code, out, err = run_subprocess(["calibrate", "tiny.yaml", "--height", "1e308"], tmp_path, timeout=60)
+    assert_clean_exit(code, err)
+    assert code == 2 or "inf" not in out
