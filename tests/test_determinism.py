@@ -11,7 +11,6 @@ only in its run time (``seconds``).
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import os
 import shutil
@@ -25,10 +24,6 @@ import yaml
 from conftest import ROOT, paper_raw
 
 WALL_CLOCK_KEYS = {"generated_at", "timings_s", "seconds"}
-
-
-def has_command(name: str) -> bool:
-    return importlib.util.find_spec(f"fabkit.commands.{name}") is not None
 
 
 def tiny_raw() -> dict:
@@ -68,7 +63,6 @@ def without_wall_clock(obj):
     return obj
 
 
-@pytest.mark.skipif(not has_command("stl"), reason="fabkit stl not implemented yet")
 def test_stl_byte_identical_across_processes_and_folders(two_folders):
     a, b = two_folders
     fabkit(["stl", "tiny.yaml", "--tolerance", "0.05"], a, seed=1)
@@ -78,7 +72,6 @@ def test_stl_byte_identical_across_processes_and_folders(two_folders):
     assert b"generated" not in first[:80].lower()        # no timestamp in the binary STL header
 
 
-@pytest.mark.skipif(not has_command("gcode"), reason="fabkit gcode not implemented yet")
 def test_gcode_byte_identical_and_sheet_identical_but_for_time(two_folders):
     a, b = two_folders
     fabkit(["gcode", "tiny.yaml"], a, seed=3)
@@ -101,7 +94,6 @@ def test_gcode_byte_identical_and_sheet_identical_but_for_time(two_folders):
 @pytest.mark.xfail(strict=False, reason="the program's header comment and the setup sheet print the spec "
                    "path as given on the command line (spec.path), so `gcode tiny.yaml` and "
                    "`gcode /abs/tiny.yaml` differ in one comment line")
-@pytest.mark.skipif(not has_command("gcode"), reason="fabkit gcode not implemented yet")
 def test_gcode_independent_of_how_the_spec_path_is_written(two_folders):
     a, _ = two_folders
     fabkit(["gcode", "tiny.yaml", "--no-verify", "-o", "rel.ngc"], a, seed=7)
@@ -109,7 +101,6 @@ def test_gcode_independent_of_how_the_spec_path_is_written(two_folders):
     assert (a / "rel.ngc").read_bytes() == (a / "abs.ngc").read_bytes()
 
 
-@pytest.mark.skipif(not has_command("sweep"), reason="fabkit sweep not implemented yet")
 def test_sweep_json_identical_but_for_run_time(two_folders):
     a, b = two_folders
     argv = ["sweep", "tiny.yaml", "--v-in", "15", "45", "7", "--json", "--no-progress"]

@@ -3,12 +3,12 @@ existing output intact and no temporary file behind.
 
 Three levels: :func:`fabkit.io.atomic_outputs` directly; the CLI in-process with
 the writer patched to raise KeyboardInterrupt between staging and renaming
-(exit 130); and a real SIGINT sent to ``python -m fabkit stl`` while it works.
+(exit 130); and a real SIGINT sent to ``python -m fabkit stl`` and ``gcode``
+while they work.
 """
 
 from __future__ import annotations
 
-import importlib.util
 import os
 import signal
 import subprocess
@@ -26,10 +26,6 @@ from fabkit.io import atomic_outputs, write_atomic
 from conftest import ROOT, paper_raw
 
 OLD = b"previous output: must survive\n"
-
-
-def has_command(name: str) -> bool:
-    return importlib.util.find_spec(f"fabkit.commands.{name}") is not None
 
 
 def tiny_raw() -> dict:
@@ -126,8 +122,6 @@ def _interrupt_after_staging(monkeypatch, after: int):
     ("gcode", ["tiny.ngc", "tiny.setup.json"], ["--no-verify"]),
 ])
 def test_cli_interrupted_while_writing(cli, tmp_path, monkeypatch, command, outputs, extra):
-    if not has_command(command):
-        pytest.skip(f"fabkit {command} not implemented yet")
     spec = tmp_path / "tiny.yaml"
     spec.write_text(yaml.safe_dump(tiny_raw(), sort_keys=False))
     out_dir = tmp_path / "toolpaths"
@@ -145,8 +139,6 @@ def test_cli_interrupted_while_writing(cli, tmp_path, monkeypatch, command, outp
 
 
 def test_cli_gcode_interrupted_during_verification(cli, tmp_path, monkeypatch):
-    if not has_command("gcode"):
-        pytest.skip("fabkit gcode not implemented yet")
     import fabkit.toolpath.verify as verify
 
     def interrupted(*a, **k):
@@ -174,22 +166,20 @@ def _cpu_seconds(pid: int) -> float:
 
 
 @pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc")
-@pytest.mark.parametrize("busy_cpu_s", [1.2, 2.0])
-def test_sigint_to_running_stl(tmp_path, busy_cpu_s):
+@pytest.mark.parametrize("command,busy_cpu_s", [("stl", 1.2), ("stl", 2.0), ("gcode", 1.5)])
+def test_sigint_to_running_command(tmp_path, command, busy_cpu_s):
     """Ctrl-C once the process has used ``busy_cpu_s`` of CPU (past start-up,
-    inside surface compilation or the mesh build): exit 130, one line, the
-    previous STL byte-identical, no temporary file."""
-    if not has_command("stl"):
-        pytest.skip("fabkit stl not implemented yet")
+    inside surface compilation, the mesh build or the planning): exit 130, one
+    line, the previous output byte-identical, no temporary file."""
     spec = tmp_path / "tiny.yaml"
     raw = tiny_raw()
     raw["surface"].update(x=[-44, 6], y=[-12.5, 12.5])        # the paper's block: a few seconds of work
     spec.write_text(yaml.safe_dump(raw, sort_keys=False))
-    target = tmp_path / "out" / "block.stl"
+    target = tmp_path / "out" / f"block.{'stl' if command == 'stl' else 'ngc'}"
     target.parent.mkdir()
     target.write_bytes(OLD)
     env = dict(os.environ, PYTHONPATH=str(ROOT))
-    proc = subprocess.Popen([sys.executable, "-m", "fabkit", "stl", str(spec), "-o", str(target)],
+    proc = subprocess.Popen([sys.executable, "-m", "fabkit", command, str(spec), "-o", str(target)],
                             cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     deadline = time.monotonic() + 60
     while proc.poll() is None and _cpu_seconds(proc.pid) < busy_cpu_s and time.monotonic() < deadline:
@@ -202,7 +192,7 @@ def test_sigint_to_running_stl(tmp_path, busy_cpu_s):
     except subprocess.TimeoutExpired:
         proc.kill()
         proc.communicate()
-        pytest.fail("fabkit stl did not stop within 60 s of SIGINT")
+        pytest.fail(f"fabkit {command} did not stop within 60 s of SIGINT")
     err = err.decode("utf-8", "replace")
     if not sent:
         pytest.skip(f"the run finished before SIGINT could be sent (exit {proc.returncode})")
