@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import signal
 import tempfile
 from pathlib import Path
 
@@ -46,15 +47,32 @@ class _Outputs:
         return target
 
     def _commit(self) -> None:
-        for tmp, target in self._pending:
-            os.replace(tmp, target)
-        self._pending.clear()
+        # Ctrl-C between two renames would leave a new program beside an old setup sheet:
+        # SIGINT/SIGTERM are held for the microseconds of the renames and delivered after.
+        with _signals_held():
+            for tmp, target in self._pending:
+                os.replace(tmp, target)
+            self._pending.clear()
 
     def _discard(self) -> None:
         for tmp, _ in self._pending:
             with contextlib.suppress(OSError):
                 os.unlink(tmp)
         self._pending.clear()
+
+
+@contextlib.contextmanager
+def _signals_held():
+    """Defer SIGINT and SIGTERM in this thread for the duration of the block."""
+    if not hasattr(signal, "pthread_sigmask"):
+        yield
+        return
+    held = {signal.SIGINT, signal.SIGTERM}
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, held)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
 
 
 @contextlib.contextmanager

@@ -200,3 +200,29 @@ def test_sigint_to_running_command(tmp_path, command, busy_cpu_s):
     assert "Traceback" not in err and len(err.splitlines()) == 1 and "interrupted" in err
     assert target.read_bytes() == OLD
     assert temporaries(tmp_path) == []
+
+
+def test_ctrl_c_during_the_renames_leaves_a_consistent_pair(tmp_path, monkeypatch):
+    """SIGINT arriving between renaming the program and its sheet is held until
+    both are in place: never a new program beside an old sheet."""
+    a, b = tmp_path / "a.ngc", tmp_path / "a.setup.json"
+    a.write_bytes(OLD)
+    b.write_bytes(OLD)
+    real_replace = os.replace
+    calls = []
+
+    def replace_then_ctrl_c(src, dst):
+        real_replace(src, dst)
+        calls.append(dst)
+        if len(calls) == 1:
+            os.kill(os.getpid(), signal.SIGINT)
+
+    monkeypatch.setattr(os, "replace", replace_then_ctrl_c)
+    with pytest.raises(KeyboardInterrupt):
+        with atomic_outputs() as out:
+            out.write(a, "new program")
+            out.write(b, "new sheet")
+        time.sleep(0.1)                       # (unreached: the held SIGINT fires as the block ends)
+    assert len(calls) == 2
+    assert a.read_text() == "new program" and b.read_text() == "new sheet"
+    assert temporaries(tmp_path) == []
