@@ -21,7 +21,7 @@ class Tolerances:
     # expression sandbox
     expr_max_chars: int = 2000
     expr_max_nodes: int = 400
-    expr_max_depth: int = 60
+    expr_max_depth: int = 40            # nesting; compile time grows ~quadratically with it (~4 s at 40)
     expr_max_exponent: float = 64.0    # |constant exponent| in a ** b
     expr_max_number: float = 1e12      # |numeric literal|
     # guards on sizes derived from user numbers
