@@ -14,6 +14,7 @@ import contextlib
 import os
 import signal
 import tempfile
+import threading
 from pathlib import Path
 
 from .errors import SpecError
@@ -63,16 +64,33 @@ class _Outputs:
 
 @contextlib.contextmanager
 def _signals_held():
-    """Defer SIGINT and SIGTERM in this thread for the duration of the block."""
-    if not hasattr(signal, "pthread_sigmask"):
+    """Defer SIGINT and SIGTERM for the duration of the block, then deliver them.
+
+    A Python-level handler records the signal instead of raising; on exit the
+    previous handlers come back and a recorded signal is raised again. (Masking
+    with pthread_sigmask is not enough: the kernel hands a process-directed signal
+    to any thread that does not block it, and Python then raises it in the main
+    thread at once.) Handlers can only be changed from the main thread; elsewhere
+    the block runs unprotected, as KeyboardInterrupt never reaches such threads.
+    """
+    if threading.current_thread() is not threading.main_thread():
         yield
         return
-    held = {signal.SIGINT, signal.SIGTERM}
-    old = signal.pthread_sigmask(signal.SIG_BLOCK, held)
+    held = (signal.SIGINT, signal.SIGTERM)
+    received: list[int] = []
+    previous = {}
     try:
+        for s in held:
+            old = signal.getsignal(s)
+            if old is None:          # installed outside Python: leave it alone
+                continue
+            previous[s] = signal.signal(s, lambda signum, frame: received.append(signum))
         yield
     finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+        for s, old in previous.items():
+            signal.signal(s, old)
+        if received:
+            signal.raise_signal(received[0])
 
 
 @contextlib.contextmanager
