@@ -55,3 +55,11 @@ def test_calibration_table_paper():
     assert t["units"] == "cm" and t["k"] == 0.4 and t["g"] == pytest.approx(G_CM, rel=1e-15)
     assert t["heights"][0] == 0.2 and t["heights"][-1] == 4.5
     assert np.allclose(t["v_in"], np.sqrt(10 * G_CM * t["heights"] / 7), rtol=1e-15)
+
+
+def test_closed_forms_do_not_overflow_for_finite_heights():
+    """v_in = sqrt(2 g / (1 + k)) sqrt(H) stays finite up to the largest double."""
+    g, k = 980.665, 0.4
+    v = float(v_in_from_height(1e308, g, k))
+    assert math.isfinite(v)
+    assert v == pytest.approx(math.sqrt(2 * g / (1 + k)) * 1e154, rel=1e-15)

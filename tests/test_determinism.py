@@ -91,9 +91,6 @@ def test_gcode_byte_identical_and_sheet_identical_but_for_time(two_folders):
     assert all(any(w in line.lower() for w in ("generated", " s", "time")) for line in differing), differing
 
 
-@pytest.mark.xfail(strict=False, reason="the program's header comment and the setup sheet print the spec "
-                   "path as given on the command line (spec.path), so `gcode tiny.yaml` and "
-                   "`gcode /abs/tiny.yaml` differ in one comment line")
 def test_gcode_independent_of_how_the_spec_path_is_written(two_folders):
     a, _ = two_folders
     fabkit(["gcode", "tiny.yaml", "--no-verify", "-o", "rel.ngc"], a, seed=7)

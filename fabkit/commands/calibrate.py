@@ -18,6 +18,14 @@ def _check(values, key):
     return a
 
 
+def _finite(values, key, what):
+    """Refuse an input whose converted value overflows a double."""
+    a = np.asarray(values, dtype=float)
+    if not np.all(np.isfinite(a)):
+        raise SpecError(f"too large: the {what} overflows (largest finite is {np.finfo(float).max:.3g})", key=key)
+    return a
+
+
 def run(args) -> int:
     from ..physics.calibrate import calibration_table, height_from_v_in, v_in_from_height
 
@@ -28,14 +36,14 @@ def run(args) -> int:
     heights, v_in = table["heights"], table["v_in"]
     if args.height:
         heights = _check(args.height, "--height")
-        v_in = v_in_from_height(heights, g, k)
+        v_in = _finite(v_in_from_height(heights, g, k), "--height", "entry speed")
     payload = {"heights": heights, "v_in": v_in, "g": g, "k": k, "units": units}
     lines = [f"calibrate: rolling without slipping, v_in = sqrt(2 g H / (1 + k)), g = {g:.6g} {units}/s^2, "
              f"k = {k:.6g}", f"{'H (' + units + ')':>14} {'v_in (' + units + '/s)':>16}"]
     lines += [f"{h:14.6g} {v:16.8g}" for h, v in zip(heights, v_in)]
     if args.v_in:
         vv = _check(args.v_in, "--v-in")
-        hh = height_from_v_in(vv, g, k)
+        hh = _finite(height_from_v_in(vv, g, k), "--v-in", "release height")
         payload["inverse"] = {"v_in": vv, "heights": hh}
         lines.append(f"inverse: {'v_in (' + units + '/s)':>16} {'H (' + units + ')':>14}")
         lines += [f"         {v:16.8g} {h:14.8g}" for v, h in zip(vv, hh)]

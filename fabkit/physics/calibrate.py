@@ -30,13 +30,15 @@ def v_in_from_height(H, g: float, k: float):
     Returns an array of H's shape (a float for a scalar H).
     """
     H = np.asarray(H, dtype=float)
-    return np.sqrt(2.0 * g * H / (1.0 + k))
+    # sqrt(2 g / (1 + k)) sqrt(H): no overflow for any finite H
+    return np.sqrt(2.0 * g / (1.0 + k)) * np.sqrt(H)
 
 
 def height_from_v_in(v, g: float, k: float):
     """Release height (design units) that gives entry speed(s) ``v`` (design units/s)."""
     v = np.asarray(v, dtype=float)
-    return (1.0 + k) * v * v / (2.0 * g)
+    with np.errstate(over="ignore"):
+        return (1.0 + k) / (2.0 * g) * v * v
 
 
 def ramp_heights(spec) -> np.ndarray:

@@ -20,6 +20,7 @@ remains is part of the verified figures. Same toolpath and profile -> same text.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -129,7 +130,9 @@ def profile_from_spec(spec, surface=None) -> MachineProfile:
     """The machine profile of a spec (sections tool, stock, machining; surface for
     the stock size). Header lines describe the job for the operator."""
     m, t, st = spec.machining, spec.tool, spec.stock
-    header = [("spec", spec.path), ("name", spec.name),
+    # the spec's file name, not the path as typed: `gcode a.yaml` and `gcode /abs/a.yaml`
+    # give the same program (the setup sheet records the full path)
+    header = [("spec", Path(spec.path).name), ("name", spec.name),
               ("tool", f"{t.shape}-end mill, diameter {t.diameter:g} mm")]
     if surface is not None:
         L, W = surface.stock_size_mm
