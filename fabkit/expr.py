@@ -252,7 +252,9 @@ def compile_surface(text: str, params: Mapping[str, float], tol: Tolerances = DE
             shape = np.broadcast_shapes(xa.shape, ya.shape)
             with np.errstate(all="ignore"):
                 out = _fn(xa, ya)
-            return tuple(np.broadcast_to(np.asarray(o, dtype=float), shape) for o in out)
+            # constants (a derivative that does not depend on x, y) come back as scalars
+            return tuple(o if type(o) is np.ndarray and o.shape == shape and o.dtype == np.float64
+                         else np.broadcast_to(np.asarray(o, dtype=float), shape) for o in out)
 
         return wrapped
 
