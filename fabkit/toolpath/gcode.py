@@ -258,7 +258,7 @@ def write_program(toolpath: Toolpath, profile: MachineProfile) -> str:
     add = out.append
     items = [("fabkit", f"ball-end raster finishing program, {d.name} dialect")]
     items += list(profile.header)
-    items += [("work zero", "X0 Y0 at the footprint corner of smallest x, y;"),
+    items += [("work zero", "X0 Y0 at the footprint corner of smallest x, y,"),
               ("", "Z0 on the stock top face"),
               ("scallop", f"{profile.scallop:g} mm"), ("tolerance", f"{profile.tolerance:g} mm")]
     items += [("passes", f"{toolpath.passes}"),
