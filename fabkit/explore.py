@@ -1,0 +1,690 @@
+"""Design studies: grids of designs over spec keys, and Monte Carlo over the launch.
+
+Pure library code (no printing, no files): the commands ``fabkit explore`` and
+``fabkit robustness`` are the edge.
+
+Engine
+------
+Every launch goes through an :class:`Engine`. Without a scheduler address it
+runs the batched integrator (:func:`integrate.launch_batch`) in this process.
+With ``scheduler='tcp://host:port'`` it splits each batch of launches into
+chunks of at most ``chunk`` lanes (default :data:`CHUNK`) and submits one Dask
+task per chunk (task names ``fabkit-launch-<id>``) to an existing cluster. The
+compiled right-hand sides of a design do not pickle, so a task carries the
+design's validated spec as its raw mapping and the worker rebuilds the
+:class:`models.Problem` once per design (cached per worker process by a hash of
+the mapping). The integrator's arithmetic is elementwise over lanes, so a
+launch's result does not depend on the batch it shares: the cluster's results
+are bit-identical to the in-process ones (the tests check it). In the Dask case
+the designs of a grid are driven concurrently from client threads (each
+refinement round of a design is one set of chunk tasks), so the workers are
+kept busy by several designs at once.
+
+Explore
+-------
+:func:`explore` evaluates every design of a grid (:func:`parse_vary`,
+:func:`design_grid`): the spec with the grid's keys replaced and fully
+re-validated (an invalid combination becomes that design's ``error``). Per
+design: ``v_critical`` (± ``v_critical_error``, the half-width of its bracket,
+1e-6 relative) and the n-bounce ``windows`` by :func:`sweep.sweep`; the
+pre-fabrication check of :func:`check.check` re-done through the engine: the
+ramp's release heights launched, the highest safe release height (1e-4
+relative) and the first failing height, and the machining feasibility (depth
+of the cut against the stock and tool, tool radius against the smallest
+concave radius). ``safe``: no ramp height flies off or loses contact and the
+cut is machinable (without a ``ramp`` section, judged over the ``--v-in``
+launches instead).
+
+Robustness
+----------
+:func:`robustness` launches, for each entry speed, ``samples`` launches with
+the transverse offset and velocity drawn from normal distributions around the
+spec's ``simulation.y0`` / ``vy0`` (standard deviations ``sigma_y``,
+``sigma_vy``), plus the nominal (zero-scatter) launch. The draws come from
+``numpy.random.default_rng(seed)`` all at once, before any launch, so they do
+not depend on chunking or on the scheduler. Per entry speed it reports the
+probability of each bounce count (escaped launches) and of each outcome; the
+probabilities sum to 1 and each has the binomial standard error
+sqrt(p (1 - p) / samples).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import itertools
+import json
+import math
+import threading
+import time
+import uuid
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import SpecError
+from .tolerances import DEFAULT
+
+CHUNK = 256            # lanes per Dask task
+MAX_DESIGNS = 10_000   # designs in one grid
+MAX_CACHED = 32        # compiled problems kept per process
+TASK_PREFIX = "fabkit-launch"
+
+
+# ----------------------------------------------------------------------------
+# --vary KEY=LO:HI:N
+# ----------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Vary:
+    """One axis of a design grid: a dotted spec key and its values."""
+
+    key: str
+    values: tuple
+
+
+def variable_keys(spec) -> list[str]:
+    """The dotted keys a grid may vary in ``spec``: every number or choice field
+    of the sections the spec has, and ``surface.params.<name>`` for its params."""
+    from .spec import SCHEMA, Choice, Inertia, Num
+
+    keys = []
+    for sec, fields in SCHEMA.items():
+        if not spec.has(sec):
+            continue
+        for name, f in fields.items():
+            if isinstance(f, (Num, Choice, Inertia)):
+                keys.append(f"{sec}.{name}")
+        if sec == "surface":
+            keys.extend(f"surface.params.{p}" for p in spec.surface.params)
+    return keys
+
+
+def _all_keys() -> list[str]:
+    from .spec import SCHEMA
+
+    return [f"{sec}.{name}" for sec, fields in SCHEMA.items() for name in fields]
+
+
+def _suggest(word: str, options) -> str:
+    import difflib
+
+    close = difflib.get_close_matches(word, list(options), n=1, cutoff=0.6)
+    return f" (did you mean {close[0]!r}?)" if close else ""
+
+
+def _num(text: str, what: str, flag: str) -> float:
+    try:
+        x = float(text)
+    except ValueError:
+        raise SpecError(f"{what} must be a number, got {text.strip()!r}", key=flag) from None
+    if not math.isfinite(x):
+        raise SpecError(f"{what} must be finite, got {text.strip()!r}", key=flag)
+    return x
+
+
+def parse_vary(text: str, spec, flag: str = "--vary") -> Vary:
+    """``KEY=LO:HI:N`` (N evenly spaced values, both ends included) or
+    ``KEY=V1,V2,...`` (values as given; words for choice keys such as
+    ``simulation.model=full,simplified``). The key must be a number or choice
+    key of a section the spec has (did-you-mean otherwise); values of whole-number
+    keys must be whole. Raises SpecError naming ``--vary``."""
+    from .spec import SCHEMA, Choice, Inertia, Num
+
+    text = str(text)
+    if "=" not in text:
+        raise SpecError(f"expected KEY=LO:HI:N (or KEY=V1,V2,...), got {text!r}", key=flag)
+    key, _, rhs = text.partition("=")
+    key, rhs = key.strip(), rhs.strip()
+    allowed = variable_keys(spec)
+    if key not in allowed:
+        parts = key.split(".")
+        if key in _all_keys() and not spec.has(parts[0]):
+            raise SpecError(f"{key}: the spec has no {parts[0]} section", key=flag)
+        if key in _all_keys():
+            raise SpecError(f"{key}: not a number or choice key (it cannot be varied on a grid)", key=flag)
+        if key.startswith("surface.params."):
+            names = list(spec.surface.params) if spec.has("surface") else []
+            raise SpecError(f"{key}: no such parameter in surface.params"
+                            f"{_suggest(key, [f'surface.params.{n}' for n in names])}", key=flag)
+        raise SpecError(f"unknown key {key!r}{_suggest(key, allowed)}", key=flag)
+    field = None
+    if not key.startswith("surface.params."):
+        sec, name = key.split(".")
+        field = SCHEMA[sec][name]
+    if not rhs:
+        raise SpecError(f"{key}: no values (expected {key}=LO:HI:N)", key=flag)
+    if ":" in rhs:
+        parts = rhs.split(":")
+        if len(parts) != 3:
+            raise SpecError(f"{key}: expected LO:HI:N, got {rhs!r}", key=flag)
+        lo, hi = _num(parts[0], "LO", flag), _num(parts[1], "HI", flag)
+        n = _num(parts[2], "N", flag)
+        if n != int(n) or n < 1:
+            raise SpecError(f"{key}: N must be a whole number >= 1, got {parts[2].strip()}", key=flag)
+        if n > MAX_DESIGNS:
+            raise SpecError(f"{key}: N = {int(n)} exceeds the limit of {MAX_DESIGNS} designs", key=flag)
+        if n == 1 and lo != hi:
+            raise SpecError(f"{key}: N = 1 needs LO = HI, got {lo:g}:{hi:g}", key=flag)
+        if n >= 2 and not hi > lo:
+            raise SpecError(f"{key}: need LO < HI, got {lo:g}:{hi:g}", key=flag)
+        if isinstance(field, Choice):
+            raise SpecError(f"{key}: a choice key takes a list of words, e.g. {key}="
+                            f"{','.join(field.options)}", key=flag)
+        values = [float(x) for x in np.linspace(lo, hi, int(n))]
+    else:
+        values = []
+        for item in rhs.split(","):
+            item = item.strip()
+            if not item:
+                raise SpecError(f"{key}: empty value in {rhs!r}", key=flag)
+            if isinstance(field, Choice) or (isinstance(field, Inertia) and item in ("solid", "hollow")):
+                values.append(item)
+            else:
+                values.append(_num(item, "a value", flag))
+        if len(values) > MAX_DESIGNS:
+            raise SpecError(f"{key}: {len(values)} values exceed the limit of {MAX_DESIGNS} designs", key=flag)
+    if isinstance(field, Num) and field.integer:
+        for x in values:
+            if x != int(x):
+                raise SpecError(f"{key}: must be a whole number, got {x:g}", key=flag)
+        values = [int(x) for x in values]
+    if len(set(map(repr, values))) != len(values):
+        raise SpecError(f"{key}: repeated values", key=flag)
+    return Vary(key, tuple(values))
+
+
+def design_grid(varies: list[Vary]) -> list[dict]:
+    """Every combination of the axes' values as ``{key: value}``, in the order of
+    the axes (the last axis varies fastest). One empty design for no axes."""
+    keys = [v.key for v in varies]
+    if len(set(keys)) != len(keys):
+        dup = next(k for k in keys if keys.count(k) > 1)
+        raise SpecError(f"{dup} is varied twice", key="--vary")
+    n = 1
+    for v in varies:
+        n *= len(v.values)
+    if n > MAX_DESIGNS:
+        raise SpecError(f"the grid has {n} designs (limit {MAX_DESIGNS})", key="--vary")
+    return [dict(zip(keys, combo)) for combo in itertools.product(*(v.values for v in varies))]
+
+
+# ----------------------------------------------------------------------------
+# the engine
+# ----------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Design:
+    """A validated spec as it travels to a worker: its raw mapping and file name."""
+
+    key: str
+    raw: dict
+    path: str
+
+
+def design_of(spec) -> Design:
+    text = json.dumps([spec.path, spec.raw], sort_keys=True, default=repr)
+    return Design(hashlib.sha256(text.encode()).hexdigest()[:24], spec.raw, spec.path)
+
+
+_CACHE: dict = {}
+_CACHE_LOCK = threading.Lock()
+
+
+def problem_of(design: Design):
+    """The design's Problem, built once per process (the spec re-validated from its
+    raw mapping, the surface compiled)."""
+    with _CACHE_LOCK:
+        hit = _CACHE.get(design.key)
+        if hit is not None:
+            return hit
+        from .physics.models import problem_from_spec
+        from .spec import validate
+
+        problem = problem_from_spec(validate(design.raw, design.path))
+        if len(_CACHE) >= MAX_CACHED:
+            _CACHE.pop(next(iter(_CACHE)))
+        _CACHE[design.key] = problem
+        return problem
+
+
+def run_chunk(design: Design, v, y0=None, vy0=None) -> dict:
+    """One task: launch ``v`` (with per-lane ``y0``, ``vy0`` or the spec's) for the
+    design; returns the per-launch summaries and where it ran (the Dask worker's
+    address, None in-process)."""
+    from .physics.integrate import launch_batch
+
+    r = launch_batch(problem_of(design), v, y0, vy0, workers=1)
+    try:
+        from distributed import get_worker
+
+        where = get_worker().address
+    except (ImportError, ValueError):
+        where = None
+    return {"outcome": np.asarray(r.outcome, dtype=np.int8), "bounces": np.asarray(r.bounces, dtype=int),
+            "v_out": np.asarray(r.v_out, dtype=float), "bounce_times": np.asarray(r.bounce_times, dtype=float),
+            "worker": where}
+
+
+def _pieces(n: int, chunk: int) -> list[tuple[int, int]]:
+    k = max(1, math.ceil(n / max(1, chunk)))
+    b = np.linspace(0, n, k + 1).round().astype(int)
+    return [(int(x), int(y)) for x, y in zip(b[:-1], b[1:]) if y > x]
+
+
+class Engine:
+    """Runs launches in-process (``scheduler`` None) or as chunk tasks on a Dask
+    cluster. ``progress(done)``: called with the running count of launches done.
+    Use as a context manager (closes the Dask client, not the cluster)."""
+
+    def __init__(self, scheduler: str | None = None, *, chunk: int = CHUNK, progress=None,
+                 timeout: float = 10.0):
+        self.address = scheduler
+        self.chunk = int(chunk)
+        self.progress = progress
+        self.client = None
+        self.launches = 0
+        self.tasks = 0
+        self.workers: dict = {}
+        self._lock = threading.Lock()
+        if scheduler:
+            self.client = _connect(scheduler, timeout)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def close(self) -> None:
+        if self.client is not None:
+            try:
+                self.client.close()
+            finally:
+                self.client = None
+
+    def _done(self, n: int, worker=None) -> None:
+        with self._lock:
+            self.launches += n
+            if worker is not None:
+                self.tasks += 1
+                self.workers[worker] = self.workers.get(worker, 0) + 1
+            done = self.launches
+        if self.progress is not None:
+            self.progress(done)
+
+    def launch(self, design: Design, v, y0=None, vy0=None):
+        """Launch ``v`` (M,) for ``design``; returns a :class:`sweep.Launches`."""
+        from .physics.sweep import Launches
+
+        v = np.atleast_1d(np.asarray(v, dtype=float)).ravel()
+        n = v.size
+        lanes = [None if a is None else np.ascontiguousarray(np.broadcast_to(np.asarray(a, dtype=float), (n,)))
+                 for a in (y0, vy0)]
+        if n == 0:
+            return Launches(v, np.zeros(0, np.int8), np.zeros(0, int), np.zeros(0), np.zeros((0, 8)))
+        if self.client is None:
+            with self._lock:
+                base = self.launches
+            cb = (lambda d, _t: self.progress(base + int(d))) if self.progress is not None else None
+            from .physics.integrate import launch_batch
+
+            r = launch_batch(problem_of(design), v, lanes[0], lanes[1], workers=1,
+                             **({"progress": cb} if cb else {}))
+            with self._lock:
+                self.launches += n
+            parts = [{"outcome": r.outcome, "bounces": r.bounces, "v_out": r.v_out,
+                      "bounce_times": r.bounce_times}]
+        else:
+            parts = self._on_cluster(design, v, lanes[0], lanes[1])
+        k = max(p["bounce_times"].shape[1] for p in parts)
+        bt = np.concatenate([np.pad(np.asarray(p["bounce_times"], dtype=float),
+                                    ((0, 0), (0, k - p["bounce_times"].shape[1])), constant_values=np.nan)
+                             for p in parts])
+        return Launches(v, np.concatenate([np.asarray(p["outcome"], dtype=np.int8) for p in parts]),
+                        np.concatenate([np.asarray(p["bounces"], dtype=int) for p in parts]),
+                        np.concatenate([np.asarray(p["v_out"], dtype=float) for p in parts]), bt)
+
+    def _on_cluster(self, design, v, y0, vy0) -> list[dict]:
+        from distributed import as_completed
+
+        pieces = _pieces(v.size, self.chunk)
+        futures = []
+        for a, b in pieces:
+            futures.append(self.client.submit(
+                run_chunk, design, v[a:b], None if y0 is None else y0[a:b], None if vy0 is None else vy0[a:b],
+                key=f"{TASK_PREFIX}-{uuid.uuid4().hex}", pure=False, retries=1))
+        sizes = {f.key: b - a for f, (a, b) in zip(futures, pieces)}
+        results = {}
+        try:
+            for fut in as_completed(futures, loop=self.client.loop):
+                r = fut.result()
+                results[fut.key] = r
+                self._done(sizes[fut.key], r.get("worker") or "unknown")
+        finally:
+            for f in futures:
+                f.release()
+        return [results[f.key] for f in futures]
+
+    def map(self, fn, items: list) -> list:
+        """``[fn(x) for x in items]``: serially in-process; from client threads on a
+        cluster (each thread's launches become tasks, so designs run side by side)."""
+        if self.client is None or len(items) <= 1:
+            return [fn(x) for x in items]
+        from concurrent.futures import ThreadPoolExecutor
+
+        try:
+            nthreads = sum(w.get("nthreads", 1) for w in self.client.scheduler_info()["workers"].values())
+        except Exception:  # noqa: BLE001 - the count only sizes the thread pool
+            nthreads = 2
+        with ThreadPoolExecutor(max_workers=max(2, min(len(items), 2 * nthreads, 32))) as pool:
+            return list(pool.map(fn, items))
+
+    def info(self) -> dict:
+        return {"scheduler": self.address, "chunk": self.chunk if self.client is not None or self.address else None,
+                "tasks": self.tasks, "workers": dict(sorted(self.workers.items())), "launches": self.launches}
+
+
+def _connect(address: str, timeout: float):
+    address = str(address).strip()
+    if not address or any(ch.isspace() for ch in address):
+        raise SpecError(f"not a scheduler address: {address!r} (e.g. tcp://127.0.0.1:8786)", key="--scheduler")
+    try:
+        from distributed import Client
+    except ImportError:  # pragma: no cover - a dependency
+        raise SpecError("Dask distributed is not installed (pip install 'dask[distributed]')",
+                        key="--scheduler") from None
+    try:
+        client = Client(address, timeout=timeout, set_as_default=False)
+    except (OSError, ValueError, TypeError) as exc:
+        raise SpecError(f"cannot connect to the Dask scheduler at {address}: {type(exc).__name__}: {exc}",
+                        key="--scheduler") from None
+    try:
+        client.wait_for_workers(1, timeout=timeout)
+    except (OSError, TimeoutError) as exc:
+        client.close()
+        raise SpecError(f"the Dask scheduler at {address} has no workers ({type(exc).__name__})",
+                        key="--scheduler") from None
+    return client
+
+
+# ----------------------------------------------------------------------------
+# explore
+# ----------------------------------------------------------------------------
+def _counts(outcome) -> dict:
+    from .physics.models import OUTCOMES
+
+    out = {}
+    for o in np.asarray(outcome).tolist():
+        out[OUTCOMES[int(o)]] = out.get(OUTCOMES[int(o)], 0) + 1
+    return out
+
+
+def evaluate_design(spec, v_grid, engine: Engine, *, rel_tol: float = 1e-6, height_rel_tol: float = 1e-4,
+                    tol=DEFAULT) -> dict:
+    """One design (a validated spec): v_critical, windows, ramp safety, machining.
+
+    ``v_grid``: the entry speeds (sorted) or None for the ramp's calibrated speeds.
+    Returns the design's entry without ``params``, plus ``grid`` (the grid launches:
+    v_in, outcome, bounces, v_out arrays) for the per-launch table."""
+    from . import units
+    from .physics.calibrate import ball_k, ramp_heights, v_in_from_height
+    from .physics.check import machining
+    from .physics.models import OUTCOMES
+    from .physics.sweep import FLEW_OFF, LOST_CONTACT, Launches, sweep
+
+    t0 = time.perf_counter()
+    design = design_of(spec)
+    problem = problem_of(design)
+    counted = {"n": 0}
+
+    def launch(v):
+        counted["n"] += len(v)
+        return engine.launch(design, v)
+
+    has_ramp = spec.has("ramp") and spec.has("ball")
+    H = vr = None
+    if has_ramp:
+        g, k = units.gravity(spec.units), ball_k(spec)
+        H = np.sort(np.asarray(ramp_heights(spec), dtype=float))
+        vr = np.asarray(v_in_from_height(H, g, k), dtype=float)
+    if v_grid is None:
+        if not has_ramp:
+            raise SpecError("missing section (needed by explore without --v-in)", file=spec.path, key="ramp")
+        v, first = np.unique(vr, return_index=True)
+        r = launch(vr)
+        ramp_res = r
+        grid = Launches(v, r.outcome[first], r.bounces[first], r.v_out[first], r.bounce_times[first])
+    else:
+        v = np.sort(np.asarray(v_grid, dtype=float))
+        if v.size * (2 if has_ramp else 1) > tol.max_launches:
+            raise SpecError(f"{v.size} launches exceed the limit {tol.max_launches}", key="--v-in")
+        both = launch(v if vr is None else np.concatenate([v, vr]))
+        n = v.size
+        grid = Launches(v, both.outcome[:n], both.bounces[:n], both.v_out[:n], both.bounce_times[:n])
+        ramp_res = None if vr is None else Launches(vr, both.outcome[n:], both.bounces[n:], both.v_out[n:],
+                                                     both.bounce_times[n:])
+    sw = sweep(problem, v, launcher=launch, initial=grid, rel_tol=rel_tol, error_samples=0, tn=False,
+               k=64, k_edge=32, tol=tol)
+
+    out: dict = {"v_critical": sw["v_critical"], "v_critical_error": sw["v_critical_error"],
+                 "v_critical_reason": sw["v_critical_reason"], "windows": sw["windows"]}
+    first_failure = None
+    if has_ramp:
+        unsafe = (ramp_res.outcome == FLEW_OFF) | (ramp_res.outcome == LOST_CONTACT)
+        if unsafe.any():
+            i = int(np.flatnonzero(unsafe)[0])
+            first_failure = {"height": float(H[i]), "v_in": float(vr[i]),
+                             "outcome": OUTCOMES[int(ramp_res.outcome[i])]}
+            highest = None if i == 0 else _highest_safe(launch, float(H[i - 1]), float(H[i]), g, k,
+                                                        height_rel_tol)
+        else:
+            highest = float(H[-1])
+        ramp_safe = not bool(unsafe.any())
+        out["safe_over"] = "ramp"
+    else:
+        unsafe = (grid.outcome == FLEW_OFF) | (grid.outcome == LOST_CONTACT)
+        highest = None
+        ramp_safe = not bool(unsafe.any())
+        if unsafe.any():
+            i = int(np.flatnonzero(unsafe)[0])
+            first_failure = {"height": None, "v_in": float(v[i]), "outcome": OUTCOMES[int(grid.outcome[i])]}
+        out["safe_over"] = "v_in"
+    out["highest_safe_height"] = highest
+    out["first_failure"] = first_failure
+    m = machining(spec)
+    out["depth_mm"] = None if m is None else m["depth_mm"]
+    out["depth_ok"] = None if m is None else m["depth_ok"]
+    out["machining"] = m
+    out["safe"] = bool(ramp_safe and (m is None or m["feasible"]))
+    out["outcomes"] = _counts(grid.outcome)
+    out["launches"] = counted["n"]
+    out["seconds"] = time.perf_counter() - t0
+    out["grid"] = {"v_in": v, "outcome": [OUTCOMES[int(o)] for o in grid.outcome], "bounces": grid.bounces,
+                   "v_out": grid.v_out}
+    return out
+
+
+def _highest_safe(launch, h_safe: float, h_fail: float, g: float, k: float, rel_tol: float, m: int = 64) -> float:
+    """The boundary between a safe and a failing release height by batched
+    k-section (as :func:`check._boundary`, through the engine); the safe end."""
+    from .physics.calibrate import v_in_from_height
+    from .physics.sweep import FLEW_OFF, LOST_CONTACT
+
+    while h_fail - h_safe > rel_tol * h_fail:
+        hs = h_safe + (h_fail - h_safe) * np.arange(1, m + 1) / (m + 1)
+        r = launch(np.asarray(v_in_from_height(hs, g, k), dtype=float))
+        bad = np.flatnonzero((r.outcome == FLEW_OFF) | (r.outcome == LOST_CONTACT))
+        if len(bad) == 0:
+            h_safe = float(hs[-1])
+        else:
+            j = int(bad[0])
+            h_fail = float(hs[j])
+            if j > 0:
+                h_safe = float(hs[j - 1])
+    return h_safe
+
+
+def explore(spec, varies: list[Vary], v_grid=None, *, engine: Engine, rel_tol: float = 1e-6,
+            tol=DEFAULT) -> dict:
+    """Evaluate every design of the grid. Returns ``{"designs": [...], "launches",
+    "seconds", "engine"}``; each design ``{"params", "v_critical", "windows", "safe",
+    ...}`` (see :func:`evaluate_design`) or ``{"params", "error", "safe": None, ...}``
+    when its spec is invalid."""
+    t0 = time.perf_counter()
+    grid = design_grid(varies)
+    if v_grid is not None and len(grid) * len(v_grid) > tol.max_launches:
+        raise SpecError(f"{len(grid)} designs x {len(v_grid)} speeds exceed the limit of {tol.max_launches} "
+                        "launches", key="--v-in")
+
+    def one(params: dict) -> dict:
+        entry: dict = {"params": params}
+        try:
+            dspec = spec.with_overrides(params) if params else spec
+            entry.update(evaluate_design(dspec, v_grid, engine, rel_tol=rel_tol, tol=tol))
+        except SpecError as exc:
+            entry.update({"error": str(exc), "v_critical": None, "v_critical_error": None, "windows": [],
+                          "highest_safe_height": None, "safe": None})
+        return entry
+
+    designs = engine.map(one, grid)
+    return {"designs": designs, "launches": engine.launches, "seconds": time.perf_counter() - t0,
+            "engine": engine.info()}
+
+
+# ----------------------------------------------------------------------------
+# robustness
+# ----------------------------------------------------------------------------
+def draw_scatter(n_v: int, samples: int, sigma_y: float, sigma_vy: float, y0: float, vy0: float,
+                 seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """(y0, vy0), each (n_v, samples): normal draws around the nominal launch,
+    from ``default_rng(seed)``, drawn all at once (chunking cannot change them)."""
+    z = np.random.default_rng(seed).standard_normal((2, n_v, samples))
+    return y0 + sigma_y * z[0], vy0 + sigma_vy * z[1]
+
+
+def check_scatter(sigma_y: float, sigma_vy: float, samples: int, n_v: int, tol=DEFAULT) -> None:
+    """SpecError (naming the flag) for a bad sigma, sample count or launch count."""
+    for flag, s in (("--sigma-y", sigma_y), ("--sigma-vy", sigma_vy)):
+        if not (isinstance(s, (int, float)) and math.isfinite(s) and s >= 0):
+            raise SpecError(f"must be finite and >= 0, got {s}", key=flag)
+    if not (isinstance(samples, int) and samples >= 1):
+        raise SpecError(f"must be a whole number >= 1, got {samples}", key="--samples")
+    total = n_v * (samples + 1)
+    if total > tol.max_launches:
+        raise SpecError(f"{n_v} speeds x ({samples} samples + 1 nominal) = {total} launches exceed the limit "
+                        f"{tol.max_launches}", key="--samples")
+
+
+def robustness(spec, v, *, sigma_y: float, sigma_vy: float, samples: int, seed: int = 0,
+               engine: Engine, tol=DEFAULT) -> dict:
+    """Monte Carlo over the launch's transverse offset and velocity (module doc).
+
+    Returns ``v_in`` (N,), ``rows`` (one per v_in: ``v_in``, ``nominal_outcome``,
+    ``nominal_bounces``, ``p_bounces`` {n: P(escaped after n bounces)}, ``p_outcome``
+    {outcome: P}, ``p_nominal`` (P(same outcome and bounce count as the nominal
+    launch)), ``most_likely``, ``standard_error`` (largest over the row)), ``summary``,
+    ``launches`` (arrays over all sampled launches, for the table), ``seconds``."""
+    from .physics.models import OUTCOMES
+    from .physics.sweep import ESCAPED
+
+    t0 = time.perf_counter()
+    v = np.asarray(v, dtype=float).ravel()
+    check_scatter(sigma_y, sigma_vy, samples, v.size, tol)
+    design = design_of(spec)
+    problem = problem_of(design)
+    Y, VY = draw_scatter(v.size, samples, float(sigma_y), float(sigma_vy), problem.y0, problem.vy0, seed)
+    V = np.repeat(v, samples)
+    allv = np.concatenate([v, V])
+    ally = np.concatenate([np.full(v.size, problem.y0), Y.ravel()])
+    allvy = np.concatenate([np.full(v.size, problem.vy0), VY.ravel()])
+    r = engine.launch(design, allv, ally, allvy)
+    n = v.size
+    nom_o, nom_b = r.outcome[:n], r.bounces[:n]
+    O = r.outcome[n:].reshape(n, samples)
+    B = r.bounces[n:].reshape(n, samples)
+    rows = []
+    for i in range(n):
+        esc = O[i] == ESCAPED
+        pb = {}
+        for b in sorted(set(B[i][esc].tolist())):
+            pb[str(int(b))] = float(np.count_nonzero(esc & (B[i] == b)) / samples)
+        po = {name: float(np.count_nonzero(O[i] == j) / samples) for j, name in enumerate(OUTCOMES)}
+        same = (O[i] == nom_o[i]) & ((B[i] == nom_b[i]) | (nom_o[i] != ESCAPED))
+        p_nom = float(np.count_nonzero(same) / samples)
+        cands = {f"escaped_{b}": p for b, p in pb.items()}
+        cands.update({name: p for name, p in po.items() if name != "escaped"})
+        most = max(cands.items(), key=lambda kv: kv[1])[0] if cands else None
+        ps = list(pb.values()) + [p for name, p in po.items() if name != "escaped"]
+        se = max((math.sqrt(p * (1 - p) / samples) for p in ps), default=0.0)
+        nominal_name = (f"escaped_{int(nom_b[i])}" if nom_o[i] == ESCAPED else OUTCOMES[int(nom_o[i])])
+        rows.append({"v_in": float(v[i]), "nominal_outcome": OUTCOMES[int(nom_o[i])],
+                     "nominal_bounces": int(nom_b[i]), "p_bounces": pb, "p_outcome": po, "p_nominal": p_nom,
+                     "most_likely": most, "most_likely_is_nominal": most == nominal_name, "standard_error": se})
+    p_nom = np.array([row["p_nominal"] for row in rows])
+    two_nom = np.array([row["nominal_outcome"] == "escaped" and row["nominal_bounces"] == 2 for row in rows])
+    p_two = np.array([row["p_bounces"].get("2", 0.0) for row in rows])
+    summary = {
+        "mean_p_nominal": float(p_nom.mean()), "min_p_nominal": float(p_nom.min()),
+        "v_in_min_p_nominal": float(v[int(np.argmin(p_nom))]),
+        "most_likely_differs": int(sum(not row["most_likely_is_nominal"] for row in rows)),
+        "nominal_two_bounce": int(two_nom.sum()),
+        "mean_p_two_where_nominal_two": float(p_two[two_nom].mean()) if two_nom.any() else None,
+        "mean_p_two_elsewhere": float(p_two[~two_nom].mean()) if (~two_nom).any() else None,
+        "max_standard_error": float(max(row["standard_error"] for row in rows)),
+        "bound_standard_error": 0.5 / math.sqrt(samples),
+    }
+    launches = {"v_in": V, "sample": np.tile(np.arange(samples), n), "y0": Y.ravel(), "vy0": VY.ravel(),
+                "outcome": [OUTCOMES[int(o)] for o in r.outcome[n:]], "bounces": r.bounces[n:],
+                "v_out": r.v_out[n:]}
+    return {"v_in": v, "rows": rows, "summary": summary, "sigma_y": float(sigma_y), "sigma_vy": float(sigma_vy),
+            "samples": int(samples), "seed": int(seed), "y0": problem.y0, "vy0": problem.vy0,
+            "model": problem.model, "damping": problem.damping, "launches": launches,
+            "launch_count": int(allv.size), "seconds": time.perf_counter() - t0, "engine": engine.info()}
+
+
+# ----------------------------------------------------------------------------
+# per-launch tables
+# ----------------------------------------------------------------------------
+def table_format(path: str | None) -> str | None:
+    """'csv' | 'parquet' from ``--out``'s extension (None without --out); SpecError
+    for another extension, or for Parquet without pyarrow."""
+    if path is None:
+        return None
+    p = str(path).lower()
+    if p.endswith(".csv"):
+        return "csv"
+    if p.endswith(".parquet") or p.endswith(".pq"):
+        try:
+            import pyarrow  # noqa: F401
+        except ImportError:
+            raise SpecError("Parquet needs pyarrow (pip install 'fabkit[parquet]'); or give a .csv file",
+                            key="--out") from None
+        return "parquet"
+    raise SpecError(f"must end in .csv or .parquet, got {str(path)!r}", key="--out")
+
+
+def table_bytes(columns: dict, fmt: str) -> bytes:
+    """The columns (equal lengths) as CSV (floats written exactly, nan empty) or Parquet."""
+    names = list(columns)
+    cols = [list(np.asarray(c).tolist()) if not isinstance(c, list) else c for c in columns.values()]
+    if fmt == "parquet":
+        import io
+
+        import pyarrow as pa
+        import pyarrow.parquet as pq
+
+        buf = io.BytesIO()
+        pq.write_table(pa.table({k: c for k, c in zip(names, cols)}), buf)
+        return buf.getvalue()
+    import csv
+    import io
+
+    def cell(x):
+        if isinstance(x, float):
+            return repr(x) if math.isfinite(x) else ""
+        return "" if x is None else x
+
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(names)
+    for row in zip(*cols):
+        w.writerow([cell(x) for x in row])
+    return buf.getvalue().encode()
