@@ -108,3 +108,90 @@ def sweep_figure(result: dict, title: str = "") -> bytes:
     fig.savefig(buf, format="png", metadata={"Software": None})
     plt.close(fig)
     return buf.getvalue()
+
+
+def explore_figure(result: dict, keys: list[str], *, title: str = "", units: str = "") -> bytes:
+    """PNG bytes for ``fabkit explore``: v_critical (with its error bar) and the
+    two-bounce windows (vertical bars lo..hi) against the first varied key, one
+    series per value of the other keys; filled markers safe, hollow unsafe."""
+    plt, fig = _figure(figsize=(8, 6))
+    ax1 = fig.add_subplot(2, 1, 1)
+    ax2 = fig.add_subplot(2, 1, 2, sharex=ax1)
+    designs = [d for d in result["designs"] if "error" not in d]
+    xkey = keys[0] if keys else None
+    series: dict = {}
+    for i, d in enumerate(designs):
+        rest = tuple((kk, d["params"][kk]) for kk in keys[1:])
+        series.setdefault(rest, []).append((i, d))
+    for s, (rest, items) in enumerate(sorted(series.items(), key=lambda kv: repr(kv[0]))):
+        color = f"C{s % 10}"
+        label = ", ".join(f"{kk}={vv:g}" if isinstance(vv, float) else f"{kk}={vv}" for kk, vv in rest) or None
+        xs = [d["params"][xkey] if xkey else i for i, d in items]
+        numeric = all(isinstance(x, (int, float)) for x in xs)
+        if not numeric:
+            xs = list(range(len(xs)))
+        vc = [np.nan if d["v_critical"] is None else d["v_critical"] for _, d in items]
+        ax1.plot(xs, vc, "-", color=color, lw=0.8, label=label)
+        for x, (_, d), y in zip(xs, items, vc):
+            ax1.errorbar([x], [y], yerr=[d.get("v_critical_error") or 0.0], fmt="o", color=color,
+                         mfc=color if d["safe"] else "white", ms=6)
+            for w in d["windows"]:
+                if w["bounces"] == 2:
+                    ax2.plot([x, x], [w["lo"], w["hi"]], "-", color=color, lw=4, solid_capstyle="butt")
+    ax1.ticklabel_format(axis="y", useOffset=False)
+    ax1.set_ylabel(f"v_critical ({units}/s)" if units else "v_critical")
+    ax2.set_ylabel(f"2-bounce windows, v_in ({units}/s)" if units else "2-bounce windows")
+    ax2.set_xlabel(xkey or "design")
+    ax1.set_title((title + "\n" if title else "") + "filled: safe, hollow: unsafe", fontsize=10)
+    if len(series) > 1:
+        ax1.legend(fontsize=7, loc="best")
+    for a in (ax1, ax2):
+        a.grid(alpha=0.3)
+    fig.tight_layout()
+    return _png(plt, fig)
+
+
+def robustness_figure(result: dict, *, title: str = "", units: str = "") -> bytes:
+    """PNG bytes for ``fabkit robustness``: stacked probabilities of each bounce
+    count (escaped) and of capture / flying off against v_in, and the nominal
+    (zero-scatter) bounce count on a second axis."""
+    plt, fig = _figure(figsize=(8, 4.5))
+    ax = fig.add_subplot(1, 1, 1)
+    rows = result["rows"]
+    v = np.array([r["v_in"] for r in rows], dtype=float)
+    counts = sorted({int(b) for r in rows for b in r["p_bounces"]})
+    extra = ["tab:purple", "tab:brown", "tab:pink", "tab:olive", "tab:cyan"]
+    fixed = {1: "0.75", 2: "tab:blue", 3: "tab:green", 4: "tab:red"}
+    layers = [(f"{b} bounce{'s' if b > 1 else ''}", np.array([r["p_bounces"].get(str(b), 0.0) for r in rows]),
+               fixed.get(b, extra[b % len(extra)])) for b in counts]
+    for name, color in (("captured", "black"), ("flew_off", "tab:orange"), ("lost_contact", "tab:gray")):
+        p = np.array([r["p_outcome"].get(name, 0.0) for r in rows])
+        if p.any():
+            layers.append((name.replace("_", " "), p, color))
+    if len(v) > 1:
+        ax.stackplot(v, *[p for _, p, _ in layers], labels=[n for n, _, _ in layers], step="mid",
+                     colors=[c for _, _, c in layers], alpha=0.85)
+    else:
+        bottom = 0.0
+        for n, p, c in layers:
+            ax.bar(v, p, bottom=bottom, label=n, width=1.0, color=c)
+            bottom += p
+    ax.set_ylim(0, 1)
+    ax.set_xlabel(f"v_in ({units}/s)" if units else "v_in")
+    ax.set_ylabel("probability")
+    ax2 = ax.twinx()
+    nb = np.array([r["nominal_bounces"] if r["nominal_outcome"] == "escaped" else np.nan for r in rows], dtype=float)
+    ax2.plot(v, nb, "k.", ms=3, label="nominal bounces")
+    ax2.set_ylabel("nominal bounce count")
+    from matplotlib.ticker import MaxNLocator
+
+    ax2.yaxis.set_major_locator(MaxNLocator(integer=True))
+    ax2.set_ylim(0, (np.nanmax(nb) if np.isfinite(nb).any() else 1) + 1)
+    ax.set_title((title + "\n" if title else "")
+                 + f"sigma_y {result['sigma_y']:g}, sigma_vy {result['sigma_vy']:g}, {result['samples']} samples",
+                 fontsize=10)
+    h1, l1 = ax.get_legend_handles_labels()
+    h2, l2 = ax2.get_legend_handles_labels()
+    ax.legend(h1 + h2, l1 + l2, fontsize=7, loc="lower right")
+    fig.tight_layout()
+    return _png(plt, fig)
