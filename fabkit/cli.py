@@ -96,6 +96,8 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--out", metavar="FILE", help="per-launch rows (.parquet or .csv)")
     c.add_argument("--json", action="store_true", help="print JSON")
     c.add_argument("--plot", metavar="PNG")
+    c.add_argument("--chunk", type=int, default=None, metavar="N",
+                   help="launches per Dask task (default 1024; results do not depend on it)")
     c.add_argument("--no-progress", action="store_true", help="no progress bar")
 
     c = cmd("robustness", "Monte Carlo over the launch's transverse offset and velocity")
@@ -108,6 +110,8 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--out", metavar="FILE")
     c.add_argument("--json", action="store_true")
     c.add_argument("--plot", metavar="PNG")
+    c.add_argument("--chunk", type=int, default=None, metavar="N",
+                   help="launches per Dask task (default 1024; results do not depend on it)")
     c.add_argument("--no-progress", action="store_true", help="no progress bar")
     return p
 

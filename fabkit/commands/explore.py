@@ -60,7 +60,7 @@ def run(args) -> int:
     per = (len(v) if v is not None else 0) + (len(ramp_heights(spec)) if spec.has("ramp") else 0)
     cb, close = launch_bar(len(grid) * per, getattr(args, "no_progress", False), "explore")
     try:
-        with Engine(args.scheduler, progress=cb) as engine:
+        with Engine(args.scheduler, chunk=getattr(args, "chunk", None), progress=cb) as engine:
             res = explore(spec, varies, v, engine=engine)
     finally:
         close()

@@ -28,7 +28,7 @@ def run(args) -> int:
     fmt = table_format(args.out)
     cb, close = launch_bar(len(v) * (args.samples + 1), getattr(args, "no_progress", False), "robustness")
     try:
-        with Engine(args.scheduler, progress=cb) as engine:
+        with Engine(args.scheduler, chunk=getattr(args, "chunk", None), progress=cb) as engine:
             res = robustness(spec, v, sigma_y=args.sigma_y, sigma_vy=args.sigma_vy, samples=args.samples,
                              seed=args.seed, engine=engine)
     finally:
