@@ -204,9 +204,13 @@ class _System:
             F[4] = P
         return F, (h, hx, hy, br)
 
-    def energy(self, S, aux):
+    def energy(self, S, aux, inv=None):
+        """E per unit (1 + k) m; with ``inv`` (m,), powers of two, E * inv^2 (exactly
+        E where inv is 1): keeps the energy finite for speeds beyond ~1e150."""
         h, hx, hy = aux[0], aux[1], aux[2]
         vx, vy = S[2], S[3]
+        if inv is not None:
+            vx, vy, h = vx * inv, vy * inv, h * (inv * inv)
         kin = vx * vx + vy * vy
         if self.full:
             zd = hx * vx + hy * vy
@@ -281,6 +285,47 @@ def _error_norm(tab, K, h, scale):
         return np.where(denom > 0, err, 0.0)
     e = est(tab.E)
     return np.abs(h) * np.sqrt(e / 4.0)
+
+
+def _error_norm_scaled(tab, K, h, scale):
+    """:func:`_error_norm` without overflow: each estimate is divided by its largest
+    component (a power of two, so exactly) before squaring. Used only for lanes where
+    the plain norm overflows (speeds beyond ~1e100 design units/s), so ordinary lanes
+    keep the plain arithmetic bit for bit."""
+    def est(coeffs):
+        n = coeffs[-1][0] + 1
+        acc = _add_reduce(np.multiply(K[:n, :4], _dense(coeffs, n)), axis=0)
+        acc /= scale
+        big = _pow2(np.max(np.abs(acc), axis=0))
+        acc /= big
+        acc *= acc
+        return acc[0] + acc[1] + acc[2] + acc[3], big
+
+    if tab.E3:
+        e5, b5 = est(tab.E)
+        e3, b3 = est(tab.E3)
+        # err = |h| e5 b5^2 / sqrt(4 (e5 b5^2 + 0.01 e3 b3^2)), with M = max(b5, b3) factored out
+        M = np.maximum(b5, b3)
+        r5, r3 = b5 / M, b3 / M
+        denom = e5 * r5 * r5 + 0.01 * e3 * r3 * r3
+        err = np.abs(h) * M * (e5 * r5 * r5) / np.sqrt(denom * 4.0)
+        return np.where(denom > 0, err, 0.0)
+    e, b = est(tab.E)
+    return np.abs(h) * b * np.sqrt(e / 4.0)
+
+
+def _pow2(a):
+    """The power of two at or above |a| (1 where a is 0 or not finite)."""
+    ok = np.isfinite(a) & (a > 0)
+    return np.where(ok, np.exp2(np.ceil(np.log2(np.where(ok, a, 1.0)))), 1.0)
+
+
+def _rms4(a):
+    """sqrt(mean of squares) over the 4 state components (m,), without overflow."""
+    big = _pow2(np.max(np.abs(a[:4]), axis=0))
+    b = a[:4] / big
+    b = b * b
+    return big * np.sqrt((b[0] + b[1] + b[2] + b[3]) / 4.0)
 
 
 # ----------------------------------------------------------------------------
@@ -384,7 +429,7 @@ def _flush_terminal(sys, tab, pending, out, k_keep):
     pending.clear()
     te, Ye = _henon(sys, tab, cat["Y"], cat["t"], cat["kind"], cat["target"])
     t_hi = cat["t"] + cat["h"]
-    ok = np.isfinite(te) & (te >= cat["t"]) & (te <= t_hi + 1e-9 * cat["h"]) & np.isfinite(Ye).all(axis=0)
+    ok = np.isfinite(te) & (te >= cat["t"]) & (te <= t_hi + 1e-9 * cat["h"]) & np.isfinite(Ye[:4]).all(axis=0)
     te = np.where(ok, te, t_hi)
     Ye = np.where(ok, Ye, cat["Yfb"])
     lane, oc = cat["lane"], cat["outcome"]
@@ -399,11 +444,12 @@ def _flush_terminal(sys, tab, pending, out, k_keep):
     out["vx_end"][gl], out["vy_end"][gl] = Yend[2], Yend[3]
     out["v_out"][gl] = np.where(oc[first] == ESCAPED, np.abs(Yend[2]), np.nan)
     aux_end = sys(Yend)[1]
-    E = sys.energy(Yend, aux_end)
-    W = Yend[4] if sys.damped else 0.0
+    inv = cat["inv"][first]
+    E = sys.energy(Yend, aux_end, inv)
+    W = Yend[4] * (inv * inv) if sys.damped else 0.0
     zmax = np.maximum(cat["zmax"][first], aux_end[0])
     zmin = np.minimum(cat["zmin"][first], aux_end[0])
-    escale = cat["kin0"][first] + sys.gt * (zmax - zmin)
+    escale = cat["kin0"][first] + sys.gt * (zmax - zmin) * (inv * inv)
     out["energy_error"][gl] = np.abs(E + W - cat["E0"][first]) / np.maximum(escale, 1e-300)
     out["max_z"][gl] = zmax
     out["max_abs_y"][gl] = np.maximum(cat["ymax"][first], np.abs(Yend[1]))
@@ -423,11 +469,16 @@ def _flush_terminal(sys, tab, pending, out, k_keep):
 # the chunk loop
 # ----------------------------------------------------------------------------
 def _initial_step(sys, tab, Y, F, rtol, atol, t_max):
+    """scipy's initial step (Hairer's), per lane. The norms are taken without overflow
+    (:func:`_rms4`), so a huge entry speed gives a correspondingly tiny first step
+    instead of 0 or nan."""
     scale = atol + np.abs(Y[:4]) * rtol
 
     def rms(a):
-        a = a * a
-        return np.sqrt((a[0] + a[1] + a[2] + a[3]) / 4.0)
+        sq = a * a
+        r = np.sqrt((sq[0] + sq[1] + sq[2] + sq[3]) / 4.0)
+        bad = ~np.isfinite(r) & np.isfinite(a).all(axis=0)
+        return np.where(bad, _rms4(a), r) if bad.any() else r
 
     d0 = rms(Y[:4] / scale)
     d1 = rms(F[:4] / scale)
@@ -437,7 +488,10 @@ def _initial_step(sys, tab, Y, F, rtol, atol, t_max):
     d2 = rms((F1[:4] - F[:4]) / scale) / h0
     dm = np.maximum(d1, d2)
     h1 = np.where(dm <= 1e-15, np.maximum(1e-6, h0 * 1e-3), (0.01 / dm) ** (1.0 / (tab.order + 1)))
-    return np.minimum(np.minimum(100 * h0, h1), t_max)
+    h = np.minimum(np.minimum(100 * h0, h1), t_max)
+    # a non-finite or zero first step (derivatives that overflow): the step control
+    # shrinks it from the smaller sane estimate
+    return np.where(np.isfinite(h) & (h > 0), h, np.where(np.isfinite(h0) & (h0 > 0), h0, 1e-6))
 
 
 def _run_chunk(*args, **kw):
@@ -461,8 +515,12 @@ def _run_chunk_body(problem, v_in, y0, vy0, rtol, atol, t_max, max_steps, tab, r
     Y[2] = v_in
     Y[3] = vy0
     F, aux = sys(Y)
-    E0 = sys.energy(Y, aux)
-    kin0 = 0.5 * (Y[2] ** 2 + Y[3] ** 2 + ((aux[1] * Y[2] + aux[2] * Y[3]) ** 2 if sys.full else 0.0))
+    # energies are kept per lane times inv^2 (inv a power of two, 1 for any ordinary speed)
+    inv = np.where(np.maximum(np.abs(Y[2]), np.abs(Y[3])) > 1e100,
+                   1.0 / _pow2(np.maximum(np.abs(Y[2]), np.abs(Y[3]))), 1.0)
+    E0 = sys.energy(Y, aux, inv)
+    Vx, Vy = Y[2] * inv, Y[3] * inv
+    kin0 = 0.5 * (Vx ** 2 + Vy ** 2 + ((aux[1] * Vx + aux[2] * Vy) ** 2 if sys.full else 0.0))
     t = np.zeros(n)
     h = _initial_step(sys, tab, Y, F, rtol, atol, t_max)
     idx = np.arange(n)
@@ -476,6 +534,26 @@ def _run_chunk_body(problem, v_in, y0, vy0, rtol, atol, t_max, max_steps, tab, r
     err_prev = np.ones(n)
     expo = -1.0 / (tab.order + 1)
     traj = [[(0.0, *Y[:4, i], *F[2:4, i])] for i in range(n)] if record else None
+    # derivatives that overflow at the launch (|v| beyond ~1e150 design units/s on a curved
+    # surface: h_xx v^2 is not a float): no step can be taken, and no surface holds such a
+    # ball. The lane ends at once as flew_off, status 3, instead of shrinking its step forever.
+    over = ~np.isfinite(F[:4]).all(axis=0)
+    if over.any():
+        sel = np.flatnonzero(over)
+        out["outcome"][sel] = FLEW_OFF
+        out["t_end"][sel] = 0.0
+        out["x_end"][sel], out["y_end"][sel] = Y[0, sel], Y[1, sel]
+        out["vx_end"][sel], out["vy_end"][sel] = Y[2, sel], Y[3, sel]
+        out["max_z"][sel] = aux[0][sel]
+        out["max_abs_y"][sel] = np.abs(Y[1, sel])
+        out["energy_error"][sel] = 0.0
+        out["status"][sel] = 3
+        keep = ~over
+        idx, Y, F, t, h = idx[keep], Y[:, keep], F[:, keep], t[keep], h[keep]
+        aux = tuple(a[keep] for a in aux)
+        zmax, zmin, ymax, steps, rej, nb, was_rejected, err_prev = (
+            zmax[keep], zmin[keep], ymax[keep], steps[keep], rej[keep], nb[keep], was_rejected[keep],
+            err_prev[keep])
 
     queue, queued, pending = [], [0], []
     while idx.size:
@@ -487,7 +565,13 @@ def _run_chunk_body(problem, v_in, y0, vy0, rtol, atol, t_max, max_steps, tab, r
         Fnew, auxn = sys(Ynew, out=K[tab.n_stages])
         scale = atol + np.maximum(np.abs(Y[:4]), np.abs(Ynew[:4])) * rtol
         err = _error_norm(tab, K, hstep, scale)
-        finite = np.isfinite(err) & np.isfinite(Ynew).all(axis=0)
+        # (the dissipated work W may overflow at absurd speeds; it only feeds the energy check)
+        okK = np.isfinite(Ynew[:4]).all(axis=0) & np.isfinite(Fnew[:4]).all(axis=0)
+        over = ~np.isfinite(err) & okK
+        if over.any():  # the squares overflowed (huge speeds): the same norm, rescaled
+            sel = np.flatnonzero(over)
+            err[sel] = _error_norm_scaled(tab, K[:, :, sel], hstep[sel], scale[:, sel])
+        finite = np.isfinite(err) & okK
         acc = finite & (err <= 1.0)
         fac = np.where(err == 0, MAX_FACTOR, SAFETY * np.power(np.where(finite, err, 1.0), expo))
         fac_acc = fac
@@ -558,7 +642,7 @@ def _run_chunk_body(problem, v_in, y0, vy0, rtol, atol, t_max, max_steps, tab, r
                     pending.append({
                         "lane": idx[ls], "Y": Y[:, ls].copy(), "t": t[ls].copy(), "h": hstep[ls].copy(),
                         "Yfb": Ynew[:, ls].copy(), "kind": kinds[later], "target": targ[later],
-                        "outcome": outc[later], "E0": E0[idx[ls]], "kin0": kin0[idx[ls]],
+                        "outcome": outc[later], "E0": E0[idx[ls]], "kin0": kin0[idx[ls]], "inv": inv[idx[ls]],
                         "zmax": zmax[ls].copy(), "zmin": zmin[ls].copy(), "ymax": ymax[ls].copy(),
                         "nb": nb[ls].copy()})
                     code[lanes] = PENDING
@@ -568,7 +652,7 @@ def _run_chunk_body(problem, v_in, y0, vy0, rtol, atol, t_max, max_steps, tab, r
         if cand and sel.size:
             te, Ye = _henon(sys, tab, Y[:, sel], t[sel], kinds, targ)
             ok = np.isfinite(te) & (te >= t[sel]) & (te <= tnew[sel] + 1e-9 * hstep[sel]) & \
-                np.isfinite(Ye).all(axis=0)
+                np.isfinite(Ye[:4]).all(axis=0)
             te = np.where(ok, te, tnew[sel])
             Ye = np.where(ok, Ye, Ynew[:, sel])
             isb = outc == -2
@@ -624,7 +708,9 @@ def _run_chunk_body(problem, v_in, y0, vy0, rtol, atol, t_max, max_steps, tab, r
 
         captured = acc & last & ~term
         guard = (steps + rej >= max_steps) & ~term & ~captured
-        tiny = ~acc & (h <= 1e-14 * np.maximum(1.0, np.abs(t)))
+        # step-size underflow: the next step would not move t (scipy's criterion); relative
+        # to t, not absolute, so a huge speed (steps ~ size / speed) can still be followed
+        tiny = ~acc & (h <= 10.0 * np.spacing(np.abs(t)))
         guard |= tiny & ~term & ~captured
         done = term | captured | guard
         if done.any():
@@ -639,10 +725,11 @@ def _run_chunk_body(problem, v_in, y0, vy0, rtol, atol, t_max, max_steps, tab, r
             out["vx_end"][gl], out["vy_end"][gl] = Yend[2], Yend[3]
             out["v_out"][gl] = np.where(oc == ESCAPED, np.abs(Yend[2]), np.nan)
             F_end, aux_end = sys(Yend)
-            E = sys.energy(Yend, aux_end)
-            W = Yend[4] if sys.damped else 0.0
+            i2 = inv[gl] * inv[gl]
+            E = sys.energy(Yend, aux_end, inv[gl])
+            W = Yend[4] * i2 if sys.damped else 0.0
             # scale: the largest kinetic energy the run can have had (launch + height lost)
-            escale = kin0[gl] + sys.gt * (np.maximum(zmax[sel], aux_end[0]) - np.minimum(zmin[sel], aux_end[0]))
+            escale = kin0[gl] + sys.gt * (np.maximum(zmax[sel], aux_end[0]) - np.minimum(zmin[sel], aux_end[0])) * i2
             out["energy_error"][gl] = np.abs(E + W - E0[gl]) / np.maximum(escale, 1e-300)
             out["max_z"][gl] = np.maximum(zmax[sel], aux_end[0])
             out["max_abs_y"][gl] = np.maximum(ymax[sel], np.abs(Yend[1]))

@@ -68,7 +68,9 @@ def _events(problem):
     z_lim = float(problem.top) - mg
     ev = [
         ("bounce", _event(lambda t, s: s[2], False, -1)),
-        ("escaped", _event(lambda t, s: (s[0] - start) if t > 0 else 1.0, True, -1)),
+        # only while moving toward -x: at a huge speed the first steps can leave x == start
+        # in floating point, which must not count as a return
+        ("escaped", _event(lambda t, s: (s[0] - start) if (t > 0 and s[2] < 0) else 1.0, True, -1)),
         ("flew_off:top", _event(lambda t, s: float(h(s[0], s[1])) - z_lim, True, 1)),
         ("flew_off:x_max", _event(lambda t, s: s[0] - (x1 - mg), True, 1)),
         ("flew_off:x_min", _event(lambda t, s: (x0 + mg) - s[0], True, 1)),
@@ -126,8 +128,14 @@ def solve_launch(problem, v_in: float, y0: float = 0.0, vy0: float = 0.0, *, met
     events = _events(problem)
     fun = _state_rhs(problem)
     t0 = time.perf_counter()
-    sol = solve_ivp(fun, (0.0, t_max), s0, method=method, rtol=rtol, atol=atol,
-                    events=[e for _, e in events])
+    try:
+        with np.errstate(all="ignore"):
+            sol = solve_ivp(fun, (0.0, t_max), s0, method=method, rtol=rtol, atol=atol,
+                            events=[e for _, e in events])
+    except (ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:
+        # scipy's norms and Jacobians overflow at absurd speeds (beyond ~1e100 design units/s)
+        return _failed(problem, s0, f"integration failed ({type(exc).__name__}: {exc})",
+                       time.perf_counter() - t0)
     seconds = time.perf_counter() - t0
 
     names = [n for n, _ in events]
@@ -155,9 +163,10 @@ def solve_launch(problem, v_in: float, y0: float = 0.0, vy0: float = 0.0, *, met
 
     xs, ys = sol.y[0], sol.y[1]
     z = np.asarray(problem.fns.h(xs, ys), dtype=float)
-    e = np.array([_energy(problem, sol.y[:, j]) for j in range(sol.y.shape[1])])
-    e0 = _energy(problem, s0)
-    scale = max(0.5 * float(v_in) ** 2, 1e-300)
+    with np.errstate(all="ignore"):
+        e = np.array([_energy(problem, sol.y[:, j]) for j in range(sol.y.shape[1])])
+        e0 = _energy(problem, s0)
+        scale = max(0.5 * float(v_in) * float(v_in), 1e-300)
     return {
         "outcome": outcome,
         "reason": reason,
@@ -176,4 +185,16 @@ def solve_launch(problem, v_in: float, y0: float = 0.0, vy0: float = 0.0, *, met
         "seconds": seconds,
         "status": int(sol.status),
         "message": str(sol.message),
+    }
+
+
+def _failed(problem, s0, reason: str, seconds: float) -> dict:
+    """The result of a solve that raised: still at the launch state, outcome captured
+    (with the reason), finite figures."""
+    return {
+        "outcome": "captured", "reason": reason, "bounces": 0, "bounce_times": np.zeros(0),
+        "v_out": math.nan, "t_end": 0.0, "x_end": float(s0[0]), "y_end": float(s0[1]),
+        "xdot_end": float(s0[2]), "ydot_end": float(s0[3]),
+        "max_z": float(problem.fns.h(s0[0], s0[1])), "max_abs_y": abs(float(s0[1])),
+        "energy_error": 0.0, "nfev": 0, "seconds": seconds, "status": -1, "message": reason,
     }
