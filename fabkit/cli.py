@@ -97,7 +97,8 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--json", action="store_true", help="print JSON")
     c.add_argument("--plot", metavar="PNG")
     c.add_argument("--chunk", type=int, default=None, metavar="N",
-                   help="launches per Dask task (default 1024; results do not depend on it)")
+                   help="launches per Dask task (default: each batch split over the cluster's "
+                   "threads; results do not depend on it)")
     c.add_argument("--no-progress", action="store_true", help="no progress bar")
 
     c = cmd("robustness", "Monte Carlo over the launch's transverse offset and velocity")
@@ -111,7 +112,8 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--json", action="store_true")
     c.add_argument("--plot", metavar="PNG")
     c.add_argument("--chunk", type=int, default=None, metavar="N",
-                   help="launches per Dask task (default 1024; results do not depend on it)")
+                   help="launches per Dask task (default: each batch split over the cluster's "
+                   "threads; results do not depend on it)")
     c.add_argument("--no-progress", action="store_true", help="no progress bar")
     return p
 

@@ -8,8 +8,12 @@ Engine
 Every launch goes through an :class:`Engine`. Without a scheduler address it
 runs the batched integrator (:func:`integrate.launch_batch`) in this process.
 With ``scheduler='tcp://host:port'`` it splits each batch of launches into
-chunks of at most ``chunk`` lanes (default :data:`CHUNK`) and submits one Dask
-task per chunk (task names ``fabkit-launch-<id>``) to an existing cluster. The
+chunks and submits one Dask task per chunk (task names ``fabkit-launch-<id>``)
+to an existing cluster. A batch costs about as much as its slowest lane (the
+per-step work is mostly Python overhead, shared by all lanes) plus a little per
+lane, so chunks are as large as the cluster allows: by default each batch is
+split evenly over the cluster's threads not already kept busy by other designs
+(at least :data:`MIN_CHUNK` lanes a chunk); ``chunk`` fixes the size instead. The
 compiled right-hand sides of a design do not pickle, so a task carries the
 design's validated spec as its raw mapping and the worker rebuilds the
 :class:`models.Problem` once per design (cached per worker process by a hash of
@@ -64,7 +68,8 @@ import numpy as np
 from .errors import SpecError
 from .tolerances import DEFAULT
 
-CHUNK = 1024           # lanes per Dask task (a batch costs about its slowest lane plus ~10 ms a lane)
+MIN_CHUNK = 64         # smallest automatic chunk (lanes per Dask task)
+MAX_CHUNK = 16384      # largest chunk (memory bound, as the integrator's own chunks)
 MAX_DESIGNS = 10_000   # designs in one grid
 MAX_CACHED = 32        # compiled problems kept per process
 TASK_PREFIX = "fabkit-launch"
@@ -276,11 +281,13 @@ class Engine:
 
     def __init__(self, scheduler: str | None = None, *, chunk: int | None = None, progress=None,
                  timeout: float = 10.0):
-        chunk = CHUNK if chunk is None else chunk
-        if isinstance(chunk, bool) or not isinstance(chunk, int) or not 1 <= chunk <= DEFAULT.max_launches:
-            raise SpecError(f"must be a whole number in 1..{DEFAULT.max_launches}, got {chunk}", key="--chunk")
+        if chunk is not None and (isinstance(chunk, bool) or not isinstance(chunk, int)
+                                  or not 1 <= chunk <= MAX_CHUNK):
+            raise SpecError(f"must be a whole number in 1..{MAX_CHUNK}, got {chunk}", key="--chunk")
         self.address = scheduler
-        self.chunk = int(chunk)
+        self.chunk = chunk
+        self.threads = 1
+        self.streams = 1
         self.progress = progress
         self.client = None
         self.launches = 0
@@ -289,6 +296,11 @@ class Engine:
         self._lock = threading.Lock()
         if scheduler:
             self.client = _connect(scheduler, timeout)
+            try:
+                self.threads = max(1, sum(w.get("nthreads", 1)
+                                          for w in self.client.scheduler_info()["workers"].values()))
+            except Exception:  # noqa: BLE001 - the count only sizes the chunks
+                self.threads = 1
 
     def __enter__(self):
         return self
@@ -348,7 +360,7 @@ class Engine:
     def _on_cluster(self, design, v, y0, vy0) -> list[dict]:
         from distributed import as_completed
 
-        pieces = _pieces(v.size, self.chunk)
+        pieces = _pieces(v.size, self.chunk_for(v.size))
         futures = []
         for a, b in pieces:
             futures.append(self.client.submit(
@@ -366,6 +378,13 @@ class Engine:
                 f.release()
         return [results[f.key] for f in futures]
 
+    def chunk_for(self, n: int) -> int:
+        """Lanes per task for a batch of ``n`` (results do not depend on it)."""
+        if self.chunk is not None:
+            return self.chunk
+        share = max(1, math.ceil(self.threads / max(1, self.streams)))
+        return min(MAX_CHUNK, max(MIN_CHUNK, math.ceil(n / share)))
+
     def map(self, fn, items: list) -> list:
         """``[fn(x) for x in items]``: serially in-process; from client threads on a
         cluster (each thread's launches become tasks, so designs run side by side)."""
@@ -373,15 +392,18 @@ class Engine:
             return [fn(x) for x in items]
         from concurrent.futures import ThreadPoolExecutor
 
+        n = max(2, min(len(items), 2 * self.threads, 32))
+        self.streams = n
         try:
-            nthreads = sum(w.get("nthreads", 1) for w in self.client.scheduler_info()["workers"].values())
-        except Exception:  # noqa: BLE001 - the count only sizes the thread pool
-            nthreads = 2
-        with ThreadPoolExecutor(max_workers=max(2, min(len(items), 2 * nthreads, 32))) as pool:
-            return list(pool.map(fn, items))
+            with ThreadPoolExecutor(max_workers=n) as pool:
+                return list(pool.map(fn, items))
+        finally:
+            self.streams = 1
 
     def info(self) -> dict:
-        return {"scheduler": self.address, "chunk": self.chunk if self.address else None,
+        return {"scheduler": self.address,
+                "chunk": None if not self.address else (self.chunk if self.chunk is not None else "auto"),
+                "threads": self.threads if self.address else None,
                 "tasks": self.tasks, "workers": dict(sorted(self.workers.items())), "launches": self.launches}
 
 

@@ -297,3 +297,15 @@ def test_unreachable_scheduler_and_bad_chunk_are_bad_input():
         with pytest.raises(SpecError) as e:
             Engine(None, chunk=bad)
         assert e.value.key == "--chunk"
+
+
+def test_automatic_chunks_split_a_batch_over_the_free_threads():
+    eng = Engine()
+    eng.threads = 4
+    assert eng.chunk_for(1000) == 250          # one stream: a chunk per thread
+    eng.streams = 2
+    assert eng.chunk_for(1000) == 500          # two designs side by side: two threads each
+    eng.streams = 8
+    assert eng.chunk_for(1000) == 1000         # more designs than threads: a batch per task
+    assert eng.chunk_for(10) == 64 and eng.chunk_for(10**6) == 16384
+    assert Engine(chunk=40).chunk_for(1000) == 40
