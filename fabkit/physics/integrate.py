@@ -124,7 +124,9 @@ class LaunchResult:
                   relative energy drift (undamped) or energy-balance error (damped, W =
                   dissipated energy); the scale is the largest kinetic energy the run can reach
     steps, rejected   accepted and rejected steps per launch
-    status        0 normal, 1 stopped by the step guard (outcome captured), 2 stiff: run by Radau
+    status        0 normal, 1 stopped by the step guard (outcome captured), 2 stiff: run by Radau,
+                  3 derivatives overflow at the launch (flew_off), 4 captured before t_max: its
+                  energy fell below the trapping energy (``problem.stop_trapped``, see trap.py)
     trajectories  with record=True: per launch a dict of arrays t, x, y, vx, vy, ax, ay
     """
 
@@ -416,6 +418,7 @@ def _flush_bounces(sys, tab, queue, out, k_keep):
     out["bounce_times"][lane, order] = np.where(ok, te, t + h)
 
 
+TRAP_EVERY = 8   # steps between trapping-energy checks (problem.stop_trapped)
 PENDING = 100  # placeholder outcome of a lane whose terminal event is located later
 
 
@@ -508,6 +511,11 @@ def _run_chunk_body(problem, v_in, y0, vy0, rtol, atol, t_max, max_steps, tab, r
     y_lo, y_hi = problem.y_range[0] + problem.margin, problem.y_range[1] - problem.margin
     z_lim = problem.top - problem.margin
     start = problem.start
+    from .trap import region, trap_energy
+
+    e_star = trap_energy(problem) if getattr(problem, "stop_trapped", False) else None
+    tx0, tx1, ty0, ty1 = region(problem)
+    it = 0
 
     Y = np.zeros((sys.nv, n))
     Y[0] = start
@@ -558,6 +566,7 @@ def _run_chunk_body(problem, v_in, y0, vy0, rtol, atol, t_max, max_steps, tab, r
     queue, queued, pending = [], [0], []
     while idx.size:
         m = idx.size
+        it += 1
         hstep = np.minimum(h, t_max - t)
         last = hstep >= t_max - t
         K = np.empty((tab.n_stages + 1, sys.nv, m))
@@ -707,6 +716,14 @@ def _run_chunk_body(problem, v_in, y0, vy0, rtol, atol, t_max, max_steps, tab, r
                 traj[idx[i]].append((t[i], *Y[:4, i], *F[2:4, i]))
 
         captured = acc & last & ~term
+        trapped = np.zeros(m, dtype=bool)
+        if e_star is not None and it % TRAP_EVERY == 0:
+            # energy below every exit (trap.py): captured for good, stop now
+            cand_t = acc & ~term & ~last & (inv[idx] == 1.0) & (Y[0] > tx0) & (Y[0] < tx1) & \
+                (Y[1] > ty0) & (Y[1] < ty1)
+            if cand_t.any():
+                trapped = cand_t & (sys.energy(Y, aux) < e_star)
+                captured = captured | trapped
         guard = (steps + rej >= max_steps) & ~term & ~captured
         # step-size underflow: the next step would not move t (scipy's criterion); relative
         # to t, not absolute, so a huge speed (steps ~ size / speed) can still be followed
@@ -736,7 +753,7 @@ def _run_chunk_body(problem, v_in, y0, vy0, rtol, atol, t_max, max_steps, tab, r
             out["bounces"][gl] = nb[sel]
             out["steps"][gl] = steps[sel]
             out["rejected"][gl] = rej[sel]
-            out["status"][gl] = np.where(guard[sel], 1, 0)
+            out["status"][gl] = np.where(guard[sel], 1, np.where(trapped[sel], 4, 0))
             if record:
                 for j, i in enumerate(sel):
                     if term[i]:

@@ -60,6 +60,9 @@ class Problem:
     start     launch x; y0, vy0: transverse launch offset and speed
     x_range, y_range   the footprint; top: the stock's top face; margin: the safety margin
     t_max     time limit, s; rtol, atol: default integrator tolerances
+    stop_trapped   end a launch as ``captured`` as soon as its energy is below the
+              trapping energy (:mod:`fabkit.physics.trap`) instead of at ``t_max``;
+              escaped, flew_off and lost_contact results are unchanged
     """
 
     fns: Any
@@ -79,6 +82,7 @@ class Problem:
     rtol: float = 1e-10
     atol: float = 1e-12
     units: str = "mm"
+    stop_trapped: bool = False
 
     @property
     def g_tilde(self) -> float:
