@@ -155,7 +155,7 @@ def robustness_figure(result: dict, *, title: str = "", units: str = "") -> byte
     """PNG bytes for ``fabkit robustness``: stacked probabilities of each bounce
     count (escaped) and of capture / flying off against v_in, and the nominal
     (zero-scatter) bounce count on a second axis."""
-    plt, fig = _figure(figsize=(8, 4.5))
+    plt, fig = _figure(figsize=(9.5, 4.5))
     ax = fig.add_subplot(1, 1, 1)
     rows = result["rows"]
     v = np.array([r["v_in"] for r in rows], dtype=float)
@@ -192,6 +192,37 @@ def robustness_figure(result: dict, *, title: str = "", units: str = "") -> byte
                  fontsize=10)
     h1, l1 = ax.get_legend_handles_labels()
     h2, l2 = ax2.get_legend_handles_labels()
-    ax.legend(h1 + h2, l1 + l2, fontsize=7, loc="lower right")
+    ax.legend(h1 + h2, l1 + l2, fontsize=7, loc="upper left", bbox_to_anchor=(1.1, 1.0),
+              ncol=1 if len(h1) + len(h2) <= 14 else 2)
+    fig.tight_layout()
+    return _png(plt, fig)
+
+
+def precision_png(sim_rows: list[dict], *, title: str = "", floor: float | None = None) -> bytes:
+    """The work-precision diagram: error against wall time, log-log, one line per method
+    (points labelled with their rtol); ``floor`` marks the reference's own error."""
+    plt, fig = _figure(figsize=(7.5, 5))
+    ax = fig.add_subplot(1, 1, 1)
+    methods = list(dict.fromkeys(r["method"] for r in sim_rows))
+    styles = {"fabkit": "-", "scipy": "--"}
+    for k, m in enumerate(methods):
+        rows = [r for r in sim_rows if r["method"] == m and r.get("error") is not None
+                and r.get("seconds") is not None]
+        if not rows:
+            continue
+        t = np.array([r["seconds"] for r in rows], dtype=float)
+        e = np.maximum(np.array([r["error"] for r in rows], dtype=float), 1e-17)
+        ax.loglog(t, e, styles.get(m.split(" ")[0], "-"), marker="o", ms=4, lw=1.3, color=f"C{k}", label=m)
+        for ti, ei, r in zip(t, e, rows):
+            ax.annotate(f"{r['rtol']:.0e}", (ti, ei), textcoords="offset points", xytext=(4, 3), fontsize=6,
+                        color=f"C{k}")
+    if floor:
+        ax.axhline(floor, color="0.6", lw=0.8, ls=":", label="reference error x 10")
+    ax.set_xlabel("wall time for the launch set (s), best of several")
+    ax.set_ylabel("error: v_out and bounce times, relative")
+    if title:
+        ax.set_title(title, fontsize=10)
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=8, loc="best")
     fig.tight_layout()
     return _png(plt, fig)
