@@ -44,14 +44,22 @@ def run(args) -> int:
                                       if r["bounce_times"] else ""),
         f"max height {r['max_height']:.6g} {u} (top - margin = {problem.top - problem.margin:g}), "
         f"max |y| {r['max_abs_y']:.6g} {u}, ended at t = {r['t_end']:.6g} s",
-        f"energy error {r['energy_error']:.2e} (relative), {r['steps']} steps ({r['rejected']} rejected), "
-        f"rtol {rtol:g}",
+        (f"energy error {r['energy_error']:.2e} (relative)" if math.isfinite(r["energy_error"]) else
+         "energy error not tracked" + (" (implicit Radau path)" if r["status"] == 2 else ""))
+        + f", {r['steps']} steps ({r['rejected']} rejected), rtol {rtol:g}"
+        + (f", method {r['method']}" if r["method"] != "DOP853" else ""),
     ]
     if "v_out_abs" in est:
-        lines.append(f"simulate: v_out error < {est['v_out_abs']:.1e} {u}/s (estimated at rtol {rtol / 10:g}), "
-                     f"{seconds:.3f} s")
+        err_txt = f"v_out error < {est['v_out_abs']:.1e} {u}/s (estimated at rtol {rtol / 10:g})"
+    elif "bounce_time_abs" in est:
+        err_txt = f"bounce time error < {est['bounce_time_abs']:.1e} s (estimated at rtol {rtol / 10:g})"
+    elif not est["same_outcome"]:
+        err_txt = f"outcome or bounce count changes at rtol {rtol / 10:g} (ill-conditioned launch)"
+    elif math.isfinite(r["energy_error"]):
+        err_txt = f"energy error {r['energy_error']:.1e}, same outcome at rtol {rtol / 10:g}"
     else:
-        lines.append(f"simulate: {seconds:.3f} s")
+        err_txt = f"same outcome at rtol {rtol / 10:g}"
+    lines.append(f"simulate: {err_txt}, {seconds:.3f} s")
     if args.plot:
         from ..io import write_atomic
         from ..plots import trajectory_png

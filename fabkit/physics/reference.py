@@ -167,6 +167,7 @@ def solve_launch(problem, v_in: float, y0: float = 0.0, vy0: float = 0.0, *, met
         e = np.array([_energy(problem, sol.y[:, j]) for j in range(sol.y.shape[1])])
         e0 = _energy(problem, s0)
         scale = max(0.5 * float(v_in) * float(v_in), 1e-300)
+        drift = float(np.max(np.abs(e - e0)) / scale)
     return {
         "outcome": outcome,
         "reason": reason,
@@ -180,7 +181,7 @@ def solve_launch(problem, v_in: float, y0: float = 0.0, vy0: float = 0.0, *, met
         "ydot_end": float(end[3]),
         "max_z": float(np.max(z)),
         "max_abs_y": float(np.max(np.abs(ys))),
-        "energy_error": float(np.max(np.abs(e - e0)) / scale),
+        "energy_error": drift,
         "nfev": int(sol.nfev),
         "seconds": seconds,
         "status": int(sol.status),
