@@ -394,11 +394,19 @@ class Engine:
 
         n = max(2, min(len(items), 2 * self.threads, 32))
         self.streams = n
+        pool = ThreadPoolExecutor(max_workers=n)
         try:
-            with ThreadPoolExecutor(max_workers=n) as pool:
-                return list(pool.map(fn, items))
+            futures = [pool.submit(fn, x) for x in items]
+            out = [f.result() for f in futures]
+        except BaseException:
+            # Ctrl-C or an error: do not wait for the other designs; closing the client
+            # (the engine's exit) cancels their tasks and ends their threads
+            pool.shutdown(wait=False, cancel_futures=True)
+            raise
         finally:
             self.streams = 1
+        pool.shutdown(wait=True)
+        return out
 
     def info(self) -> dict:
         return {"scheduler": self.address,
