@@ -200,7 +200,8 @@ def robustness_figure(result: dict, *, title: str = "", units: str = "") -> byte
 
 def precision_png(sim_rows: list[dict], *, title: str = "", floor: float | None = None) -> bytes:
     """The work-precision diagram: error against wall time, log-log, one line per method
-    (points labelled with their rtol); ``floor`` marks the reference's own error."""
+    (points labelled with their rtol); ``floor`` marks the reference's own error bound
+    (errors near it are not resolved)."""
     plt, fig = _figure(figsize=(7.5, 5))
     ax = fig.add_subplot(1, 1, 1)
     methods = list(dict.fromkeys(r["method"] for r in sim_rows))
@@ -217,7 +218,7 @@ def precision_png(sim_rows: list[dict], *, title: str = "", floor: float | None 
             ax.annotate(f"{r['rtol']:.0e}", (ti, ei), textcoords="offset points", xytext=(4, 3), fontsize=6,
                         color=f"C{k}")
     if floor:
-        ax.axhline(floor, color="0.6", lw=0.8, ls=":", label="reference error x 10")
+        ax.axhline(floor, color="0.6", lw=0.8, ls=":", label="reference error bound")
     ax.set_xlabel("wall time for the launch set (s), best of several")
     ax.set_ylabel("error: v_out and bounce times, relative")
     if title:

@@ -54,6 +54,7 @@ def run(args) -> int:
             lines.append(f"entry level h(start={spec.simulation.start:g}, 0) = {entry:.6g} {units} "
                          "(heights are measured from it)")
     payload["seconds"] = timer.seconds
-    lines.append(f"calibrate: exact closed form, {len(heights)} heights, {timer.seconds:.3f} s")
+    lines.append(f"calibrate: exact closed form, error ~1e-16 relative (rounding), {len(heights)} heights, "
+                 f"{timer.seconds:.3f} s")
     emit(lines, payload, args.json)
     return 0

@@ -50,9 +50,11 @@ def run(args) -> int:
         lines.append(txt)
     first = r["first_failure"]
     hs = r["highest_safe_height"]
+    tols = check.__kwdefaults__
     lines.append(f"check: highest safe release height "
                  + (f"{hs:.4f} {u}" if hs is not None else "none (the lowest height already fails)")
-                 + f", {r['seconds']:.1f} s")
+                 + f"; error: heights bracketed to {tols['rel_tol']:g}, v_critical to {tols['v_rel_tol']:g}, "
+                 f"window edges to {tols['edge_rel_tol']:g} relative, {r['seconds']:.1f} s")
     payload = {kk: r[kk] for kk in ("safe", "highest_safe_height", "first_failure", "v_critical", "critical_height",
                                     "reachable_windows", "machining", "heights", "outcomes", "seconds")}
     payload["v_in"] = r["v_in"]

@@ -92,7 +92,7 @@ def run(args) -> int:
         from ..plots import precision_png
 
         title = f"{spec.name}: {sim['problem']}"
-        write_atomic(args.plot, precision_png(sim["rows"], title=title, floor=sim["reference"]["floor"]))
+        write_atomic(args.plot, precision_png(sim["rows"], title=title, floor=sim["reference"]["estimated_error"]))
         payload["plot"] = str(args.plot)
         lines.append(f"wrote {args.plot}")
     seconds = timer.seconds
