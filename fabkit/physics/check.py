@@ -14,7 +14,7 @@ margin) or loses contact (full model). It reports:
   height is the safe end of the final bracket);
 * ``v_critical`` (by :func:`sweep.sweep` over the ramp's speeds, 1e-5 relative)
   and the release height that gives it; the two-bounce windows the ramp can
-  reach (both edges inside the ramp's v_in range);
+  reach (both edges inside the ramp's v_in range, refined to 1e-4 relative);
 * machining feasibility when the spec has stock and tool: the depth of the cut
   against ``stock.depth_limit``, ``stock.thickness`` and ``tool.reach``, and the
   tool radius against the surface's smallest concave radius.
@@ -60,7 +60,8 @@ def _full_launches(problem, v, progress=None, rtol=None, atol=None):
     return r
 
 
-def check(spec, *, progress=None, rel_tol: float = 1e-4, v_rel_tol: float = 1e-5) -> dict:
+def check(spec, *, progress=None, rel_tol: float = 1e-4, v_rel_tol: float = 1e-5,
+          edge_rel_tol: float = 1e-4) -> dict:
     """Run the pre-fabrication check of ``spec`` (sections surface, ball, ramp,
     simulation; stock and tool optional). Returns the report dict (see module doc):
     safe, highest_safe_height, first_failure {height, v_in, outcome, reason, x, y, t},
@@ -99,7 +100,8 @@ def check(spec, *, progress=None, rel_tol: float = 1e-4, v_rel_tol: float = 1e-5
 
     # v_critical and windows over the ramp's speeds (reusing these launches)
     initial = Launches(v, lr.outcome, lr.bounces, lr.v_out, lr.bounce_times)
-    sw = sweep(problem, v, initial=initial, rel_tol=v_rel_tol, error_samples=0, tn=False, k=256, k_edge=64)
+    sw = sweep(problem, v, initial=initial, rel_tol=v_rel_tol, error_samples=0, tn=False, k=256, k_edge=24,
+               edge_rel_tol=edge_rel_tol)
     vc = sw["v_critical"]
     out["v_critical"] = vc
     out["v_critical_reason"] = sw["v_critical_reason"]

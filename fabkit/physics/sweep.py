@@ -326,7 +326,7 @@ def fit_tn(T_n: list[float], v_in: list[float], T_shape: float) -> dict:
 def sweep(problem, v_in, *, launcher=None, method: str = "fabkit", rtol: float | None = None,
           atol: float | None = None, progress=None, rel_tol: float = 1e-6, k: int = 64,
           refine: bool = True, error_samples: int = 48, initial: Launches | None = None, tn: bool = True,
-          k_edge: int = 32,
+          k_edge: int = 32, edge_rel_tol: float | None = None,
           tol=DEFAULT) -> dict:
     """Launch at every ``v_in`` (N,) (design units/s, sorted ascending here) and analyse.
 
@@ -340,6 +340,8 @@ def sweep(problem, v_in, *, launcher=None, method: str = "fabkit", rtol: float |
     ``tn``: False skips the v_out maximization (no T_n fit). ``k``, ``k_edge``:
     launches per refinement round for v_critical and for each window edge (a
     round costs about its slowest launch, so wide rounds are cheap).
+    ``edge_rel_tol``: relative width the two-bounce window edges are refined to
+    (default ``rel_tol``).
     """
     from .models import OUTCOMES
 
@@ -371,13 +373,14 @@ def sweep(problem, v_in, *, launcher=None, method: str = "fabkit", rtol: float |
                for n, i, j in runs]
     two = [(w, i, j) for w, (n, i, j) in zip(windows, runs) if n == 2]
     tasks = []
+    e_tol = rel_tol if edge_rel_tol is None else float(edge_rel_tol)
     if refine:
         if lo is not None:
             tasks.append(_critical_task(lo, hi, rel_tol, k))
         for w, i, j in two:
-            tasks.append(_edge_task(float(v[i - 1]) if i > 0 else float(v[i]), float(v[i]), -1, rel_tol, k_edge))
+            tasks.append(_edge_task(float(v[i - 1]) if i > 0 else float(v[i]), float(v[i]), -1, e_tol, k_edge))
             tasks.append(_edge_task(float(v[j]), float(v[j + 1]) if j + 1 < len(v) else float(v[j]), +1,
-                                    rel_tol, k_edge))
+                                    e_tol, k_edge))
             tasks.append(_maximize_task(float(v[max(i - 1, 0)]), float(v[min(j + 1, len(v) - 1)]))
                          if tn else iter(()))
     done = run_tasks(counting, tasks)
