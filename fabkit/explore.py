@@ -243,7 +243,9 @@ def problem_of(design: Design):
         from .physics.models import problem_from_spec
         from .spec import validate
 
-        problem = problem_from_spec(validate(design.raw, design.path))
+        # captured launches stop once their energy is below every exit (physics/trap.py):
+        # no other outcome changes, and a study is mostly captured launches near v_critical
+        problem = problem_from_spec(validate(design.raw, design.path)).with_(stop_trapped=True)
         if len(_CACHE) >= MAX_CACHED:
             _CACHE.pop(next(iter(_CACHE)))
         _CACHE[design.key] = problem
