@@ -841,6 +841,42 @@ def _lanes(values, n, name):
     return np.ascontiguousarray(a, dtype=float)
 
 
+def _prepare(problem, v_in, y0, vy0, rtol, atol, t_max, tol):
+    """Validated lanes and tolerances: (v (N,), y0 (N,), vy0 (N,), rtol, atol, t_max)."""
+    v = np.atleast_1d(np.asarray(v_in, dtype=float)).ravel()
+    n = v.size
+    if n > tol.max_launches:
+        raise SpecError(f"too many launches: {n} (limit {tol.max_launches})", key="v_in")
+    if not np.all(np.isfinite(v)) or np.any(v < 0):
+        raise SpecError("entry speeds must be finite and >= 0", key="v_in")
+    y0a = _lanes(problem.y0 if y0 is None else y0, n, "y0")
+    vy0a = _lanes(problem.vy0 if vy0 is None else vy0, n, "vy0")
+    rtol = float(problem.rtol if rtol is None else rtol)
+    atol = float(problem.atol if atol is None else atol)
+    t_max = float(problem.t_max if t_max is None else t_max)
+    if not (rtol > 0 and atol > 0 and t_max > 0):
+        raise SpecError("rtol, atol and t_max must be > 0", key="simulation")
+    return v, y0a, vy0a, rtol, atol, t_max
+
+
+def launch_stream(problem, v_in, y0=None, vy0=None, *, rtol: float | None = None, atol: float | None = None,
+                  t_max: float | None = None, max_bounces: int = K_BOUNCES, method: str = "DOP853",
+                  chunk: int = CHUNK, tol=DEFAULT):
+    """Like :func:`launch_batch`, but yields one :class:`LaunchResult` per chunk of at
+    most ``chunk`` launches, in order, as each finishes.
+
+    For studies of any size: memory is bounded by one chunk (plus the N input
+    speeds), whatever N; a caller writes or reduces each chunk and lets it go. Each
+    launch's result is bit-identical to :func:`launch_batch` (lanes do not interact).
+    """
+    v, y0a, vy0a, rtol, atol, t_max = _prepare(problem, v_in, y0, vy0, rtol, atol, t_max, tol)
+    chunk = max(1, int(chunk))
+    for a in range(0, v.size, chunk):
+        b = min(a + chunk, v.size)
+        yield launch_batch(problem, v[a:b], y0a[a:b], vy0a[a:b], rtol=rtol, atol=atol, t_max=t_max,
+                           max_bounces=max_bounces, method=method, workers=1, chunk=chunk, tol=tol)
+
+
 _JOB = None
 
 
@@ -892,19 +928,8 @@ def launch_batch(problem, v_in, y0=None, vy0=None, *, rtol: float | None = None,
     given tolerances; events are located to the same accuracy (see the module doc).
     """
     t0 = time.perf_counter()
-    v = np.atleast_1d(np.asarray(v_in, dtype=float)).ravel()
+    v, y0a, vy0a, rtol, atol, t_max = _prepare(problem, v_in, y0, vy0, rtol, atol, t_max, tol)
     n = v.size
-    if n > tol.max_launches:
-        raise SpecError(f"too many launches: {n} (limit {tol.max_launches})", key="v_in")
-    if not np.all(np.isfinite(v)) or np.any(v < 0):
-        raise SpecError("entry speeds must be finite and >= 0", key="v_in")
-    y0a = _lanes(problem.y0 if y0 is None else y0, n, "y0")
-    vy0a = _lanes(problem.vy0 if vy0 is None else vy0, n, "vy0")
-    rtol = float(problem.rtol if rtol is None else rtol)
-    atol = float(problem.atol if atol is None else atol)
-    t_max = float(problem.t_max if t_max is None else t_max)
-    if not (rtol > 0 and atol > 0 and t_max > 0):
-        raise SpecError("rtol, atol and t_max must be > 0", key="simulation")
     k_keep = max(8, int(max_bounces))
     tab = tableau(method)
     max_steps = int(tol.max_sim_steps)
