@@ -165,7 +165,11 @@ def test_paper_surface_coarse_scallop():
     assert tp.stepover_min < tp.stepover            # steeper walls: smaller stepover
     assert -tp.points[:, 2].min() <= spec.stock.depth_limit
     cut = tp.points[tp.kinds == CUT]
-    assert cut[:, 0].min() <= 0 and cut[:, 0].max() >= L
+    # the open end (x = -44, the channel below the top face) is milled to the edge and from
+    # beyond it; the far end (x = 6) lies above the top face everywhere: no move goes there
+    assert cut[:, 0].min() <= 0
+    far = surf.height(np.full(101, 6.0), np.linspace(-12.5, 12.5, 101)) - surf.top
+    assert (far > 0).all() and cut[:, 0].max() < L
 
 
 def test_roughing_levels_leave_stock_above_the_finish_path():
@@ -180,3 +184,24 @@ def test_roughing_levels_leave_stock_above_the_finish_path():
         at = np.abs(P[:, 2] - level) < 1e-12
         assert at.sum() > 10
         assert np.all(P[at, 2] - Z[at] >= 0.5 - 1e-9)             # the stock to leave
+
+
+def test_open_edges_do_not_gouge_at_a_fine_tolerance():
+    """Beyond the stock the tip height has a vertical tangent where the ball's equator
+    touches the edge (u = -R); a pass node there gouged the edge by ~7 um whatever the
+    tolerance. Now the verified gouge of the paper's open end stays within 0.004 mm."""
+    from fabkit.toolpath.gcode import profile_from_spec, write_program
+    from fabkit.toolpath.verify import read_program, verify_cut
+
+    spec = load_spec(PAPER).with_overrides({"machining.tolerance": 0.004, "machining.scallop": 0.1,
+                                            "surface.x": [-44, -36], "surface.y": [-4, 4],
+                                            "simulation.start": -40})
+    surf = Surface.from_spec(spec)
+    tp = plan_toolpath(spec, surf)
+    prog = read_program(write_program(tp, profile_from_spec(spec, surf)))
+    c = verify_cut(surf, prog, R, 40000)
+    assert c["max_gouge"] <= 0.004
+    assert c["max_material_left"] <= 0.1 + 0.004
+    # the pass nodes beyond the stock stay short of the equator contact
+    cut = tp.points[tp.kinds == CUT]
+    assert cut[:, 0].min() >= -R * 7 / 8 - 1e-9

@@ -21,9 +21,11 @@ Rules (accuracy in brackets):
   while every evaluated point between the surviving nodes stays within
   tolerance/2 of the chord.
 * Air: portions where the tip is at or above the top face (touching nothing) are
-  left out; passes that cut nothing are dropped. Along u a pass stops, beyond the
-  stock, at the first position whose contact is on the stock edge (that position
-  mills the edge exactly; farther ones cut nothing more). Across, the first and
+  left out; passes that cut nothing are dropped. Along u a pass reaches beyond the
+  stock to mill the edge from the side, at most 7/8 R out (at R the tip height
+  has a vertical tangent that no chord follows within the tolerance); positions
+  beyond the stock whose ball touches only the top face mill nothing and are
+  dropped. Across, the first and
   last passes run along the footprint edges v = 0 and v = W.
 * Links: between runs less than max(4 R, 4 stepover) apart: up to a local
   clearance (1 mm above the highest material along the straight link, checked
@@ -97,7 +99,7 @@ class _Pass:
     """One pass: v, exact tip heights Z and slopes dZ/du at the grid ug, the nodes
     kept, and the profile on a fine grid uf (Hermite; +inf where not machined)."""
 
-    def __init__(self, fr, R, ug, uf, v, X, Y, Z, ci, depth_lim=math.inf):
+    def __init__(self, fr, R, ug, uf, v, X, Y, Z, ci, depth_lim=math.inf, contact_top=None):
         pu = ci.contact_x if fr.direction == "x" else ci.contact_y
         d2 = (ci.contact_x - X) ** 2 + (ci.contact_y - Y) ** 2
         with np.errstate(all="ignore"):
@@ -112,7 +114,7 @@ class _Pass:
             self.cv = np.interp(ug, pu[ok][o], cv[ok][o])
         else:
             self.cv = np.full_like(ug, v)
-        self.keep = _trim_outside(ug, Z, fr.Lu, depth_lim)
+        self.keep = _trim_outside(ug, Z, fr.Lu, depth_lim, contact_top)
         k = np.nonzero(self.keep)[0]
         f = _hermite(ug, Z, dZ, uf)
         self.fine = np.where((uf >= ug[k[0]]) & (uf <= ug[k[-1]]), f, np.inf) if k.size \
@@ -125,10 +127,13 @@ def _passes(ws, fr, R, ug, uf, vlist, depth_lim):
     uu = np.broadcast_to(ug, vv.shape)
     X, Y = fr.xy(uu, vv)
     Z, ci = compensate(ws, X, Y, R, return_info=True)
+    # the ball touches the stock only on its top face (contact at or above it)
+    top = ws.H(np.nan_to_num(ci.contact_x), np.nan_to_num(ci.contact_y)) >= -AIR_EPS
+    top &= np.isfinite(ci.contact_x)
     out = []
     for k, v in enumerate(vlist):
         row = type(ci)(ci.contact_x[k], ci.contact_y[k], ci.kind[k], ci.bridged[k])
-        out.append(_Pass(fr, R, ug, uf, float(v), X[k], Y[k], Z[k], row, depth_lim))
+        out.append(_Pass(fr, R, ug, uf, float(v), X[k], Y[k], Z[k], row, depth_lim, top[k]))
     return out
 
 
@@ -185,12 +190,30 @@ def _u_grid(fr, R):
     return np.concatenate([-side[:0:-1], np.linspace(0.0, fr.Lu, n_in), fr.Lu + side[1:]])
 
 
-def _trim_outside(ug, Z, Lu, depth_lim):
+def _trim_outside(ug, Z, Lu, depth_lim, contact_top=None):
     """Nodes kept along u: all inside the footprint; outside, while the ball still
     overlaps the stock (within R of the edge: it mills the edge from the side) and
-    the tip stays within the depth limit."""
+    the tip stays within the depth limit. ``contact_top`` (bool per node): the ball
+    touches the stock only on its top face; such nodes beyond the stock mill nothing,
+    and they are dropped from the outer end inward (the kept nodes stay contiguous)."""
     inside = (ug >= 0) & (ug <= Lu)
-    return inside | (np.isfinite(Z) & (Z >= -depth_lim))
+    # not the nodes a whole radius out: there the ball touches the edge with its equator
+    # and the tip height has a vertical tangent (Z = H_edge + sqrt(R^2 - u^2) - R) that no
+    # chord of the program's resolution follows within the tolerance (it gouged the edge
+    # by 6-7 um); the next node in, 7/8 R out, has a slope below 2
+    reach = np.maximum(-ug, ug - Lu) < (1.0 - 1e-9) * np.max(np.maximum(-ug, ug - Lu))
+    keep = inside | (reach & np.isfinite(Z) & (Z >= -depth_lim))
+    if contact_top is not None:
+        n = len(ug)
+        i = 0
+        while i < n and not inside[i] and (contact_top[i] or not keep[i]):
+            keep[i] = False
+            i += 1
+        i = n - 1
+        while i >= 0 and not inside[i] and (contact_top[i] or not keep[i]):
+            keep[i] = False
+            i -= 1
+    return keep
 
 
 def plan_toolpath(spec, surface, tol: Tolerances = DEFAULT) -> Toolpath:
