@@ -461,7 +461,7 @@ def evaluate_design(spec, v_grid, engine: Engine, *, rel_tol: float = 1e-6, heig
     v_in, outcome, bounces, v_out arrays) for the per-launch table."""
     from . import units
     from .physics.calibrate import ball_k, ramp_heights, v_in_from_height
-    from .physics.check import machining
+    from .physics.check import highest_safe, machining
     from .physics.models import OUTCOMES
     from .physics.sweep import FLEW_OFF, LOST_CONTACT, Launches, sweep
 
@@ -508,7 +508,7 @@ def evaluate_design(spec, v_grid, engine: Engine, *, rel_tol: float = 1e-6, heig
             i = int(np.flatnonzero(unsafe)[0])
             first_failure = {"height": float(H[i]), "v_in": float(vr[i]),
                              "outcome": OUTCOMES[int(ramp_res.outcome[i])]}
-            highest = None if i == 0 else _highest_safe(launch, float(H[i - 1]), float(H[i]), g, k,
+            highest = None if i == 0 else highest_safe(launch, float(H[i - 1]), float(H[i]), g, k,
                                                         height_rel_tol)
         else:
             highest = float(H[-1])
@@ -535,26 +535,6 @@ def evaluate_design(spec, v_grid, engine: Engine, *, rel_tol: float = 1e-6, heig
     out["grid"] = {"v_in": v, "outcome": [OUTCOMES[int(o)] for o in grid.outcome], "bounces": grid.bounces,
                    "v_out": grid.v_out}
     return out
-
-
-def _highest_safe(launch, h_safe: float, h_fail: float, g: float, k: float, rel_tol: float, m: int = 64) -> float:
-    """The boundary between a safe and a failing release height by batched
-    k-section (as :func:`check._boundary`, through the engine); the safe end."""
-    from .physics.calibrate import v_in_from_height
-    from .physics.sweep import FLEW_OFF, LOST_CONTACT
-
-    while h_fail - h_safe > rel_tol * h_fail:
-        hs = h_safe + (h_fail - h_safe) * np.arange(1, m + 1) / (m + 1)
-        r = launch(np.asarray(v_in_from_height(hs, g, k), dtype=float))
-        bad = np.flatnonzero((r.outcome == FLEW_OFF) | (r.outcome == LOST_CONTACT))
-        if len(bad) == 0:
-            h_safe = float(hs[-1])
-        else:
-            j = int(bad[0])
-            h_fail = float(hs[j])
-            if j > 0:
-                h_safe = float(hs[j - 1])
-    return h_safe
 
 
 def explore(spec, varies: list[Vary], v_grid=None, *, engine: Engine, rel_tol: float = 1e-6,

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import contextlib
 import copy
+import io
+import signal
 from pathlib import Path
 
 import pytest
@@ -54,3 +57,55 @@ def cli(capsys, monkeypatch, tmp_path):
         return code, out, err
 
     return run
+
+
+class Hang(BaseException):
+    """Raised by :func:`bounded` (a BaseException: code under test cannot swallow it)."""
+
+
+@contextlib.contextmanager
+def bounded(seconds: int = 60):
+    """Fail (instead of hanging the suite) if the block runs longer than ``seconds``."""
+    def on_alarm(signum, frame):
+        raise Hang(f"still running after {seconds} s: a hang")
+
+    old = signal.signal(signal.SIGALRM, on_alarm)
+    signal.alarm(seconds)
+    try:
+        yield
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, old)
+
+
+def run_cli(argv) -> tuple[int, str, str]:
+    """``fabkit ARGV`` in-process (no chdir); returns (code, stdout, stderr)."""
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = main([str(a) for a in argv])
+    return code, out.getvalue(), err.getvalue()
+
+
+#: a cheap variant of the paper's apparatus for design studies (loose tolerances, short runs)
+SMALL_STUDY = {"name": "small", "simulation.rtol": 1e-6, "simulation.atol": 1e-8, "simulation.t_max": 30.0,
+               "ramp.samples": 8}
+
+
+def small_study_spec():
+    from fabkit.spec import validate
+
+    return validate(mutated(SMALL_STUDY), "small.yaml")
+
+
+def run_study(command: str, spec_path: Path, args: list, plot: str) -> dict:
+    """``fabkit COMMAND SPEC ARGS --json --out rows.csv --plot PLOT`` beside the spec; the
+    parsed JSON with ``folder`` added (it must succeed)."""
+    import json
+
+    folder = spec_path.parent
+    code, out, err = run_cli([command, spec_path, *args, "--json", "--out", folder / "rows.csv",
+                              "--plot", folder / plot])
+    assert code == 0, err
+    res = json.loads(out)
+    res["folder"] = folder
+    return res

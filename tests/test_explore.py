@@ -9,7 +9,6 @@ for the Dask run (bit for bit).
 
 from __future__ import annotations
 
-import contextlib
 import csv
 import io
 import json
@@ -17,8 +16,7 @@ import json
 import numpy as np
 import pytest
 
-from conftest import mutated, write_spec
-from fabkit.cli import main
+from conftest import SMALL_STUDY, mutated, run_cli, run_study, small_study_spec, write_spec
 from fabkit.errors import SpecError
 from fabkit.explore import (Engine, design_grid, design_of, parse_vary, problem_of, run_chunk, table_bytes,
                             table_format)
@@ -27,20 +25,11 @@ from fabkit.physics.models import problem_from_spec
 from fabkit.physics.sweep import sweep
 from fabkit.spec import validate
 
-SMALL = {"name": "small", "simulation.rtol": 1e-6, "simulation.atol": 1e-8, "simulation.t_max": 30.0,
-         "ramp.samples": 8}
+SMALL = SMALL_STUDY
 EPS = ["--vary", "surface.params.eps=0.24:0.26:2", "--v-in", "30", "80", "16", "--no-progress"]
 
 
-def small_spec():
-    return validate(mutated(SMALL), "small.yaml")
-
-
-def run_cli(argv) -> tuple[int, str, str]:
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        code = main([str(a) for a in argv])
-    return code, out.getvalue(), err.getvalue()
+small_spec = small_study_spec
 
 
 @pytest.fixture(scope="module")
@@ -51,13 +40,7 @@ def small_path(tmp_path_factory):
 @pytest.fixture(scope="module")
 def inprocess(small_path):
     """The in-process run, with its per-launch rows and plot (read by the tests below)."""
-    folder = small_path.parent
-    code, out, err = run_cli(["explore", small_path, *EPS, "--json", "--out", folder / "rows.csv",
-                              "--plot", folder / "grid.png"])
-    assert code == 0, err
-    res = json.loads(out)
-    res["folder"] = folder
-    return res
+    return run_study("explore", small_path, EPS, "grid.png")
 
 
 # ----------------------------------------------------------------------------
@@ -170,7 +153,7 @@ def test_two_designs_match_direct_sweeps(inprocess):
 def test_highest_safe_height_matches_check_and_invalid_design_is_reported(cli, tmp_path):
     from fabkit import units
     from fabkit.physics.calibrate import ball_k, ramp_heights, v_in_from_height
-    from fabkit.physics.check import _boundary
+    from fabkit.physics.check import check
 
     spec = write_spec(tmp_path, mutated(SMALL))
     # --v-in above v_critical: no refinement, so the run is about the ramp and the grid's errors
@@ -183,7 +166,7 @@ def test_highest_safe_height_matches_check_and_invalid_design_is_reported(cli, t
     assert [d["params"]["simulation.y0"] for d in bad] == [20.0, 20.0]
     assert all("simulation.y0" in d["error"] and d["safe"] is None and d["v_critical"] is None for d in bad)
     clipped, paper = [d for d in designs if "error" not in d]
-    # the check's own path: the ramp launched by launch_batch, the boundary by check._boundary
+    # the check's own path: the ramp launched by launch_batch, the boundary by fabkit check
     s2 = small_spec().with_overrides({"surface.top": 2.0})
     p2 = problem_from_spec(s2)
     g, k = units.gravity(s2.units), ball_k(s2)
@@ -192,7 +175,7 @@ def test_highest_safe_height_matches_check_and_invalid_design_is_reported(cli, t
     i = int(np.flatnonzero(r.outcome == 2)[0])                     # flew_off
     assert clipped["safe"] is False and clipped["first_failure"]["height"] == H[i]
     assert clipped["first_failure"]["outcome"] == "flew_off"
-    assert clipped["highest_safe_height"] == _boundary(p2, H[i - 1], H[i], g, k, 1e-4)
+    assert clipped["highest_safe_height"] == check(s2)["highest_safe_height"]
     assert 1.5 <= clipped["highest_safe_height"] < H[i]             # undamped energy bound: top - margin
     assert paper["safe"] is True and paper["highest_safe_height"] == 4.5
 

@@ -9,40 +9,19 @@ test_integrate.py; huge entry speeds through the CLI are in test_hardening_cli.p
 
 from __future__ import annotations
 
-import contextlib
 import json
 import math
-import signal
 
 import numpy as np
 import pytest
 
-from conftest import mutated, write_spec
-from fabkit.cli import main
+from conftest import bounded, mutated, write_spec
 from fabkit.physics.integrate import launch_batch
-from fabkit.physics.models import CAPTURED, ESCAPED, FLEW_OFF, LOST_CONTACT, OUTCOMES, problem_from_spec
+from fabkit.physics.models import CAPTURED, ESCAPED, OUTCOMES, problem_from_spec
 from fabkit.spec import validate
 
 LIMIT = 60  # seconds: far above any of these runs; only a hang reaches it
 G_CM = 980.665
-
-
-class Hang(BaseException):
-    pass
-
-
-@contextlib.contextmanager
-def bounded(seconds: int = LIMIT):
-    def on_alarm(signum, frame):
-        raise Hang(f"still running after {seconds} s")
-
-    old = signal.signal(signal.SIGALRM, on_alarm)
-    signal.alarm(seconds)
-    try:
-        yield
-    finally:
-        signal.alarm(0)
-        signal.signal(signal.SIGALRM, old)
 
 
 def problem(changes=None, **over):
@@ -51,14 +30,14 @@ def problem(changes=None, **over):
 
 def simulate(cli, tmp_path, changes, v):
     path = write_spec(tmp_path, mutated(changes))
-    with bounded():
+    with bounded(LIMIT):
         code, out, err = cli("simulate", path, "--v-in", repr(float(v)), "--json")
     assert code == 0, err
     data = json.loads(out)
     for key in ("t_end", "max_height", "max_abs_y", "steps", "seconds"):
         assert data[key] is not None and math.isfinite(data[key]), key
     assert data["outcome"] in OUTCOMES
-    with bounded():
+    with bounded(LIMIT):
         code, text, err = cli("simulate", path, "--v-in", repr(float(v)))
     assert code == 0 and "nan" not in text.lower() and "inf" not in text.lower().replace("info", ""), text
     return data
@@ -76,7 +55,7 @@ def finite_ends(r):
 def test_heavy_damping_stops_within_v_over_mu(mu):
     p = problem({"simulation.damping": mu})
     v = np.array([5.0, 40.0, 300.0])
-    with bounded():
+    with bounded(LIMIT):
         r = launch_batch(p, v)
     assert r.method == "Radau" and np.all(r.status == 2)
     assert np.all(r.outcome == CAPTURED) and np.all(r.bounces == 0)
@@ -110,7 +89,7 @@ def test_twenty_times_v_critical_leaves_the_surface(cli, tmp_path):
 @pytest.mark.parametrize("model", ["full", "simplified"])
 def test_absurd_speeds_fly_off(model, v):
     p = problem(model=model)
-    with bounded():
+    with bounded(LIMIT):
         r = launch_batch(p, [v])
     assert OUTCOMES[r.outcome[0]] in ("flew_off", "lost_contact")
     finite_ends(r)
@@ -126,7 +105,7 @@ def test_absurd_speed_reference_path_returns():
     p = problem()
     for method in ("DOP853", "Radau"):
         for v in (1e20, 1e100, 1e300):
-            with bounded():
+            with bounded(LIMIT):
                 s = solve_launch(p, v, method=method, rtol=1e-6, atol=1e-8)
             assert s["outcome"] in OUTCOMES and s["outcome"] != "escaped"
             assert math.isfinite(s["t_end"]) and math.isfinite(s["x_end"])
@@ -137,7 +116,7 @@ def v_critical():
     from fabkit.physics.sweep import sweep
 
     p = problem({"simulation.t_max": 20.0})
-    with bounded():
+    with bounded(LIMIT):
         res = sweep(p, np.linspace(30, 70, 41), tn=False, error_samples=0, rel_tol=1e-9, k=16)
     return p, res["v_critical"], res["v_critical_error"]
 
@@ -145,7 +124,7 @@ def v_critical():
 def test_at_v_critical_ends_at_t_max_or_escapes(v_critical):
     p, vc, err = v_critical
     v = np.array([vc - err, vc, vc + err])
-    with bounded():
+    with bounded(LIMIT):
         r = launch_batch(p, v)
     finite_ends(r)
     assert np.all(np.isfinite(r.energy_error))
@@ -171,7 +150,7 @@ def test_so_slow_it_never_arrives(cli, tmp_path):
     assert d["outcome"] == "captured" and d["t_end"] == pytest.approx(10.0, rel=1e-15)
     assert d["energy_error"] is not None and d["energy_error"] < 1e-6
     p = problem({"simulation.t_max": 10.0, "simulation.damping": 0.0})
-    with bounded():
+    with bounded(LIMIT):
         r = launch_batch(p, [0.0, 1e-300, 1e-9, 1e-3])
     assert np.all(r.outcome == CAPTURED) and np.allclose(r.t_end, 10.0, rtol=1e-15)
     finite_ends(r)
@@ -190,7 +169,7 @@ def test_hundred_times_steeper_wall(cli, tmp_path, what):
     d = simulate(cli, tmp_path, changes, 40)
     assert d["outcome"] in OUTCOMES
     p = problem(changes)
-    with bounded():
+    with bounded(LIMIT):
         r = launch_batch(p, np.linspace(5, 200, 9), t_max=10.0)
     finite_ends(r)
     assert np.all(r.t_end <= 10.0 * (1 + 1e-12))
@@ -203,7 +182,7 @@ def test_zero_coupling_one_bounce_and_v_out_equals_v_in(cli, tmp_path):
     assert d["v_out"] == pytest.approx(40.0, rel=1e-8)
     p = problem(changes)
     v = np.array([10.0, 25.0, 40.0, 55.0, 70.0])
-    with bounded():
+    with bounded(LIMIT):
         r = launch_batch(p, v)
     assert np.all(r.outcome == ESCAPED) and np.all(r.bounces == 1)
     assert np.allclose(r.v_out, v, rtol=1e-8)
@@ -219,7 +198,7 @@ def test_unit_scales_are_exact_time_rescalings(units, g):
     other = problem({"units": units, "simulation.damping": 0.0})
     assert other.g == pytest.approx(g, rel=1e-12)
     v = np.array([28.0, 39.0, 62.0])
-    with bounded():
+    with bounded(LIMIT):
         a = launch_batch(base, v)
         b = launch_batch(other, v * math.sqrt(lam))
     assert np.array_equal(a.outcome, b.outcome) and np.array_equal(a.bounces, b.bounces)
@@ -237,12 +216,12 @@ def test_tool_larger_than_smallest_concave_radius(cli, tmp_path):
                    "machining.scallop": 0.5, "machining.tolerance": 0.1, "machining.verify_points": 2000,
                    "ramp.samples": 4, "ramp.heights": [0.2, 1.0]})
     path = write_spec(tmp_path, raw)
-    with bounded():
+    with bounded(LIMIT):
         code, out, err = cli("check", path, "--json", "--no-progress")
     assert code in (0, 1), err
     m = json.loads(out)["machining"]
     assert m["radius_ok"] is False and m["tool_radius_mm"] > m["min_concave_radius_mm"]
-    with bounded():
+    with bounded(LIMIT):
         code, out, err = cli("gcode", path, "-o", tmp_path / "t.ngc")
     assert code in (0, 1)
     assert "larger than the smallest concave radius" in err

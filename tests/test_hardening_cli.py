@@ -22,7 +22,6 @@ import copy
 import importlib.util
 import io
 import os
-import signal
 import subprocess
 import sys
 import tempfile
@@ -36,7 +35,7 @@ from hypothesis import strategies as st
 
 from fabkit.cli import main
 
-from conftest import PAPER, ROOT, paper_raw
+from conftest import PAPER, ROOT, bounded, paper_raw
 
 
 def has_command(name: str) -> bool:
@@ -67,24 +66,6 @@ ARGS = {
     "sweep": ["--v-in", "20", "60", "4", "--no-progress"],
     "check": ["--no-progress"],
 }
-
-
-class Hang(BaseException):
-    """Raised by the alarm: not an Exception, so fabkit's handler cannot swallow it."""
-
-
-@contextlib.contextmanager
-def bounded(seconds: int):
-    def on_alarm(signum, frame):
-        raise Hang(f"still running after {seconds} s")
-
-    old = signal.signal(signal.SIGALRM, on_alarm)
-    signal.alarm(seconds)
-    try:
-        yield
-    finally:
-        signal.alarm(0)
-        signal.signal(signal.SIGALRM, old)
 
 
 def run_inprocess(argv: list[str], cwd: Path, seconds: int = 120) -> tuple[int, str, str]:

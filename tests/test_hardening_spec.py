@@ -13,10 +13,8 @@ hanging CI; it asserts nothing about speed.
 
 from __future__ import annotations
 
-import contextlib
 import copy
 import math
-import signal
 import tempfile
 from pathlib import Path
 
@@ -32,26 +30,11 @@ from fabkit.spec import SCHEMA, TOP_KEYS, Num, load_spec, validate
 from fabkit.surface import Surface
 from fabkit.tolerances import DEFAULT
 
-from conftest import PAPER, paper_raw
+from conftest import PAPER, bounded, paper_raw
 
 JUNK = Path(__file__).parent / "fixtures" / "junk"
 FAST = settings(max_examples=40, deadline=None, derandomize=True, database=None,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
-
-
-@contextlib.contextmanager
-def bounded(seconds: int = 60):
-    """Fail (instead of hanging the suite) if the block runs longer than ``seconds``."""
-    def on_alarm(signum, frame):
-        raise AssertionError(f"still running after {seconds} s: a hang")
-
-    old = signal.signal(signal.SIGALRM, on_alarm)
-    signal.alarm(seconds)
-    try:
-        yield
-    finally:
-        signal.alarm(0)
-        signal.signal(signal.SIGALRM, old)
 
 
 def _leaves(raw: dict, prefix: str = "") -> list[str]:

@@ -8,37 +8,24 @@ the seed; the Dask run equals the in-process run bit for bit.
 
 from __future__ import annotations
 
-import contextlib
 import csv
-import io
 import json
 
 import numpy as np
 import pytest
 
-from conftest import mutated, write_spec
-from fabkit.cli import main
+from conftest import SMALL_STUDY, mutated, run_cli, run_study, small_study_spec, write_spec
 from fabkit.errors import SpecError
 from fabkit.explore import Engine, check_scatter, draw_scatter, robustness
 from fabkit.physics.integrate import launch_batch
 from fabkit.physics.models import OUTCOMES, problem_from_spec
-from fabkit.spec import validate
 
-SMALL = {"name": "small", "simulation.rtol": 1e-6, "simulation.atol": 1e-8, "simulation.t_max": 30.0,
-         "ramp.samples": 8}
+SMALL = SMALL_STUDY
 # across the edge of a two-bounce window of the small spec (nominal 2 bounces from 36 to 42 cm/s)
 ARGS = ["--v-in", "40", "44", "5", "--sigma-y", "0.05", "--sigma-vy", "0.3", "--samples", "12", "--no-progress"]
 
 
-def small_spec():
-    return validate(mutated(SMALL), "small.yaml")
-
-
-def run_cli(argv) -> tuple[int, str, str]:
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        code = main([str(a) for a in argv])
-    return code, out.getvalue(), err.getvalue()
+small_spec = small_study_spec
 
 
 @pytest.fixture(scope="module")
@@ -48,13 +35,7 @@ def small_path(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def inprocess(small_path):
-    folder = small_path.parent
-    code, out, err = run_cli(["robustness", small_path, *ARGS, "--json", "--out", folder / "rows.csv",
-                              "--plot", folder / "p.png"])
-    assert code == 0, err
-    res = json.loads(out)
-    res["folder"] = folder
-    return res
+    return run_study("robustness", small_path, ARGS, "p.png")
 
 
 def test_zero_scatter_gives_the_nominal_count_with_probability_one():

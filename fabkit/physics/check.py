@@ -92,7 +92,7 @@ def check(spec, *, progress=None, rel_tol: float = 1e-4, v_rel_tol: float = 1e-5
         if i == 0:
             highest = None
         else:
-            highest = _boundary(problem, float(H[i - 1]), float(H[i]), g, k, rel_tol)
+            highest = highest_safe(make_launcher(problem), float(H[i - 1]), float(H[i]), g, k, rel_tol)
     else:
         highest = float(H[-1])
     out["highest_safe_height"] = highest
@@ -123,15 +123,16 @@ def check(spec, *, progress=None, rel_tol: float = 1e-4, v_rel_tol: float = 1e-5
     return out
 
 
-def _boundary(problem, h_safe: float, h_fail: float, g: float, k: float, rel_tol: float, m: int = 64) -> float:
-    """Highest safe height in [h_safe, h_fail] by batched k-section (m launches a
-    round) to width <= rel_tol * h_fail; returns the safe end of the bracket."""
+def highest_safe(launch, h_safe: float, h_fail: float, g: float, k: float, rel_tol: float,
+                 m: int = 64) -> float:
+    """Highest safe release height in [h_safe, h_fail] (design units) by batched
+    k-section, ``m`` launches a round, to width <= rel_tol * h_fail; returns the safe
+    end of the bracket. ``launch``: a launcher ``v_in (M,) -> Launches`` (sweep.py)."""
     from .calibrate import v_in_from_height
 
-    launch = make_launcher(problem)
     while h_fail - h_safe > rel_tol * h_fail:
         hs = h_safe + (h_fail - h_safe) * np.arange(1, m + 1) / (m + 1)
-        r = launch(v_in_from_height(hs, g, k))
+        r = launch(np.asarray(v_in_from_height(hs, g, k), dtype=float))
         bad = np.flatnonzero((r.outcome == FLEW_OFF) | (r.outcome == LOST_CONTACT))
         if len(bad) == 0:
             h_safe = float(hs[-1])
