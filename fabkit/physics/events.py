@@ -1,0 +1,152 @@
+"""Event location for the batched integrator (integrate.py).
+
+Bounces (maxima of x(t)), escapes and fly-offs are located by Henon's trick: one
+RK step from the start of the step that crossed the event, with the event's
+quantity as the independent variable, landing on it exactly (so an event carries
+the step's own local error). Loss of contact is located by secant iterations on
+re-taken RK steps. Events are located in batches: bounces queued during the step
+loop and the terminal events of retired lanes are flushed together.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .models import ESCAPED
+from .rk import _combine, _rk_step
+
+# ----------------------------------------------------------------------------
+# event location
+# ----------------------------------------------------------------------------
+_KINDS = {"x": 0, "y": 1, "vx": 2, "z": 3}
+
+
+def _henon(sys, tab, Y, t, kind, target):
+    """Henon's trick: one RK step from Y (nv, m) at times t (m,) with a quantity of the
+    state as the independent variable, to ``target`` (m,).
+
+    ``kind``: 'x' | 'y' | 'vx' | 'z', or an int array (m,) of codes 0..3 (one per lane).
+    Returns (t_event (m,), Y_event (nv, m)); accurate to the RK step's local error.
+    """
+    nv, m = Y.shape
+    code = np.broadcast_to(np.asarray(_KINDS[kind] if isinstance(kind, str) else kind), (m,))
+    Z = np.empty((nv + 1, m))
+    Z[:nv] = Y
+    Z[nv] = t
+    aux0 = sys(Y)[1]
+
+    def rate(Yc, Fc, auxc):
+        zd = auxc[1] * Yc[2] + auxc[2] * Yc[3]  # dz/dt = h_x xd + h_y yd
+        return np.choose(code, (Fc[0], Fc[1], Fc[2], zd))
+
+    def g(Zc):
+        Fc, auxc = sys(Zc[:nv])
+        r = rate(Zc, Fc, auxc)
+        G = np.empty_like(Zc)
+        G[:nv] = Fc / r
+        G[nv] = 1.0 / r
+        return G
+
+    s0 = np.choose(code, (Y[0], Y[1], Y[2], aux0[0]))
+    ds = target - s0
+    K = np.empty((tab.n_stages + 1, nv + 1, m))
+    K[0] = g(Z)
+    Zs = np.empty_like(Z)
+    for s in range(1, tab.n_stages):
+        _combine(Z, ds, K, tab.A[s], Zs)
+        K[s] = g(Zs)
+    Znew = np.empty_like(Z)
+    _combine(Z, ds, K, tab.B, Znew)
+    for c in range(3):  # the independent variable lands on its target exactly
+        Znew[c] = np.where(code == c, target, Znew[c])
+    return Znew[nv], Znew[:nv]
+
+
+def _secant(sys, tab, Y, F0, t, h, b0, b1, iters: int = 4):
+    """Time and state where the bracket B crosses 0 inside steps of size h from Y,
+    by secant iterations on re-taken RK steps (each as accurate as the step)."""
+    nv, m = Y.shape
+    lo, hi = np.zeros(m), np.ones(m)
+    blo, bhi = b0.copy(), b1.copy()
+    K = np.empty((tab.n_stages + 1, nv, m))
+    Yt = Y.copy()
+    th = np.ones(m)
+    for _ in range(iters):
+        th = lo + (hi - lo) * blo / (blo - bhi)
+        th = np.where(np.isfinite(th), np.clip(th, lo, hi), 0.5 * (lo + hi))
+        Yt = _rk_step(sys, tab, Y, F0, h * th, K)
+        b = sys(Yt)[1][3]
+        pos = b > 0
+        lo = np.where(pos, th, lo)
+        blo = np.where(pos, b, blo)
+        hi = np.where(pos, hi, th)
+        bhi = np.where(pos, bhi, b)
+    return t + h * th, Yt
+
+
+def _flush_bounces(sys, tab, queue, out, k_keep):
+    """Locate the queued bounces (one Henon step in xd for all) and store their times."""
+    if not queue:
+        return
+    Y = np.concatenate([q[0] for q in queue], axis=1)
+    t = np.concatenate([q[1] for q in queue])
+    lane = np.concatenate([q[2] for q in queue])
+    order = np.concatenate([q[3] for q in queue])
+    h = np.concatenate([q[4] for q in queue])
+    queue.clear()
+    keep = order < k_keep
+    if not keep.any():
+        return
+    Y, t, lane, order, h = Y[:, keep], t[keep], lane[keep], order[keep], h[keep]
+    te, _ = _henon(sys, tab, Y, t, "vx", np.zeros(t.size))
+    ok = np.isfinite(te) & (te >= t) & (te <= t + h)
+    out["bounce_times"][lane, order] = np.where(ok, te, t + h)
+
+
+PENDING = 100  # placeholder outcome of a lane whose terminal event is located later
+
+
+def _flush_terminal(sys, tab, pending, out, k_keep):
+    """Locate the terminal events (and bounces in the same steps) of lanes retired with
+    a placeholder: one Henon step for all; per lane the earliest terminal event wins;
+    a bounce counts if it comes before it. Writes the lanes' final summaries."""
+    if not pending:
+        return
+    cat = {k: np.concatenate([p[k] for p in pending], axis=-1) for k in pending[0]}
+    pending.clear()
+    te, Ye = _henon(sys, tab, cat["Y"], cat["t"], cat["kind"], cat["target"])
+    t_hi = cat["t"] + cat["h"]
+    ok = np.isfinite(te) & (te >= cat["t"]) & (te <= t_hi + 1e-9 * cat["h"]) & np.isfinite(Ye[:4]).all(axis=0)
+    te = np.where(ok, te, t_hi)
+    Ye = np.where(ok, Ye, cat["Yfb"])
+    lane, oc = cat["lane"], cat["outcome"]
+    term = np.flatnonzero(oc >= 0)
+    order = term[np.lexsort((te[term], lane[term]))]
+    first = order[np.r_[True, lane[order][1:] != lane[order][:-1]]]  # earliest per lane
+    gl = lane[first]
+    Yend, tend = Ye[:, first], te[first]
+    out["outcome"][gl] = oc[first]
+    out["t_end"][gl] = tend
+    out["x_end"][gl], out["y_end"][gl] = Yend[0], Yend[1]
+    out["vx_end"][gl], out["vy_end"][gl] = Yend[2], Yend[3]
+    out["v_out"][gl] = np.where(oc[first] == ESCAPED, np.abs(Yend[2]), np.nan)
+    aux_end = sys(Yend)[1]
+    inv = cat["inv"][first]
+    E = sys.energy(Yend, aux_end, inv)
+    W = Yend[4] * (inv * inv) if sys.damped else 0.0
+    zmax = np.maximum(cat["zmax"][first], aux_end[0])
+    zmin = np.minimum(cat["zmin"][first], aux_end[0])
+    escale = cat["kin0"][first] + sys.gt * (zmax - zmin) * (inv * inv)
+    out["energy_error"][gl] = np.abs(E + W - cat["E0"][first]) / np.maximum(escale, 1e-300)
+    out["max_z"][gl] = zmax
+    out["max_abs_y"][gl] = np.maximum(cat["ymax"][first], np.abs(Yend[1]))
+    out["bounces"][gl] = cat["nb"][first]
+    b = np.flatnonzero(oc == -2)
+    if b.size:
+        t_end = np.full(out["t_end"].shape, np.inf)
+        t_end[gl] = tend
+        counts = te[b] <= t_end[lane[b]]
+        b = b[counts]
+        out["bounces"][lane[b]] = cat["nb"][b] + 1
+        keep = cat["nb"][b] < k_keep
+        out["bounce_times"][lane[b][keep], cat["nb"][b][keep]] = te[b][keep]
