@@ -160,7 +160,7 @@ def _run_chunk_body(problem, v_in, y0, vy0, rtol, atol, t_max, max_steps, tab, r
     start = problem.start
     from .trap import region, trap_energy
 
-    e_star = trap_energy(problem) if getattr(problem, "stop_trapped", False) else None
+    e_star = trap_energy(problem, 100.0 * rtol) if getattr(problem, "stop_trapped", False) else None
     tx0, tx1, ty0, ty1 = region(problem)
     it = 0
 

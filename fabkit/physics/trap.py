@@ -28,7 +28,8 @@ escaped, flew_off and lost_contact result is unchanged.
 Accuracy: the minima over the boundary and over D are lower bounds from dense
 samples less twice the largest sampled second derivative times the sampling
 error bound (spacing^2 / 8); kappa is the sampled maximum times 1.5. E* is then
-lowered by 1e-9 of the energy scale.
+lowered by max(1e-9, 100 rtol) of the energy scale, more than the integrator's own
+energy error.
 """
 
 from __future__ import annotations
@@ -53,10 +54,12 @@ def _edge_min(fns, xa, ya, xb, yb, n=EDGE_SAMPLES) -> float:
     return float(h.min() - 2.0 * np.abs(htt).max() * step * step / 8.0)
 
 
-def trap_energy(problem) -> float | None:
+def trap_energy(problem, rel_margin: float = 1e-9) -> float | None:
     """E* (design units^2/s^2, per unit (1 + k) m) for ``problem``, or None when the
     bound does not apply (nonlinear damping in the full model can feed energy in,
-    an empty region D, or a surface that is not finite on D)."""
+    an empty region D, or a surface that is not finite on D). ``rel_margin``: E* is
+    lowered by this fraction of the energy scale (the integrator passes 100 rtol, so
+    its own energy error cannot carry a lane across)."""
     if problem.model == "full" and float(problem.nonlinear_damping) > 0:
         return None
     m = float(problem.margin)
@@ -87,7 +90,7 @@ def trap_energy(problem) -> float | None:
     e_star = min(bounds)
     if not np.isfinite(e_star):
         return None
-    e_star -= 1e-9 * max(abs(e_star), gt * (abs(h_min) + abs(m_b) + 1.0))
+    e_star -= max(1e-9, float(rel_margin)) * max(abs(e_star), gt * (abs(h_min) + abs(m_b) + 1.0))
     if e_star <= gt * h_min:
         return None          # no state inside D is below it
     return float(e_star)
