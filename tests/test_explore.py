@@ -12,6 +12,8 @@ from __future__ import annotations
 import csv
 import io
 import json
+import math
+import sys
 
 import numpy as np
 import pytest
@@ -117,19 +119,21 @@ def test_bad_input_exit_2_one_line_nothing_written(cli, tmp_path, extra, needle)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["spec.yaml"]
 
 
-def test_parquet_without_pyarrow_names_out():
-    try:
-        import pyarrow  # noqa: F401
-    except ImportError:
-        with pytest.raises(SpecError) as e:
-            table_format("rows.parquet")
-        assert e.value.key == "--out" and "pyarrow" in str(e.value)
-    else:
-        assert table_format("rows.parquet") == "parquet"
-        import pyarrow.parquet as pq
+def test_parquet_without_pyarrow_names_out(monkeypatch):
+    monkeypatch.setitem(sys.modules, "pyarrow", None)          # as if not installed
+    monkeypatch.setitem(sys.modules, "pyarrow.parquet", None)
+    with pytest.raises(SpecError) as e:
+        table_format("rows.parquet")
+    assert e.value.key == "--out" and "pyarrow" in str(e.value)
 
-        t = pq.read_table(io.BytesIO(table_bytes({"a": [1.5, float("nan")], "b": ["x", "y"]}, "parquet")))
-        assert t.column("b").to_pylist() == ["x", "y"]
+
+def test_parquet_rows_round_trip():
+    pq = pytest.importorskip("pyarrow.parquet")
+    assert table_format("rows.parquet") == "parquet"
+    t = pq.read_table(io.BytesIO(table_bytes({"a": [1.5, float("nan")], "b": ["x", "y"]}, "parquet")))
+    assert t.column("b").to_pylist() == ["x", "y"]
+    a = t.column("a").to_pylist()
+    assert a[0] == 1.5 and (a[1] is None or math.isnan(a[1]))
 
 
 # ----------------------------------------------------------------------------
