@@ -66,6 +66,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import SpecError
+from .spec import _suggest
 from .tolerances import DEFAULT
 
 MIN_CHUNK = 64         # smallest automatic chunk (lanes per Dask task)
@@ -107,13 +108,6 @@ def _all_keys() -> list[str]:
     from .spec import SCHEMA
 
     return [f"{sec}.{name}" for sec, fields in SCHEMA.items() for name in fields]
-
-
-def _suggest(word: str, options) -> str:
-    import difflib
-
-    close = difflib.get_close_matches(word, list(options), n=1, cutoff=0.6)
-    return f" (did you mean {close[0]!r}?)" if close else ""
 
 
 def _num(text: str, what: str, flag: str) -> float:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import threading
 import math
 import sys
 import time
@@ -63,3 +64,24 @@ def emit(summary_lines: list[str] | str, payload: dict | None, as_json: bool) ->
 
 def warn(message: str) -> None:
     sys.stderr.write(f"warning: {message}\n")
+
+
+def progress_bar(total: int, disabled: bool, desc: str):
+    """A tqdm bar of launches on stderr, shown only on a terminal and after 2 s; returns
+    (callback(done, total=None), close), or (None, no-op) when disabled. The total grows
+    when refinement launches more than estimated; callbacks may come from threads."""
+    if disabled or not sys.stderr.isatty():
+        return None, lambda: None
+    from tqdm import tqdm
+
+    bar = tqdm(total=max(1, int(total)), desc=desc, unit="launch", file=sys.stderr, delay=2.0, leave=False)
+    lock = threading.Lock()
+
+    def cb(done, _total=None):
+        with lock:
+            done = int(done)
+            if done > bar.total:
+                bar.total = done
+            bar.update(max(0, done - bar.n))
+
+    return cb, bar.close

@@ -15,7 +15,7 @@ def run(args) -> int:
     from ..physics.calibrate import ramp_heights
     from ..physics.check import check
     from ..spec import load_spec
-    from .sweep import progress_bar
+    from ._common import progress_bar
 
     timer = Timer()
     spec = load_spec(args.spec, need=("surface", "ball", "ramp", "simulation"), command="check")

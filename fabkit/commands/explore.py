@@ -9,33 +9,11 @@ rows of the grid launches go to ``--out`` (.csv, or .parquet with pyarrow).
 
 from __future__ import annotations
 
-import sys
-import threading
 
 import numpy as np
 
 from ..errors import SpecError
-from ._common import Timer, emit
-
-
-def launch_bar(total: int, disabled: bool, desc: str):
-    """A tqdm bar of launches on stderr (shown after 2 s, only on a terminal) whose
-    total grows when refinement launches more than estimated; returns (cb(done), close)."""
-    if disabled or not sys.stderr.isatty():
-        return None, lambda: None
-    from tqdm import tqdm
-
-    bar = tqdm(total=max(1, int(total)), desc=desc, unit="launch", file=sys.stderr, delay=2.0, leave=False)
-    lock = threading.Lock()
-
-    def cb(done):
-        with lock:
-            done = int(done)
-            if done > bar.total:
-                bar.total = done
-            bar.update(max(0, done - bar.n))
-
-    return cb, bar.close
+from ._common import Timer, emit, progress_bar
 
 
 def _fmt(x) -> str:
@@ -58,7 +36,7 @@ def run(args) -> int:
     v = speeds(spec, args.v_in) if args.v_in is not None else None
     fmt = table_format(args.out)
     per = (len(v) if v is not None else 0) + (len(ramp_heights(spec)) if spec.has("ramp") else 0)
-    cb, close = launch_bar(len(grid) * per, getattr(args, "no_progress", False), "explore")
+    cb, close = progress_bar(len(grid) * per, getattr(args, "no_progress", False), "explore")
     try:
         with Engine(args.scheduler, chunk=getattr(args, "chunk", None), progress=cb) as engine:
             res = explore(spec, varies, v, engine=engine)

@@ -18,7 +18,7 @@ def run(args) -> int:
     from ..explore import Engine, check_scatter, robustness, table_bytes, table_format
     from ..io import atomic_outputs
     from ..spec import load_spec
-    from .explore import launch_bar
+    from ._common import progress_bar
     from .sweep import speeds
 
     timer = Timer()
@@ -26,7 +26,7 @@ def run(args) -> int:
     v = speeds(spec, args.v_in)
     check_scatter(args.sigma_y, args.sigma_vy, args.samples, len(v))
     fmt = table_format(args.out)
-    cb, close = launch_bar(len(v) * (args.samples + 1), getattr(args, "no_progress", False), "robustness")
+    cb, close = progress_bar(len(v) * (args.samples + 1), getattr(args, "no_progress", False), "robustness")
     try:
         with Engine(args.scheduler, chunk=getattr(args, "chunk", None), progress=cb) as engine:
             res = robustness(spec, v, sigma_y=args.sigma_y, sigma_vy=args.sigma_vy, samples=args.samples,

@@ -8,26 +8,11 @@ v_out error and the run time.
 
 from __future__ import annotations
 
-import sys
 
 import numpy as np
 
 from ..errors import SpecError
-from ._common import Timer, emit
-
-
-def progress_bar(total: int, disabled: bool, desc: str):
-    """A tqdm bar on stderr shown only after 2 s, or None; returns (callback, close)."""
-    if disabled or not sys.stderr.isatty():
-        return None, lambda: None
-    from tqdm import tqdm
-
-    bar = tqdm(total=total, desc=desc, unit="launch", file=sys.stderr, delay=2.0, leave=False)
-
-    def cb(done, _total):
-        bar.update(max(0, int(done) - bar.n))
-
-    return cb, bar.close
+from ._common import Timer, emit, progress_bar
 
 
 def speeds(spec, v_in_arg, tol=None) -> np.ndarray:

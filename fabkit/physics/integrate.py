@@ -60,6 +60,7 @@ from ..tolerances import DEFAULT
 from .events import _KINDS, PENDING, _flush_bounces, _flush_terminal, _henon, _secant
 from .models import CAPTURED, ESCAPED, FLEW_OFF, LOST_CONTACT, OUTCOMES
 from .rk import _System, _error_norm, _error_norm_scaled, _initial_step, _pow2, _rk_step, tableau
+from .trap import region, trap_energy
 
 CHUNK = 16384         # lanes per chunk (memory bound; the arithmetic does not depend on it)
 K_BOUNCES = 16        # bounce times kept per lane
@@ -144,6 +145,11 @@ def _empty(n: int, k: int) -> dict:
 TRAP_EVERY = 8   # steps between trapping-energy checks (problem.stop_trapped)
 
 
+def _keep(keep, *arrays):
+    """The lanes ``keep`` (m,) bool of per-lane arrays (lanes on the last axis)."""
+    return tuple(a[..., keep] for a in arrays)
+
+
 def _run_chunk(*args, **kw):
     """Integrate one chunk of lanes; returns the per-lane summary dict (and trajectories)."""
     with np.errstate(all="ignore"):
@@ -158,9 +164,7 @@ def _run_chunk_body(problem, v_in, y0, vy0, rtol, atol, t_max, max_steps, tab, r
     y_lo, y_hi = problem.y_range[0] + problem.margin, problem.y_range[1] - problem.margin
     z_lim = problem.top - problem.margin
     start = problem.start
-    from .trap import region, trap_energy
-
-    e_star = trap_energy(problem, 100.0 * rtol) if getattr(problem, "stop_trapped", False) else None
+    e_star = trap_energy(problem, 100.0 * rtol) if problem.stop_trapped else None
     tx0, tx1, ty0, ty1 = region(problem)
     it = 0
 
@@ -203,12 +207,9 @@ def _run_chunk_body(problem, v_in, y0, vy0, rtol, atol, t_max, max_steps, tab, r
         out["max_abs_y"][sel] = np.abs(Y[1, sel])
         out["energy_error"][sel] = 0.0
         out["status"][sel] = 3
-        keep = ~over
-        idx, Y, F, t, h = idx[keep], Y[:, keep], F[:, keep], t[keep], h[keep]
-        aux = tuple(a[keep] for a in aux)
-        zmax, zmin, ymax, steps, rej, nb, was_rejected, err_prev = (
-            zmax[keep], zmin[keep], ymax[keep], steps[keep], rej[keep], nb[keep], was_rejected[keep],
-            err_prev[keep])
+        idx, Y, F, t, h, zmax, zmin, ymax, steps, rej, nb, was_rejected, err_prev = _keep(
+            ~over, idx, Y, F, t, h, zmax, zmin, ymax, steps, rej, nb, was_rejected, err_prev)
+        aux = _keep(~over, *aux)
 
     queue, queued, pending = [], [0], []
     while idx.size:
@@ -408,11 +409,9 @@ def _run_chunk_body(problem, v_in, y0, vy0, rtol, atol, t_max, max_steps, tab, r
             keep = ~done
             if tick is not None:
                 tick(n - int(keep.sum()))
-            idx, Y, F, t, h = idx[keep], Y[:, keep], F[:, keep], t[keep], h[keep]
-            aux = tuple(a[keep] for a in aux)
-            zmax, zmin, ymax, steps, rej, nb, was_rejected, err_prev = (
-                zmax[keep], zmin[keep], ymax[keep], steps[keep], rej[keep], nb[keep], was_rejected[keep],
-                err_prev[keep])
+            idx, Y, F, t, h, zmax, zmin, ymax, steps, rej, nb, was_rejected, err_prev = _keep(
+                keep, idx, Y, F, t, h, zmax, zmin, ymax, steps, rej, nb, was_rejected, err_prev)
+            aux = _keep(keep, *aux)
     _flush_bounces(sys, tab, queue, out, k_keep)
     _flush_terminal(sys, tab, pending, out, k_keep)
     if record:

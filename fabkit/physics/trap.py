@@ -63,9 +63,7 @@ def trap_energy(problem, rel_margin: float = 1e-9) -> float | None:
     if problem.model == "full" and float(problem.nonlinear_damping) > 0:
         return None
     m = float(problem.margin)
-    x0 = max(float(problem.start), float(problem.x_range[0]) + m)
-    x1 = float(problem.x_range[1]) - m
-    y0, y1 = float(problem.y_range[0]) + m, float(problem.y_range[1]) - m
+    x0, x1, y0, y1 = region(problem)
     if not (np.isfinite([x0, x1, y0, y1]).all() and x1 > x0 and y1 > y0):
         return None
     fns, gt = problem.fns, problem.g_tilde
