@@ -19,6 +19,33 @@ def default_output(spec, suffix: str, given: str | None) -> Path:
     return Path(given) if given else DEFAULT_OUTPUT_DIR / f"{spec.name}{suffix}"
 
 
+#: figure formats by extension (matplotlib's Agg writes each); no extension: png
+PLOT_FORMATS = {".png": "png", ".pdf": "pdf", ".svg": "svg", ".jpg": "jpg", ".jpeg": "jpg", ".tif": "tiff",
+                ".tiff": "tiff", ".webp": "webp", ".eps": "eps", ".ps": "ps"}
+
+
+def plot_format(path, key: str = "--plot") -> str:
+    """The figure format ``path``'s extension names; SpecError (exit 2) for one fabkit cannot write."""
+    from ..errors import SpecError
+
+    suffix = Path(path).suffix.lower()
+    if not suffix:
+        return "png"
+    if suffix not in PLOT_FORMATS:
+        raise SpecError(f"cannot write a figure as '{suffix}' (use one of: {', '.join(PLOT_FORMATS)})", key=key)
+    return PLOT_FORMATS[suffix]
+
+
+def check_paths(args, outputs: dict) -> None:
+    """Refuse bad outputs before any work: :func:`fabkit.io.check_outputs` with the
+    spec as the input, and the figure format of ``--plot``."""
+    from ..io import check_outputs
+
+    if outputs.get("--plot") is not None:
+        plot_format(outputs["--plot"])
+    check_outputs(outputs, inputs=[getattr(args, "spec", None)])
+
+
 class Timer:
     def __init__(self) -> None:
         self.t0 = time.perf_counter()
@@ -64,6 +91,27 @@ def emit(summary_lines: list[str] | str, payload: dict | None, as_json: bool) ->
 
 def warn(message: str) -> None:
     sys.stderr.write(f"warning: {message}\n")
+
+
+def stage_bar(total: int, disabled: bool, desc: str):
+    """A tqdm bar of named stages on stderr (terminal only, shown after 2 s), for commands
+    whose work is a few long steps; returns (step(name), close). Each ``step`` call
+    completes the previous stage and names the one that starts."""
+    if disabled or not sys.stderr.isatty():
+        return (lambda _name: None), (lambda: None)
+    from tqdm import tqdm
+
+    bar = tqdm(total=max(1, int(total)), desc=desc, unit="stage", file=sys.stderr, delay=2.0, leave=False,
+               bar_format="{desc}: {n_fmt}/{total_fmt} stages |{bar}| {elapsed} {postfix}")
+    started = [False]
+
+    def step(name: str) -> None:
+        if started[0] and bar.n < bar.total:
+            bar.update(1)
+        started[0] = True
+        bar.set_postfix_str(str(name))
+
+    return step, bar.close
 
 
 def progress_bar(total: int, disabled: bool, desc: str):

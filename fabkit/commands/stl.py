@@ -13,7 +13,7 @@ from pathlib import Path
 
 from ..errors import SpecError
 from ..tolerances import DEFAULT
-from ._common import Timer, default_output, emit
+from ._common import Timer, check_paths, default_output, emit
 
 
 def _tolerance(value) -> float:
@@ -38,6 +38,7 @@ def run(args) -> int:
     if fmt not in EXPORT_FORMATS:
         raise SpecError(f"unknown mesh format '{path.suffix}' (use one of: "
                         f"{', '.join('.' + f for f in EXPORT_FORMATS)})", key="--output")
+    check_paths(args, {"--output": path})
     surface = Surface.from_spec(spec)
     check_depth(spec, surface)
     solid = build_solid(surface, spec.stock.thickness, tolerance)
