@@ -17,6 +17,7 @@ path that cannot become a folder.
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
 import signal
 import stat
@@ -88,9 +89,12 @@ def check_outputs(outputs: dict, inputs=()) -> None:
         seen[real] = key
         try:
             st = os.stat(target)
-        except FileNotFoundError:
+        except (FileNotFoundError, NotADirectoryError):
             st = None
         except OSError as exc:
+            if exc.errno == errno.ENAMETOOLONG:
+                raise SpecError("file name too long for the file system (at most 255 bytes per name)",
+                                file=shown, key=key) from None
             raise SpecError(f"cannot use output {shown}: {exc.strerror}", key=key) from None
         if st is not None:
             if stat.S_ISDIR(st.st_mode):

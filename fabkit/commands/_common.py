@@ -41,9 +41,9 @@ def check_paths(args, outputs: dict) -> None:
     spec as the input, and the figure format of ``--plot``."""
     from ..io import check_outputs
 
+    check_outputs(outputs, inputs=[getattr(args, "spec", None)])
     if outputs.get("--plot") is not None:
         plot_format(outputs["--plot"])
-    check_outputs(outputs, inputs=[getattr(args, "spec", None)])
 
 
 class Timer:

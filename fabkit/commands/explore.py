@@ -34,8 +34,8 @@ def run(args) -> int:
     varies = [parse_vary(t, spec) for t in args.vary]
     grid = design_grid(varies)
     v = speeds(spec, args.v_in) if args.v_in is not None else None
-    fmt = table_format(args.out)
     check_paths(args, {"--out": args.out, "--plot": args.plot})
+    fmt = table_format(args.out)
     per = (len(v) if v is not None else 0) + (len(ramp_heights(spec)) if spec.has("ramp") else 0)
     cb, close = progress_bar(len(grid) * per, getattr(args, "no_progress", False), "explore")
     try:
@@ -55,8 +55,8 @@ def run(args) -> int:
         warn(f"no design of the grid has a v_critical"
              + (" (its panel in the figure is empty)" if args.plot else "") + ": "
              + "; ".join(reasons[:3]) + (f"; and {len(reasons) - 3} other reasons" if len(reasons) > 3 else "")
-             + ". Widen --v-in or the ramp's heights to include the speeds where launches stop escaping "
-               "after one bounce")
+             + ". Widen --v-in (or the ramp's heights) so that the speeds straddle v_critical: launches "
+               "below it that do not escape after one bounce, launches above it that do")
     rows: dict = {}
     for i, d in enumerate(designs):
         g = d.pop("grid", None)

@@ -34,11 +34,11 @@ def run(args) -> int:
     tolerance = _tolerance(args.tolerance)
     spec = load_spec(args.spec, need=("surface", "stock"), command="stl")
     path = default_output(spec, ".stl", args.output)
+    check_paths(args, {"--output": path})
     fmt = path.suffix.lower().lstrip(".") or "stl"
     if fmt not in EXPORT_FORMATS:
         raise SpecError(f"unknown mesh format '{path.suffix}' (use one of: "
                         f"{', '.join('.' + f for f in EXPORT_FORMATS)})", key="--output")
-    check_paths(args, {"--output": path})
     surface = Surface.from_spec(spec)
     check_depth(spec, surface)
     solid = build_solid(surface, spec.stock.thickness, tolerance)

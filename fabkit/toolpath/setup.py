@@ -135,7 +135,7 @@ def setup_sheet(spec, surface, toolpath, profile, program_path, check: dict | No
     if program is not None:
         need = machine_needs(program, profile.spindle)
         axes = need["axis_rate_max"]
-        sheet["tool"]["number"] = getattr(spec.tool, "number", None)
+        sheet["tool_number"] = getattr(spec.tool, "number", None)
         sheet["park"] = [_r(v * k) for v in profile.park]
         sheet["machine_needs"] = {
             "feed_max": _r(need["feed_max"] * k) if need["feed_max"] is not None else None,
@@ -197,8 +197,8 @@ def _needs_markdown(sheet: dict) -> list[str]:
              f"grbl 1.1's defaults for comparison: max rates $110-$112 {g['max_rate_mm_min']:g} mm/min, "
              f"max spindle $30 {g['spindle_max_rpm']:g} rpm, max travel $130-$132 {g['max_travel_mm']:g} mm.",
              ""]
-    if sheet["tool"].get("number") is not None:
-        lines.insert(5, f"- Tool T{sheet['tool']['number']}"
+    if sheet.get("tool_number") is not None:
+        lines.insert(5, f"- Tool T{sheet['tool_number']}"
                      + (": the program calls T M6 G43 H (tool change and length offset)"
                         if sheet["dialect"] == "linuxcnc" else ": load it by hand before the start (grbl has no M6)"))
     return lines
