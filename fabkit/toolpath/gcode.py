@@ -280,7 +280,7 @@ def write_program(toolpath: Toolpath, profile: MachineProfile) -> str:
     add = out.append
     items = [("fabkit", f"ball-end raster finishing program, {d.name} dialect")]
     items += list(profile.header)
-    items += [("work zero", "G54: X0 Y0 at the footprint corner of smallest x, y,"),
+    items += [("work zero (G54)", "X0 Y0 at the footprint corner of smallest x, y,"),
               ("", "Z0 on the stock top face"),
               ("scallop", _length(profile.scallop, u)), ("tolerance", _length(profile.tolerance, u))]
     items += [("passes", f"{toolpath.passes}"),
