@@ -61,3 +61,35 @@ def test_calibrate_prints_a_short_table_unless_asked(cli):
     assert code == 0 and "more rows" not in out_all
     rows = [ln for ln in out_all.splitlines() if ln[:14].strip().replace(".", "", 1).isdigit()]
     assert len(rows) == 400
+
+
+def test_stage_bar_names_the_running_stage_on_a_terminal(monkeypatch):
+    """gcode and precision show their stages (after the delay), nothing when quick or off a terminal."""
+    import io
+    import sys
+    import time
+
+    from fabkit.commands._common import stage_bar
+
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
+
+    term = Terminal()
+    monkeypatch.setattr(sys, "stderr", term)
+    step, close = stage_bar(3, False, "gcode", delay=0.2)
+    step("planning the passes")
+    time.sleep(0.5)
+    step("writing the program")
+    close()
+    shown = term.getvalue()
+    assert "gcode: 1/3 stages" in shown and "writing the program" in shown
+    quick = Terminal()
+    monkeypatch.setattr(sys, "stderr", quick)
+    step, close = stage_bar(3, False, "gcode", delay=30)
+    step("planning the passes")
+    close()
+    assert "stages" not in quick.getvalue()
+    step, close = stage_bar(3, True, "gcode")     # --no-progress
+    step("x")
+    close()

@@ -93,25 +93,45 @@ def warn(message: str) -> None:
     sys.stderr.write(f"warning: {message}\n")
 
 
-def stage_bar(total: int, disabled: bool, desc: str):
-    """A tqdm bar of named stages on stderr (terminal only, shown after 2 s), for commands
-    whose work is a few long steps; returns (step(name), close). Each ``step`` call
-    completes the previous stage and names the one that starts."""
+def stage_bar(total: int, disabled: bool, desc: str, delay: float = 2.0):
+    """A tqdm bar of named stages on stderr, for commands whose work is a few long steps
+    (gcode, precision); returns (step(name), close). Each ``step`` call completes the
+    previous stage and names the one that starts. Shown on a terminal only, once the
+    command has run ``delay`` s, then redrawn every second (the clock keeps moving
+    through a long stage)."""
     if disabled or not sys.stderr.isatty():
         return (lambda _name: None), (lambda: None)
     from tqdm import tqdm
 
-    bar = tqdm(total=max(1, int(total)), desc=desc, unit="stage", file=sys.stderr, delay=2.0, leave=False,
-               bar_format="{desc}: {n_fmt}/{total_fmt} stages |{bar}| {elapsed} {postfix}")
+    bar = tqdm(total=max(1, int(total)), desc=desc, unit="stage", file=sys.stderr, delay=delay, leave=False,
+               bar_format="{desc}: {n_fmt}/{total_fmt} stages |{bar}| {elapsed}{postfix}")
+    t0 = time.monotonic()
     started = [False]
+    done = threading.Event()
+
+    def shown() -> bool:
+        return time.monotonic() - t0 >= delay
 
     def step(name: str) -> None:
         if started[0] and bar.n < bar.total:
-            bar.update(1)
+            bar.update(1)            # tqdm itself draws nothing before its delay
         started[0] = True
-        bar.set_postfix_str(str(name))
+        bar.set_postfix_str(str(name), refresh=shown())
 
-    return step, bar.close
+    def tick() -> None:
+        if done.wait(delay):
+            return
+        while not done.is_set():
+            bar.refresh()
+            done.wait(1.0)
+
+    threading.Thread(target=tick, daemon=True, name="fabkit-stage-bar").start()
+
+    def close() -> None:
+        done.set()
+        bar.close()
+
+    return step, close
 
 
 def progress_bar(total: int, disabled: bool, desc: str):

@@ -171,34 +171,35 @@ def _needs_markdown(sheet: dict) -> list[str]:
     k = MM_PER_INCH if u == "in" else 1.0     # program units -> mm, for the grbl comparison
     g = sheet.get("grbl_defaults", GRBL_DEFAULTS)
 
-    def cmp(v, limit_mm):
-        if v is None:
-            return ""
-        return " (above grbl's default)" if v * k > limit_mm * (1 + 1e-9) else ""
+    def cmp(v_mm, limit_mm):
+        return " (above grbl's default)" if v_mm is not None and v_mm > limit_mm * (1 + 1e-9) else ""
 
-    def f(v):
-        return "none" if v is None else f"{v:g}"
+    def f(v, per=""):
+        """A need in program units, with its mm figure for an inch program."""
+        if v is None:
+            return "none"
+        return f"{v:g} {u}{per}" + (f" ({v * k:.4g} mm{per})" if u != "mm" else "")
 
     rates, travel = need["axis_rate_max"], need["travel"]
-    mm = "" if u == "mm" else " ({:g} mm)"
+    top_rate = max((v for v in rates.values() if v is not None), default=None)
     lines = ["## What the machine must do", "",
              "Compare with the machine's settings before running (grbl: `$$`; LinuxCNC: the INI's "
              "MAX_VELOCITY and axis limits).", "",
-             f"- Largest feed F {f(need['feed_max'])} {u}/min{cmp(need['feed_max'], g['max_rate_mm_min'])}; "
-             f"largest plunge F {f(need['plunge_max'])} {u}/min",
-             f"- Largest axis speed in a feed move: X {f(rates['x'])}, Y {f(rates['y'])}, Z {f(rates['z'])} "
-             f"{u}/min{cmp(max((v for v in rates.values() if v is not None), default=None), g['max_rate_mm_min'])}",
-             f"- Travel: X {f(travel['x'])}, Y {f(travel['y'])}, Z {f(travel['z'])} {u}"
-             + (mm.format(max(travel.values()) * k) if mm else "")
-             + cmp(max(travel.values()), g["max_travel_mm"]),
-             f"- Spindle {f(need['spindle_rpm'])} rpm{cmp(need['spindle_rpm'] / k, g['spindle_max_rpm'])}",
+             f"- Largest feed F {f(need['feed_max'], '/min')}"
+             f"{cmp(need['feed_max'] and need['feed_max'] * k, g['max_rate_mm_min'])}; "
+             f"largest plunge F {f(need['plunge_max'], '/min')}",
+             f"- Largest axis speed in a feed move: X {f(rates['x'], '/min')}, Y {f(rates['y'], '/min')}, "
+             f"Z {f(rates['z'], '/min')}{cmp(top_rate and top_rate * k, g['max_rate_mm_min'])}",
+             f"- Travel: X {f(travel['x'])}, Y {f(travel['y'])}, Z {f(travel['z'])}"
+             + cmp(max(travel.values()) * k, g["max_travel_mm"]),
+             f"- Spindle {need['spindle_rpm']:g} rpm{cmp(need['spindle_rpm'], g['spindle_max_rpm'])}",
              f"- Program ends parked at X{sheet['park'][0]:g} Y{sheet['park'][1]:g} at the safe height",
              "",
              f"grbl 1.1's defaults for comparison: max rates $110-$112 {g['max_rate_mm_min']:g} mm/min, "
              f"max spindle $30 {g['spindle_max_rpm']:g} rpm, max travel $130-$132 {g['max_travel_mm']:g} mm.",
              ""]
     if sheet.get("tool_number") is not None:
-        lines.insert(5, f"- Tool T{sheet['tool_number']}"
+        lines.insert(4, f"- Tool T{sheet['tool_number']}"
                      + (": the program calls T M6 G43 H (tool change and length offset)"
                         if sheet["dialect"] == "linuxcnc" else ": load it by hand before the start (grbl has no M6)"))
     return lines
