@@ -34,6 +34,21 @@ class _UsageError(Exception):
     pass
 
 
+EXIT_CODES = """exit codes:
+    0  ok
+    1  a check failed: design unsafe, verified cut out of tolerance (outputs still written for inspection)
+    2  bad input: file, YAML, key, value, option or output path (one line naming it; nothing written)
+    3  internal error: a bug, please report it (FABKIT_DEBUG=1 shows the traceback)
+  130  interrupted (Ctrl-C): existing outputs left intact
+
+units: speeds are in the spec's design units per second (units: mm | cm | in), heights and
+lengths of the surface, ball, ramp and simulation in design units, machining lengths in mm.
+`fabkit COMMAND --help` describes each command's options."""
+
+PLOT = ("write the figure to FILE; the format follows the extension (.png, .pdf, .svg, .jpg, .tif, .webp, "
+        ".eps, .ps; none: png)")
+
+
 def _float_list(n):
     return {"nargs": n, "type": float}
 
@@ -41,7 +56,7 @@ def _float_list(n):
 def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog="fabkit", description="From a surface formula to a milled block: STL, verified "
                 "ball-end G-code, ramp calibration and a rolling-ball simulator.",
-                epilog="Exit codes: 0 ok, 1 a check failed, 2 bad input, 130 interrupted.")
+                epilog=EXIT_CODES, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--version", action="version", version=f"fabkit {__version__}")
     sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
 
@@ -60,23 +75,27 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("-o", "--output", metavar="PATH", help="output program (default toolpaths/<name>.ngc)")
     c.add_argument("--no-verify", action="store_true", help="skip the built-in cut verification")
     c.add_argument("--json", action="store_true", help="print the summary as JSON")
+    c.add_argument("--no-progress", action="store_true", help="no progress bar")
 
     c = cmd("calibrate", "map ramp release height to entry speed v_in (rolling, energy)")
     c.add_argument("--height", type=float, nargs="+", metavar="H", help="heights to convert (design units)")
     c.add_argument("--v-in", type=float, nargs="+", metavar="V", dest="v_in",
                    help="entry speeds to convert back to heights (design units/s)")
+    c.add_argument("--all", action="store_true", help="print every row of the table (default: a few rows and "
+                   "the range; --json always has every row)")
     c.add_argument("--json", action="store_true", help="print JSON")
 
     c = cmd("simulate", "simulate one launch")
-    c.add_argument("--v-in", type=float, required=True, metavar="V", dest="v_in", help="entry speed")
+    c.add_argument("--v-in", type=float, required=True, metavar="V", dest="v_in",
+                   help="entry speed of the ball, design units/s (the spec's units per second)")
     c.add_argument("--json", action="store_true", help="print JSON")
-    c.add_argument("--plot", metavar="PNG", help="write x(t), y(t) with bounces marked")
+    c.add_argument("--plot", metavar="FILE", help="x(t), y(t) with the bounces marked: " + PLOT)
 
     c = cmd("sweep", "v_out against v_in, v_critical, two-bounce windows (the paper's Fig. 1)")
     c.add_argument("--v-in", metavar=("LO", "HI", "N"), dest="v_in", **_float_list(3),
-                   help="speeds to launch (default: the ramp's range)")
+                   help="N entry speeds from LO to HI, design units/s (default: the ramp's heights calibrated)")
     c.add_argument("--json", action="store_true", help="print JSON")
-    c.add_argument("--plot", metavar="PNG", help="write v_out against v_in")
+    c.add_argument("--plot", metavar="FILE", help="v_out against v_in by outcome, v_critical marked: " + PLOT)
     c.add_argument("--no-progress", action="store_true", help="no progress bar")
 
     c = cmd("check", "pre-fabrication check: the ball stays on the milled surface for every ramp height")
@@ -85,32 +104,44 @@ def build_parser() -> argparse.ArgumentParser:
 
     c = cmd("precision", "work-precision data: error against run time for simulator, toolpath and mesh")
     c.add_argument("--json", action="store_true", help="print JSON")
-    c.add_argument("--plot", metavar="PNG", help="write error against time, log-log")
+    c.add_argument("--plot", metavar="FILE", help="simulator error against wall time, log-log: " + PLOT)
     c.add_argument("--quick", action="store_true", help="fewer tolerances and launches")
+    c.add_argument("--no-progress", action="store_true", help="no progress bar")
 
     c = cmd("explore", "a grid of designs over spec keys: v_critical, windows, safety per design")
     c.add_argument("--vary", action="append", default=[], metavar="KEY=LO:HI:N",
                    help="a spec key and its grid, e.g. surface.params.eps=0.1:0.4:4 (repeatable)")
-    c.add_argument("--v-in", metavar=("LO", "HI", "N"), dest="v_in", **_float_list(3))
-    c.add_argument("--scheduler", metavar="ADDRESS", help="Dask scheduler, e.g. tcp://127.0.0.1:8786")
-    c.add_argument("--out", metavar="FILE", help="per-launch rows (.parquet or .csv)")
+    c.add_argument("--v-in", metavar=("LO", "HI", "N"), dest="v_in", **_float_list(3),
+                   help="N entry speeds from LO to HI per design, design units/s (default: the ramp's "
+                   "heights calibrated)")
+    c.add_argument("--scheduler", metavar="ADDRESS", help="Dask scheduler address, e.g. tcp://127.0.0.1:8786 "
+                   "(default: run in this process)")
+    c.add_argument("--out", metavar="FILE", help="write one row per launch (design, keys, v_in, outcome, "
+                   "bounces, v_out) to FILE: .csv, or .parquet with pyarrow")
     c.add_argument("--json", action="store_true", help="print JSON")
-    c.add_argument("--plot", metavar="PNG")
+    c.add_argument("--plot", metavar="FILE", help="v_critical and two-bounce windows against the first "
+                   "varied key: " + PLOT)
     c.add_argument("--chunk", type=int, default=None, metavar="N",
                    help="launches per Dask task (default: each batch split over the cluster's "
                    "threads; results do not depend on it)")
     c.add_argument("--no-progress", action="store_true", help="no progress bar")
 
     c = cmd("robustness", "Monte Carlo over the launch's transverse offset and velocity")
-    c.add_argument("--v-in", metavar=("LO", "HI", "N"), dest="v_in", required=True, **_float_list(3))
-    c.add_argument("--sigma-y", type=float, required=True, metavar="S", dest="sigma_y")
-    c.add_argument("--sigma-vy", type=float, required=True, metavar="S", dest="sigma_vy")
-    c.add_argument("--samples", type=int, required=True, metavar="M")
+    c.add_argument("--v-in", metavar=("LO", "HI", "N"), dest="v_in", required=True, **_float_list(3),
+                   help="N entry speeds from LO to HI, design units/s")
+    c.add_argument("--sigma-y", type=float, required=True, metavar="S", dest="sigma_y",
+                   help="standard deviation of the launch's transverse offset y0, design units (0: none)")
+    c.add_argument("--sigma-vy", type=float, required=True, metavar="S", dest="sigma_vy",
+                   help="standard deviation of the launch's transverse velocity vy0, design units/s (0: none)")
+    c.add_argument("--samples", type=int, required=True, metavar="M",
+                   help="random launches per entry speed (a count; the nominal launch is added)")
     c.add_argument("--seed", type=int, default=0, help="random seed (default 0: results are reproducible)")
-    c.add_argument("--scheduler", metavar="ADDRESS")
-    c.add_argument("--out", metavar="FILE")
-    c.add_argument("--json", action="store_true")
-    c.add_argument("--plot", metavar="PNG")
+    c.add_argument("--scheduler", metavar="ADDRESS", help="Dask scheduler address, e.g. tcp://127.0.0.1:8786 "
+                   "(default: run in this process)")
+    c.add_argument("--out", metavar="FILE", help="write one row per launch (v_in, sample, y0, vy0, outcome, bounces, "
+                   "v_out) to FILE: .csv, or .parquet with pyarrow")
+    c.add_argument("--json", action="store_true", help="print JSON")
+    c.add_argument("--plot", metavar="FILE", help="probability of each outcome against v_in: " + PLOT)
     c.add_argument("--chunk", type=int, default=None, metavar="N",
                    help="launches per Dask task (default: each batch split over the cluster's "
                    "threads; results do not depend on it)")

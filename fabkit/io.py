@@ -6,18 +6,118 @@ then renamed over the target (``os.replace`` is atomic on POSIX). Several
 outputs of one command (a program and its setup sheet) are renamed together
 at the end, so an error, Ctrl-C or crash before that leaves every existing
 output intact and no temporary file behind.
+
+Modes: a new file gets ``0666`` less the umask, as ``open()`` would give it; a
+replaced file keeps its mode (a program another user's machine controller reads
+stays readable). :func:`check_outputs` refuses, before any work, an output that
+is one of the inputs, is not a regular file, names a folder, or lies under a
+path that cannot become a folder.
 """
 
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
 import signal
+import stat
 import tempfile
 import threading
 from pathlib import Path
 
 from .errors import SpecError
+
+
+#: characters of the target's name kept in the temporary name (at most 4 bytes each; the rest is
+#: ".", 8 random characters and ".tmp"): a temporary name stays within NAME_MAX
+#: (255 bytes) whatever the target's name
+_TMP_NAME_KEEP = 48
+
+
+def _umask() -> int:
+    """The process umask, read without changing it where the kernel tells it."""
+    try:
+        with open("/proc/self/status", encoding="ascii") as fh:
+            for line in fh:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError):
+        pass
+    old = os.umask(0o022)
+    os.umask(old)
+    return old
+
+
+def _mode_for(target: Path) -> int:
+    """Permission bits for ``target``: those of the file it replaces, else 0666 less the umask."""
+    try:
+        st = os.stat(target)
+    except OSError:
+        return 0o666 & ~_umask()
+    return stat.S_IMODE(st.st_mode)
+
+
+def _real_target(target: Path) -> Path:
+    """A symlink is written through (the link stays, its file is replaced)."""
+    return Path(os.path.realpath(target)) if target.is_symlink() else target
+
+
+def check_outputs(outputs: dict, inputs=()) -> None:
+    """Refuse bad output paths before any work (SpecError, exit 2, nothing written).
+
+    ``outputs``: {option or description: path or None}; ``inputs``: paths read by the
+    command. An output is refused when it is one of the inputs or another output,
+    exists and is not a regular file (folder, device, pipe, socket), its folder
+    cannot be created (a file in the way) or written, or its name is too long.
+    """
+    seen: dict = {}
+    ins = [Path(p) for p in inputs if p is not None]
+    for key, path in outputs.items():
+        if path is None:
+            continue
+        target = Path(path)
+        shown = str(target)
+        real = os.path.realpath(target)
+        for src in ins:
+            same = os.path.realpath(src) == real
+            with contextlib.suppress(OSError):
+                same = same or os.path.samefile(src, target)
+            if same:
+                raise SpecError(f"output {shown} is the input {src}: choose another output path", key=key)
+        if real in seen:
+            raise SpecError(f"output {shown} is also given for {seen[real]}", key=key)
+        seen[real] = key
+        try:
+            st = os.stat(target)
+        except (FileNotFoundError, NotADirectoryError):
+            st = None
+        except OSError as exc:
+            if exc.errno == errno.ENAMETOOLONG:
+                raise SpecError("file name too long for the file system (at most 255 bytes per name)",
+                                file=shown, key=key) from None
+            raise SpecError(f"cannot use output {shown}: {exc.strerror}", key=key) from None
+        if st is not None:
+            if stat.S_ISDIR(st.st_mode):
+                raise SpecError("output path is a folder", file=shown, key=key)
+            if not stat.S_ISREG(st.st_mode):
+                raise SpecError("output path exists and is not a regular file (a device, pipe or socket); "
+                                "fabkit replaces only regular files", file=shown, key=key)
+        directory = Path(real).parent
+        existing = directory
+        while not existing.exists() and existing != existing.parent:
+            existing = existing.parent
+        if not existing.is_dir():
+            raise SpecError(f"cannot create output folder {directory}: {existing} is not a folder",
+                            file=shown, key=key)
+        if not os.access(existing, os.W_OK | os.X_OK):
+            raise SpecError(f"cannot write in {existing}: permission denied", file=shown, key=key)
+        try:
+            limit = os.pathconf(existing, "PC_NAME_MAX")
+        except (OSError, ValueError):
+            limit = 255
+        for part in Path(real).relative_to(existing).parts:
+            if len(os.fsencode(part)) > limit:
+                raise SpecError(f"file name longer than {limit} bytes", file=shown, key=key)
 
 
 class _Outputs:
@@ -26,7 +126,7 @@ class _Outputs:
 
     def write(self, path: str | os.PathLike, data: bytes | str) -> Path:
         """Stage ``data`` for ``path``; it appears there when the block exits cleanly."""
-        target = Path(path)
+        target = _real_target(Path(path))
         if isinstance(data, str):
             data = data.encode("utf-8")
         directory = target.parent if str(target.parent) else Path(".")
@@ -36,12 +136,15 @@ class _Outputs:
             raise SpecError(f"cannot create output folder: {exc.strerror}", file=str(directory)) from None
         if target.is_dir():
             raise SpecError("output path is a folder", file=str(target))
+        if target.exists() and not target.is_file():
+            raise SpecError("output path exists and is not a regular file", file=str(target))
         try:
-            fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=directory)
+            fd, tmp = tempfile.mkstemp(prefix=f".{target.name[:_TMP_NAME_KEEP]}.", suffix=".tmp", dir=directory)
         except OSError as exc:
             raise SpecError(f"cannot write output: {exc.strerror}", file=str(target)) from None
         self._pending.append((tmp, target))
         with os.fdopen(fd, "wb") as fh:
+            os.fchmod(fh.fileno(), _mode_for(target))   # mkstemp gives 0600
             fh.write(data)
             fh.flush()
             os.fsync(fh.fileno())

@@ -1,6 +1,9 @@
-"""Matplotlib figures (Agg), returned as PNG bytes; the caller writes them atomically.
+"""Matplotlib figures (Agg), returned as bytes; the caller writes them atomically.
 
 Imported only when a plot is asked for. A flat module of functions, one per figure.
+Each takes ``fmt``: the file format the output's extension names (png, pdf, svg,
+jpg, ...; see :data:`fabkit.commands._common.PLOT_FORMATS`); metadata that would
+carry a date is left out, so the same data gives the same bytes.
 """
 
 from __future__ import annotations
@@ -19,9 +22,17 @@ def _figure(**kw):
     return plt, plt.figure(**kw)
 
 
-def _png(plt, fig) -> bytes:
+#: metadata that would change from run to run or name the software version, per format
+_NO_STAMP = {"png": {"Software": None}, "pdf": {"CreationDate": None, "Producer": None, "Creator": None},
+             "svg": {"Date": None, "Creator": None}, "eps": {"CreationDate": None, "Creator": None},
+             "ps": {"CreationDate": None, "Creator": None}}
+
+
+def _png(plt, fig, fmt: str = "png") -> bytes:
+    """The figure as bytes in ``fmt`` (the name is historical: png by default)."""
+    fmt = {"jpeg": "jpg", "tif": "tiff"}.get(fmt, fmt)
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=120, metadata={"Software": None})
+    fig.savefig(buf, format=fmt, dpi=120, metadata=_NO_STAMP.get(fmt))
     plt.close(fig)
     return buf.getvalue()
 
@@ -47,7 +58,7 @@ def hermite_samples(traj: dict, n: int = 2000) -> dict:
             "vx": herm(traj["vx"], traj["ax"]), "vy": herm(traj["vy"], traj["ay"])}
 
 
-def trajectory_png(traj: dict, summary: dict, *, title: str = "", units: str = "") -> bytes:
+def trajectory_png(traj: dict, summary: dict, *, title: str = "", units: str = "", fmt: str = "png") -> bytes:
     """x(t) and y(t) of one launch with its bounces marked (the paper's trajectory figure)."""
     plt, fig = _figure(figsize=(8, 5.5))
     d = hermite_samples(traj) if traj else {"t": np.zeros(1), "x": np.zeros(1), "y": np.zeros(1)}
@@ -62,64 +73,97 @@ def trajectory_png(traj: dict, summary: dict, *, title: str = "", units: str = "
     ax2.set_ylabel(f"y ({units})" if units else "y")
     ax2.set_xlabel("t (s)")
     out = summary.get("outcome", "")
-    extra = f", v_out = {summary['v_out']:.4g}" if out == "escaped" else ""
+    extra = f", v_out = {summary['v_out']:.4g} {units + '/s' if units else ''}".rstrip() if out == "escaped" else ""
     ax1.set_title(f"{title}\n{out}, {summary.get('bounces', 0)} bounce(s){extra}", fontsize=10)
     if summary.get("bounce_times"):
         ax1.legend(loc="best", fontsize=8)
     for a in (ax1, ax2):
         a.grid(alpha=0.3)
     fig.tight_layout()
-    return _png(plt, fig)
+    return _png(plt, fig, fmt)
 
 
-def sweep_figure(result: dict, title: str = "") -> bytes:
-    """PNG bytes: v_out against v_in coloured by bounce count, v_critical marked."""
-    import matplotlib
+#: one marker and colour per outcome of a launch that does not escape (escaped
+#: launches are coloured by bounce count); the same everywhere a figure shows outcomes
+OUTCOME_STYLE = {"captured": ("x", "black"), "flew_off": ("^", "tab:orange"),
+                 "lost_contact": ("v", "tab:cyan")}
+BOUNCE_COLOURS = {1: "black", 2: "tab:blue", 3: "tab:green", 4: "tab:red"}
+MANY_BOUNCES = "tab:brown"
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
+def sweep_figure(result: dict, title: str = "", *, units: str = "", fmt: str = "png") -> bytes:
+    """v_out against v_in (the paper's Fig. 1 for the apparatus): escaped launches
+    coloured by bounce count; below, on the same v_in axis, one row per outcome
+    without a v_out (captured, flew_off, lost_contact), each its own marker;
+    v_critical marked with its value, error and unit."""
+    plt, fig = _figure(figsize=(8.5, 5), dpi=120)
+    vu = f"{units}/s" if units else "design units/s"
     v = np.asarray(result["v_in"], dtype=float)
     vo = np.asarray([np.nan if x is None else x for x in result["v_out"]], dtype=float)
     nb = np.asarray(result["bounces"])
-    esc = np.array([o == "escaped" for o in result["outcome"]])
-    colors = {1: "black", 2: "tab:blue", 3: "tab:green", 4: "tab:red"}
-    fig, ax = plt.subplots(figsize=(7, 4), dpi=120)
+    outcome = np.asarray(result["outcome"], dtype=object)
+    esc = outcome == "escaped"
+    other = sorted(set(outcome[~esc].tolist()),
+                   key=lambda o: list(OUTCOME_STYLE).index(o) if o in OUTCOME_STYLE else 99)
+    if other:
+        gs = fig.add_gridspec(2, 1, height_ratios=[5, 0.5 + 0.35 * len(other)], hspace=0.08)
+        ax = fig.add_subplot(gs[0])
+        strip = fig.add_subplot(gs[1], sharex=ax)
+    else:
+        ax, strip = fig.add_subplot(1, 1, 1), None
     for n in sorted(set(nb[esc].tolist())):
         m = esc & (nb == n)
-        ax.plot(v[m], vo[m], ".", ms=3, color=colors.get(n, "tab:gray"),
-                label=f"{n} bounce{'s' if n > 1 else ''}" if n <= 4 else None)
+        label = f"escaped after {n} bounce{'s' if n != 1 else ''}" if n <= 4 else None
+        ax.plot(v[m], vo[m], "o", ms=2.5, color=BOUNCE_COLOURS.get(n, MANY_BOUNCES), label=label)
     if (esc & (nb > 4)).any():
-        ax.plot([], [], ".", color="tab:gray", label="5+ bounces")
-    lost = ~esc
-    if lost.any():
-        ax.plot(v[lost], np.zeros(lost.sum()), "|", color="0.6", ms=6, label="captured / off")
+        ax.plot([], [], "o", ms=2.5, color=MANY_BOUNCES, label="escaped after 5+ bounces")
+    handles = []
+    for k, o in enumerate(other):
+        m = outcome == o
+        marker, colour = OUTCOME_STYLE.get(o, ("s", "tab:olive"))
+        strip.plot(v[m], np.full(m.sum(), k), marker, ms=4, color=colour, ls="none")
+        handles.append(ax.plot([], [], marker, ms=4, color=colour, ls="none",
+                               label=f"{o.replace('_', ' ')} ({m.sum()} launches, no v_out: lower panel)")[0])
     vc = result.get("v_critical")
     if vc is not None:
-        ax.axvline(vc, color="tab:orange", lw=1, ls="--", label=f"v_critical {vc:.4f}")
-    ax.set_xlabel("v_in")
-    ax.set_ylabel("v_out")
+        err = result.get("v_critical_error")
+        pm = f" ± {err:.1e}" if err else ""
+        for a in (ax, strip) if strip is not None else (ax,):
+            a.axvline(vc, color="tab:orange", lw=1, ls="--",
+                      label=f"v_critical = {vc:.5g}{pm} {vu}" if a is ax else None)
+    ax.set_ylabel(f"v_out, exit speed ({vu})")
+    xlabel = f"v_in, entry speed ({vu})"
+    if strip is not None:
+        strip.set_yticks(range(len(other)), [o.replace("_", " ") for o in other], fontsize=8)
+        strip.set_ylim(-0.6, len(other) - 0.4)
+        strip.set_xlabel(xlabel)
+        strip.grid(alpha=0.3, axis="x")
+        ax.tick_params(labelbottom=False)
+    else:
+        ax.set_xlabel(xlabel)
     if title:
-        ax.set_title(title)
-    ax.legend(fontsize=7, loc="upper left")
+        ax.set_title(title, fontsize=10)
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
     ax.grid(alpha=0.3)
-    buf = io.BytesIO()
-    fig.tight_layout()
-    fig.savefig(buf, format="png", metadata={"Software": None})
-    plt.close(fig)
-    return buf.getvalue()
+    fig.subplots_adjust(left=0.09, right=0.64, top=0.93, bottom=0.1)
+    return _png(plt, fig, fmt)
 
 
-def explore_figure(result: dict, keys: list[str], *, title: str = "", units: str = "") -> bytes:
+def explore_figure(result: dict, keys: list[str], *, title: str = "", units: str = "", fmt: str = "png") -> bytes:
     """PNG bytes for ``fabkit explore``: v_critical (with its error bar) and the
     two-bounce windows (vertical bars lo..hi) against the first varied key, one
-    series per value of the other keys; filled markers safe, hollow unsafe."""
+    series per value of the other keys; filled markers safe, hollow unsafe. A design
+    without a v_critical is a triangle at the bottom of the upper panel; a panel with
+    nothing to show says why."""
     plt, fig = _figure(figsize=(8, 6))
     ax1 = fig.add_subplot(2, 1, 1)
     ax2 = fig.add_subplot(2, 1, 2, sharex=ax1)
     designs = [d for d in result["designs"] if "error" not in d]
     xkey = keys[0] if keys else None
     series: dict = {}
+    all_x: list = []
+    missing = False
+    bottom = ax1.get_xaxis_transform()          # x in data, y in axes fraction
     for i, d in enumerate(designs):
         rest = tuple((kk, d["params"][kk]) for kk in keys[1:])
         series.setdefault(rest, []).append((i, d))
@@ -132,7 +176,13 @@ def explore_figure(result: dict, keys: list[str], *, title: str = "", units: str
             xs = list(range(len(xs)))
         vc = [np.nan if d["v_critical"] is None else d["v_critical"] for _, d in items]
         ax1.plot(xs, vc, "-", color=color, lw=0.8, label=label)
+        all_x += list(xs)
         for x, (_, d), y in zip(xs, items, vc):
+            if d["v_critical"] is None:
+                missing = True
+                ax1.plot([x], [0.04], "^", color=color, mfc=color if d["safe"] else "white", ms=7,
+                         transform=bottom, clip_on=False)
+                continue
             ax1.errorbar([x], [y], yerr=[d.get("v_critical_error") or 0.0], fmt="o", color=color,
                          mfc=color if d["safe"] else "white", ms=6)
             for w in d["windows"]:
@@ -142,16 +192,30 @@ def explore_figure(result: dict, keys: list[str], *, title: str = "", units: str
     ax1.set_ylabel(f"v_critical ({units}/s)" if units else "v_critical")
     ax2.set_ylabel(f"2-bounce windows, v_in ({units}/s)" if units else "2-bounce windows")
     ax2.set_xlabel(xkey or "design")
-    ax1.set_title((title + "\n" if title else "") + "filled: safe, hollow: unsafe", fontsize=10)
+    if all_x:
+        lo, hi = float(min(all_x)), float(max(all_x))
+        pad = 0.05 * (hi - lo) if hi > lo else max(abs(lo) * 0.05, 0.5)
+        ax1.set_xlim(lo - pad, hi + pad)
+    ax1.set_title((title + "\n" if title else "") + "filled: safe, hollow: unsafe"
+                  + ("; triangle at the bottom: no v_critical" if missing else ""), fontsize=10)
     if len(series) > 1:
         ax1.legend(fontsize=7, loc="best")
+    note = dict(transform=None, ha="center", va="center", fontsize=9, color="0.3", wrap=True)
+    if not any(d["v_critical"] is not None for d in designs):
+        reasons = sorted({str(d.get("v_critical_reason") or "") for d in designs} - {""})
+        ax1.text(0.5, 0.5, "no v_critical in this grid" + (f":\n{reasons[0]}" if reasons else ""),
+                 **{**note, "transform": ax1.transAxes})
+        ax1.set_yticks([])
+    if not any(w["bounces"] == 2 for d in designs for w in d["windows"]):
+        ax2.text(0.5, 0.5, "no two-bounce window in this grid", **{**note, "transform": ax2.transAxes})
+        ax2.set_yticks([])
     for a in (ax1, ax2):
         a.grid(alpha=0.3)
     fig.tight_layout()
-    return _png(plt, fig)
+    return _png(plt, fig, fmt)
 
 
-def robustness_figure(result: dict, *, title: str = "", units: str = "") -> bytes:
+def robustness_figure(result: dict, *, title: str = "", units: str = "", fmt: str = "png") -> bytes:
     """PNG bytes for ``fabkit robustness``: stacked probabilities of each bounce
     count (escaped) and of capture / flying off against v_in, and the nominal
     (zero-scatter) bounce count on a second axis."""
@@ -160,11 +224,15 @@ def robustness_figure(result: dict, *, title: str = "", units: str = "") -> byte
     rows = result["rows"]
     v = np.array([r["v_in"] for r in rows], dtype=float)
     counts = sorted({int(b) for r in rows for b in r["p_bounces"]})
-    extra = ["tab:purple", "tab:brown", "tab:pink", "tab:olive", "tab:cyan"]
-    fixed = {1: "0.75", 2: "tab:blue", 3: "tab:green", 4: "tab:red"}
-    layers = [(f"{b} bounce{'s' if b > 1 else ''}", np.array([r["p_bounces"].get(str(b), 0.0) for r in rows]),
-               fixed.get(b, extra[b % len(extra)])) for b in counts]
-    for name, color in (("captured", "black"), ("flew_off", "tab:orange"), ("lost_contact", "tab:gray")):
+    # one colour per count up to 8, distinct from the outcomes' colours; 9 and more share a layer
+    colours = {1: "0.75", 2: "tab:blue", 3: "tab:green", 4: "tab:red", 5: "tab:purple", 6: "tab:brown",
+               7: "tab:pink", 8: "tab:olive"}
+    layers = [(f"escaped, {b} bounce{'s' if b > 1 else ''}",
+               np.array([r["p_bounces"].get(str(b), 0.0) for r in rows]), colours[b]) for b in counts if b <= 8]
+    if any(b > 8 for b in counts):
+        many = np.array([sum(p for b, p in r["p_bounces"].items() if int(b) > 8) for r in rows])
+        layers.append(("escaped, 9+ bounces", many, "#c5b0d5"))
+    for name, (_, color) in OUTCOME_STYLE.items():
         p = np.array([r["p_outcome"].get(name, 0.0) for r in rows])
         if p.any():
             layers.append((name.replace("_", " "), p, color))
@@ -188,24 +256,52 @@ def robustness_figure(result: dict, *, title: str = "", units: str = "") -> byte
     ax2.yaxis.set_major_locator(MaxNLocator(integer=True))
     ax2.set_ylim(0, (np.nanmax(nb) if np.isfinite(nb).any() else 1) + 1)
     ax.set_title((title + "\n" if title else "")
-                 + f"sigma_y {result['sigma_y']:g}, sigma_vy {result['sigma_vy']:g}, {result['samples']} samples",
+                 + f"sigma_y {result['sigma_y']:g} {units or 'design units'}, sigma_vy {result['sigma_vy']:g} "
+                 f"{units + '/s' if units else 'design units/s'}, {result['samples']} samples per speed",
                  fontsize=10)
     h1, l1 = ax.get_legend_handles_labels()
     h2, l2 = ax2.get_legend_handles_labels()
     ax.legend(h1 + h2, l1 + l2, fontsize=7, loc="upper left", bbox_to_anchor=(1.1, 1.0),
               ncol=1 if len(h1) + len(h2) <= 14 else 2)
     fig.tight_layout()
-    return _png(plt, fig)
+    return _png(plt, fig, fmt)
 
 
-def precision_png(sim_rows: list[dict], *, title: str = "", floor: float | None = None) -> bytes:
+def _place_labels(fig, ax, items, fontsize=6) -> None:
+    """Annotate points without overlap: ``items`` [(x, y, text, colour)] in data
+    coordinates; each label tries a few offsets around its point and is left out
+    (its point stays) when every offset overlaps a marker or a label already placed,
+    or leaves the axes."""
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+    frame = ax.get_window_extent(renderer)
+    from matplotlib.transforms import Bbox
+
+    # the markers themselves are obstacles too
+    placed = [Bbox.from_extents(px - 3, py - 3, px + 3, py + 3)
+              for px, py in ax.transData.transform([(x, y) for x, y, _, _ in items])] if items else []
+    for x, y, text, colour in items:
+        for dx, dy in ((4, 3), (4, -9), (-4, 3), (-4, -9), (4, 9), (4, -15)):
+            ann = ax.annotate(text, (x, y), textcoords="offset points", xytext=(dx, dy), fontsize=fontsize,
+                              color=colour, ha="left" if dx > 0 else "right")
+            box = ann.get_window_extent(renderer).expanded(1.05, 1.1)
+            inside = (frame.x0 <= box.x0 and box.x1 <= frame.x1 and frame.y0 <= box.y0 and box.y1 <= frame.y1)
+            if inside and not any(box.overlaps(b) for b in placed):
+                placed.append(box)
+                break
+            ann.remove()
+
+
+def precision_png(sim_rows: list[dict], *, title: str = "", floor: float | None = None,
+                  fmt: str = "png") -> bytes:
     """The work-precision diagram: error against wall time, log-log, one line per method
-    (points labelled with their rtol); ``floor`` marks the reference's own error bound
-    (errors near it are not resolved)."""
+    (points labelled with their rtol where the label does not overlap another);
+    ``floor`` marks the reference's own error bound (errors near it are not resolved)."""
     plt, fig = _figure(figsize=(7.5, 5))
     ax = fig.add_subplot(1, 1, 1)
     methods = list(dict.fromkeys(r["method"] for r in sim_rows))
     styles = {"fabkit": "-", "scipy": "--"}
+    labels = []
     for k, m in enumerate(methods):
         rows = [r for r in sim_rows if r["method"] == m and r.get("error") is not None
                 and r.get("seconds") is not None]
@@ -214,16 +310,21 @@ def precision_png(sim_rows: list[dict], *, title: str = "", floor: float | None 
         t = np.array([r["seconds"] for r in rows], dtype=float)
         e = np.maximum(np.array([r["error"] for r in rows], dtype=float), 1e-17)
         ax.loglog(t, e, styles.get(m.split(" ")[0], "-"), marker="o", ms=4, lw=1.3, color=f"C{k}", label=m)
-        for ti, ei, r in zip(t, e, rows):
-            ax.annotate(f"{r['rtol']:.0e}", (ti, ei), textcoords="offset points", xytext=(4, 3), fontsize=6,
-                        color=f"C{k}")
+        labels += [(ti, ei, f"rtol {r['rtol']:.0e}", f"C{k}") for ti, ei, r in zip(t, e, rows)]
     if floor:
         ax.axhline(floor, color="0.6", lw=0.8, ls=":", label="reference error bound")
     ax.set_xlabel("wall time for the launch set (s), best of several")
-    ax.set_ylabel("error: v_out and bounce times, relative")
+    ax.set_ylabel("error of v_out and bounce times (relative, dimensionless)")
     if title:
         ax.set_title(title, fontsize=10)
     ax.grid(alpha=0.3, which="both")
+    # ticks at 1, 2, 5 x 10^k written as plain numbers: no crowded minor labels
+    from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
+
+    ax.xaxis.set_major_locator(LogLocator(base=10, subs=(1.0, 2.0, 5.0)))
+    ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _pos: f"{v:g}"))
+    ax.xaxis.set_minor_formatter(NullFormatter())
     ax.legend(fontsize=8, loc="best")
     fig.tight_layout()
-    return _png(plt, fig)
+    _place_labels(fig, ax, labels)
+    return _png(plt, fig, fmt)

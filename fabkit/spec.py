@@ -114,6 +114,9 @@ SCHEMA: dict[str, dict[str, Any]] = {
         "shape": Choice(("ball",), default="ball"),
         "diameter": Num(gt=0, le=200, length="mm"),
         "reach": Num(default=None, gt=0, le=10_000, length="mm", doc="default: unlimited"),
+        "number": Num(default=None, ge=1, le=99_999, integer=True,
+                      doc="tool-table number: LinuxCNC gets T<n> M6 G43 H<n>; grbl (no M6) a comment. "
+                          "Default: no tool call"),
     },
     "machining": {
         "scallop": Num(default=0.05, gt=0, le=100, length="mm"),
@@ -130,6 +133,8 @@ SCHEMA: dict[str, dict[str, Any]] = {
         "leave": Num(default=0.5, ge=0, le=100, length="mm", doc="stock left by roughing for the finish pass"),
         "verify_points": Num(default=40000, ge=100, le=2_000_000, integer=True,
                              doc="points at which the cut is verified"),
+        "park": NumList(default=(0.0, 0.0), min_len=2, max_len=2, length="mm",
+                        doc="[X, Y] work mm where the program ends, at the safe height"),
     },
     "ball": {
         "diameter": Num(default=2.5, gt=0, le=1e6, length="design"),

@@ -61,14 +61,16 @@ def test_round_trip_through_reader(dialect, units):
     # every distinct point is reached, in order, within the rounding of one coordinate
     keep = np.r_[True, np.any(tp.points[1:] != tp.points[:-1], axis=1)]
     expected = tp.points[keep]
-    # after "G0 Z<safe>" and "G0 X Y" (the toolpath ends at the safe height: no extra retract)
-    got = prog.points[2:]
+    # after "G0 Z<safe>" and "G0 X Y" (the toolpath ends at the safe height: no extra retract),
+    # before the park move to X0 Y0
+    got = prog.points[2:-1]
+    np.testing.assert_allclose(prog.points[-1], [0, 0, 5.0], atol=prof.rounding_mm)
     assert got.shape == expected.shape
     np.testing.assert_allclose(got, expected, atol=prof.rounding_mm * (1 + 1e-9), rtol=0)
     assert prof.rounding_mm <= prof.tolerance / 20
     kinds = tp.kinds[keep]
-    np.testing.assert_array_equal(prog.kinds[2:], (kinds != RAPID).astype(int))
-    feed = prog.feed[2:]
+    np.testing.assert_array_equal(prog.kinds[2:-1], (kinds != RAPID).astype(int))
+    feed = prog.feed[2:-1]
     k = 25.4 if units == "in" else 1.0
     rounding = 0.5 * 10.0 ** -(3 if units == "in" else 1) * k
     np.testing.assert_allclose(feed[kinds == CUT], 2500, atol=rounding)
@@ -84,7 +86,7 @@ def test_structure_and_modal_words(dialect, units):
     lines = text.splitlines()
     code = [ln for ln in lines if not ln.startswith("(")]
     d = DIALECTS[dialect]
-    assert code[0].split() == ["G17", "G21" if units == "mm" else "G20", "G90", "G94"]
+    assert code[0].split() == ["G17", "G21" if units == "mm" else "G20", "G90", "G94", "G54"]
     assert "M3 S16000" in code and code[-2:] == ["M5", d.program_end]
     assert code.index("M3 S16000") < next(i for i, c in enumerate(code) if c.split()[0] == "G1")
     # header: comment block first, with the required items
@@ -115,8 +117,12 @@ def test_structure_and_modal_words(dialect, units):
 @pytest.mark.parametrize("units", ["mm", "in"])
 def test_grbl_subset(units):
     text = write_program(wavy_toolpath(), profile("grbl", units))
-    allowed = {"G0", "G1", "G17", "G20", "G21", "G90", "G94", "M3", "M5", "M2", "M30", "S", "F", "X", "Y", "Z"}
+    allowed = {"G0", "G1", "G17", "G20", "G21", "G90", "G94", "G54", "M3", "M5", "M2", "M30", "S", "F", "X", "Y",
+               "Z"}
     assert used_words(text) <= allowed
+    # a tool number: grbl (no M6, no tool table) gets a comment, never T/M6/G43
+    tooled = write_program(wavy_toolpath(), profile("grbl", units, tool_number=7))
+    assert used_words(tooled) <= allowed and "load T7 by hand" in tooled
     for ln in text.splitlines():
         assert len(ln) <= 70 and ln.isascii() and "%" not in ln
         if "(" in ln:
@@ -150,3 +156,58 @@ def test_linuxcnc_interpreter_reads_every_dialect(tmp_path, dialect, units):
     np.testing.assert_allclose(got[1:], ours[1:], atol=0.5e-4 * (25.4 if units == "in" else 1.0) + 1e-9)
     if dialect == "linuxcnc":
         assert "SET_MOTION_CONTROL_MODE" in run.stdout   # G64 P blending held to the tolerance
+
+
+@pytest.mark.skipif(RS274 is None, reason="LinuxCNC rs274 not installed")
+@pytest.mark.parametrize("units", ["mm", "in"])
+def test_linuxcnc_tool_call_work_offset_and_park(tmp_path, units):
+    """G54 before any motion, T7 M6 G43 H7 applying tool 7's length from the tool table,
+    and the program parked at (X, Y) at the safe height: as LinuxCNC's interpreter runs it."""
+    text = write_program(wavy_toolpath(2), profile("linuxcnc", units, tool_number=7, park=(-12.7, 25.4)))
+    code = [ln for ln in text.splitlines() if not ln.startswith("(")]
+    assert "G54" in code[0].split() and "T7 M6 G43 H7" in code
+    assert code.index("T7 M6 G43 H7") < code.index("M3 S16000")
+    (tmp_path / "tools.tbl").write_text("T7 P7 Z1.25 D0.25 ;ball end\n")   # machine units: inch without an INI
+    (tmp_path / "p.ngc").write_text(text)
+    run = subprocess.run([RS274, "-t", str(tmp_path / "tools.tbl"), "-g", str(tmp_path / "p.ngc")],
+                         stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=60)
+    assert run.returncode == 0 and run.stderr.strip() in ("", "executing"), run.stderr
+    out = run.stdout
+    assert "not found" not in out
+    k = 25.4 if units == "in" else 1.0
+    # tool 7's length from the table (1.25 in) is applied, in program units
+    offset = re.search(r"USE_TOOL_LENGTH_OFFSET\(([-0-9.]+) ([-0-9.]+) ([-0-9.]+)", out)
+    assert offset and float(offset.group(3)) * k == pytest.approx(1.25 * 25.4, abs=1e-3)
+    assert out.index("SELECT_TOOL(7)") < out.index("CHANGE_TOOL") < out.index("USE_TOOL_LENGTH_OFFSET") \
+        < out.index("STRAIGHT_FEED")
+    moves = re.findall(r"STRAIGHT_(FEED|TRAVERSE)\(([-0-9.]+), ([-0-9.]+), ([-0-9.]+)", out)
+    kind, *last = moves[-1]
+    assert kind == "TRAVERSE"
+    atol = 0.6e-4 * k       # rs274 prints 4 decimals of the program's unit
+    np.testing.assert_allclose(np.array(last, dtype=float) * k, [-12.7, 25.4, 5.0], atol=atol)
+    # the move before the park is the retract to the safe height at the last cut's X, Y
+    assert float(moves[-2][3]) * k == pytest.approx(5.0, abs=atol)
+
+
+def test_header_speaks_the_program_units():
+    """A G20 program's comments give tool, stock, scallop and tolerance in inches,
+    computed here from the millimetre inputs."""
+    from types import SimpleNamespace
+
+    from fabkit.toolpath.gcode import profile_from_spec
+
+    spec = SimpleNamespace(
+        path="specs/x.yaml", name="x", units="mm",
+        tool=SimpleNamespace(shape="ball", diameter=6.35, number=None),
+        stock=SimpleNamespace(thickness=50.8),
+        machining=SimpleNamespace(dialect="grbl", units="in", feed=1270, plunge=254, spindle=18000,
+                                  safe_height=5.08, tolerance=0.0254, scallop=0.127, park=(0.0, 0.0)))
+    surface = SimpleNamespace(stock_size_mm=(127.0, 76.2))
+    text = write_program(wavy_toolpath(), profile_from_spec(spec, surface))
+    header = " ".join(ln.strip("()") for ln in text.splitlines() if ln.startswith("("))
+    assert "diameter 0.25 in" in header
+    assert "5 x 3 x 2 in" in header
+    assert "scallop: 0.005 in" in header and "tolerance: 0.001 in" in header
+    assert "cut 50, plunge 10 in/min" in header and "safe height: Z0.2 in" in header
+    assert "stepover: 0.0486 in" in header                 # 1.234567 mm
+    assert "mm" not in header

@@ -19,6 +19,33 @@ def default_output(spec, suffix: str, given: str | None) -> Path:
     return Path(given) if given else DEFAULT_OUTPUT_DIR / f"{spec.name}{suffix}"
 
 
+#: figure formats by extension (matplotlib's Agg writes each); no extension: png
+PLOT_FORMATS = {".png": "png", ".pdf": "pdf", ".svg": "svg", ".jpg": "jpg", ".jpeg": "jpg", ".tif": "tiff",
+                ".tiff": "tiff", ".webp": "webp", ".eps": "eps", ".ps": "ps"}
+
+
+def plot_format(path, key: str = "--plot") -> str:
+    """The figure format ``path``'s extension names; SpecError (exit 2) for one fabkit cannot write."""
+    from ..errors import SpecError
+
+    suffix = Path(path).suffix.lower()
+    if not suffix:
+        return "png"
+    if suffix not in PLOT_FORMATS:
+        raise SpecError(f"cannot write a figure as '{suffix}' (use one of: {', '.join(PLOT_FORMATS)})", key=key)
+    return PLOT_FORMATS[suffix]
+
+
+def check_paths(args, outputs: dict) -> None:
+    """Refuse bad outputs before any work: :func:`fabkit.io.check_outputs` with the
+    spec as the input, and the figure format of ``--plot``."""
+    from ..io import check_outputs
+
+    check_outputs(outputs, inputs=[getattr(args, "spec", None)])
+    if outputs.get("--plot") is not None:
+        plot_format(outputs["--plot"])
+
+
 class Timer:
     def __init__(self) -> None:
         self.t0 = time.perf_counter()
@@ -64,6 +91,47 @@ def emit(summary_lines: list[str] | str, payload: dict | None, as_json: bool) ->
 
 def warn(message: str) -> None:
     sys.stderr.write(f"warning: {message}\n")
+
+
+def stage_bar(total: int, disabled: bool, desc: str, delay: float = 2.0):
+    """A tqdm bar of named stages on stderr, for commands whose work is a few long steps
+    (gcode, precision); returns (step(name), close). Each ``step`` call completes the
+    previous stage and names the one that starts. Shown on a terminal only, once the
+    command has run ``delay`` s, then redrawn every second (the clock keeps moving
+    through a long stage)."""
+    if disabled or not sys.stderr.isatty():
+        return (lambda _name: None), (lambda: None)
+    from tqdm import tqdm
+
+    bar = tqdm(total=max(1, int(total)), desc=desc, unit="stage", file=sys.stderr, delay=delay, leave=False,
+               bar_format="{desc}: {n_fmt}/{total_fmt} stages |{bar}| {elapsed}{postfix}")
+    t0 = time.monotonic()
+    started = [False]
+    done = threading.Event()
+
+    def shown() -> bool:
+        return time.monotonic() - t0 >= delay
+
+    def step(name: str) -> None:
+        if started[0] and bar.n < bar.total:
+            bar.update(1)            # tqdm itself draws nothing before its delay
+        started[0] = True
+        bar.set_postfix_str(str(name), refresh=shown())
+
+    def tick() -> None:
+        if done.wait(delay):
+            return
+        while not done.is_set():
+            bar.refresh()
+            done.wait(1.0)
+
+    threading.Thread(target=tick, daemon=True, name="fabkit-stage-bar").start()
+
+    def close() -> None:
+        done.set()
+        bar.close()
+
+    return step, close
 
 
 def progress_bar(total: int, disabled: bool, desc: str):

@@ -1,4 +1,7 @@
-"""``fabkit calibrate SPEC [--height H...] [--v-in V...] [--json]``: ramp height <-> entry speed."""
+"""``fabkit calibrate SPEC [--height H...] [--v-in V...] [--all] [--json]``: ramp height <-> entry speed.
+
+The table printed is short unless ``--all`` is given: the first and last rows
+(a few of each) and the number left out; JSON always has every row."""
 
 from __future__ import annotations
 
@@ -9,6 +12,9 @@ import numpy as np
 from ..errors import SpecError
 from ..spec import load_spec
 from ._common import Timer, emit
+
+#: rows printed at each end of a long table (without --all)
+SHOWN_AT_EACH_END = 4
 
 
 def _check(values, key):
@@ -40,7 +46,15 @@ def run(args) -> int:
     payload = {"heights": heights, "v_in": v_in, "g": g, "k": k, "units": units}
     lines = [f"calibrate: rolling without slipping, v_in = sqrt(2 g H / (1 + k)), g = {g:.6g} {units}/s^2, "
              f"k = {k:.6g}", f"{'H (' + units + ')':>14} {'v_in (' + units + '/s)':>16}"]
-    lines += [f"{h:14.6g} {v:16.8g}" for h, v in zip(heights, v_in)]
+    rows = [f"{h:14.6g} {v:16.8g}" for h, v in zip(heights, v_in)]
+    n_end = SHOWN_AT_EACH_END
+    if getattr(args, "all", False) or len(rows) <= 2 * n_end + 1:
+        lines += rows
+    else:
+        lines += rows[:n_end] + [f"{'...':>14} {'...':>16}   ({len(rows) - 2 * n_end} more rows; --all prints "
+                                 "every row)"] + rows[-n_end:]
+    lines.append(f"range: H {float(np.min(heights)):.6g} .. {float(np.max(heights)):.6g} {units}, v_in "
+                 f"{float(np.min(v_in)):.8g} .. {float(np.max(v_in)):.8g} {units}/s, {len(rows)} rows")
     if args.v_in:
         vv = _check(args.v_in, "--v-in")
         hh = _finite(height_from_v_in(vv, g, k), "--v-in", "release height")

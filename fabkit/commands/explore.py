@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import SpecError
-from ._common import Timer, emit, progress_bar
+from ._common import Timer, check_paths, emit, plot_format, progress_bar, warn
 
 
 def _fmt(x) -> str:
@@ -34,6 +34,7 @@ def run(args) -> int:
     varies = [parse_vary(t, spec) for t in args.vary]
     grid = design_grid(varies)
     v = speeds(spec, args.v_in) if args.v_in is not None else None
+    check_paths(args, {"--out": args.out, "--plot": args.plot})
     fmt = table_format(args.out)
     per = (len(v) if v is not None else 0) + (len(ramp_heights(spec)) if spec.has("ramp") else 0)
     cb, close = progress_bar(len(grid) * per, getattr(args, "no_progress", False), "explore")
@@ -48,6 +49,14 @@ def run(args) -> int:
         raise SpecError(f"no valid design: {bad[0]['error']}", key="--vary" if args.vary else None)
 
     u = spec.units
+    good = [d for d in designs if "error" not in d]
+    if good and all(d["v_critical"] is None for d in good):
+        reasons = sorted({str(d.get("v_critical_reason") or "unknown") for d in good})
+        warn(f"no design of the grid has a v_critical"
+             + (" (its panel in the figure is empty)" if args.plot else "") + ": "
+             + "; ".join(reasons[:3]) + (f"; and {len(reasons) - 3} other reasons" if len(reasons) > 3 else "")
+             + ". Widen --v-in (or the ramp's heights) so that the speeds straddle v_critical: launches "
+               "below it that do not escape after one bounce, launches above it that do")
     rows: dict = {}
     for i, d in enumerate(designs):
         g = d.pop("grid", None)
@@ -69,7 +78,7 @@ def run(args) -> int:
             from ..plots import explore_figure
 
             out.write(args.plot, explore_figure(res, [vv.key for vv in varies], title=f"{spec.name}: explore",
-                                                units=u))
+                                                units=u, fmt=plot_format(args.plot)))
 
     eng = res["engine"]
     where = (f"on {eng['scheduler']} ({eng['tasks']} tasks on {len(eng['workers'])} workers)"

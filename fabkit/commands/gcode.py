@@ -13,11 +13,11 @@ from __future__ import annotations
 import os
 from datetime import datetime, timezone
 
-from ..errors import DesignError, SpecError
+from ..errors import DesignError
 from ..io import atomic_outputs
 from ..spec import load_spec
 from ..surface import Surface, check_depth
-from ._common import Timer, default_output, emit, warn
+from ._common import Timer, check_paths, default_output, emit, stage_bar, warn
 
 NEEDS = ("surface", "stock", "tool", "machining")
 
@@ -59,11 +59,14 @@ def failures(check: dict, spec) -> list[str]:
 def run(args) -> int:
     from ..toolpath.gcode import profile_from_spec, write_program
     from ..toolpath.raster import plan_toolpath
-    from ..toolpath.setup import preview_png, setup_sheet, sheet_json, sheet_markdown, sheet_paths
-    from ..toolpath.verify import estimate_time, read_program, verify_cut
+    from ..toolpath.setup import sheet_paths
 
     total = Timer()
     spec = load_spec(args.spec, need=NEEDS, command="gcode")
+    out = default_output(spec, ".ngc", args.output)
+    paths = sheet_paths(out)
+    # refuse now, not after minutes of planning
+    check_paths(args, {"--output": out, **{f"--output (setup sheet .{k})": p for k, p in paths.items()}})
     surface = Surface.from_spec(spec)
     check_depth(spec, surface)
     R = spec.tool.diameter / 2.0
@@ -71,35 +74,45 @@ def run(args) -> int:
     if conc.z * spec.scale < R:
         warn(f"tool radius {R:g} mm is larger than the smallest concave radius {conc.z * spec.scale:.3g} mm "
              f"(at x={conc.x:.4g}, y={conc.y:.4g}): the tool bridges that valley and leaves material there")
-    out = default_output(spec, ".ngc", args.output)
-    paths = sheet_paths(out)
-    for p in (out, *paths.values()):
-        if p.is_dir():   # refuse now, not after minutes of planning
-            raise SpecError("output path is a folder", file=str(p))
 
-    t = Timer()
-    toolpath = plan_toolpath(spec, surface)
-    t_plan = t.seconds
+    step, close = stage_bar(3 if args.no_verify else 4, getattr(args, "no_progress", False), "gcode")
+    try:
+        step("planning the passes")
+        t = Timer()
+        toolpath = plan_toolpath(spec, surface)
+        t_plan = t.seconds
+        step("writing the program")
+        t = Timer()
+        profile = profile_from_spec(spec, surface)
+        text = write_program(toolpath, profile)
+        t_write = t.seconds
+        return _finish(args, spec, surface, toolpath, profile, text, out, paths, R, t_plan, t_write, total,
+                       step)
+    finally:
+        close()
 
-    t = Timer()
-    profile = profile_from_spec(spec, surface)
-    text = write_program(toolpath, profile)
-    t_write = t.seconds
+
+def _finish(args, spec, surface, toolpath, profile, text, out, paths, R, t_plan, t_write, total, step) -> int:
+    """Read the program back, verify it, write the program and its setup sheet, report."""
+    from ..toolpath.setup import preview_png, setup_sheet, sheet_json, sheet_markdown
+    from ..toolpath.verify import estimate_time, read_program, verify_cut
 
     t = Timer()
     program = read_program(text)
     est = estimate_time(program, profile.rapid)
     check = None
     if not args.no_verify:
+        step("verifying the cut")
         check = verify_cut(surface, program, R, spec.machining.verify_points,
                            depth_limit=spec.stock.depth_limit, reach=spec.tool.reach)
     t_verify = t.seconds
 
+    step("setup sheet")
     t = Timer()
     lines = text.count("\n")
     timings = {"plan": t_plan, "write": t_write, "verify": t_verify}
     sheet = setup_sheet(spec, surface, toolpath, profile, out, check, est, lines, timings=timings,
-                        generated_at=_generated_at())
+                        generated_at=_generated_at(), program=program)
     L, W = surface.stock_size_mm
     png = preview_png(program, L, W, profile.units)
     md = sheet_markdown(sheet, paths["png"].name)
@@ -122,7 +135,12 @@ def run(args) -> int:
         head += "not verified (--no-verify); "
     head += (f"est. machining {_hm(est)}; {seconds:.1f} s (plan {t_plan:.1f}, write {t_write:.1f}, "
              f"verify {t_verify:.1f}, sheet {t_sheet:.1f})")
-    summary = [head, f"setup sheet: {paths['json']}, {paths['md']}, {paths['png']}"]
+    need, u = sheet["machine_needs"], profile.units
+    summary = [head, f"machine: feed up to F{need['feed_max']:g} {u}/min, spindle {need['spindle_rpm']:g} rpm, "
+               f"travel X {need['travel']['x']:g}, Y {need['travel']['y']:g}, Z {need['travel']['z']:g} {u} "
+               f"(compare with the machine's limits; see the setup sheet)" if need["feed_max"] is not None else
+               f"machine: spindle {need['spindle_rpm']:g} rpm (no feed moves)",
+               f"setup sheet: {paths['json']}, {paths['md']}, {paths['png']}"]
     payload = dict(sheet)
     payload.update(program_path=str(out), setup_paths={k: str(v) for k, v in paths.items()},
                    seconds=round(seconds, 3), ok=not bad, failures=bad)

@@ -9,9 +9,7 @@ footprint for the toolpath and mesh.
 
 from __future__ import annotations
 
-import sys
-
-from ._common import Timer, emit
+from ._common import Timer, check_paths, emit, plot_format, stage_bar
 
 
 def run(args) -> int:
@@ -21,16 +19,22 @@ def run(args) -> int:
 
     timer = Timer()
     spec = load_spec(args.spec, command="precision")
+    check_paths(args, {"--plot": args.plot})
     cfg = P.QUICK if args.quick else P.FULL
     payload: dict = {"spec": str(args.spec), "quick": bool(args.quick)}
     lines: list[str] = []
-    show = sys.stderr.isatty() and not args.json
+    has_sim = spec.has("surface") and spec.has("simulation")
+    has_tp = all(spec.has(s) for s in ("surface", "stock", "tool", "machining"))
+    has_mesh = all(spec.has(s) for s in ("surface", "stock"))
+    stages = (2 + len(cfg["methods"]) if has_sim else 0) + int(has_tp) + int(has_mesh)
+    say, close = stage_bar(stages, getattr(args, "no_progress", False), "precision")
+    try:
+        return _studies(args, spec, cfg, P, problem_from_spec, payload, lines, say, timer)
+    finally:
+        close()
 
-    def say(what):
-        if show:
-            sys.stderr.write(f"\rprecision: {what} ...{' ' * 20}")
-            sys.stderr.flush()
 
+def _studies(args, spec, cfg, P, problem_from_spec, payload, lines, say, timer) -> int:
     sim = None
     if spec.has("surface") and spec.has("simulation"):
         problem = problem_from_spec(spec)
@@ -84,15 +88,14 @@ def run(args) -> int:
                          f"{r['seconds']:>8.2f}")
     else:
         payload["mesh"] = []
-    if show:
-        sys.stderr.write("\r" + " " * 60 + "\r")
 
     if args.plot and sim is not None:
         from ..io import write_atomic
         from ..plots import precision_png
 
         title = f"{spec.name}: {sim['problem']}"
-        write_atomic(args.plot, precision_png(sim["rows"], title=title, floor=sim["reference"]["estimated_error"]))
+        write_atomic(args.plot, precision_png(sim["rows"], title=title, floor=sim["reference"]["estimated_error"],
+                                              fmt=plot_format(args.plot)))
         payload["plot"] = str(args.plot)
         lines.append(f"wrote {args.plot}")
     seconds = timer.seconds

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._common import Timer, emit
+from ._common import Timer, check_paths, emit, plot_format
 
 
 def run(args) -> int:
@@ -25,6 +25,7 @@ def run(args) -> int:
     spec = load_spec(args.spec, need=("surface", "simulation"), command="robustness")
     v = speeds(spec, args.v_in)
     check_scatter(args.sigma_y, args.sigma_vy, args.samples, len(v))
+    check_paths(args, {"--out": args.out, "--plot": args.plot})
     fmt = table_format(args.out)
     cb, close = progress_bar(len(v) * (args.samples + 1), getattr(args, "no_progress", False), "robustness")
     try:
@@ -42,7 +43,8 @@ def run(args) -> int:
         if args.plot:
             from ..plots import robustness_figure
 
-            out.write(args.plot, robustness_figure(res, title=f"{spec.name}: robustness", units=u))
+            out.write(args.plot, robustness_figure(res, title=f"{spec.name}: robustness", units=u,
+                                                   fmt=plot_format(args.plot)))
 
     s = res["summary"]
     eng = res["engine"]

@@ -6,7 +6,7 @@ import math
 
 from ..errors import SpecError
 from ..spec import load_spec
-from ._common import Timer, emit
+from ._common import Timer, check_paths, emit, plot_format
 
 
 def run(args) -> int:
@@ -15,6 +15,7 @@ def run(args) -> int:
 
     timer = Timer()
     spec = load_spec(args.spec, need=("surface", "simulation"), command="simulate")
+    check_paths(args, {"--plot": args.plot})
     v = float(args.v_in)
     if not math.isfinite(v) or v < 0:
         raise SpecError(f"must be finite and >= 0, got {v:g}", key="--v-in")
@@ -65,7 +66,7 @@ def run(args) -> int:
         from ..plots import trajectory_png
 
         png = trajectory_png(traj, r, title=f"{spec.name}: {problem.model} model, v_in = {v:g} {u}/s",
-                             units=u)
+                             units=u, fmt=plot_format(args.plot))
         write_atomic(args.plot, png)
         payload["plot"] = str(args.plot)
         lines.append(f"wrote {args.plot}")

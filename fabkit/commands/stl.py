@@ -13,7 +13,7 @@ from pathlib import Path
 
 from ..errors import SpecError
 from ..tolerances import DEFAULT
-from ._common import Timer, default_output, emit
+from ._common import Timer, check_paths, default_output, emit
 
 
 def _tolerance(value) -> float:
@@ -34,6 +34,7 @@ def run(args) -> int:
     tolerance = _tolerance(args.tolerance)
     spec = load_spec(args.spec, need=("surface", "stock"), command="stl")
     path = default_output(spec, ".stl", args.output)
+    check_paths(args, {"--output": path})
     fmt = path.suffix.lower().lstrip(".") or "stl"
     if fmt not in EXPORT_FORMATS:
         raise SpecError(f"unknown mesh format '{path.suffix}' (use one of: "

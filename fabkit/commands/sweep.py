@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import SpecError
-from ._common import Timer, emit, progress_bar
+from ._common import Timer, check_paths, emit, plot_format, progress_bar
 
 
 def speeds(spec, v_in_arg, tol=None) -> np.ndarray:
@@ -50,6 +50,7 @@ def run(args) -> int:
     spec = load_spec(args.spec, need=("surface", "simulation"), command="sweep")
     if args.v_in is None:
         spec.require("ball", "ramp", command="sweep (without --v-in)")
+    check_paths(args, {"--plot": args.plot})
     v = speeds(spec, args.v_in)
     problem = problem_from_spec(spec)
     cb, close = progress_bar(len(v), getattr(args, "no_progress", False), "sweep")
@@ -61,7 +62,9 @@ def run(args) -> int:
     if args.plot:
         from ..plots import sweep_figure
 
-        write_atomic(args.plot, sweep_figure(res, f"{spec.name}: {problem.model} model"))
+        write_atomic(args.plot, sweep_figure(res, f"{spec.name}: {problem.model} model, damping "
+                                                  f"{problem.damping:g} 1/s", units=spec.units,
+                                             fmt=plot_format(args.plot)))
     u = spec.units
     vc = res["v_critical"]
     err = res["error_estimate"]

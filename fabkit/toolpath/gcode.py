@@ -5,11 +5,15 @@ The differences between controllers are DATA (:data:`DIALECTS`): the words a
 dialect accepts, its preamble, program end, comment style and line length. The
 writer has no per-dialect branches.
 
-Every program is: a header comment block, the modal preamble (G17 plane, G21 mm
-or G20 inch, G90 absolute, G94 feed per minute; LinuxCNC also G64 P: path
-blending held to half the machining tolerance), a rapid to the safe height,
-spindle on (M3 S), the moves (G0 and G1 only), a rapid back to the safe height,
-spindle off (M5) and the program end (M2 or M30). Modal words are not repeated:
+Every program is: a header comment block (lengths in the program's units), the
+modal preamble (G17 plane, G21 mm or G20 inch, G90 absolute, G94 feed per minute,
+G54 work offset; LinuxCNC also G64 P: path blending held to half the machining
+tolerance), the tool call when ``tool.number`` is given (LinuxCNC ``T1 M6 G43 H1``:
+change and apply the tool's length offset; grbl has no tool changer and no M6 by
+default, so the tool is named in a comment and changed by hand before the start),
+a rapid to the safe height, spindle on (M3 S), the moves (G0 and G1 only), a rapid
+back to the safe height, spindle off (M5), a rapid at the safe height to the park
+position (``machining.park``, default X0 Y0) and the program end (M2 or M30). Modal words are not repeated:
 G0/G1, F and unchanged axis words are written only when they change. Coordinates
 have fixed decimals (4 in mm, 5 in inch, more if the tolerance needs them) so the
 rounding error (half a unit in the last place, per axis) stays below 1/20 of the
@@ -44,23 +48,27 @@ class Dialect:
     comment_close: str = ")"
     max_line: int = 70          # characters per line, comment lines included
     path_blending: bool = False  # G64 P<tolerance/2> (LinuxCNC trajectory blending)
+    tool_change: str | None = None   # the tool call ({n}: tool.number); None: a comment only
 
 
 DIALECTS: dict[str, Dialect] = {
     "linuxcnc": Dialect(
         name="linuxcnc",
-        words=frozenset({"G0", "G1", "G17", "G20", "G21", "G90", "G94", "G64", "M3", "M5", "M2"}),
-        preamble=("G17", "{units}", "G90", "G94"),
+        words=frozenset({"G0", "G1", "G17", "G20", "G21", "G90", "G94", "G54", "G64", "G43", "M3", "M5", "M6",
+                         "M2"}),
+        preamble=("G17", "{units}", "G90", "G94", "G54"),
         program_end="M2",
         max_line=250,
         path_blending=True,
+        tool_change="T{n} M6 G43 H{n}",
     ),
-    # grbl 1.1: no %, no O or N words needed, no tool change, comments in plain
-    # parentheses; 80-character line buffer, so lines are kept to 70.
+    # grbl 1.1: no %, no O or N words needed, no tool change (M6 is not in its
+    # default build), comments in plain parentheses; 80-character line buffer, so
+    # lines are kept to 70.
     "grbl": Dialect(
         name="grbl",
-        words=frozenset({"G0", "G1", "G17", "G20", "G21", "G90", "G94", "M3", "M5", "M30"}),
-        preamble=("G17", "{units}", "G90", "G94"),
+        words=frozenset({"G0", "G1", "G17", "G20", "G21", "G90", "G94", "G54", "M3", "M5", "M30"}),
+        preamble=("G17", "{units}", "G90", "G94", "G54"),
         program_end="M30",
         max_line=70,
     ),
@@ -89,6 +97,8 @@ class MachineProfile:
     """Everything the writer needs besides the moves. Lengths mm, feeds mm/min.
 
     header: (key, value) pairs written as comments after the standard ones
+    tool_number: the tool's number in the machine's tool table (None: no tool call)
+    park: (X, Y) work mm where the program ends, at the safe height
     """
 
     dialect: str = "linuxcnc"
@@ -101,6 +111,8 @@ class MachineProfile:
     scallop: float = 0.05
     rapid: float = DEFAULT_RAPID_MM_MIN
     header: tuple = field(default_factory=tuple)
+    tool_number: int | None = None
+    park: tuple = (0.0, 0.0)
 
     @property
     def d(self) -> Dialect:
@@ -128,18 +140,27 @@ class MachineProfile:
 
 def profile_from_spec(spec, surface=None) -> MachineProfile:
     """The machine profile of a spec (sections tool, stock, machining; surface for
-    the stock size). Header lines describe the job for the operator."""
+    the stock size). Header lines describe the job for the operator, in the program's units."""
     m, t, st = spec.machining, spec.tool, spec.stock
+    u = UNITS[m.units]
     # the spec's file name, not the path as typed: `gcode a.yaml` and `gcode /abs/a.yaml`
     # give the same program (the setup sheet records the full path)
     header = [("spec", Path(spec.path).name), ("name", spec.name),
-              ("tool", f"{t.shape}-end mill, diameter {t.diameter:g} mm")]
+              ("tool", (f"T{t.number} " if t.number is not None else "")
+               + f"{t.shape}-end mill, diameter {_length(t.diameter, u)}")]
     if surface is not None:
         L, W = surface.stock_size_mm
-        header.append(("stock", f"{L:.6g} x {W:.6g} x {st.thickness:g} mm (X x Y x Z)"))
+        k = 1.0 / u.mm_per_unit
+        header.append(("stock", f"{L * k:.6g} x {W * k:.6g} x {st.thickness * k:.6g} {u.name} (X x Y x Z)"))
     return MachineProfile(dialect=m.dialect, units=m.units, feed=m.feed, plunge=m.plunge,
                           spindle=m.spindle, safe_z=m.safe_height, tolerance=m.tolerance,
-                          scallop=m.scallop, header=tuple(header))
+                          scallop=m.scallop, header=tuple(header), tool_number=t.number,
+                          park=tuple(float(v) for v in m.park))
+
+
+def _length(mm: float, u: Units) -> str:
+    """A length for a comment, in the program's units (6 significant digits)."""
+    return f"{mm / u.mm_per_unit:.6g} {u.name}"
 
 
 def _ascii_comment(text: str) -> str:
@@ -249,6 +270,7 @@ def write_program(toolpath: Toolpath, profile: MachineProfile) -> str:
     txt = _format_array(pts, dec)
 
     safe = num(profile.safe_z * k, dec)
+    park = [num(v * k, dec) for v in profile.park]
     start = np.array([np.nan, np.nan, profile.safe_z])
     if len(pts):
         start = np.array([toolpath.points[0, 0], toolpath.points[0, 1], profile.safe_z])
@@ -258,24 +280,30 @@ def write_program(toolpath: Toolpath, profile: MachineProfile) -> str:
     add = out.append
     items = [("fabkit", f"ball-end raster finishing program, {d.name} dialect")]
     items += list(profile.header)
-    items += [("work zero", "X0 Y0 at the footprint corner of smallest x, y,"),
+    items += [("work zero (G54)", "X0 Y0 at the footprint corner of smallest x, y,"),
               ("", "Z0 on the stock top face"),
-              ("scallop", f"{profile.scallop:g} mm"), ("tolerance", f"{profile.tolerance:g} mm")]
+              ("scallop", _length(profile.scallop, u)), ("tolerance", _length(profile.tolerance, u))]
     items += [("passes", f"{toolpath.passes}"),
-              ("stepover", (f"{toolpath.stepover_min:.4g}-" if toolpath.stepover_min < toolpath.stepover
-                            else "") + f"{toolpath.stepover:.4g} mm"),
+              ("stepover", (f"{toolpath.stepover_min * k:.4g}-" if toolpath.stepover_min < toolpath.stepover
+                            else "") + f"{toolpath.stepover * k:.4g} {u.name}"),
               ("units", f"{u.name} ({units_word}), feeds {u.name}/min, absolute (G90)"),
               ("feeds", f"cut {num(profile.feed * k, fdec)}, plunge {num(profile.plunge * k, fdec)} "
                         f"{u.name}/min, spindle {profile.spindle:.0f} rpm"),
               ("safe height", f"Z{safe} {u.name}"),
-              ("estimated time", f"{_fmt_duration(est)} (rapids at {profile.rapid:g} mm/min, "
-                                 "no acceleration)")]
+              ("park", f"X{park[0]} Y{park[1]} at the safe height"),
+              ("estimated time", f"{_fmt_duration(est)} (rapids at {num(profile.rapid * k, fdec)} "
+                                 f"{u.name}/min, no acceleration)")]
+    if profile.tool_number is not None and d.tool_change is None:
+        items.append(("tool change", f"load T{profile.tool_number} by hand before the start "
+                                     f"and set Z0 with it ({d.name} has no M6)"))
     for key, value in items:
         out.extend(_comment_lines(key, str(value), d))
     pre = [w.format(units=units_word) for w in d.preamble]
     add(" ".join(pre))
     if d.path_blending:
         add(f"G64 P{num(profile.tolerance * 0.5 * k, dec)}")
+    if profile.tool_number is not None and d.tool_change is not None:
+        add(d.tool_change.format(n=int(profile.tool_number)))
     add(f"G0 Z{safe}")
     add(f"M3 S{profile.spindle:.0f}")
 
@@ -288,6 +316,11 @@ def write_program(toolpath: Toolpath, profile: MachineProfile) -> str:
         last_z = safe
     if last_z != safe:
         add(("G0 " if len(pts) and kinds[-1] != RAPID else "") + f"Z{safe}")
+    last_xy = (txt[-1, 0], txt[-1, 1]) if len(pts) else (None, None)
+    if (last_xy[0], last_xy[1]) != (park[0], park[1]):
+        g0 = "G0 " if len(pts) and kinds[-1] != RAPID and last_z == safe else ""
+        add(g0 + " ".join(f"{a}{v}" for a, v, was in (("X", park[0], last_xy[0]), ("Y", park[1], last_xy[1]))
+                          if v != was))
     add("M5")
     add(d.program_end)
     return "\n".join(out) + "\n"

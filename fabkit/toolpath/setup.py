@@ -26,6 +26,42 @@ from .. import __version__
 
 MM_PER_INCH = 25.4
 
+#: grbl 1.1's default settings, for comparison on the sheet: $110-$112 max rate
+#: (mm/min), $30 max spindle speed (rpm), $130-$132 max travel (mm)
+GRBL_DEFAULTS = {"max_rate_mm_min": 500.0, "spindle_max_rpm": 1000.0, "max_travel_mm": 200.0}
+
+
+def machine_needs(program, spindle_rpm: float) -> dict:
+    """What ``program`` (read back from its text, work mm) asks of the machine, in mm:
+    ``feed_max`` (largest programmed F), ``plunge_max`` (largest F of a straight-down
+    G1; None when there is none), ``axis_rate_max`` {x, y, z} (largest speed along
+    each axis in a G1 move, F * |d_axis| / length: what the axis rates $110-$112 or
+    MAX_VELOCITY must allow), ``travel`` {x, y, z} (max - min over every position the
+    program visits, rapids and park included), ``extent`` {x, y, z: [min, max]},
+    ``spindle_rpm``. Rapids run at the machine's own rate, so they set no need here."""
+    a, b = program.segments()
+    feed = program.kinds == 1
+    out: dict = {"feed_max": None, "plunge_max": None, "axis_rate_max": {"x": None, "y": None, "z": None}}
+    if feed.any():
+        d = np.abs(np.nan_to_num(b[feed] - a[feed]))
+        length = np.linalg.norm(d, axis=1)
+        f = program.feed[feed]
+        moving = length > 0
+        out["feed_max"] = float(np.max(f))
+        down = moving & (d[:, 0] + d[:, 1] <= 1e-12) & ((b[feed] - a[feed])[:, 2] < 0)
+        out["plunge_max"] = float(np.max(f[down])) if down.any() else None
+        if moving.any():
+            rate = f[moving, None] * d[moving] / length[moving, None]
+            out["axis_rate_max"] = {ax: float(rate[:, i].max()) for i, ax in enumerate("xyz")}
+    pts = np.vstack([program.start[None, :], program.points]) if len(program.points) else program.start[None, :]
+    ext, travel = {}, {}
+    for i, ax in enumerate("xyz"):
+        col = pts[:, i][np.isfinite(pts[:, i])]
+        ext[ax] = [float(col.min()), float(col.max())] if col.size else None
+        travel[ax] = float(col.max() - col.min()) if col.size else 0.0
+    out.update(travel=travel, extent=ext, spindle_rpm=float(spindle_rpm))
+    return out
+
 
 def sheet_paths(program_path) -> dict:
     """{'json', 'md', 'png'}: the setup files beside ``program_path`` (same stem)."""
@@ -47,9 +83,12 @@ def _r(v, nd=9):
 
 def setup_sheet(spec, surface, toolpath, profile, program_path, check: dict | None,
                 estimated_time_s: float, lines: int, timings: dict | None = None,
-                generated_at: str | None = None) -> dict:
+                generated_at: str | None = None, program=None) -> dict:
     """The setup sheet as a dict (JSON-ready). ``check``: the result of
-    :func:`fabkit.toolpath.verify.verify_cut` (work mm) or None when not verified."""
+    :func:`fabkit.toolpath.verify.verify_cut` (work mm) or None when not verified.
+    ``program``: the program read back (:func:`fabkit.toolpath.verify.read_program`);
+    with it the sheet states what the program needs from the machine
+    (``machine_needs``, program units; ``grbl_defaults`` in mm for comparison)."""
     k = 1.0 / (MM_PER_INCH if profile.units == "in" else 1.0)   # mm -> program units
     s = spec.scale * k                                           # design unit -> program units
     x0, y0, top = surface.x_range[0], surface.y_range[0], surface.top
@@ -93,6 +132,20 @@ def setup_sheet(spec, surface, toolpath, profile, program_path, check: dict | No
         sheet["gouge_at"] = [_r(v * k) for v in check["gouge_at"]]
         sheet["material_left_at"] = [_r(v * k) for v in check["material_at"]]
         sheet["rapid_clearance"] = _r(check["rapid_clearance"] * k)
+    if program is not None:
+        need = machine_needs(program, profile.spindle)
+        axes = need["axis_rate_max"]
+        sheet["tool_number"] = getattr(spec.tool, "number", None)
+        sheet["park"] = [_r(v * k) for v in profile.park]
+        sheet["machine_needs"] = {
+            "feed_max": _r(need["feed_max"] * k) if need["feed_max"] is not None else None,
+            "plunge_max": _r(need["plunge_max"] * k) if need["plunge_max"] is not None else None,
+            "axis_rate_max": {ax: _r(v * k) if v is not None else None for ax, v in axes.items()},
+            "travel": {ax: _r(v * k) for ax, v in need["travel"].items()},
+            "extent": {ax: [_r(v * k) for v in e] if e else None for ax, e in need["extent"].items()},
+            "spindle_rpm": _r(need["spindle_rpm"]),
+        }
+        sheet["grbl_defaults"] = dict(GRBL_DEFAULTS)
     if timings:
         sheet["timings_s"] = {key: round(float(v), 3) for key, v in timings.items()}
     if generated_at:
@@ -107,6 +160,49 @@ def sheet_json(sheet: dict) -> str:
 def _hms(seconds: float) -> str:
     m = int(round(seconds / 60.0))
     return f"{m // 60} h {m % 60:02d} min" if m >= 60 else f"{m} min"
+
+
+def _needs_markdown(sheet: dict) -> list[str]:
+    """The 'What the machine must do' section (empty without ``machine_needs``)."""
+    need = sheet.get("machine_needs")
+    if not need:
+        return []
+    u = sheet["units"]
+    k = MM_PER_INCH if u == "in" else 1.0     # program units -> mm, for the grbl comparison
+    g = sheet.get("grbl_defaults", GRBL_DEFAULTS)
+
+    def cmp(v_mm, limit_mm):
+        return " (above grbl's default)" if v_mm is not None and v_mm > limit_mm * (1 + 1e-9) else ""
+
+    def f(v, per=""):
+        """A need in program units, with its mm figure for an inch program."""
+        if v is None:
+            return "none"
+        return f"{v:g} {u}{per}" + (f" ({v * k:.4g} mm{per})" if u != "mm" else "")
+
+    rates, travel = need["axis_rate_max"], need["travel"]
+    top_rate = max((v for v in rates.values() if v is not None), default=None)
+    lines = ["## What the machine must do", "",
+             "Compare with the machine's settings before running (grbl: `$$`; LinuxCNC: the INI's "
+             "MAX_VELOCITY and axis limits).", "",
+             f"- Largest feed F {f(need['feed_max'], '/min')}"
+             f"{cmp(need['feed_max'] and need['feed_max'] * k, g['max_rate_mm_min'])}; "
+             f"largest plunge F {f(need['plunge_max'], '/min')}",
+             f"- Largest axis speed in a feed move: X {f(rates['x'], '/min')}, Y {f(rates['y'], '/min')}, "
+             f"Z {f(rates['z'], '/min')}{cmp(top_rate and top_rate * k, g['max_rate_mm_min'])}",
+             f"- Travel: X {f(travel['x'])}, Y {f(travel['y'])}, Z {f(travel['z'])}"
+             + cmp(max(travel.values()) * k, g["max_travel_mm"]),
+             f"- Spindle {need['spindle_rpm']:g} rpm{cmp(need['spindle_rpm'], g['spindle_max_rpm'])}",
+             f"- Program ends parked at X{sheet['park'][0]:g} Y{sheet['park'][1]:g} at the safe height",
+             "",
+             f"grbl 1.1's defaults for comparison: max rates $110-$112 {g['max_rate_mm_min']:g} mm/min, "
+             f"max spindle $30 {g['spindle_max_rpm']:g} rpm, max travel $130-$132 {g['max_travel_mm']:g} mm.",
+             ""]
+    if sheet.get("tool_number") is not None:
+        lines.insert(4, f"- Tool T{sheet['tool_number']}"
+                     + (": the program calls T M6 G43 H (tool change and length offset)"
+                        if sheet["dialect"] == "linuxcnc" else ": load it by hand before the start (grbl has no M6)"))
+    return lines
 
 
 def sheet_markdown(sheet: dict, png_name: str | None) -> str:
@@ -135,6 +231,7 @@ def sheet_markdown(sheet: dict, png_name: str | None) -> str:
         f"- Safe height Z{sheet['safe_z']:g}; deepest cut {sheet['depth']:g} {u} (limit {sheet['depth_limit']:g})"
         if sheet["depth"] is not None else f"- Safe height Z{sheet['safe_z']:g}",
         "",
+        *_needs_markdown(sheet),
         "## Passes",
         "",
         f"- {sheet['passes']} raster passes along {sheet['direction']}, stepover "

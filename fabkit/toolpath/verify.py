@@ -70,7 +70,8 @@ def read_program(text: str) -> Program:
     """Parse G-code text (the subset fabkit emits) into moves in mm.
 
     Understood: comments in parentheses or after ';', G0 G1 (modal motion), G17,
-    G20/G21 (units, modal), G90 (absolute; G91 is refused), G94, G64 P, M3 S, M5,
+    G20/G21 (units, modal), G90 (absolute; G91 is refused), G94, G54, G64 P, T M6 G43 H
+    (the tool call: the moves are of the tool tip either way), M3 S, M5,
     M2/M30 (end: later lines ignored), F (modal feed), X Y Z. Anything else raises
     DesignError naming the line (a program the reader cannot follow is not verified).
     """
@@ -108,18 +109,18 @@ def read_program(text: str) -> Program:
                     scale, units = 1.0, "mm"
                 elif v == 91:
                     raise DesignError(f"program line {ln}: incremental mode G91 is not expected")
-                elif v not in (17, 90, 94, 64):
+                elif v not in (17, 90, 94, 54, 64, 43):
                     raise DesignError(f"program line {ln}: unexpected G{value}")
             elif letter == "M":
                 if v in (2, 30):
                     end = True
-                elif v not in (3, 5):
+                elif v not in (3, 5, 6):
                     raise DesignError(f"program line {ln}: unexpected M{value}")
             elif letter == "F":
                 feed = v * scale
             elif letter in "XYZ":
                 axes[letter] = v * scale
-            elif letter not in "SP":
+            elif letter not in "SPTH":
                 raise DesignError(f"program line {ln}: unexpected word {letter}{value}")
         if axes:
             if motion is None:
