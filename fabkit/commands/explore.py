@@ -52,7 +52,7 @@ def run(args) -> int:
     good = [d for d in designs if "error" not in d]
     if good and all(d["v_critical"] is None for d in good):
         reasons = sorted({str(d.get("v_critical_reason") or "unknown") for d in good})
-        warn(f"no design of the grid has a v_critical"
+        warn("no design of the grid has a v_critical"
              + (" (its panel in the figure is empty)" if args.plot else "") + ": "
              + "; ".join(reasons[:3]) + (f"; and {len(reasons) - 3} other reasons" if len(reasons) > 3 else "")
              + ". Widen --v-in (or the ramp's heights) so that the speeds straddle v_critical: launches "

@@ -9,7 +9,7 @@ footprint for the toolpath and mesh.
 
 from __future__ import annotations
 
-from ._common import Timer, check_paths, emit, plot_format, stage_bar
+from ._common import Timer, check_paths, emit, plot_format, stage_bar, warn
 
 
 def run(args) -> int:
@@ -98,6 +98,9 @@ def _studies(args, spec, cfg, P, problem_from_spec, payload, lines, say, timer) 
                                               fmt=plot_format(args.plot)))
         payload["plot"] = str(args.plot)
         lines.append(f"wrote {args.plot}")
+    elif args.plot:
+        warn(f"--plot {args.plot} not written: the figure is the simulator's work-precision diagram, and the "
+             "spec has no surface and simulation sections")
     seconds = timer.seconds
     payload["seconds"] = seconds
     if sim is not None:
