@@ -146,6 +146,19 @@ def build_parser() -> argparse.ArgumentParser:
                    help="launches per Dask task (default: each batch split over the cluster's "
                    "threads; results do not depend on it)")
     c.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+    # ---- the lab: tracked launches, the ramp, the design report ----
+    c = cmd("analyze", "tracked launches and releases: bounces, speeds, the damping fitted with the model")
+    c.add_argument("tracks", nargs="+", metavar="TRACK",
+                   help="Tracker text export, CSV t,x,y or frame,x,y (with --fps), or trackpy CSV")
+    c.add_argument("--fps", type=float, metavar="F", help="frames per second (for frame columns)")
+    c.add_argument("--scale", type=float, metavar="S", help="design units per video unit (default 1)")
+    c.add_argument("--origin", type=float, nargs=2, metavar=("X", "Y"),
+                   help="the design origin in video coordinates (default 0 0)")
+    c.add_argument("--rotate", type=float, metavar="DEG", help="turn the video frame counterclockwise by DEG")
+    c.add_argument("--flip-y", action="store_true", dest="flip_y", help="video y grows downward")
+    c.add_argument("--json", action="store_true", help="print JSON")
+    c.add_argument("--plot", metavar="PNG", help="write track and model overlaid, x(t) and y(t)")
     return p
 
 
