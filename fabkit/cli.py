@@ -159,6 +159,10 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--flip-y", action="store_true", dest="flip_y", help="video y grows downward")
     c.add_argument("--json", action="store_true", help="print JSON")
     c.add_argument("--plot", metavar="PNG", help="write track and model overlaid, x(t) and y(t)")
+
+    c = cmd("ramp", "the launch ramp as a watertight solid, with release marks at calibrated heights")
+    c.add_argument("-o", "--output", metavar="PATH", help="output file (default toolpaths/<name>.ramp.stl)")
+    c.add_argument("--json", action="store_true", help="print JSON")
     return p
 
 
