@@ -163,6 +163,10 @@ def build_parser() -> argparse.ArgumentParser:
     c = cmd("ramp", "the launch ramp as a watertight solid, with release marks at calibrated heights")
     c.add_argument("-o", "--output", metavar="PATH", help="output file (default toolpaths/<name>.ramp.stl)")
     c.add_argument("--json", action="store_true", help="print JSON")
+
+    c = cmd("report", "the whole design on one self-contained HTML page (verdict, surface, toolpath, sweep, ...)")
+    c.add_argument("-o", "--output", metavar="PATH", help="output page (default toolpaths/<name>.report.html)")
+    c.add_argument("--json", action="store_true", help="print JSON")
     return p
 
 
