@@ -173,7 +173,7 @@ def _calibration_table(cal: dict, marks: list | None, units: str, every: int) ->
             for m in marks) + "</table>"
     return (f"<p class=meta>v_in = sqrt(2 g H / (1 + k)), g = {_n(cal['g'], '.7g')} {units}/s², k = {_n(cal['k'], '.4g')}; "
             f"H above the entry level. Exact closed form (rounding only, ~1e-16 relative); "
-            f"{len(H)} heights, every {every}th shown; {_n(cal.get('seconds'), '.2g')} s.</p>"
+            f"{len(H)} heights" + (f", every {every}th shown" if every > 1 else "") + f"; {_n(cal.get('seconds'), '.2g')} s.</p>"
             f"<div class=grid2><table><tr><th>H ({units})</th><th>v_in ({units}/s)</th></tr>{rows}</table>"
             f"<div>{mk}</div></div>")
 
@@ -241,7 +241,7 @@ def render(results: dict) -> str:
         f"<p class=meta>verified cut: largest gouge {_n(ver.get('max_gouge'), '.4f')} mm, material left "
         f"{_n(ver.get('max_material_left'), '.4f')} mm (checked at {_n(ver.get('checked_points'), 'd')} points); "
         + ", ".join(f"{k} {_n(v, '.3g')} s" for k, v in tps.items()) + ".</p></section>",
-        f"<section><h2>Ramp calibration</h2>{_calibration_table(cal, results.get('ramp_marks'), u, 25)}</section>",
+        f"<section><h2>Ramp calibration</h2>{_calibration_table(cal, results.get('ramp_marks'), u, max(1, len(cal['heights']) // 20))}</section>",
         f"<section><h2>Setup sheet</h2>{_sheet_table(tp.get('sheet') or {})}</section>",
     ]
     title = f"fabkit report: {results['name']}"
