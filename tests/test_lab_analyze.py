@@ -79,3 +79,24 @@ def test_launches_bounces_speeds_and_the_tn_fit(cli, tmp_path):
     T = T_exact[1] - T_exact[0]
     assert abs(tn["T"] - T) < 2 * 2.0 / FPS
     assert abs(tn["delta"] - (T_exact[0] - 3 * T)) < 8 * 2.0 / FPS
+
+
+def test_trackpy_in_video_pixels(cli, tmp_path):
+    """A launch filmed and tracked by trackpy: pixel coordinates (image rows downward, the
+    camera turned by 2 degrees, 20 px/cm), frames instead of times."""
+    truth = L.run((L.START, 0.0, 59.5, 0.0), MU_TRUE, 15.0)
+    t, x, y = L.frames(truth, fps=FPS, noise=NOISE, seed=21)
+    th = np.radians(-2.0)
+    u = (np.cos(th) * x - np.sin(th) * y) / 0.05
+    v = -(np.sin(th) * x + np.cos(th) * y) / 0.05
+    px, py = 320.0 + u, 240.0 + v
+    rows = ["y,x,mass,size,ecc,signal,raw_mass,ep,frame,particle"]
+    rows += [f"{float(b)!r},{float(a)!r},1,2,0.1,3,4,0.01,{i},0" for i, (a, b) in enumerate(zip(px, py))]
+    f = tmp_path / "tp.csv"
+    f.write_text("\n".join(rows) + "\n")
+    code, out, err = cli("analyze", PAPER, f, "--fps", "125", "--scale", "0.05", "--origin", "320", "240",
+                         "--rotate", "2", "--flip-y", "--json")
+    assert code == 0, err
+    r = json.loads(out)["tracks"][0]
+    assert r["format"] == "trackpy"
+    _check_launch(r, truth, 59.5)
