@@ -59,7 +59,9 @@ def run(args) -> int:
     if not pub:
         lines.append("no marks: the ramp reaches no two-bounce window and not v_critical")
     if not chk["safe"]:
-        lines.append(f"warning: UNSAFE above release height {chk['highest_safe_height']} {u} (fabkit check)")
+        hs = chk['highest_safe_height']
+        lines.append(f"warning: UNSAFE above release height {hs:.5g} {u} (fabkit check)" if hs is not None else
+                     "warning: UNSAFE at every release height (fabkit check)")
     lines.append(f"ramp: mark heights exact (closed-form calibration, contact point by root finding to "
                  f"1e-12), running surface within {solid.profile_error_mm:.1g} mm of the profile, "
                  f"{timer.seconds:.1f} s (check {t_check:.1f} s)")

@@ -22,10 +22,11 @@ sigma / (|x''| dt^2 sqrt(60)) frames.
 
 Entry and exit speeds
 ---------------------
-The model's state at the first frame is fitted by least squares to the frames before
-the first bounce (x0, y0, vx0, vy0; damping fixed: the releases' fitted damping when
-the same run has releases, else the spec's), then carried along the model to x =
-start: ``v_in`` = |xd| there (and y, yd there start the side-by-side simulation).
+The model's state at the first frame and the viscous damping are fitted by least
+squares to the frames before the first bounce (x0, y0, vx0, vy0, mu; mu starts from the
+releases' fitted damping when the same run has releases, else the spec's: a leg of a
+second or more pins it well, so a wrong spec damping does not bias the speeds), then
+carried along the model to x = start: ``v_in`` = |xd| there (and y, yd there start the side-by-side simulation).
 Likewise the state at the last frame from the frames after the last bounce, carried
 forward to x = start: ``v_out``. Errors: one sigma of the fitted xd. A launch whose
 track ends moving toward -x, left of the well, after a bounce, and that the model
@@ -210,9 +211,10 @@ def edge_state(track, end: bool = False, seconds: float = EDGE_SECONDS):
 
 
 def fit_leg(problem, track, sel: np.ndarray, end: bool, mu: float) -> dict:
-    """The model's state at the first (``end``: last) frame, fitted by least squares to
-    the frames ``sel`` (a leg of a launch: before its first bounce, or after its last),
-    damping ``mu`` fixed. Returns {"t", "state" (4,), "error" (4,) one sigma, "rms"}."""
+    """The model's state at the first (``end``: last) frame and the viscous damping, fitted
+    by least squares to the frames ``sel`` (a leg of a launch: before its first bounce, or
+    after its last); ``mu`` is the damping's starting value. Returns {"t", "state" (4,),
+    "error" (4,) one sigma, "damping", "damping_error", "rms"}."""
     from scipy.optimize import least_squares
 
     t = track.t
@@ -223,11 +225,11 @@ def fit_leg(problem, track, sel: np.ndarray, end: bool, mu: float) -> dict:
     te = t[idx]
     data = np.concatenate([track.x[idx], track.y[idx]])
     st = edge_state(track, end=end)
-    p0 = np.array(st[1:5])
+    p0 = np.array([*st[1:5], max(float(mu), 1e-3)])
     t0 = float(t[anchor])
 
     def run(P):
-        Y, _ = model_solve(problem, P.T.copy(), np.full(P.shape[0], mu), t0, te, rtol=FIT_RTOL)
+        Y, _ = model_solve(problem, P[:, :4].T.copy(), P[:, 4], t0, te, rtol=FIT_RTOL)
         return Y
 
     def fun(p):
@@ -236,19 +238,20 @@ def fit_leg(problem, track, sel: np.ndarray, end: bool, mu: float) -> dict:
 
     def jac(p):
         h = 1e-5 * np.maximum(1.0, np.abs(p))
-        P = np.vstack([p] + [p + np.eye(4)[j] * h[j] for j in range(4)])
+        P = np.vstack([p] + [p + np.eye(5)[j] * h[j] for j in range(5)])
         Y = run(P)
         base = np.concatenate([Y[0, 0], Y[1, 0]])
-        return np.column_stack([(np.concatenate([Y[0, j + 1], Y[1, j + 1]]) - base) / h[j] for j in range(4)])
+        return np.column_stack([(np.concatenate([Y[0, j + 1], Y[1, j + 1]]) - base) / h[j] for j in range(5)])
 
     res = least_squares(fun, p0, jac=jac, method="lm", xtol=1e-10, max_nfev=40)
     r = res.fun
-    s2 = float(r @ r) / max(1, r.size - 4)
+    s2 = float(r @ r) / max(1, r.size - 5)
     try:
         err = np.sqrt(np.maximum(np.diag(np.linalg.inv(res.jac.T @ res.jac) * s2), 0.0))
     except np.linalg.LinAlgError:
-        err = np.full(4, np.nan)
-    return {"t": t0, "state": res.x, "error": err, "rms": float(math.sqrt(float(r @ r) / r.size))}
+        err = np.full(5, np.nan)
+    return {"t": t0, "state": res.x[:4], "error": err[:4], "damping": float(res.x[4]),
+            "damping_error": float(err[4]), "rms": float(math.sqrt(float(r @ r) / r.size))}
 
 
 def model_to_start(problem, t0: float, state, mu: float, t_limit: float = 30.0):
@@ -408,6 +411,12 @@ def fit_release(problem, track, sigma: float, mu0: float) -> dict:
     # omega and the model's own log-decrement on the fitted noise-free trajectory
     _, sol = model_solve(problem, p[:4, None], p[4:5], t0, t, dense=True)
     te, ve = _dense_extrema(sol, 0, 1, t0, float(t[-1]))
+    # a release fitted with a tiny initial yd has an extremum right at the start (and one
+    # may sit at the end): turning points closer than half a spacing to the next are edges
+    while te.size >= 3 and te[1] - te[0] < 0.5 * np.median(np.diff(te)):
+        te, ve = te[1:], ve[1:]
+    while te.size >= 3 and te[-1] - te[-2] < 0.5 * np.median(np.diff(te)):
+        te, ve = te[:-1], ve[:-1]
     omega = math.pi * (te.size - 1) / (te[-1] - te[0]) if te.size >= 2 else math.nan
     model_ld = None
     if te.size >= 3:
@@ -487,9 +496,9 @@ def _launch_speeds(problem, track, bt, mu) -> dict:
     t_in_end = (bt[0] if bt.size else t[0] + 1.0)
     sel = np.flatnonzero(t <= t_in_end)
     leg = fit_leg(problem, track, sel, False, mu)
-    entry = model_to_start(problem, leg["t"], leg["state"], mu)
+    entry = model_to_start(problem, leg["t"], leg["state"], leg["damping"])
     out = {"entry_fit": {"t": leg["t"], "state": leg["state"].tolist(), "error": leg["error"].tolist(),
-                         "rms": leg["rms"]}}
+                         "damping": leg["damping"], "damping_error": leg["damping_error"], "rms": leg["rms"]}}
     v_in = abs(entry[3]) if entry is not None else None
     # v_in's error: the fitted vx's error (the carry to x = start is exact to the model)
     out["v_in"], out["v_in_error"] = v_in, float(leg["error"][2])
@@ -500,9 +509,9 @@ def _launch_speeds(problem, track, bt, mu) -> dict:
         sel = np.flatnonzero(t >= bt[-1])
         leg2 = fit_leg(problem, track, sel, True, mu)
         if leg2["state"][2] < 0:
-            exit_state = model_to_start(problem, leg2["t"], leg2["state"], mu)
+            exit_state = model_to_start(problem, leg2["t"], leg2["state"], leg2["damping"])
         out["exit_fit"] = {"t": leg2["t"], "state": leg2["state"].tolist(), "error": leg2["error"].tolist(),
-                           "rms": leg2["rms"]}
+                           "damping": leg2["damping"], "damping_error": leg2["damping_error"], "rms": leg2["rms"]}
         out["v_out_error"] = float(leg2["error"][2])
     outcome, v_out = outcome_of(problem, track, bt, exit_state)
     out["outcome"], out["v_out"] = outcome, v_out
