@@ -58,7 +58,7 @@ def main(seeds: int = 5) -> None:
             worst["v_in"] = max(worst["v_in"], abs(r["v_in"] / v - 1))
             worst["v_out"] = max(worst["v_out"], abs(r["v_out"] / la["v_out"] - 1))
     print(f"{seeds} seeds: bounces exact {bounces_ok}/{bounces_n}; worst: damping {worst['damping']:.2%}, "
-          f"omega {worst['omega']:.2%}, bounce time {worst['bounce_frames']:.2f} frames, v_in {worst['v_in']:.3%}, "
+          f"omega {worst['omega']:.1e} (relative), bounce time {worst['bounce_frames']:.2f} frames, v_in {worst['v_in']:.3%}, "
           f"v_out {worst['v_out']:.3%}; the paper's log-decrement off by up to {worst['logdec']:.1%}; "
           f"{time.perf_counter() - t0:.0f} s")
 

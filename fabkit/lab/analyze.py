@@ -411,12 +411,10 @@ def fit_release(problem, track, sigma: float, mu0: float) -> dict:
     # omega and the model's own log-decrement on the fitted noise-free trajectory
     _, sol = model_solve(problem, p[:4, None], p[4:5], t0, t, dense=True)
     te, ve = _dense_extrema(sol, 0, 1, t0, float(t[-1]))
-    # a release fitted with a tiny initial yd has an extremum right at the start (and one
-    # may sit at the end): turning points closer than half a spacing to the next are edges
-    while te.size >= 3 and te[1] - te[0] < 0.5 * np.median(np.diff(te)):
-        te, ve = te[1:], ve[1:]
-    while te.size >= 3 and te[-1] - te[-2] < 0.5 * np.median(np.diff(te)):
-        te, ve = te[:-1], ve[:-1]
+    # the release itself is a turning point (at rest): whether the fitted yd puts it just
+    # inside the track or not, turning points within two frames of either end are left out
+    inner = (te > t0 + 2 * track.dt) & (te < t[-1] - 2 * track.dt)
+    te, ve = te[inner], ve[inner]
     omega = math.pi * (te.size - 1) / (te[-1] - te[0]) if te.size >= 2 else math.nan
     model_ld = None
     if te.size >= 3:
