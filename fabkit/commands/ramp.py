@@ -6,7 +6,7 @@ from pathlib import Path
 
 from ..errors import SpecError
 from ..spec import load_spec
-from ._common import Timer, default_output, emit
+from ._common import Timer, check_paths, default_output, emit
 
 
 def run(args) -> int:
@@ -20,6 +20,7 @@ def run(args) -> int:
     timer = Timer()
     spec = load_spec(args.spec, need=("surface", "stock", "ball", "ramp", "simulation"), command="ramp")
     path = default_output(spec, ".ramp.stl", args.output)
+    check_paths(args, {"--output": path})
     fmt = path.suffix.lower().lstrip(".") or "stl"
     if fmt not in EXPORT_FORMATS:
         raise SpecError(f"unknown mesh format '{path.suffix}' (use one of: "

@@ -10,9 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import SpecError
 from ..spec import load_spec
-from ._common import Timer, default_output, emit
+from ._common import Timer, check_paths, default_output, emit
 
 NEEDS = ("surface", "stock", "tool", "machining", "ball", "ramp", "simulation")
 SURFACE_SAMPLES = (90, 46)   # the 3-D view's grid (x, y)
@@ -40,7 +39,7 @@ def _toolpath(spec, surface):
     t_verify = t.seconds
     timings = {"plan": t_plan, "write": t_write, "verify": t_verify}
     sheet = setup_sheet(spec, surface, tp, prof, f"{spec.name}.ngc", ver, est, text.count("\n"),
-                        timings=timings, generated_at=_generated_at())
+                        timings=timings, generated_at=_generated_at(), program=program)
     L, W = surface.stock_size_mm
     png = preview_png(program, L, W, prof.units)
     return {"png": png, "sheet": sheet, "seconds": timings,
@@ -63,8 +62,7 @@ def run(args) -> int:
     total = Timer()
     spec = load_spec(args.spec, need=NEEDS, command="report")
     path = default_output(spec, ".report.html", args.output)
-    if path.is_dir():
-        raise SpecError("output path is a folder", file=str(path))
+    check_paths(args, {"--output": path})
     surface = Surface.from_spec(spec)
     check_depth(spec, surface)
 
