@@ -63,15 +63,24 @@ def test_launches_bounces_speeds_and_the_tn_fit(cli, tmp_path):
     truths = [L.run((L.START, 0.0, v, 0.0), MU_TRUE, 15.0) for v in speeds]
     files = [_write(tmp_path, f"launch{i}.csv", t, seed=10 + i) for i, t in enumerate(truths)]
     assert [len(t["bounce_times"]) for t in truths] == [2, 2]
+    # a short release in the same run: its fitted damping drives the side-by-side simulations
+    rel = L.run((-28.0, 5.0, 0.0, 0.0), MU_TRUE, 2.0, escape=False)
+    files.append(_write(tmp_path, "release.csv", rel, seed=3))
     code, out, err = cli("analyze", PAPER, *files, "--json", "--plot", "fig.png")
     assert code == 0, err
     res = json.loads(out)
     assert (tmp_path / "fig.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    mu_fit = res["tracks"][2]["damping"]
+    assert res["launch_damping_source"] == "fitted" and res["launch_damping"] == mu_fit
+    assert abs(mu_fit / MU_TRUE - 1) < 0.05
     for r, truth, v in zip(res["tracks"], truths, speeds):
         _check_launch(r, truth, v)
-        sim = r["simulation"]   # the same launch simulated with the spec's damping (no release given)
-        assert sim["damping"] == 0.127 and sim["bounces"] >= 1
-    assert res["launch_damping_source"] == "spec"
+        # the same launch simulated (fabkit's integrator, measured v_in and entry state, fitted
+        # damping) does what the track did
+        sim = r["simulation"]
+        assert sim["damping"] == mu_fit and sim["outcome"] == "escaped" and sim["bounces"] == 2
+        assert np.all(np.abs(np.asarray(sim["bounce_times"]) - truth["bounce_times"]) < 3.0 / FPS)
+        assert abs(sim["v_out"] / truth["v_out"] - 1) < 0.05
     # eq. (tn) over the two two-bounce launches, against the exact bounce times
     tn = res["tn_fit"]
     assert tn["n"] == [3, 4]
