@@ -146,6 +146,31 @@ def build_parser() -> argparse.ArgumentParser:
                    help="launches per Dask task (default: each batch split over the cluster's "
                    "threads; results do not depend on it)")
     c.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+    # ---- the lab: tracked launches, the ramp, the design report ----
+    c = cmd("analyze", "tracked launches and releases: bounces, speeds, the damping fitted with the model")
+    c.add_argument("tracks", nargs="+", metavar="TRACK",
+                   help="Tracker text export, CSV t,x,y or frame,x,y (with --fps), or trackpy CSV")
+    c.add_argument("--fps", type=float, metavar="F",
+                   help="frames per second, 1/s (for frame columns: t = frame / F)")
+    c.add_argument("--scale", type=float, metavar="S", help="design units per video unit, e.g. cm per pixel "
+                   "(default 1: the track is already in design units)")
+    c.add_argument("--origin", type=float, nargs=2, metavar=("X", "Y"),
+                   help="the design origin in video coordinates, video units (default 0 0)")
+    c.add_argument("--rotate", type=float, metavar="DEG",
+                   help="turn the video frame counterclockwise by DEG degrees (default 0)")
+    c.add_argument("--flip-y", action="store_true", dest="flip_y", help="video y grows downward")
+    c.add_argument("--json", action="store_true", help="print JSON")
+    c.add_argument("--plot", metavar="FILE", help="track and model overlaid, x(t) and y(t): " + PLOT)
+
+    c = cmd("ramp", "the launch ramp as a watertight solid, with release marks at calibrated heights")
+    c.add_argument("-o", "--output", metavar="PATH", help="output file (default toolpaths/<name>.ramp.stl; "
+                   "other mesh formats by extension)")
+    c.add_argument("--json", action="store_true", help="print JSON")
+
+    c = cmd("report", "the whole design on one self-contained HTML page (verdict, surface, toolpath, sweep, ...)")
+    c.add_argument("-o", "--output", metavar="PATH", help="output page (default toolpaths/<name>.report.html)")
+    c.add_argument("--json", action="store_true", help="print JSON")
     return p
 
 

@@ -328,3 +328,47 @@ def precision_png(sim_rows: list[dict], *, title: str = "", floor: float | None 
     fig.tight_layout()
     _place_labels(fig, ax, labels)
     return _png(plt, fig, fmt)
+
+
+def analyze_figure(rows: list[dict], *, title: str = "", units: str = "", fmt: str = "png") -> bytes:
+    """Tracked and simulated x(t), y(t) overlaid, one pair of panels per track (the
+    paper's trajectory figures): dots the track, lines the model (a release: the fitted
+    model; a launch: the simulation of the same launch), dashes the tracked bounces."""
+    n = max(1, len(rows))
+    plt, fig = _figure(figsize=(10, 2.6 * n + 0.6))
+    for k, r in enumerate(rows):
+        ax1 = fig.add_subplot(n, 2, 2 * k + 1)
+        ax2 = fig.add_subplot(n, 2, 2 * k + 2, sharex=ax1)
+        tr = r.get("_track", {})
+        model = r.get("_model") or (r.get("simulation") or {}).get("_model")
+        for ax, key in ((ax1, "x"), (ax2, "y")):
+            if tr:
+                ax.plot(tr["t"], tr[key], ".", ms=2.0, color="0.35", label="track")
+            if model is not None:
+                ax.plot(model["t"], model[key], "-", lw=1.1, color="C3", alpha=0.85,
+                        label="model fit" if r.get("kind") == "release" else "simulation")
+            for j, tb in enumerate(r.get("bounce_times", [])):
+                ax.axvline(tb, color="C0", lw=0.8, ls="--", label="bounce (track)" if j == 0 else None)
+            ax.grid(alpha=0.3)
+            ax.set_ylabel(f"{key} ({units})" if units else key)
+        if k == n - 1:
+            ax1.set_xlabel("t (s)")
+            ax2.set_xlabel("t (s)")
+        name = str(r.get("file", "")).rsplit("/", 1)[-1]
+        if r.get("kind") == "release":
+            head = (f"{name}: release, damping {r.get('damping', float('nan')):.4g} 1/s (fit), "
+                    f"log-dec {r.get('damping_logdec') or float('nan'):.4g}, omega {r.get('omega', float('nan')):.4g}")
+        else:
+            sim = r.get("simulation") or {}
+            vo = r.get("v_out")
+            head = (f"{name}: launch v_in {r.get('v_in') or float('nan'):.4g}, {r.get('bounces')} bounce(s), "
+                    f"{r.get('outcome')}" + (f" v_out {vo:.4g}" if vo else "")
+                    + (f" | sim: {sim.get('bounces')} bounce(s), {sim.get('outcome')}"
+                       + (f" v_out {sim['v_out']:.4g}" if sim.get("v_out") else "") if sim else ""))
+        ax1.set_title(head, fontsize=8, loc="left")
+        if k == 0:
+            ax1.legend(loc="best", fontsize=7)
+    if title:
+        fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    return _png(plt, fig, fmt)

@@ -1,0 +1,108 @@
+"""``fabkit report SPEC [-o PATH]``: the whole design on one self-contained HTML page.
+
+Computes the results (check, sweep, toolpath with its verified cut and setup sheet,
+calibration, the surface's samples, the ramp's marks) and hands them to
+:func:`fabkit.report.render`, which only lays them out. Exit 0 whatever the verdict
+(the page states it; ``fabkit check`` is the gate that exits 1).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..spec import load_spec
+from ._common import Timer, check_paths, default_output, emit
+
+NEEDS = ("surface", "stock", "tool", "machining", "ball", "ramp", "simulation")
+SURFACE_SAMPLES = (90, 46)   # the 3-D view's grid (x, y)
+
+
+def _toolpath(spec, surface):
+    from ..toolpath.gcode import profile_from_spec, write_program
+    from ..toolpath.raster import plan_toolpath
+    from ..toolpath.setup import preview_png, setup_sheet
+    from ..toolpath.verify import estimate_time, read_program, verify_cut
+    from .gcode import _generated_at
+
+    t = Timer()
+    tp = plan_toolpath(spec, surface)
+    t_plan = t.seconds
+    t = Timer()
+    prof = profile_from_spec(spec, surface)
+    text = write_program(tp, prof)
+    program = read_program(text)
+    est = estimate_time(program, prof.rapid)
+    t_write = t.seconds
+    t = Timer()
+    ver = verify_cut(surface, program, spec.tool.diameter / 2.0, spec.machining.verify_points,
+                     depth_limit=spec.stock.depth_limit, reach=spec.tool.reach)
+    t_verify = t.seconds
+    timings = {"plan": t_plan, "write": t_write, "verify": t_verify}
+    sheet = setup_sheet(spec, surface, tp, prof, f"{spec.name}.ngc", ver, est, text.count("\n"),
+                        timings=timings, generated_at=_generated_at(), program=program)
+    L, W = surface.stock_size_mm
+    png = preview_png(program, L, W, prof.units)
+    return {"png": png, "sheet": sheet, "seconds": timings,
+            "verify": {k: ver[k] for k in ("max_gouge", "max_material_left", "checked_points") if k in ver}}
+
+
+def run(args) -> int:
+    from .. import __version__
+    from ..io import write_atomic
+    from ..lab.ramp import mark_targets
+    from ..physics.calibrate import calibration_table
+    from ..physics.check import check
+    from ..physics.models import problem_from_spec
+    from ..physics.sweep import sweep
+    from ..plots import sweep_figure
+    from ..report import render
+    from ..surface import Surface, check_depth
+    from .gcode import _generated_at
+
+    total = Timer()
+    spec = load_spec(args.spec, need=NEEDS, command="report")
+    path = default_output(spec, ".report.html", args.output)
+    check_paths(args, {"--output": path})
+    surface = Surface.from_spec(spec)
+    check_depth(spec, surface)
+
+    t = Timer()
+    cal = calibration_table(spec)
+    cal["seconds"] = t.seconds
+
+    chk = check(spec)
+
+    t = Timer()
+    problem = problem_from_spec(spec)
+    v = np.unique(np.asarray(cal["v_in"], dtype=float))
+    sw = sweep(problem, v, error_samples=24)
+    sw_png = sweep_figure(sw, f"{spec.name}: {problem.model} model, damping {problem.damping:g} 1/s")
+    sweep_res = {"png": sw_png, "v_critical": sw["v_critical"], "v_critical_error": sw["v_critical_error"],
+                 "windows": sw["windows"], "error_estimate": sw["error_estimate"], "launches": sw["launches"],
+                 "seconds": t.seconds}
+
+    tool = _toolpath(spec, surface)
+
+    nx, ny = SURFACE_SAMPLES
+    xs = np.linspace(surface.x_range[0], surface.x_range[1], nx)
+    ys = np.linspace(surface.y_range[0], surface.y_range[1], ny)
+    GX, GY = np.meshgrid(xs, ys, indexing="ij")
+    surf = {"x": xs, "y": ys, "z": surface.clipped(GX, GY), "top": surface.top,
+            "start": float(spec.simulation.start), "y0": float(spec.simulation.y0)}
+
+    marks = mark_targets(chk, cal["g"], cal["k"])
+    results = {"name": spec.name, "units": spec.units, "spec_path": str(args.spec), "version": __version__,
+               "generated_at": _generated_at(), "check": chk, "surface": surf, "sweep": sweep_res,
+               "toolpath": tool, "calibration": cal, "ramp_marks": marks}
+    results["seconds"] = total.seconds
+    page = render(results)
+    write_atomic(path, page)
+    verdict = "SAFE" if chk["safe"] else "UNSAFE"
+    payload = {"path": str(path), "verdict": verdict, "safe": chk["safe"], "bytes": len(page.encode()),
+               "seconds": total.seconds,
+               "seconds_by_part": {"check": chk["seconds"], "sweep": sweep_res["seconds"],
+                                   **{f"toolpath_{k}": v for k, v in tool["seconds"].items()}}}
+    emit([f"report: {path} ({len(page.encode()) / 1e6:.2f} MB, self-contained), verdict {verdict}, "
+          f"{total.seconds:.1f} s (check {chk['seconds']:.1f}, sweep {sweep_res['seconds']:.1f}, toolpath "
+          f"{sum(tool['seconds'].values()):.1f})"], payload, args.json)
+    return 0

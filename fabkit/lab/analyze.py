@@ -1,0 +1,619 @@
+"""Analysis of tracked launches and releases: events, speeds, and fits with the model.
+
+Pure functions on :class:`tracks.Track` and the spec's :class:`models.Problem`; no
+printing, no files. Lengths in design units, times in s.
+
+Noise
+-----
+The tracking noise sigma of x (and of y) is the robust spread of the residuals of a
+local cubic fit over 9 frames (Savitzky-Golay): 1.4826 MAD / sqrt(1 - w0), w0 the
+filter's centre weight. Smooth motion leaves a cubic's residual far below the noise
+at camera rates.
+
+Bounces: maxima of x, robust to noise
+-------------------------------------
+Candidates are the maxima of x smoothed by a local cubic fit over 9 frames; one counts
+as a bounce only if its prominence (how far x falls on both sides before rising above
+it again) exceeds 8 sigma + 0.1 % of the track's x span, so noise wiggles (a few
+sigma) never count while a real turn on the wall (centimetres) always does. Each
+bounce time is then the vertex of a least-squares parabola through the raw x over
+the 9 frames around the candidate (re-centred once): sub-frame, error about
+sigma / (|x''| dt^2 sqrt(60)) frames.
+
+Entry and exit speeds
+---------------------
+The model's state at the first frame and the viscous damping are fitted by least
+squares to the frames before the first bounce (x0, y0, vx0, vy0, mu; mu starts from the
+releases' fitted damping when the same run has releases, else the spec's: a leg of a
+second or more pins it well, so a wrong spec damping does not bias the speeds), then
+carried along the model to x = start: ``v_in`` = |xd| there (and y, yd there start the side-by-side simulation).
+Likewise the state at the last frame from the frames after the last bounce, carried
+forward to x = start: ``v_out``. Errors: one sigma of the fitted xd. A launch whose
+track ends moving toward -x, left of the well, after a bounce, and that the model
+carries back to x = start has ``escaped``; one with a point beyond top - margin or
+outside the footprint shrunk by the margin ``flew_off``; else ``captured``.
+
+Releases: the damping fitted with the model
+-------------------------------------------
+The spec's model (models.fused, eq. xyODE or xyODE_simp, with the spec's nonlinear
+damping) with viscous damping mu is integrated from the first frame (scipy DOP853,
+rtol 1e-8) and x(t), y(t) at the frame times are fitted to the track by least
+squares over (x0, y0, vx0, vy0, mu) (Jacobian by finite differences, all perturbed
+lanes in one integration so they share their steps). ``omega``: pi / (mean spacing
+of successive extrema of the fitted y(t)). Errors: one standard deviation from the
+fit's covariance. ``damping_logdec``: the paper's estimate, from the half
+peak-to-peak amplitudes A_k of successive extrema of the track's y: ln A_k = c -
+mu t_k / 2 by least squares; it assumes the linear oscillator y'' + mu y' + w^2 y = 0.
+In the full model the ball's kinetic energy includes zdot^2 = (h_y ydot)^2, so at
+large amplitude the transverse oscillation is anharmonic: it spends more of each
+period near its turning points, the mean kinetic energy (the part viscous damping
+removes) is below half the energy, and the amplitude decays slower than
+e^{-mu t/2}. ``logdec_ratio`` measures that bias on the fitted model's own noise-free
+trajectory (log-decrement of the model / fitted mu).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+from ..errors import SpecError
+
+SG_WINDOW = 9          # frames of the local cubic fits (noise and smoothing)
+PROMINENCE_SIGMA = 8.0
+EDGE_SECONDS = 0.16    # window of the entry / exit fits
+PEAK_HALF = 4          # frames either side of a bounce in its parabola fit
+FIT_RTOL = 1e-8
+
+
+# ----------------------------------------------------------------------------
+# noise and extrema
+# ----------------------------------------------------------------------------
+def _savgol(z: np.ndarray, w: int = SG_WINDOW, order: int = 3):
+    """Local least-squares polynomial smoothing (Savitzky-Golay) over w frames, the
+    ends from the polynomial fitted to the first and last w samples; and the filter's
+    centre weight. numpy only (scipy.signal's import alone costs seconds)."""
+    z = np.asarray(z, dtype=float)
+    n = len(z)
+    w = min(w, n - (1 - n % 2))
+    if w < order + 2:
+        return z.copy(), 1.0
+    k = np.arange(w) - w // 2
+    A = np.vander(k, order + 1, increasing=True)
+    P = np.linalg.pinv(A)                 # rows: coefficients of 1, k, k^2, ... per sample
+    out = np.convolve(z, P[0][::-1], mode="same")
+    h = w // 2
+    for sl, ks in ((slice(0, w), k[:h] if h else k[:0]), (slice(n - w, n), k[-h:] if h else k[:0])):
+        c = P @ z[sl]
+        vals = np.vander(ks, order + 1, increasing=True) @ c
+        if sl.start == 0:
+            out[:h] = vals
+        else:
+            out[n - h:] = vals
+    return out, float(P[0][h])
+
+
+def noise_sigma(z: np.ndarray) -> float:
+    """Robust tracking-noise estimate of one coordinate (see the module doc)."""
+    sm, w0 = _savgol(z)
+    r = np.asarray(z, dtype=float) - sm
+    mad = float(np.median(np.abs(r - np.median(r))))
+    return 1.4826 * mad / math.sqrt(max(1.0 - w0, 1e-6))
+
+
+def _smooth(z):
+    return _savgol(z)[0]
+
+
+def _peaks(s: np.ndarray, prominence: float) -> np.ndarray:
+    """Indices of the local maxima of s whose topographic prominence (the drop to the
+    higher of the two lowest points before s rises above the peak again, on either
+    side) is at least ``prominence``."""
+    n = len(s)
+    cand = np.flatnonzero((s[1:-1] > s[:-2]) & (s[1:-1] >= s[2:])) + 1
+    keep = []
+    for i in cand:
+        v = s[i]
+        lo_l = v
+        j = i - 1
+        while j >= 0 and s[j] <= v:
+            lo_l = min(lo_l, s[j])
+            j -= 1
+        lo_r = v
+        j = i + 1
+        while j < n and s[j] <= v:
+            lo_r = min(lo_r, s[j])
+            j += 1
+        if v - max(lo_l, lo_r) >= prominence:
+            keep.append(i)
+    return np.asarray(keep, dtype=int)
+
+
+def extrema(t: np.ndarray, z: np.ndarray, sigma: float, sign: int = 1, min_prominence: float = 0.0):
+    """Maxima (sign=+1) or minima (-1) of a noisy series: (times (K,), values (K,), frames (K,)).
+
+    Prominence above max(PROMINENCE_SIGMA sigma + 1e-3 span, min_prominence); times
+    and values from a parabola through the raw samples around each (module doc)."""
+    s = sign * _smooth(z)
+    span = float(np.ptp(z)) if len(z) else 0.0
+    prom = max(PROMINENCE_SIGMA * sigma + 1e-3 * span, min_prominence, 1e-300)
+    idx = _peaks(s, prom)
+    times, vals, frames = [], [], []
+    for i in idx:
+        tv = _vertex(t, sign * z, int(i))
+        if tv is None:
+            continue
+        times.append(tv[0])
+        vals.append(sign * tv[1])
+        frames.append(int(i))
+    return np.array(times), np.array(vals), np.array(frames, dtype=int)
+
+
+def _vertex(t, z, i, half=PEAK_HALF):
+    """Vertex of the least-squares parabola through z around frame i (re-centred once)."""
+    n = len(t)
+    for _ in range(2):
+        a, b = max(0, i - half), min(n, i + half + 1)
+        if b - a < 5:
+            return None
+        tc = t[i]
+        c2, c1, c0 = np.polyfit(t[a:b] - tc, z[a:b], 2)
+        if not c2 < 0:
+            return float(t[i]), float(z[i])
+        tv = -c1 / (2 * c2)
+        j = int(np.clip(np.searchsorted(t, tc + tv), a, b - 1))
+        if abs(tc + tv - t[j]) > abs(tc + tv - t[max(j - 1, 0)]):
+            j = max(j - 1, 0)
+        if j == i:
+            break
+        i = j
+    tv = float(np.clip(tv, t[a] - tc, t[b - 1] - tc))
+    return tc + tv, float(c0 + c1 * tv + c2 * tv * tv)
+
+
+def _vertex_errors(t, z, times, sigma, half=PEAK_HALF):
+    """One-sigma errors (s) of parabola-vertex times: sigma_c1 / (2 |c2|), c1 and c2 the
+    slope and half-curvature of the local fit (the slope vanishes at the vertex)."""
+    out = []
+    for tb in times:
+        i = int(np.clip(np.searchsorted(t, tb), 0, len(t) - 1))
+        a, b = max(0, i - half), min(len(t), i + half + 1)
+        dt = t[a:b] - tb
+        c2 = np.polyfit(dt, z[a:b], 2)[0]
+        A = np.column_stack([dt * dt, dt, np.ones_like(dt)])
+        cov = np.linalg.inv(A.T @ A) * sigma * sigma
+        out.append(math.sqrt(cov[1, 1]) / (2 * abs(c2)) if c2 != 0 else math.nan)
+    return out
+
+
+# ----------------------------------------------------------------------------
+# states at the ends of a track
+# ----------------------------------------------------------------------------
+def edge_state(track, end: bool = False, seconds: float = EDGE_SECONDS):
+    """(t, x, y, vx, vy) at the first (last) frame from quadratic fits over ``seconds``."""
+    t = track.t
+    if end:
+        sel = np.flatnonzero(t >= t[-1] - seconds)
+    else:
+        sel = np.flatnonzero(t <= t[0] + seconds)
+    if sel.size < 6:
+        sel = np.arange(len(t) - 6, len(t)) if end else np.arange(6)
+    t0 = t[-1] if end else t[0]
+    out = [float(t0)]
+    pos, vel = [], []
+    for z in (track.x, track.y):
+        c = np.polyfit(t[sel] - t0, z[sel], 2)
+        pos.append(float(c[2]))
+        vel.append(float(c[1]))
+    return (out[0], pos[0], pos[1], vel[0], vel[1])
+
+
+def fit_leg(problem, track, sel: np.ndarray, end: bool, mu: float) -> dict:
+    """The model's state at the first (``end``: last) frame and the viscous damping, fitted
+    by least squares to the frames ``sel`` (a leg of a launch: before its first bounce, or
+    after its last); ``mu`` is the damping's starting value. Returns {"t", "state" (4,),
+    "error" (4,) one sigma, "damping", "damping_error", "rms"}."""
+    from scipy.optimize import least_squares
+
+    t = track.t
+    anchor = len(t) - 1 if end else 0
+    idx = np.unique(np.concatenate([[anchor], sel]))
+    if end:
+        idx = idx[::-1]
+    te = t[idx]
+    data = np.concatenate([track.x[idx], track.y[idx]])
+    st = edge_state(track, end=end)
+    p0 = np.array([*st[1:5], max(float(mu), 1e-3)])
+    t0 = float(t[anchor])
+
+    def run(P):
+        Y, _ = model_solve(problem, P[:, :4].T.copy(), P[:, 4], t0, te, rtol=FIT_RTOL)
+        return Y
+
+    def fun(p):
+        Y = run(p[None, :])
+        return np.concatenate([Y[0, 0], Y[1, 0]]) - data
+
+    def jac(p):
+        h = 1e-5 * np.maximum(1.0, np.abs(p))
+        P = np.vstack([p] + [p + np.eye(5)[j] * h[j] for j in range(5)])
+        Y = run(P)
+        base = np.concatenate([Y[0, 0], Y[1, 0]])
+        return np.column_stack([(np.concatenate([Y[0, j + 1], Y[1, j + 1]]) - base) / h[j] for j in range(5)])
+
+    res = least_squares(fun, p0, jac=jac, method="lm", xtol=1e-10, max_nfev=40)
+    r = res.fun
+    s2 = float(r @ r) / max(1, r.size - 5)
+    try:
+        err = np.sqrt(np.maximum(np.diag(np.linalg.inv(res.jac.T @ res.jac) * s2), 0.0))
+    except np.linalg.LinAlgError:
+        err = np.full(5, np.nan)
+    return {"t": t0, "state": res.x[:4], "error": err[:4], "damping": float(res.x[4]),
+            "damping_error": float(err[4]), "rms": float(math.sqrt(float(r @ r) / r.size))}
+
+
+def model_to_start(problem, t0: float, state, mu: float, t_limit: float = 30.0):
+    """Carry a state along the model to x = start, forward or backward in time, whichever
+    way its velocity meets that line. Returns (t, x, y, vx, vy) at the crossing, or None
+    if it does not get there within ``t_limit`` s."""
+    from scipy.integrate import solve_ivp
+
+    from ..physics.models import rhs
+
+    p = problem.with_(damping=float(mu))  # (one launch: the model's rhs as documented)
+    x_s = problem.start
+    backward = (state[0] - x_s) * state[2] > 0
+
+    def f(t, Y):
+        return rhs(p, np.asarray(Y))
+
+    def hit(t, Y):
+        return Y[0] - x_s
+    hit.terminal = True
+    with np.errstate(all="ignore"):
+        sol = solve_ivp(f, (t0, t0 - t_limit if backward else t0 + t_limit), list(state), method="DOP853",
+                        rtol=1e-10, atol=1e-10, events=[hit])
+    if not len(sol.t_events[0]):
+        return None
+    return (float(sol.t_events[0][0]), *map(float, sol.y_events[0][0]))
+
+
+def well_bottom(problem) -> float:
+    """x of the channel's lowest point on y = 0 within the footprint."""
+    xs = np.linspace(problem.x_range[0], problem.x_range[1], 4001)
+    return float(xs[int(np.argmin(problem.fns.h(xs, np.zeros_like(xs))))])
+
+
+# ----------------------------------------------------------------------------
+# model integration (for the fits): the spec's right-hand side, damping per lane
+# ----------------------------------------------------------------------------
+def model_solve(problem, S0: np.ndarray, mu: np.ndarray, t0: float, t_eval: np.ndarray,
+                rtol: float = FIT_RTOL, dense: bool = False):
+    """Integrate lanes of the spec's model from t0: S0 (4, m) states, mu (m,) viscous damping.
+
+    The conservative part (and any nonlinear damping) is ``models.rhs`` of the problem
+    with its viscous damping set to 0; -mu v is added per lane, exactly as the model
+    adds it. Returns (Y (4, m, len(t_eval)), sol)."""
+    from scipy.integrate import solve_ivp
+
+    from ..physics.models import fused
+
+    fn = fused(problem.with_(damping=0.0))   # the model's generated right-hand side
+    m = S0.shape[1]
+    mu = np.asarray(mu, dtype=float).reshape(m)
+    d = np.empty((4, m))
+
+    def f(t, Yf):
+        S = Yf.reshape(4, m)
+        ax, ay = fn(S[0], S[1], S[2], S[3])[:2]
+        d[0], d[1] = S[2], S[3]
+        d[2] = ax - mu * S[2]
+        d[3] = ay - mu * S[3]
+        return d.ravel().copy()
+
+    scale = max(1.0, float(np.max(np.abs(S0))))
+    with np.errstate(all="ignore"):
+        sol = solve_ivp(f, (t0, float(t_eval[-1])), S0.ravel(), method="DOP853", rtol=rtol,
+                        atol=rtol * scale, t_eval=t_eval, dense_output=dense)
+    if sol.status != 0 or sol.y.shape[1] != len(t_eval):
+        raise SpecError(f"the model cannot follow this track ({sol.message})", key="fit")
+    return sol.y.reshape(4, m, len(t_eval)), sol
+
+
+# ----------------------------------------------------------------------------
+# releases
+# ----------------------------------------------------------------------------
+def logdec(t, y, sigma):
+    """The paper's log-decrement estimate from successive extrema of y: dict with
+    damping (1/s), omega (rad/s), amplitudes, times; None if fewer than 3 extrema."""
+    tmax, vmax, _ = extrema(t, y, sigma, +1)
+    tmin, vmin, _ = extrema(t, y, sigma, -1)
+    te = np.concatenate([tmax, tmin])
+    ve = np.concatenate([vmax, vmin])
+    o = np.argsort(te)
+    te, ve = te[o], ve[o]
+    if te.size < 3:
+        return None
+    amp = 0.5 * np.abs(np.diff(ve))
+    tm = 0.5 * (te[1:] + te[:-1])
+    ok = amp > 0
+    if ok.sum() < 2:
+        return None
+    slope, _ = np.polyfit(tm[ok], np.log(amp[ok]), 1)
+    omega = math.pi * (te.size - 1) / (te[-1] - te[0])
+    return {"damping": float(-2.0 * slope), "omega": float(omega), "extrema": int(te.size),
+            "amplitude_first": float(amp[0]), "amplitude_last": float(amp[-1])}
+
+
+def _dense_extrema(sol, lane: int, m: int, t0: float, t1: float, n: int = 20000):
+    """Times of the extrema of y of one lane of a dense model solution (roots of vy)."""
+    from scipy.optimize import brentq
+
+    ts = np.linspace(t0, t1, n)
+    Y = sol.sol(ts).reshape(4, m, n)
+    vy = Y[3, lane]
+    out, vals = [], []
+    for i in np.flatnonzero(np.sign(vy[:-1]) * np.sign(vy[1:]) < 0):
+        r = brentq(lambda s: sol.sol(s).reshape(4, m)[3, lane], ts[i], ts[i + 1], xtol=1e-12)
+        out.append(r)
+        vals.append(float(sol.sol(r).reshape(4, m)[1, lane]))
+    return np.array(out), np.array(vals)
+
+
+def fit_release(problem, track, sigma: float, mu0: float) -> dict:
+    """Least-squares fit of (x0, y0, vx0, vy0, mu) to a release track (module doc)."""
+    from scipy.optimize import least_squares
+
+    t = track.t
+    st = edge_state(track)
+    p0 = np.array([st[1], st[2], st[3], st[4], max(mu0, 1e-3)])
+    t0 = float(t[0])
+    data = np.concatenate([track.x, track.y])
+    steps = np.full(5, 1e-5)
+    cache = {}
+
+    def run(P):
+        S0 = np.array(P[:, :4]).T
+        Y, _ = model_solve(problem, S0, P[:, 4], t0, t)
+        return Y
+
+    def fun(p):
+        key = p.tobytes()
+        if key not in cache:
+            Y = run(p[None, :])
+            cache.clear()
+            cache[key] = np.concatenate([Y[0, 0], Y[1, 0]]) - data
+        return cache[key]
+
+    def jac(p):
+        h = steps * np.maximum(1.0, np.abs(p))
+        P = np.vstack([p] + [p + np.eye(5)[j] * h[j] for j in range(5)])
+        Y = run(P)
+        base = np.concatenate([Y[0, 0], Y[1, 0]])
+        J = np.empty((base.size, 5))
+        for j in range(5):
+            J[:, j] = (np.concatenate([Y[0, j + 1], Y[1, j + 1]]) - base) / h[j]
+        return J
+
+    t_start = time.perf_counter()
+    res = least_squares(fun, p0, jac=jac, method="lm", xtol=1e-10, ftol=1e-12, max_nfev=60)
+    p = res.x
+    r = res.fun
+    dof = max(1, r.size - p.size)
+    s2 = float(r @ r) / dof
+    try:
+        cov = np.linalg.inv(res.jac.T @ res.jac) * s2
+        err = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    except np.linalg.LinAlgError:
+        err = np.full(5, np.nan)
+    # omega and the model's own log-decrement on the fitted noise-free trajectory
+    _, sol = model_solve(problem, p[:4, None], p[4:5], t0, t, dense=True)
+    te, ve = _dense_extrema(sol, 0, 1, t0, float(t[-1]))
+    # the release itself is a turning point (at rest): whether the fitted yd puts it just
+    # inside the track or not, turning points within two frames of either end are left out
+    inner = (te > t0 + 2 * track.dt) & (te < t[-1] - 2 * track.dt)
+    te, ve = te[inner], ve[inner]
+    omega = math.pi * (te.size - 1) / (te[-1] - te[0]) if te.size >= 2 else math.nan
+    model_ld = None
+    if te.size >= 3:
+        amp = 0.5 * np.abs(np.diff(ve))
+        tm = 0.5 * (te[1:] + te[:-1])
+        model_ld = float(-2.0 * np.polyfit(tm, np.log(amp), 1)[0])
+    # omega's error: the extrema spacing moves with the fitted state; propagate by the
+    # fit's covariance through a finite difference of omega in mu and y0 (the dominant terms)
+    ys = sol.sol(t)
+    return {
+        "damping": float(p[4]), "damping_error": float(err[4]),
+        "omega": float(omega),
+        "initial_state": {"t": t0, "x": float(p[0]), "y": float(p[1]), "vx": float(p[2]), "vy": float(p[3])},
+        "initial_state_error": {k: float(e) for k, e in zip(("x", "y", "vx", "vy"), err[:4])},
+        "residual_rms": float(math.sqrt(float(r @ r) / r.size)),
+        "noise_sigma": float(sigma),
+        "iterations": int(res.nfev), "fit_seconds": time.perf_counter() - t_start,
+        "model_logdec": model_ld,
+        "_model": {"t": t, "x": ys[0], "y": ys[1]},
+    }
+
+
+# ----------------------------------------------------------------------------
+# launches
+# ----------------------------------------------------------------------------
+def simulate_launch(problem, v_in: float, y0: float, vy0: float, mu: float, t_shift: float) -> dict:
+    """The same launch through fabkit's simulator (integrate.launch_batch), times shifted
+    to the track's clock (``t_shift`` = the track's time at x = start)."""
+    from ..physics.integrate import launch_batch
+    from ..physics.models import OUTCOMES
+
+    p = problem.with_(damping=float(mu))
+    r = launch_batch(p, [float(v_in)], [float(y0)], [float(vy0)], record=True, workers=1)
+    nb = int(r.bounces[0])
+    bt = [float(b) + t_shift for b in r.bounce_times[0][: min(nb, r.bounce_times.shape[1])]]
+    tr = r.trajectories[0] if r.trajectories else None
+    out = {"outcome": OUTCOMES[int(r.outcome[0])], "bounces": nb, "bounce_times": bt,
+           "v_out": float(r.v_out[0]) if math.isfinite(r.v_out[0]) else None,
+           "damping": float(mu), "v_in": float(v_in), "y0": float(y0), "vy0": float(vy0),
+           "seconds": float(r.seconds)}
+    if tr is not None:
+        from ..plots import hermite_samples  # numpy only; plots imports matplotlib lazily
+
+        d = hermite_samples(tr, n=3000)
+        out["_model"] = {"t": d["t"] + t_shift, "x": d["x"], "y": d["y"]}
+    return out
+
+
+def classify(track, sigma: float) -> tuple[str, float]:
+    """('launch' | 'release', speed at the first frame). A launch enters moving toward
+    +x faster than 20 sigma per 0.16 s (far above the speed noise of the fit)."""
+    st = edge_state(track)
+    speed = math.hypot(st[3], st[4])
+    thresh = 20.0 * max(sigma, 1e-9) / EDGE_SECONDS
+    return ("launch" if st[3] > thresh else "release"), speed
+
+
+def outcome_of(problem, track, bounces_t, exit_state):
+    """What the track shows: flew_off (a point beyond top - margin or outside the
+    footprint shrunk by the margin); escaped (after its last bounce it leaves toward -x,
+    left of the well, and the model carries it back through x = start: ``exit_state``
+    is that crossing), else captured (still on the surface when the track ends)."""
+    m = problem.margin
+    z = problem.fns.h(track.x, track.y)
+    if np.any(z > problem.top - m) or np.any(track.x < problem.x_range[0] + m) or \
+            np.any(track.x > problem.x_range[1] - m) or np.any(track.y < problem.y_range[0] + m) or \
+            np.any(track.y > problem.y_range[1] - m):
+        return "flew_off", None
+    if exit_state is not None and len(bounces_t) and track.x[-1] < well_bottom(problem):
+        return "escaped", abs(exit_state[3])
+    return "captured", None
+
+
+def _launch_speeds(problem, track, bt, mu) -> dict:
+    """v_in, v_out and the outcome of a launch by model fits of its two legs (module doc)."""
+    t = track.t
+    t_in_end = (bt[0] if bt.size else t[0] + 1.0)
+    sel = np.flatnonzero(t <= t_in_end)
+    leg = fit_leg(problem, track, sel, False, mu)
+    entry = model_to_start(problem, leg["t"], leg["state"], leg["damping"])
+    out = {"entry_fit": {"t": leg["t"], "state": leg["state"].tolist(), "error": leg["error"].tolist(),
+                         "damping": leg["damping"], "damping_error": leg["damping_error"], "rms": leg["rms"]}}
+    v_in = abs(entry[3]) if entry is not None else None
+    # v_in's error: the fitted vx's error (the carry to x = start is exact to the model)
+    out["v_in"], out["v_in_error"] = v_in, float(leg["error"][2])
+    out["_entry"] = entry
+    out["t_entry"] = entry[0] if entry is not None else None
+    exit_state = None
+    if bt.size and t[-1] - bt[-1] > 0.1:
+        sel = np.flatnonzero(t >= bt[-1])
+        leg2 = fit_leg(problem, track, sel, True, mu)
+        if leg2["state"][2] < 0:
+            exit_state = model_to_start(problem, leg2["t"], leg2["state"], leg2["damping"])
+        out["exit_fit"] = {"t": leg2["t"], "state": leg2["state"].tolist(), "error": leg2["error"].tolist(),
+                           "damping": leg2["damping"], "damping_error": leg2["damping_error"], "rms": leg2["rms"]}
+        out["v_out_error"] = float(leg2["error"][2])
+    outcome, v_out = outcome_of(problem, track, bt, exit_state)
+    out["outcome"], out["v_out"] = outcome, v_out
+    if v_out is None:
+        out.pop("v_out_error", None)
+    return out
+
+
+def analyze_track(problem, track, mu_launch: float | None = None) -> dict:
+    """One track: kind, bounces, speeds; a release is fitted with the model, a launch is
+    simulated side by side (with ``mu_launch``, default the spec's damping)."""
+    t0c = time.perf_counter()
+    sx, sy = noise_sigma(track.x), noise_sigma(track.y)
+    sigma = max(sx, sy)
+    kind, _ = classify(track, sigma)
+    bt, bx, _ = extrema(track.t, track.x, sigma, +1)
+    out = {"file": track.file, "kind": kind, "format": track.format, "frames": len(track),
+           "fps": 1.0 / track.dt, "noise_sigma": sigma, "bounces": int(bt.size),
+           "bounce_times": [float(b) for b in bt],
+           "bounce_time_errors": [float(e) for e in _vertex_errors(track.t, track.x, bt, sigma)],
+           "notes": list(track.notes)}
+    if track.particle is not None:
+        out["particle"] = track.particle
+    mu_spec = float(problem.damping)
+    if kind == "release":
+        fit = fit_release(problem, track, sigma, mu_spec if mu_spec > 0 else 0.1)
+        ld = logdec(track.t, track.y, sigma)
+        out.update({k: v for k, v in fit.items()})
+        out["damping_logdec"] = ld["damping"] if ld else None
+        out["omega_logdec"] = ld["omega"] if ld else None
+        out["logdec_ratio"] = (fit["model_logdec"] / fit["damping"]) if fit["model_logdec"] and fit["damping"] \
+            else None
+        if out["logdec_ratio"] is not None:
+            A = fit["initial_state"]["y"]
+            out["damping_logdec_note"] = (
+                f"the log-decrement assumes the linear oscillator y'' + mu y' + w^2 y = 0; at this amplitude "
+                f"(|y| up to {abs(A):.3g}) the model's transverse motion is anharmonic (the ball's kinetic energy "
+                f"includes (h_y ydot)^2), so the viscous loss per period is a smaller fraction of the energy and "
+                f"the maxima decay slower than exp(-mu t/2): on the fitted model itself the log-decrement reads "
+                f"{out['logdec_ratio']:.3f} x mu. The model fit has no such bias.")
+        out["paper_form"] = (f"y'' + {fit['damping'] / fit['omega']:.4f} y' + y = 0 in a "
+                             f"{1.0 / fit['omega']:.4f} s time unit") if fit["omega"] > 0 else None
+        out["outcome"] = outcome_of(problem, track, bt, None)[0]
+        out["v_in"] = None
+        out["v_out"] = None
+    else:
+        mu = mu_spec if mu_launch is None else float(mu_launch)
+        out.update(_launch_speeds(problem, track, bt, mu))
+        ent = out.get("_entry")
+        if ent is not None:
+            out["simulation"] = simulate_launch(problem, out["v_in"], ent[2], ent[4], mu, ent[0])
+        # transverse maxima between the first two bounces (eq. tn's n)
+        if bt.size == 2:
+            ty, _, _ = extrema(track.t, track.y, sy, +1)
+            out["T_n"] = float(bt[1] - bt[0])
+            out["n"] = int(np.sum((ty > bt[0]) & (ty < bt[1])))
+    out["seconds"] = time.perf_counter() - t0c
+    return out
+
+
+def fit_tn(rows: list[dict]) -> dict | None:
+    """Eq. (tn) over two-bounce launches: T_n = T n + delta by least squares (with the
+    standard errors of T and delta), or None with fewer than two distinct n."""
+    pts = [(r["n"], r["T_n"], r["file"]) for r in rows if r.get("T_n") is not None]
+    if len({p[0] for p in pts}) < 2:
+        return None
+    n = np.array([p[0] for p in pts], dtype=float)
+    T = np.array([p[1] for p in pts])
+    A = np.column_stack([n, np.ones_like(n)])
+    coef, *_ = np.linalg.lstsq(A, T, rcond=None)
+    res = T - A @ coef
+    out = {"T": float(coef[0]), "delta": float(coef[1]), "n": n.astype(int).tolist(), "T_n": T.tolist(),
+           "files": [p[2] for p in pts], "residual_max": float(np.max(np.abs(res)))}
+    if len(pts) > 2:
+        s2 = float(res @ res) / (len(pts) - 2)
+        cov = np.linalg.inv(A.T @ A) * s2
+        out["T_error"], out["delta_error"] = float(math.sqrt(cov[0, 0])), float(math.sqrt(cov[1, 1]))
+    return out
+
+
+def analyze(problem, tracks: list) -> dict:
+    """All tracks: releases first (their fitted damping, averaged with inverse-variance
+    weights, is then used for the launches' simulations), then launches, then eq. (tn)."""
+    t0 = time.perf_counter()
+    rows: dict[int, dict] = {}
+    # releases need no launch damping; classify first so their damping can serve the launches
+    kinds = []
+    for tr in tracks:
+        s = max(noise_sigma(tr.x), noise_sigma(tr.y))
+        kinds.append(classify(tr, s)[0])
+    for i, tr in enumerate(tracks):
+        if kinds[i] == "release":
+            rows[i] = analyze_track(problem, tr)
+    fitted = [(r["damping"], r["damping_error"]) for r in rows.values()
+              if r.get("damping") is not None and r.get("damping_error")]
+    mu_launch, mu_source = float(problem.damping), "spec"
+    if fitted:
+        w = np.array([1.0 / e ** 2 for _, e in fitted])
+        mu_launch = float(np.sum(w * np.array([d for d, _ in fitted])) / np.sum(w))
+        mu_source = "fitted"
+    for i, tr in enumerate(tracks):
+        if kinds[i] == "launch":
+            rows[i] = analyze_track(problem, tr, mu_launch)
+    ordered = [rows[i] for i in range(len(tracks))]
+    return {"tracks": ordered, "tn_fit": fit_tn(ordered), "launch_damping": mu_launch,
+            "launch_damping_source": mu_source, "model": problem.model, "units": problem.units,
+            "seconds": time.perf_counter() - t0}

@@ -1,0 +1,316 @@
+"""The launch ramp: a watertight solid that lifts the channel up to the release heights.
+
+Geometry (design units, then work coordinates of the block, mm)
+--------------------------------------------------------------
+The ramp is a copy of the block's own channel, lifted: its running surface is
+
+    T(x, y) = h(x, y) + D(u),    u = start - x >= 0 (back from the launch point),
+
+with D(u) = 0 at the launch point. D'(u) = tan(theta) S(u / L) with the smoothstep
+S(s) = 3 s^2 - 2 s^3 for u < L and D' = tan(theta) beyond (a straight incline), so
+D(0) = D'(0) = D''(0) = 0: the ramp's surface joins the block's surface along the
+whole line x = start with the same height, slope and curvature in every direction
+(tangent- and curvature-continuous), and the transition joins the incline with
+D'' = 0 (again curvature-continuous). theta = 30 degrees; L is chosen so that the
+transition rises half the ramp. The ball rolls along y = simulation.y0 (the launch
+line) in the lifted channel, touching it at one point (its radius is below the
+channel's radius of curvature across), so the rolling calibration applies.
+
+The solid is the region above the table (the stock's bottom plane, Z = -thickness)
+and below T, over u in [0, u_end] and |y - y0| <= the half width, minus the block
+itself (sampled on the same grid, so T - h = D >= 0 holds triangle by triangle): it
+rests on the milled channel from the launch point back to the block's end and on the
+table beyond, and thins out to nothing at the launch point. In the block's work
+coordinates: (X, Y, Z) = s (x - x0, y - y0, z - top), X < 0 beyond the block's end.
+
+Release marks
+-------------
+A ball released with its centre H above its centre at the launch point enters at
+v_in = sqrt(2 g H / (1 + k)) (``fabkit calibrate``). Its centre stands at
+T + r cos(phi) over the contact point (phi the ramp's slope angle), so a mark for H is
+placed where T(u) + r cos(phi(u)) - (T(0) + r cos(phi(0))) = H (root found to 1e-12
+relative): the ball's contact point when released there. Marks: the centre (in v_in)
+of every two-bounce window the ramp can reach (from ``fabkit check``) and v_critical;
+each is an engraved groove across the ramp (0.6 mm wide, 0.8 mm deep, following the
+surface) beside the ball's path, which stays smooth over 0.8 ball radii; window marks
+alternate sides (their windows crowd together near v_critical), v_critical's mark is a
+double groove (2 mm apart) on both sides. Marks closer than a groove are flagged
+``crowded``: the ramp cannot show them apart, the table (height, distance along the
+surface) still can.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import SpecError
+
+ANGLE_DEG = 30.0
+GROOVE_WIDTH_MM = 0.6
+GROOVE_DEPTH_MM = 0.8
+GROOVE_GAP_MM = 2.0          # between the two lines of a double groove
+STEP_MM = 1.0                # grid spacing along the ramp
+STEP_Y_MM = 2.0              # grid spacing across
+
+
+@dataclass(frozen=True)
+class RampProfile:
+    """The lift D(u) (design units) and the launch line; see the module doc."""
+
+    start: float
+    y0: float
+    tan: float
+    L: float
+    u_end: float
+    radius: float
+    fns: object
+
+    def lift(self, u):
+        u = np.asarray(u, dtype=float)
+        s = np.clip(u / self.L, 0.0, 1.0)
+        inner = self.tan * self.L * (s ** 3 - 0.5 * s ** 4)
+        return np.where(u <= self.L, inner, self.tan * (0.5 * self.L + (u - self.L)))
+
+    def dlift(self, u):
+        s = np.clip(np.asarray(u, dtype=float) / self.L, 0.0, 1.0)
+        return self.tan * (3 * s ** 2 - 2 * s ** 3)
+
+    def ddlift(self, u):
+        s = np.clip(np.asarray(u, dtype=float) / self.L, 0.0, 1.0)
+        return np.where(np.asarray(u) <= self.L, self.tan / self.L * (6 * s - 6 * s ** 2), 0.0)
+
+    def z(self, u):
+        """Height of the running surface on the launch line (design units)."""
+        u = np.asarray(u, dtype=float)
+        return self.fns.h(self.start - u, np.full_like(u, self.y0)) + self.lift(u)
+
+    def slope(self, u):
+        """dz/du on the launch line."""
+        u = np.asarray(u, dtype=float)
+        hx = self.fns.grad(self.start - u, np.full_like(u, self.y0))[0]
+        return -hx + self.dlift(u)
+
+    def centre(self, u):
+        """Height of a resting ball's centre over the contact point at u."""
+        return self.z(u) + self.radius / np.sqrt(1.0 + self.slope(u) ** 2)
+
+    def drop(self, u):
+        """Release height H of a ball whose contact point is at u."""
+        return self.centre(u) - self.centre(0.0)
+
+    def u_for_height(self, H: float) -> float:
+        from scipy.optimize import brentq
+
+        if not 0 <= H <= float(self.drop(self.u_end)):
+            raise SpecError(f"release height {H:g} is beyond the ramp (top {float(self.drop(self.u_end)):g})",
+                            key="ramp.heights")
+        if H == 0:
+            return 0.0
+        return float(brentq(lambda u: float(self.drop(u)) - H, 0.0, self.u_end, xtol=1e-12 * self.u_end,
+                            rtol=1e-14))
+
+
+def design_profile(spec, h_needed: float) -> RampProfile:
+    """The ramp for release heights up to ``h_needed`` (design units) plus two ball radii."""
+    sim = spec.simulation
+    r = 0.5 * float(spec.ball.diameter) if spec.has("ball") else 0.0
+    tan = math.tan(math.radians(ANGLE_DEG))
+    lift_top = h_needed + 3.0 * r             # room for the ball above the highest mark
+    L = lift_top / tan                        # the transition rises half of it
+    u_end = 1.5 * L                           # D(u_end) = tan (L/2 + u_end - L) = lift_top
+    prof = RampProfile(start=float(sim.start), y0=float(sim.y0), tan=tan, L=L, u_end=u_end, radius=r,
+                       fns=spec.surface_functions())
+    # grow the straight part until the highest mark fits (the surface may slope the other way)
+    for _ in range(60):
+        if float(prof.drop(prof.u_end)) >= h_needed + 2.0 * r:
+            break
+        prof = RampProfile(**{**prof.__dict__, "u_end": prof.u_end * 1.25})
+    else:
+        raise SpecError("the ramp cannot reach the release heights on this surface", key="ramp.heights")
+    return prof
+
+
+def half_width(spec, prof: RampProfile) -> float:
+    """Half width of the ramp across y (design units): three ball diameters, less where the
+    channel at the launch point rises to the block's top - margin, and inside the footprint."""
+    r = prof.radius
+    y_lo, y_hi = (float(v) for v in spec.surface.y)
+    top = float(spec.surface.top)
+    margin = float(spec.simulation.margin)
+    w = min(6.0 * r if r > 0 else 0.25 * (y_hi - y_lo), prof.y0 - y_lo, y_hi - prof.y0)
+    ys = np.linspace(0.0, w, 401)
+    z0 = float(prof.fns.h(prof.start, prof.y0))
+    for sign in (1, -1):
+        zz = prof.fns.h(np.full_like(ys, prof.start), prof.y0 + sign * ys)
+        over = np.flatnonzero(zz > top - margin)
+        if over.size:
+            w = min(w, ys[max(over[0] - 1, 1)])
+    if not w > 1.5 * r:
+        raise SpecError(f"the channel at the launch point is too narrow for a ramp (half width {w:g} at "
+                        f"top - margin, the ball's radius is {r:g}; entry level {z0:g})", key="simulation.start")
+    return float(w)
+
+
+# ----------------------------------------------------------------------------
+# meshes
+# ----------------------------------------------------------------------------
+def heightfield(X: np.ndarray, Y: np.ndarray, Ztop: np.ndarray, Zbot) -> tuple[np.ndarray, np.ndarray]:
+    """A closed mesh between two heightfields over the grid X (nx,) x Y (ny,) (increasing):
+    vertices (2 nx ny, 3), faces (m, 3) outward. Ztop (nx, ny); Zbot scalar or (nx, ny), below."""
+    nx, ny = len(X), len(Y)
+    GX, GY = np.meshgrid(X, Y, indexing="ij")
+    Zb = np.broadcast_to(np.asarray(Zbot, dtype=float), (nx, ny))
+    V = np.concatenate([np.stack([GX, GY, Ztop], -1).reshape(-1, 3), np.stack([GX, GY, Zb], -1).reshape(-1, 3)])
+    off = nx * ny
+    idx = np.arange(off).reshape(nx, ny)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
+    top = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
+    bot = top[:, ::-1] + off
+    loop = np.concatenate([idx[:, 0], idx[-1, 1:], idx[-2::-1, -1], idx[0, -2:0:-1]])
+    p, q = loop, np.roll(loop, -1)
+    sides = np.concatenate([np.stack([p + off, q + off, q], 1), np.stack([p + off, q, p], 1)])
+    return V, np.concatenate([top, bot, sides]).astype(np.int64)
+
+
+def _manifold(V, F):
+    import manifold3d
+
+    m = manifold3d.Manifold(manifold3d.Mesh64(vert_properties=np.ascontiguousarray(V, dtype=float),
+                                              tri_verts=np.ascontiguousarray(F, dtype=np.uint64)))
+    if m.status() != manifold3d.Error.NoError:
+        raise RuntimeError(f"manifold3d rejected a ramp part: {m.status().name}")
+    return m
+
+
+@dataclass
+class RampSolid:
+    vertices: np.ndarray
+    faces: np.ndarray
+    volume_mm3: float
+    bodies: int
+    genus: int
+    profile_error_mm: float
+    extent_mm: dict
+
+
+def build_ramp(spec, prof: RampProfile, marks: list[dict]) -> RampSolid:
+    """The ramp as one watertight body in the block's work coordinates (mm), with the
+    marks' grooves engraved. ``marks``: dicts with ``u`` (design units) and ``double``."""
+    s = float(spec.scale)
+    x0f, y0f = float(spec.surface.x[0]), float(spec.surface.y[0])
+    top = float(spec.surface.top)
+    z_table = -float(spec.stock.thickness)            # mm, the stock's bottom plane
+    hw = half_width(spec, prof)
+    fns = prof.fns
+    xs = prof.start - prof.u_end
+    # grid along x: STEP_MM apart, with the block's end x0 and the launch point as nodes
+    nxa = max(8, int(math.ceil(prof.u_end * s / STEP_MM)))
+    gx = np.linspace(xs, prof.start, nxa + 1)
+    if xs < x0f < prof.start:
+        gx = np.unique(np.concatenate([gx, [x0f]]))
+    nya = max(8, int(math.ceil(2 * hw * s / STEP_Y_MM)))
+    gy = np.unique(np.concatenate([np.linspace(prof.y0 - hw, prof.y0 + hw, nya + 1), [prof.y0]]))
+    GX, GY = np.meshgrid(gx, gy, indexing="ij")
+    H = fns.h(GX, GY)
+    T = H + prof.lift(prof.start - GX)
+
+    def work(x, y, z):
+        return (x - x0f) * s, (y - y0f) * s, (z - top) * s
+
+    Xw, Yw = (gx - x0f) * s, (gy - y0f) * s
+    V, F = heightfield(Xw, Yw, (T - top) * s, z_table)
+    ramp = _manifold(V, F)
+    if gx[-1] > x0f:   # the part resting on the block: subtract the block on the same grid
+        bx = np.concatenate([gx[gx >= x0f], [prof.start + max(1.0, 2 * prof.radius)]])
+        by = np.concatenate([[gy[0] - 1.0], gy, [gy[-1] + 1.0]])
+        BX, BY = np.meshgrid(bx, by, indexing="ij")
+        Bz = np.minimum(fns.h(BX, BY), top)
+        Vb, Fb = heightfield((bx - x0f) * s, (by - y0f) * s, (Bz - top) * s, z_table - 10.0)
+        ramp = ramp - _manifold(Vb, Fb)
+    # grooves: a thin solid following the surface, from the depth to above it
+    r = prof.radius
+    for mk in marks:
+        offsets = [-0.5 * GROOVE_GAP_MM / s, 0.5 * GROOVE_GAP_MM / s] if mk.get("double") else [0.0]
+        signs = {"+y": (1,), "-y": (-1,)}.get(mk.get("side", "both"), (1, -1))
+        for off in offsets:
+            xm = prof.start - mk["u"] + off
+            half = 0.5 * GROOVE_WIDTH_MM / s
+            gxm = np.array([xm - half, xm, xm + half])
+            for sign in signs:
+                a, b = 0.4 * r, hw - 2.0 / s
+                if not b > a:
+                    continue
+                gym = prof.y0 + sign * np.linspace(a, b, max(4, int(math.ceil((b - a) * s / STEP_Y_MM)) + 1))
+                gym = np.sort(gym)
+                MX, MY = np.meshgrid(gxm, gym, indexing="ij")
+                Tm = fns.h(MX, MY) + prof.lift(prof.start - MX)
+                Vg, Fg = heightfield((gxm - x0f) * s, (gym - y0f) * s, (Tm - top) * s + 2.0,
+                                     (Tm - top) * s - GROOVE_DEPTH_MM)
+                ramp = ramp - _manifold(Vg, Fg)
+    mesh = ramp.to_mesh()
+    Vr = np.asarray(mesh.vert_properties, dtype=float)[:, :3]
+    Fr = np.asarray(mesh.tri_verts, dtype=np.int64)
+    # the running surface along the launch line: piecewise linear between the nodes
+    zl = prof.z(prof.start - gx)
+    um = prof.start - 0.5 * (gx[1:] + gx[:-1])
+    err = float(np.max(np.abs(0.5 * (zl[1:] + zl[:-1]) - prof.z(um)))) * s
+    X0, Y0, Z0 = work(prof.start, prof.y0, float(fns.h(prof.start, prof.y0)))
+    ext = {"X": [float(Vr[:, 0].min()), float(Vr[:, 0].max())], "Y": [float(Vr[:, 1].min()), float(Vr[:, 1].max())],
+           "Z": [float(Vr[:, 2].min()), float(Vr[:, 2].max())], "launch_point": [float(X0), float(Y0), float(Z0)]}
+    return RampSolid(vertices=Vr, faces=Fr, volume_mm3=float(ramp.volume()), bodies=len(ramp.decompose()),
+                     genus=int(ramp.genus()), profile_error_mm=err, extent_mm=ext)
+
+
+# ----------------------------------------------------------------------------
+# marks
+# ----------------------------------------------------------------------------
+def mark_targets(check_result: dict, g: float, k: float) -> list[dict]:
+    """{height, v_in, label, double} for the reachable two-bounce window centres (centre
+    in v_in) and v_critical, from a ``physics.check.check`` result."""
+    from ..physics.calibrate import height_from_v_in
+
+    out = []
+    for i, w in enumerate(check_result.get("reachable_windows") or [], start=1):
+        v = 0.5 * (w["lo"] + w["hi"])
+        out.append({"height": float(height_from_v_in(v, g, k)), "v_in": float(v),
+                    "label": f"2-bounce window {i} centre ({w['lo']:.2f}..{w['hi']:.2f})", "double": False})
+    vc = check_result.get("v_critical")
+    if vc is not None:
+        out.append({"height": float(height_from_v_in(vc, g, k)), "v_in": float(vc), "label": "v_critical",
+                    "double": True})
+    return sorted(out, key=lambda m: m["height"])
+
+
+def place_marks(spec, prof: RampProfile, targets: list[dict]) -> list[dict]:
+    """Each target with its place: ``u`` along the launch line (design units), the contact
+    point in work coordinates (mm), and the distance along the running surface from the
+    launch point (mm, for measuring it off by hand)."""
+    from scipy.integrate import quad
+
+    s = float(spec.scale)
+    x0f, y0f, top = float(spec.surface.x[0]), float(spec.surface.y[0]), float(spec.surface.top)
+    out = []
+    for t in targets:
+        u = prof.u_for_height(t["height"])
+        z = float(prof.z(u))
+        arc = quad(lambda w: math.sqrt(1.0 + float(prof.slope(w)) ** 2), 0.0, u, epsabs=1e-12, epsrel=1e-12)[0]
+        out.append({**t, "u": u, "X": (prof.start - u - x0f) * s, "Y": (prof.y0 - y0f) * s, "Z": (z - top) * s,
+                    "along_mm": arc * s, "drop_check": float(prof.drop(u))})
+    # window marks alternate sides (neighbouring windows crowd together near v_critical);
+    # v_critical's double groove runs on both sides
+    side = 0
+    for m in out:
+        if m["double"]:
+            m["side"] = "both"
+        else:
+            m["side"] = "+y" if side % 2 == 0 else "-y"
+            side += 1
+    gw = GROOVE_WIDTH_MM
+    for m in out:
+        near = [o for o in out if o is not m and (o["side"] in (m["side"], "both") or m["side"] == "both")]
+        reach = lambda o: gw + (GROOVE_GAP_MM if o["double"] else 0.0) / 2 + (GROOVE_GAP_MM if m["double"] else 0.0) / 2
+        m["crowded"] = any(abs(o["X"] - m["X"]) < reach(o) for o in near)
+    return out

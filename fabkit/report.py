@@ -1,0 +1,255 @@
+"""The design report: one self-contained HTML page (no network: data, figures and
+scripts inlined). It takes results and computes nothing; ``fabkit report`` computes them.
+
+``render(results) -> str`` with ``results`` a dict:
+
+    name, units, spec_path, generated_at
+    check        the pre-fabrication check (physics.check.check), with ``seconds``
+    surface      {"x" (nx,), "y" (ny,), "z" (nx, ny) clipped heights, "top", "start", "y0"}
+    sweep        {"png": bytes, "v_critical", "v_critical_error", "windows", "error_estimate", "seconds",
+                  "launches"}
+    toolpath     {"png": bytes, "sheet": setup-sheet dict, "seconds": {...}, "verify": {...} or None}
+    calibration  {"heights", "v_in", "g", "k", "units", "seconds"}
+    ramp_marks   optional list of {height, v_in, label}
+
+The 3-D view is a small hand-written canvas renderer (painter's algorithm, Lambert
+shading): drag to turn it, wheel to zoom; when it has drawn it sets
+``data-rendered`` on its canvas (the tests read it back from the DOM).
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import json
+import math
+
+import numpy as np
+
+
+def _e(s) -> str:
+    return html.escape(str(s), quote=True)
+
+
+def _n(v, fmt=".5g", none="—") -> str:
+    if v is None:
+        return none
+    try:
+        f = float(v)
+    except (TypeError, ValueError):
+        return _e(v)
+    if not math.isfinite(f):
+        return none
+    return format(int(round(f)), fmt) if fmt.endswith("d") else format(f, fmt)
+
+
+def _img(png: bytes | None, alt: str) -> str:
+    if not png:
+        return f"<p class=missing>({_e(alt)}: not available)</p>"
+    return f'<img alt="{_e(alt)}" src="data:image/png;base64,{base64.b64encode(png).decode("ascii")}">'
+
+
+CSS = """
+body{font:15px/1.45 system-ui,-apple-system,Segoe UI,Helvetica,Arial,sans-serif;margin:0;color:#1d232a;background:#f6f7f9}
+header{padding:18px 28px;background:#24303c;color:#fff}header h1{margin:0;font-size:22px}
+header p{margin:4px 0 0;color:#c9d3dd;font-size:13px}
+main{padding:10px 28px 40px;max-width:1150px}
+section{background:#fff;border:1px solid #dde2e7;border-radius:6px;padding:14px 18px;margin:16px 0}
+h2{font-size:17px;margin:0 0 8px}
+.verdict{font-size:28px;font-weight:700;padding:10px 16px;border-radius:6px;display:inline-block}
+.safe{background:#dff3e3;color:#11622a;border:2px solid #2f9e4f}
+.unsafe{background:#fbe3e1;color:#8c1d13;border:2px solid #d9453a}
+table{border-collapse:collapse;font-size:13px}td,th{border-bottom:1px solid #e3e7eb;padding:3px 10px;text-align:right}
+th{background:#f0f3f6}td.l,th.l{text-align:left}
+.meta{color:#5b6875;font-size:12.5px}img{max-width:100%;border:1px solid #e3e7eb}
+canvas{border:1px solid #d0d6dc;background:linear-gradient(#fbfcfd,#e9eef2);cursor:grab;max-width:100%}
+.grid2{display:grid;grid-template-columns:1fr 1fr;gap:12px}
+"""
+
+VIEWER_JS = r"""
+(function(){
+  const D = JSON.parse(document.getElementById('surface-data').textContent);
+  const cv = document.getElementById('surface3d'), ctx = cv.getContext('2d');
+  const nx = D.x.length, ny = D.y.length;
+  const cx = (D.x[0]+D.x[nx-1])/2, cy = (D.y[0]+D.y[ny-1])/2;
+  let zmin = Infinity, zmax = -Infinity;
+  for (const r of D.z) for (const v of r) { zmin = Math.min(zmin, v); zmax = Math.max(zmax, v); }
+  const cz = (zmin+zmax)/2;
+  const span = Math.max(D.x[nx-1]-D.x[0], D.y[ny-1]-D.y[0]);
+  let yaw = -0.6, pitch = 0.9, zoom = 1.0;
+  function col(t, shade){ // height colour: blue (low) -> sand (high)
+    const a=[38,84,140], b=[225,196,140]; const c=a.map((v,i)=>Math.round((v+(b[i]-v)*t)*shade));
+    return 'rgb('+c.join(',')+')'; }
+  function draw(){
+    const W = cv.width, H = cv.height, s = zoom*0.8*Math.min(W,H)/span;
+    const cyw=Math.cos(yaw), syw=Math.sin(yaw), cp=Math.cos(pitch), sp=Math.sin(pitch);
+    const P = new Array(nx*ny);
+    for (let i=0;i<nx;i++) for (let j=0;j<ny;j++){
+      const X=D.x[i]-cx, Y=D.y[j]-cy, Z=(D.z[i][j]-cz);
+      const x1 = cyw*X - syw*Y, y1 = syw*X + cyw*Y;
+      const y2 = cp*y1 - sp*Z, z2 = sp*y1 + cp*Z;
+      P[i*ny+j] = [W/2 + s*x1, H/2 - s*z2, y2]; }
+    const quads = [];
+    const L = [0.35,-0.45,0.82], ln = Math.hypot(...L);
+    for (let i=0;i<nx-1;i++) for (let j=0;j<ny-1;j++){
+      const a=P[i*ny+j], b=P[(i+1)*ny+j], c=P[(i+1)*ny+j+1], d=P[i*ny+j+1];
+      const dx=D.x[i+1]-D.x[i], dy=D.y[j+1]-D.y[j];
+      const zx=((D.z[i+1][j]+D.z[i+1][j+1])-(D.z[i][j]+D.z[i][j+1]))/(2*dx);
+      const zy=((D.z[i][j+1]+D.z[i+1][j+1])-(D.z[i][j]+D.z[i+1][j]))/(2*dy);
+      const n=[-zx,-zy,1], nn=Math.hypot(...n);
+      const lam = Math.max(0,(n[0]*L[0]+n[1]*L[1]+n[2]*L[2])/(nn*ln));
+      const zc=(D.z[i][j]+D.z[i+1][j+1])/2;
+      quads.push([(a[2]+b[2]+c[2]+d[2])/4, [a,b,c,d], col((zc-zmin)/Math.max(zmax-zmin,1e-12), 0.45+0.55*lam)]); }
+    quads.sort((p,q)=>q[0]-p[0]);
+    ctx.clearRect(0,0,W,H);
+    for (const [_, v, c] of quads){ ctx.beginPath(); ctx.moveTo(v[0][0],v[0][1]);
+      for (let k=1;k<4;k++) ctx.lineTo(v[k][0],v[k][1]); ctx.closePath(); ctx.fillStyle=c; ctx.fill();
+      ctx.strokeStyle=c; ctx.lineWidth=0.6; ctx.stroke(); }
+    // the launch line y = y0 from the entry x to the far end
+    ctx.strokeStyle='#d9453a'; ctx.lineWidth=2; ctx.beginPath();
+    let first=true;
+    for (let i=0;i<nx;i++){ if (D.x[i] < D.start) continue;
+      const j = D.jl, p = P[i*ny+j]; if (first){ctx.moveTo(p[0],p[1]); first=false;} else ctx.lineTo(p[0],p[1]); }
+    ctx.stroke();
+    cv.dataset.rendered = String(quads.length);
+  }
+  let drag=null;
+  cv.addEventListener('mousedown', e=>{drag=[e.clientX,e.clientY,yaw,pitch]; cv.style.cursor='grabbing';});
+  window.addEventListener('mouseup', ()=>{drag=null; cv.style.cursor='grab';});
+  window.addEventListener('mousemove', e=>{ if(!drag) return; yaw=drag[2]+(e.clientX-drag[0])*0.01;
+    pitch=Math.max(0.05,Math.min(1.55,drag[3]+(e.clientY-drag[1])*0.01)); draw(); });
+  cv.addEventListener('wheel', e=>{ e.preventDefault(); zoom*=Math.exp(-e.deltaY*0.001); draw(); }, {passive:false});
+  draw();
+})();
+"""
+
+
+def _verdict(check: dict, units: str) -> str:
+    safe = bool(check.get("safe"))
+    ff = check.get("first_failure")
+    mach = check.get("machining") or {}
+    why = []
+    if safe:
+        why.append(f"every release height of the ramp keeps the ball on the milled part (highest safe "
+                   f"height {_n(check.get('highest_safe_height'))} {units}, the top of the ramp)")
+    else:
+        hs = check.get("highest_safe_height")
+        why.append(f"release height {_n(ff['height'])} {units} (v_in {_n(ff['v_in'], '.4g')} {units}/s) "
+                   f"{_e(ff['outcome'])} at x={_n(ff['x'], '.4g')}, y={_n(ff['y'], '.4g')}, t={_n(ff['t'], '.3g')} s "
+                   f"({_e(ff['reason'])}); highest safe release height "
+                   f"{_n(hs) if hs is not None else 'none'} {units}")
+    if mach:
+        why.append("machining: cut depth " + _n(mach.get("depth_mm"), ".4g") + " mm "
+                   + ("within" if mach.get("depth_ok") else "<b>beyond</b>") + " the stock and tool limits"
+                   + ("" if mach.get("radius_ok", True) else "; the tool is wider than the smallest concave radius"))
+    cls = "safe" if safe else "unsafe"
+    word = "SAFE" if safe else "UNSAFE"
+    return (f'<div id="verdict" class="verdict {cls}">{word}</div>'
+            f'<p id="why">{"; ".join(why)}.</p>')
+
+
+def _windows_table(check: dict, units: str) -> str:
+    ws = check.get("reachable_windows") or []
+    vmax = any(w.get("v_out_max") is not None for w in ws)
+    rows = "".join(f"<tr><td>{i}</td><td>{_n(w['lo'], '.6g')}</td><td>{_n(w['hi'], '.6g')}</td>"
+                   f"<td>{_n(w['height_lo'], '.5g')}</td><td>{_n(w['height_hi'], '.5g')}</td>"
+                   + (f"<td>{_n(w.get('v_out_max'), '.5g')}</td>" if vmax else "") + "</tr>"
+                   for i, w in enumerate(ws, start=1))
+    if not rows:
+        return "<p>No two-bounce window lies inside the ramp's range.</p>"
+    return (f"<p>Two-bounce windows the ramp can reach (edges to 1e-4 relative):</p>"
+            f"<table><tr><th>window</th><th>v_in lo ({units}/s)</th><th>v_in hi</th><th>H lo ({units})</th>"
+            f"<th>H hi</th>" + ("<th>v_out max</th>" if vmax else "") + f"</tr>{rows}</table>")
+
+
+def _calibration_table(cal: dict, marks: list | None, units: str, every: int) -> str:
+    H, V = list(cal["heights"]), list(cal["v_in"])
+    idx = sorted(set(list(range(0, len(H), max(1, every))) + [len(H) - 1]))
+    rows = "".join(f"<tr><td>{_n(H[i], '.5g')}</td><td>{_n(V[i], '.8g')}</td></tr>" for i in idx)
+    mk = ""
+    if marks:
+        mk = "<h3>Release marks</h3><table><tr><th class=l>mark</th><th>H</th><th>v_in</th></tr>" + "".join(
+            f"<tr><td class=l>{_e(m['label'])}</td><td>{_n(m['height'], '.6g')}</td><td>{_n(m['v_in'], '.7g')}</td></tr>"
+            for m in marks) + "</table>"
+    return (f"<p class=meta>v_in = sqrt(2 g H / (1 + k)), g = {_n(cal['g'], '.7g')} {units}/s², k = {_n(cal['k'], '.4g')}; "
+            f"H above the entry level. Exact closed form (rounding only, ~1e-16 relative); "
+            f"{len(H)} heights" + (f", every {every}th shown" if every > 1 else "") + f"; {_n(cal.get('seconds'), '.2g')} s.</p>"
+            f"<div class=grid2><table><tr><th>H ({units})</th><th>v_in ({units}/s)</th></tr>{rows}</table>"
+            f"<div>{mk}</div></div>")
+
+
+def _sheet_table(sheet: dict) -> str:
+    skip = {"transform", "generated_at"}
+    rows = []
+    for k, v in sheet.items():
+        if k in skip:
+            continue
+        if isinstance(v, dict):
+            v = ", ".join(f"{kk} {_fmt(vv)}" for kk, vv in v.items())
+        elif isinstance(v, (list, tuple)):
+            v = ", ".join(_fmt(x) for x in v)
+        else:
+            v = _fmt(v)
+        rows.append(f"<tr><td class=l>{_e(k)}</td><td class=l>{_e(v)}</td></tr>")
+    return "<table>" + "".join(rows) + "</table>"
+
+
+def _fmt(v) -> str:
+    if isinstance(v, float):
+        return format(v, ".6g")
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_fmt(x) for x in v) + "]"
+    if isinstance(v, dict):
+        return "{" + ", ".join(f"{k}: {_fmt(x)}" for k, x in v.items()) + "}"
+    return str(v)
+
+
+def render(results: dict) -> str:
+    """The page (see the module doc for ``results``)."""
+    u = results["units"]
+    chk = results["check"]
+    surf = results["surface"]
+    sw = results.get("sweep") or {}
+    tp = results.get("toolpath") or {}
+    cal = results["calibration"]
+    y = np.asarray(surf["y"], dtype=float)
+    data = {"x": [round(float(v), 6) for v in surf["x"]], "y": [round(float(v), 6) for v in y],
+            "z": [[round(float(v), 6) for v in row] for row in np.asarray(surf["z"])],
+            "start": float(surf["start"]), "jl": int(np.argmin(np.abs(y - float(surf["y0"]))))}
+    data_json = json.dumps(data, separators=(",", ":")).replace("</", "<\\/")
+    vc, vce = chk.get("v_critical"), sw.get("v_critical_error")
+    est = sw.get("error_estimate") or {}
+    ver = tp.get("verify") or {}
+    tps = tp.get("seconds") or {}
+    sections = [
+        f"<section><h2>Pre-fabrication check</h2>{_verdict(chk, u)}"
+        f"<p class=meta>{_e(chk.get('model'))} model, damping {_n(chk.get('damping'))} 1/s; "
+        f"{len(chk.get('heights', []))} release heights launched; boundary to 1e-4 relative; "
+        f"v_critical {_n(vc, '.7g')} {u}/s (release height {_n(chk.get('critical_height'), '.5g')} {u}, "
+        f"to 1e-5 relative); {_n(chk.get('seconds'), '.3g')} s.</p>{_windows_table(chk, u)}</section>",
+        f"<section><h2>The surface</h2><p class=meta>z = h(x, y) clipped at the top face ({_n(surf['top'])} {u}); "
+        f"{len(data['x'])} × {len(data['y'])} exact samples (the view interpolates between them). Drag to turn, "
+        f"wheel to zoom; red: the launch line from x = {_n(surf['start'])}.</p>"
+        f'<canvas id="surface3d" width="900" height="480"></canvas></section>',
+        f"<section><h2>Sweep: v_out against v_in</h2>{_img(sw.get('png'), 'sweep figure')}"
+        f"<p class=meta>{_n(sw.get('launches'), 'd')} launches; v_critical {_n(sw.get('v_critical'), '.7g')} "
+        f"± {_n(vce, '.1e')} {u}/s; v_out error "
+        + (f"< {_n(est.get('v_out_abs'), '.1e')} {u}/s (estimated at rtol {_n(est.get('rtol_ref'), 'g')})"
+           if est.get("v_out_abs") is not None else "not estimated")
+        + f"; {_n(sw.get('seconds'), '.3g')} s.</p></section>",
+        f"<section><h2>Toolpath preview</h2>{_img(tp.get('png'), 'toolpath preview')}"
+        f"<p class=meta>verified cut: largest gouge {_n(ver.get('max_gouge'), '.4f')} mm, material left "
+        f"{_n(ver.get('max_material_left'), '.4f')} mm (checked at {_n(ver.get('checked_points'), 'd')} points); "
+        + ", ".join(f"{k} {_n(v, '.3g')} s" for k, v in tps.items()) + ".</p></section>",
+        f"<section><h2>Ramp calibration</h2>{_calibration_table(cal, results.get('ramp_marks'), u, max(1, len(cal['heights']) // 20))}</section>",
+        f"<section><h2>Setup sheet</h2>{_sheet_table(tp.get('sheet') or {})}</section>",
+    ]
+    title = f"fabkit report: {results['name']}"
+    return ("<!DOCTYPE html>\n<html lang=en><head><meta charset=utf-8>"
+            f"<meta name=viewport content='width=device-width, initial-scale=1'><title>{_e(title)}</title>"
+            f"<style>{CSS}</style></head><body><header><h1>{_e(title)}</h1>"
+            f"<p>{_e(results.get('spec_path', ''))} · generated {_e(results.get('generated_at', ''))} · "
+            f"fabkit {_e(results.get('version', ''))} · total {_n(results.get('seconds'), '.3g')} s</p></header>"
+            f"<main>{''.join(sections)}</main>"
+            f'<script type="application/json" id="surface-data">{data_json}</script>'
+            f"<script>{VIEWER_JS}</script></body></html>\n")

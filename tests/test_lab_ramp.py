@@ -1,0 +1,100 @@
+"""fabkit ramp: one watertight body meeting the block curvature-continuously, marks at the
+heights `fabkit calibrate` gives, measured back from the written mesh."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from conftest import mutated, write_spec
+
+
+@pytest.fixture(scope="module")
+def ramp_run(tmp_path_factory):
+    from fabkit.cli import main
+    import contextlib
+    import io
+
+    d = tmp_path_factory.mktemp("ramp")
+    # a quick check (the marks need v_critical and the windows, not their last digits)
+    spec = write_spec(d, mutated({"ramp.samples": 60, "simulation.rtol": 1e-7, "simulation.atol": 1e-9,
+                                  "simulation.t_max": 20}))
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        code = main(["ramp", str(spec), "-o", str(d / "r.stl"), "--json"])
+    assert code == 0
+    return spec, d / "r.stl", json.loads(out.getvalue())
+
+
+def test_one_watertight_body(ramp_run):
+    trimesh = pytest.importorskip("trimesh")
+    _, stl, res = ramp_run
+    m = trimesh.load(stl)
+    assert m.is_watertight and m.is_volume and len(m.split(only_watertight=False)) == 1
+    assert res["bodies"] == 1 and res["genus"] == 0
+    assert m.volume == pytest.approx(res["volume_mm3"], rel=1e-5)
+    # it meets the block at the launch point (work X = (start - x0) * 10 = 140 mm) and rests
+    # on the table (Z = -thickness) beyond the block's end (X < 0)
+    assert res["extent_mm"]["X"][1] == pytest.approx(140.0, abs=1e-6)
+    assert res["extent_mm"]["Z"][0] == pytest.approx(-76.2, abs=1e-4)
+    assert res["extent_mm"]["X"][0] < 0
+
+
+def test_marks_agree_with_calibrate_and_with_the_mesh(ramp_run, cli):
+    trimesh = pytest.importorskip("trimesh")
+    spec, stl, res = ramp_run
+    marks = res["marks"]
+    assert any(m["label"] == "v_critical" for m in marks) and len(marks) >= 2
+    code, out, _ = cli("calibrate", spec, "--v-in", *[m["v_in"] for m in marks], "--json")
+    assert code == 0
+    cal = json.loads(out)["inverse"]["heights"]
+    for m, h in zip(marks, cal):
+        assert abs(m["height"] - h) < 1e-3
+    # measured on the mesh: the running surface under each mark (vertical rays on the launch
+    # line, beside the grooves, which leave the ball's path alone) and a ball of radius
+    # 1.25 cm resting there: its centre stands H above its centre at the launch point
+    mesh = trimesh.load(stl)
+    r = 12.5  # mm
+    T = mesh.triangles
+    up = mesh.face_normals[:, 2] > 0
+
+    def surface(X, Y):
+        """Highest upward face over (X, Y): its height there (barycentric) and normal."""
+        a, b, c = T[:, 0, :2], T[:, 1, :2], T[:, 2, :2]
+        d = (b[:, 1] - c[:, 1]) * (a[:, 0] - c[:, 0]) + (c[:, 0] - b[:, 0]) * (a[:, 1] - c[:, 1])
+        with np.errstate(all="ignore"):
+            l1 = ((b[:, 1] - c[:, 1]) * (X - c[:, 0]) + (c[:, 0] - b[:, 0]) * (Y - c[:, 1])) / d
+            l2 = ((c[:, 1] - a[:, 1]) * (X - c[:, 0]) + (a[:, 0] - c[:, 0]) * (Y - c[:, 1])) / d
+            l3 = 1 - l1 - l2
+            inside = up & (l1 >= -1e-9) & (l2 >= -1e-9) & (l3 >= -1e-9) & (d != 0)
+            z = l1 * T[:, 0, 2] + l2 * T[:, 1, 2] + l3 * T[:, 2, 2]
+        i = np.flatnonzero(inside)[np.argmax(z[inside])]
+        return z[i], mesh.face_normals[i]
+
+    Y = marks[0]["Y"]
+    z0, n0 = surface(140.0 - 1e-6, Y)
+    for m in marks:
+        z, n = surface(m["X"], Y)
+        H = ((z + r * n[2]) - (z0 + r * n0[2])) / 10.0   # cm
+        assert abs(H - m["height"]) < 1e-3, (m, H)
+
+
+def test_curvature_continuous_join():
+    from fabkit.lab.ramp import design_profile
+    from fabkit.spec import load_spec
+    from conftest import PAPER
+
+    prof = design_profile(load_spec(PAPER), 4.5)
+    e = 1e-6
+    assert float(prof.lift(0.0)) == 0 and float(prof.dlift(0.0)) == 0 and float(prof.ddlift(0.0)) == 0
+    # at the end of the transition: slope and curvature continuous
+    L = prof.L
+    assert float(prof.dlift(L - e)) == pytest.approx(float(prof.dlift(L + e)), abs=1e-9)
+    assert float(prof.ddlift(L - e)) == pytest.approx(float(prof.ddlift(L + e)), abs=1e-5)
+    # the lift's own derivative matches its closed form (central differences)
+    u = np.linspace(0.1, 1.4 * L, 7)
+    num = (prof.lift(u + 1e-5) - prof.lift(u - 1e-5)) / 2e-5
+    np.testing.assert_allclose(num, prof.dlift(u), atol=1e-8)

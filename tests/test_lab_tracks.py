@@ -1,0 +1,94 @@
+"""Track readers (Tracker text, CSV t,x,y and frame,x,y, trackpy) and the video map;
+bad files get one line naming the file and the line, exit 2, nothing written."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from conftest import PAPER
+from fabkit.errors import SpecError
+from fabkit.lab.tracks import VideoMap, read_track
+
+T = np.arange(20) / 125.0
+X = -30 + 40 * T
+Y = 0.5 * np.sin(9 * T)
+
+
+def test_tracker_export_with_blank_cells(tmp_path):
+    rows = ["mass A", "t\tx\ty\tv"]
+    for i, (t, x, y) in enumerate(zip(T, X, Y)):
+        rows.append(f"{t}\t\t{y}\t1" if i == 5 else f"{t}\t{x}\t{y}\t")   # frame 5 unmarked
+    p = tmp_path / "tracker.txt"
+    p.write_text("\n".join(rows) + "\n")
+    tr = read_track(p)
+    assert tr.format == "tracker" and tr.name == "mass A" and tr.skipped_rows == 1
+    keep = np.arange(20) != 5
+    np.testing.assert_array_equal(tr.t, T[keep])
+    np.testing.assert_allclose(tr.x, X[keep], rtol=0, atol=1e-12)
+
+
+def test_csv_t_and_frame_columns(tmp_path):
+    p = tmp_path / "a.csv"
+    p.write_text("x,t,y\n" + "".join(f"{x},{t},{y}\n" for t, x, y in zip(T, X, Y)))
+    tr = read_track(p)
+    assert tr.format == "csv"
+    np.testing.assert_allclose(tr.x, X, atol=1e-12)
+    q = tmp_path / "b.csv"
+    q.write_text("frame;x;y\n" + "".join(f"{i + 100};{x};{y}\n" for i, (x, y) in enumerate(zip(X, Y))))
+    tr = read_track(q, fps=125.0)
+    assert tr.format == "frame-csv"
+    np.testing.assert_allclose(tr.t, T + 100 / 125.0, rtol=1e-14)
+    with pytest.raises(SpecError, match="--fps"):
+        read_track(q)
+
+
+def test_trackpy_longest_particle_sorted(tmp_path):
+    rows = [",y,x,mass,size,ecc,signal,raw_mass,ep,frame,particle"]
+    order = np.random.default_rng(0).permutation(20)
+    for k, i in enumerate(order):
+        rows.append(f"{k},{Y[i]},{X[i]},1,2,0.1,3,4,0.01,{i},7")
+    rows += [f"{30 + i},1,2,1,2,0.1,3,4,0.01,{i},3" for i in range(4)]   # a short second particle
+    p = tmp_path / "tp.csv"
+    p.write_text("\n".join(rows) + "\n")
+    tr = read_track(p, fps=125.0)
+    assert tr.format == "trackpy" and tr.particle == 7 and "2 particles" in tr.notes[0]
+    np.testing.assert_allclose(tr.x, X, atol=1e-12)
+    np.testing.assert_allclose(tr.t, T, atol=1e-15)
+
+
+def test_video_map_exact():
+    vm = VideoMap(scale=0.05, origin=(320.0, 240.0), rotate=30.0, flip_y=True)
+    x, y = vm.apply(np.array([420.0]), np.array([140.0]))
+    # (100, -100) from the origin, flipped to (100, 100), turned 30 deg, times 0.05
+    c, s = math.cos(math.pi / 6), math.sin(math.pi / 6)
+    assert x[0] == pytest.approx(0.05 * (100 * c - 100 * s), abs=1e-12)
+    assert y[0] == pytest.approx(0.05 * (100 * s + 100 * c), abs=1e-12)
+
+
+@pytest.mark.parametrize("body, needle", [
+    ("t,x,y\n0,1,2\n0.1,abc,2\n", "line 3: x: not a number: 'abc'"),
+    ("t,x,y\n0,1,2\n0,1,2\n", "line 3: t = 0 repeats line 2"),
+    ("t,u,v\n0,1,2\n", "line 1: header"),
+    ("t,x,y\n" + "".join(f"{i},{i},0\n" for i in range(5)), "only 5 tracked points"),
+    ("", "empty file"),
+    ("t,x,y\n0,inf,2\n", "line 2: x: not finite"),
+])
+def test_bad_track_files_one_line_exit_2(cli, tmp_path, body, needle):
+    p = tmp_path / "bad.csv"
+    p.write_text(body)
+    code, out, err = cli("analyze", PAPER, p, "--plot", "fig.png")
+    assert code == 2
+    assert err.count("\n") == 1 and str(p) in err and needle in err, err
+    assert out == "" and not (tmp_path / "fig.png").exists()
+
+
+def test_missing_file_and_bad_flags(cli, tmp_path):
+    code, _, err = cli("analyze", PAPER, tmp_path / "nope.csv")
+    assert code == 2 and "nope.csv: file not found" in err
+    good = tmp_path / "g.csv"
+    good.write_text("t,x,y\n" + "".join(f"{t},{x},{y}\n" for t, x, y in zip(T, X, Y)))
+    code, _, err = cli("analyze", PAPER, good, "--scale", "-1")
+    assert code == 2 and "--scale: must be > 0" in err

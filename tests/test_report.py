@@ -1,0 +1,102 @@
+"""fabkit report: the page renders in headless Chromium, states the verdict and why, draws
+its 3-D view, and loads nothing from the network. The renderer takes results and
+computes nothing, so it is fed results here (the command's run is checked by hand:
+README); the command's bad-input path runs through main()."""
+
+from __future__ import annotations
+
+import io
+import re
+import shutil
+import subprocess
+
+import numpy as np
+import pytest
+
+from conftest import PAPER, mutated, write_spec
+from fabkit.report import render
+
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+
+
+def _png(color):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig = plt.figure(figsize=(2, 1))
+    fig.patch.set_facecolor(color)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png")
+    plt.close(fig)
+    return buf.getvalue()
+
+
+def _results(safe: bool):
+    x = np.linspace(-44, 6, 30)
+    y = np.linspace(-12.5, 12.5, 16)
+    X, Y = np.meshgrid(x, y, indexing="ij")
+    z = np.minimum(3.27 * (np.exp(0.389 * X) - np.exp(0.306 * X)) + 0.0764 * Y ** 2 + 0.25 * Y * np.exp(0.306 * X), 5)
+    ff = None if safe else {"height": 2.1722, "v_in": 55.16, "outcome": "flew_off", "reason": "z reaches top - margin",
+                            "x": -7.653, "y": 4.49, "t": 1.16}
+    chk = {"safe": safe, "highest_safe_height": 4.5 if safe else 2.1625, "first_failure": ff, "v_critical": 51.742707,
+           "critical_height": 1.911, "reachable_windows": [{"lo": 33.58, "hi": 43.55, "height_lo": 0.8048,
+                                                             "height_hi": 1.3537, "v_out_max": None}],
+           "machining": {"depth_mm": 53.3, "depth_ok": True, "radius_ok": True}, "heights": np.linspace(0.2, 4.5, 5),
+           "model": "full", "damping": 0.127, "seconds": 6.1}
+    return {"name": "surface", "units": "cm", "spec_path": "specs/surface.yaml", "version": "t", "generated_at": "now",
+            "seconds": 60.0, "check": chk,
+            "surface": {"x": x, "y": y, "z": z, "top": 5.0, "start": -30.0, "y0": 0.0},
+            "sweep": {"png": _png("#ff00ff"), "v_critical": 51.742707, "v_critical_error": 1.7e-5, "windows": [],
+                      "error_estimate": {"v_out_abs": 5e-9, "rtol_ref": 1e-11}, "launches": 400, "seconds": 40.0},
+            "toolpath": {"png": _png("#00ffff"), "sheet": {"program": "surface.ngc", "stock_mm": [500, 250, 76.2],
+                                                          "tool": {"diameter": 6.35}},
+                         "seconds": {"plan": 9.3, "write": 0.2, "verify": 1.0},
+                         "verify": {"max_gouge": 0.0052, "max_material_left": 0.0504, "checked_points": 40000}},
+            "calibration": {"heights": np.linspace(0.2, 4.5, 50), "v_in": np.sqrt(np.linspace(0.2, 4.5, 50)) * 37.43,
+                            "g": 980.665, "k": 0.4, "units": "cm", "seconds": 1e-4},
+            "ramp_marks": [{"height": 1.911, "v_in": 51.742707, "label": "v_critical"}]}
+
+
+def test_self_contained():
+    page = render(_results(True))
+    assert not re.search(r"""(src|href)\s*=\s*["']?(https?:)?//""", page)
+    assert "<script src" not in page and "@import" not in page and "url(http" not in page
+    assert 'id="verdict" class="verdict safe">SAFE<' in page
+
+
+@pytest.mark.skipif(CHROMIUM is None, reason="chromium is not installed")
+@pytest.mark.parametrize("safe", [True, False])
+def test_renders_in_headless_chromium(tmp_path, safe):
+    page = tmp_path / "r.html"
+    page.write_text(render(_results(safe)))
+    base = [CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--hide-scrollbars", "--no-first-run",
+            f"--user-data-dir={tmp_path / 'profile'}"]
+    dom = subprocess.run(base + ["--virtual-time-budget=3000", "--dump-dom", page.as_uri()], capture_output=True,
+                         text=True, timeout=90).stdout
+    word = "SAFE" if safe else "UNSAFE"
+    assert re.search(rf'id="verdict" class="verdict {word.lower()}">{word}<', dom)
+    if not safe:
+        assert "release height 2.1722 cm" in dom and "z reaches top - margin" in dom
+    m = re.search(r'id="surface3d"[^>]*data-rendered="(\d+)"', dom)
+    assert m and int(m.group(1)) == 29 * 15          # every quad of the grid drawn by the script
+    shot = tmp_path / "shot.png"
+    subprocess.run(base + ["--window-size=1200,1800", f"--screenshot={shot}", page.as_uri()], capture_output=True,
+                   timeout=90)
+    import matplotlib.image as mpimg
+
+    img = (mpimg.imread(shot)[..., :3] * 255).round()
+    box = np.array([223, 243, 227] if safe else [251, 227, 225])   # the verdict's background
+    assert np.sum(np.all(np.abs(img - box) <= 2, axis=-1)) > 500
+    assert np.sum(np.all(np.abs(img - [255, 0, 255]) <= 2, axis=-1)) > 500   # the sweep figure is shown
+    # the 3-D view painted the surface (sand and blue shades, not the empty background)
+    sand = np.all(np.abs(img - [225, 196, 140]) <= 40, axis=-1) & (img[..., 0] > img[..., 2] + 40)
+    assert sand.sum() > 2000
+
+
+def test_bad_spec_exit_2_nothing_written(cli, tmp_path):
+    spec = write_spec(tmp_path, mutated({}, drop=("tool",)))
+    code, out, err = cli("report", spec, "-o", "r.html")
+    assert code == 2 and "tool: missing section (needed by report)" in err
+    assert not (tmp_path / "r.html").exists()
