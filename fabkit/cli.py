@@ -171,6 +171,32 @@ def build_parser() -> argparse.ArgumentParser:
     c = cmd("report", "the whole design on one self-contained HTML page (verdict, surface, toolpath, sweep, ...)")
     c.add_argument("-o", "--output", metavar="PATH", help="output page (default toolpaths/<name>.report.html)")
     c.add_argument("--json", action="store_true", help="print JSON")
+
+    # the solitary-wave side: phi^4 collisions and the seed paper's Fig. 1
+    h = "kink-antikink collisions of phi^4 (phi_tt - phi_xx - phi + phi^3 = 0), one speed or a sweep"
+    c = sub.add_parser("phi4", help=h, description=h)
+    c.add_argument("--v-in", type=float, nargs="+", required=True, metavar="V", dest="v_in",
+                   help="one speed V, or LO HI N for a sweep; each kink's speed in units of c, the "
+                   "speed of light (dimensionless, not design units/s)")
+    c.add_argument("--t-max", type=float, dest="t_max", metavar="T",
+                   help="end of each run, in the PDE's time unit (default 800); not escaped by then: captured")
+    c.add_argument("--dx", type=float, metavar="DX", help="grid spacing, in kink length units (default 0.25)")
+    c.add_argument("--dt", type=float, metavar="DT", help="ETDRK4 time step (default 0.1)")
+    c.add_argument("--x0", type=float, metavar="X0",
+                   help="initial half-separation of the kinks, >= 10 (default 10)")
+    c.add_argument("--json", action="store_true", help="print JSON")
+    c.add_argument("--plot", metavar="FILE", help="one speed: X(t) and A(t) (the paper's Fig. 3); a sweep: "
+                   "v_out against v_in. " + PLOT)
+    c.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+    c = cmd("compare", "the seed paper's Fig. 1 for this apparatus: PDE, CC ODE, map and the apparatus")
+    c.add_argument("--json", action="store_true", help="print JSON")
+    c.add_argument("--plot", metavar="FILE", help="the four panels of v_out against v_in: " + PLOT)
+    c.add_argument("--pde-samples", type=int, default=None, dest="pde_samples", metavar="N",
+                   help="phi^4 collisions in the PDE panel (default 400)")
+    c.add_argument("--ode-samples", type=int, default=None, dest="ode_samples", metavar="N",
+                   help="CC ODE launches (default 300)")
+    c.add_argument("--no-progress", action="store_true", help="no progress bar")
     return p
 
 

@@ -91,13 +91,14 @@ BOUNCE_COLOURS = {1: "black", 2: "tab:blue", 3: "tab:green", 4: "tab:red"}
 MANY_BOUNCES = "tab:brown"
 
 
-def sweep_figure(result: dict, title: str = "", *, units: str = "", fmt: str = "png") -> bytes:
+def sweep_figure(result: dict, title: str = "", *, units: str = "", fmt: str = "png",
+                 speed_units: str | None = None) -> bytes:
     """v_out against v_in (the paper's Fig. 1 for the apparatus): escaped launches
     coloured by bounce count; below, on the same v_in axis, one row per outcome
     without a v_out (captured, flew_off, lost_contact), each its own marker;
     v_critical marked with its value, error and unit."""
     plt, fig = _figure(figsize=(8.5, 5), dpi=120)
-    vu = f"{units}/s" if units else "design units/s"
+    vu = speed_units or (f"{units}/s" if units else "design units/s")   # speed_units: e.g. "c" (phi^4)
     v = np.asarray(result["v_in"], dtype=float)
     vo = np.asarray([np.nan if x is None else x for x in result["v_out"]], dtype=float)
     nb = np.asarray(result["bounces"])
@@ -371,4 +372,76 @@ def analyze_figure(rows: list[dict], *, title: str = "", units: str = "", fmt: s
     if title:
         fig.suptitle(title, fontsize=10)
     fig.tight_layout()
+    return _png(plt, fig, fmt)
+
+BOUNCE_COLORS = {1: "black", 2: "tab:blue", 3: "tab:green", 4: "tab:red"}   # the seed paper's Fig. 1
+
+
+def phi4_trajectory_png(record: dict, summary: dict, *, fmt: str = "png") -> bytes:
+    """The seed paper's Fig. 3 for one phi^4 collision: X(t) (solid, left axis) and the
+    shape-mode amplitude A(t) (dashed, right axis; blank while X < 1, where the
+    projection onto eq. ansatz is singular), bounces marked."""
+    plt, fig = _figure(figsize=(8, 3.8))
+    ax = fig.add_subplot(1, 1, 1)
+    t = np.asarray(record["t"], dtype=float)
+    X = np.asarray(record["X"], dtype=float)[0]
+    A = np.asarray(record["A"], dtype=float)[0]
+    m = np.isfinite(X)
+    ax.plot(t[m], X[m], "-", color="black", lw=1.2, label="X(t)")
+    ax.set_xlabel("t")
+    ax.set_ylabel("X (half-separation)")
+    ax2 = ax.twinx()
+    ax2.plot(t, A, "--", color="tab:blue", lw=1.0, label="A(t)")
+    ax2.set_ylabel("A (shape mode)", color="tab:blue")
+    for k, tb in enumerate(summary.get("bounce_times", [])):
+        ax.axvline(tb, color="0.6", lw=0.7, ls=":")
+    out = summary.get("outcome", "")
+    extra = f", v_out = {summary['v_out']:.4f}" if out == "escaped" and summary.get("v_out") else ""
+    ax.set_title(f"phi^4 kink-antikink, v_in = {summary.get('v_in', 0):g}: {out}, "
+                 f"{summary.get('bounces', 0)} bounce(s){extra}", fontsize=10)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    return _png(plt, fig, fmt)
+
+
+def compare_figure(panels: list[dict], *, title: str = "", fmt: str = "png") -> bytes:
+    """The seed paper's Fig. 1 for an apparatus: one panel per model, v_out / v_c against
+    v_in / v_c, coloured by the number of collisions (one black, two blue, three green,
+    four red; more and captured in grey ticks on the axis). ``panels``: dicts with
+    name, params (text), v_in, v_out, bounces, outcome, v_critical, units."""
+    plt, fig = _figure(figsize=(11, 8.5))
+    for p_i, p in enumerate(panels):
+        ax = fig.add_subplot(2, 2, p_i + 1)
+        vc = p.get("v_critical")
+        scale = vc if vc else 1.0
+        v = np.asarray(p["v_in"], dtype=float) / scale
+        vo = np.asarray([np.nan if x is None else x for x in p["v_out"]], dtype=float) / scale
+        nb = np.asarray(p["bounces"])
+        esc = np.array([o == "escaped" for o in p["outcome"]])
+        for n in (1, 2, 3, 4):
+            m = esc & (nb == n)
+            if m.any():
+                ax.plot(v[m], vo[m], ".", ms=2.5, color=BOUNCE_COLORS[n])
+        rest = ~(esc & (nb >= 1) & (nb <= 4))
+        if rest.any():
+            ax.plot(v[rest], np.zeros(rest.sum()), "|", ms=5, color="0.65")
+        if vc:
+            ax.axvline(1.0, color="tab:orange", lw=0.8, ls="--")
+        u = p.get("units", "")
+        vc_txt = f"v_critical = {vc:.5g} {u}" if vc else "v_critical: none in range"
+        ax.set_title(f"{p['name']}\n{p.get('params', '')}\n{vc_txt}", fontsize=8.5)
+        ax.set_xlabel("v_in / v_critical" if vc else f"v_in ({u})")
+        ax.set_ylabel("v_out / v_critical" if vc else f"v_out ({u})")
+        ax.grid(alpha=0.3)
+        ax.set_ylim(bottom=-0.03)
+    from matplotlib.lines import Line2D
+
+    handles = [Line2D([], [], ls="", marker=".", ms=8, color=BOUNCE_COLORS[n],
+                      label=f"{n} collision{'s' if n > 1 else ''}") for n in (1, 2, 3, 4)]
+    handles.append(Line2D([], [], ls="", marker="|", ms=8, color="0.65", label="captured, or 5+ collisions"))
+    handles.append(Line2D([], [], ls="--", color="tab:orange", label="v_critical"))
+    fig.legend(handles=handles, loc="lower center", ncol=6, fontsize=8, frameon=False)
+    if title:
+        fig.suptitle(title, fontsize=11)
+    fig.tight_layout(rect=(0, 0.04, 1, 1))
     return _png(plt, fig, fmt)

@@ -131,6 +131,24 @@ def pair(x, v, X):
     return phi, phi_t
 
 
+def max_gamma_dx() -> float:
+    """Largest gamma dx at which the boosted kink is resolved: the cosine coefficients of
+    tanh(gamma x / sqrt 2) at the grid's highest wavenumber pi/dx fall like
+    exp(-pi^2 sqrt(2) / (2 gamma dx)); gamma dx <= 0.6 keeps them below 1e-5 (dx = 1/2
+    at v = 0.27, gamma dx = 0.52, changes v_out by 1e-6 from dx = 1/8: docs/numerics.md)."""
+    return 0.6
+
+
+def check_resolution(v, dx: float) -> str | None:
+    """A one-line reason if the fastest speed of ``v`` is under-resolved at ``dx``, else None."""
+    vmax = float(np.max(np.atleast_1d(v)))
+    g = 1.0 / math.sqrt(1.0 - vmax * vmax)
+    if g * dx <= max_gamma_dx():
+        return None
+    return (f"v_in = {vmax:g}: the Lorentz-contracted kink (width sqrt(2)/gamma = {SQRT2 / g:.3g}) is "
+            f"under-resolved at dx = {dx:g}; use dx <= {max_gamma_dx() / g:.3g} (--dx)")
+
+
 # ----------------------------------------------------------------------------
 # grid and scheme
 # ----------------------------------------------------------------------------
@@ -282,13 +300,17 @@ def kink_position(phi, dx: float):
     return np.where(none_neg, (npts - 1) * dx, X)
 
 
-def shape_amplitude(phi, X, x, wq):
+def shape_amplitude(phi, X, x, wq, V=None):
     """A (M,): projection of phi - phi_0(x; X) onto chi(x - X) on x > 0 (eq. ansatz,
-    the antikink's shape mode), nan while X < 1 (the projection is singular at X = 0)."""
+    the antikink's shape mode), both Lorentz-contracted at the speed ``V`` = dX/dt
+    (M,) if given and X >= 3; nan while X < 1 (the projection is singular at X = 0)."""
     X = np.asarray(X, dtype=float)[:, None]
+    V = np.zeros_like(X) if V is None else np.clip(np.abs(np.asarray(V, dtype=float)), 0, 0.9)[:, None]
+    V = np.where(X >= 3.0, V, 0.0)     # the kinks' own speed only where they are apart
+    g = 1.0 / np.sqrt(1.0 - V * V)
     xr = x[None, :]
-    base = np.tanh((xr + X) / SQRT2) - np.tanh((xr - X) / SQRT2) - 1.0
-    chi = -shape_mode(xr - X)          # the antikink -tanh carries -chi
+    base = np.tanh(g * (xr + X) / SQRT2) - np.tanh(g * (xr - X) / SQRT2) - 1.0
+    chi = -shape_mode(g * (xr - X))          # the antikink -tanh carries -chi
     num = ((phi - base) * chi) @ wq
     den = (chi * chi) @ wq
     return np.where(X[:, 0] >= 1.0, num / den, np.nan)
@@ -307,7 +329,7 @@ class Collisions:
     v_out: np.ndarray
     bounce_times: np.ndarray
     t_end: np.ndarray
-    energy_error: np.ndarray      # |E(t_end) + absorbed - E(0)| / E(0) is not tracked: nan unless absorb=False
+    energy_error: np.ndarray      # |E(t_end) / E(0) - 1| with absorb=False, else nan (the layer takes energy)
     record: dict | None = None    # t (T,), X (M, T), A (M, T) when asked
 
     @property
@@ -315,14 +337,72 @@ class Collisions:
         return (self.outcome == ESCAPED) & (self.bounces == 1)
 
 
+class _Tracks:
+    """Per-launch bookkeeping of the live launches: overlaps of phi(0) (bounces), the
+    running least-squares sums of X(t) on the outgoing leg, and the previous sample."""
+
+    def __init__(self, phi0, X0: float):
+        m = phi0.shape[0]
+        self.X0 = X0
+        self.inside = np.zeros(m, dtype=bool)     # phi(0) <= 0: the kinks overlap
+        self.t_in = np.zeros(m)                   # when the current overlap began
+        self.prev_phi0 = phi0.copy()
+        self.prev_X = np.full(m, X0)
+        self.fit = np.zeros((m, 5))               # n, sum t', sum X, sum t'^2, sum t' X (t' from fit start)
+        self.fit_t0 = np.full(m, np.nan)
+
+    def bounces_ended(self, t: float, dt: float, phi0):
+        """Advance the overlap state to ``phi0`` at ``t``; returns (indices, times) of the
+        overlaps that ended in this step (bounce time: the overlap's middle)."""
+        down = (self.prev_phi0 > 0) & (phi0 <= 0)
+        up = (self.prev_phi0 <= 0) & (phi0 > 0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            tc = t - dt * phi0 / (phi0 - self.prev_phi0)       # crossing, linear in t
+        self.t_in = np.where(down, tc, self.t_in)
+        self.inside |= down
+        ended = np.flatnonzero(up & self.inside)
+        self.inside &= ~up
+        return ended, 0.5 * (self.t_in[ended] + tc[ended])
+
+    def outgoing(self, t: float, X, bounced):
+        """Accumulate X(t) on the outgoing leg (X from X0/2 up, after a bounce, reset by
+        any return below X0/2); returns the mask of launches back at X0 moving outward."""
+        X0 = self.X0
+        free = bounced & ~self.inside
+        start = free & (X >= 0.5 * X0) & (self.prev_X < 0.5 * X0)
+        self.fit_t0 = np.where(start, t, self.fit_t0)
+        self.fit[start] = 0.0
+        going = free & (X >= 0.5 * X0) & np.isfinite(self.fit_t0)
+        tp, Xg = t - self.fit_t0[going], X[going]
+        self.fit[going] += np.column_stack([np.ones(tp.size), tp, Xg, tp * tp, tp * Xg])
+        self.fit_t0 = np.where(X < 0.5 * X0, np.nan, self.fit_t0)
+        return free & (X >= X0) & (X > self.prev_X)
+
+    def slope(self, idx):
+        """Least-squares dX/dt on the outgoing leg (nan with fewer than 3 samples)."""
+        F = self.fit[idx]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s = (F[:, 0] * F[:, 4] - F[:, 1] * F[:, 2]) / (F[:, 0] * F[:, 3] - F[:, 1] ** 2)
+        return np.where(F[:, 0] >= 3, s, np.nan)
+
+    def remember(self, phi0, X):
+        self.prev_phi0, self.prev_X = phi0, X
+
+    def keep(self, mask):
+        for name in ("inside", "t_in", "prev_phi0", "prev_X", "fit", "fit_t0"):
+            setattr(self, name, getattr(self, name)[mask])
+
+
 def collide(v_in, cfg: Phi4Config = DEFAULT_CONFIG, *, record: bool = False, record_every: int = 5,
-            absorb: bool = True, max_bounces: int = 64) -> Collisions:
+            absorb: bool = True, max_bounces: int = 64, stop_after: int | None = None) -> Collisions:
     """Collide a kink-antikink pair at each speed of ``v_in`` (M,), all on one grid
     as arrays (M, n+1); launches leave the batch as they escape.
 
     ``record``: keep X(t) and A(t) every ``record_every`` steps (for Fig. 3 plots).
     ``absorb``: False removes the absorbing layer (then energy is conserved and its
     relative error at the end is returned in ``energy_error``).
+    ``stop_after``: end a launch as ``captured`` at its ``stop_after``-th bounce (t_end
+    says when); for questions such as "one bounce or more", never for a reported sweep.
     """
     v = np.atleast_1d(np.asarray(v_in, dtype=float))
     m = v.size
@@ -339,21 +419,18 @@ def collide(v_in, cfg: Phi4Config = DEFAULT_CONFIG, *, record: bool = False, rec
     t_end = np.full(m, cfg.t_max)
     v_out = np.full(m, np.nan)
     energy_error = np.full(m, np.nan)
-    # per live launch: state of phi(0) (overlap), the start time of the overlap, and
-    # running least-squares sums of X(t) on the outgoing leg
-    inside = np.zeros(m, dtype=bool)
-    t_in = np.zeros(m)
-    prev_phi0 = phi[:, 0].copy()
-    prev_X = np.full(m, X0)
-    fit = np.zeros((m, 5))           # n, sum t', sum X, sum t'^2, sum t' X (t' from fit start)
-    fit_t0 = np.full(m, np.nan)
+    tracks = _Tracks(phi[:, 0], X0)
+
+    def energy_error_of(rows, w_rows, e_rows):
+        p_, pt_ = sch.fields(w_rows)
+        energy_error[rows] = np.abs(sch.energy(p_, pt_) / e_rows - 1.0)
 
     steps = int(math.ceil(cfg.t_max / cfg.dt - 1e-9))
     rec_t, rec_X, rec_A = [], [], []
     if record:
         rec_t.append(0.0)
         rec_X.append(kink_position(phi, sch.dx))
-        rec_A.append(shape_amplitude(phi, rec_X[-1], sch.x, sch.wq))
+        rec_A.append(shape_amplitude(phi, rec_X[-1], sch.x, sch.wq, -v))
     Nv = sch._nonlinear(w)[0]
     for n in range(1, steps + 1):
         if live.size == 0:
@@ -364,61 +441,37 @@ def collide(v_in, cfg: Phi4Config = DEFAULT_CONFIG, *, record: bool = False, rec
         phi = u - 1.0
         X = kink_position(phi, sch.dx)
         phi0 = phi[:, 0]
-        # bounces: phi(0) falling through 0 starts an overlap, rising through 0 ends it
-        down = (prev_phi0 > 0) & (phi0 <= 0)
-        up = (prev_phi0 <= 0) & (phi0 > 0)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            tc = t - cfg.dt * phi0 / (phi0 - prev_phi0)
-        t_in = np.where(down, tc, t_in)
-        inside |= down
-        ended = up & inside
-        for j in np.flatnonzero(ended):
+        ended, t_b = tracks.bounces_ended(t, cfg.dt, phi0)
+        for j, tb in zip(ended, t_b):
             g = live[j]
             if bounces[g] < max_bounces:
-                bt[g, bounces[g]] = 0.5 * (t_in[j] + tc[j])
+                bt[g, bounces[g]] = tb
             bounces[g] += 1
-        inside &= ~up
-        # the outgoing-leg fit: from X0/2 up, reset by any overlap
-        start = (bounces[live] > 0) & ~inside & (X >= 0.5 * X0) & (prev_X < 0.5 * X0)
-        fit_t0 = np.where(start, t, fit_t0)
-        fit[start] = 0.0
-        going = (bounces[live] > 0) & ~inside & (X >= 0.5 * X0) & np.isfinite(fit_t0)
-        tp = np.where(going, t - fit_t0, 0.0)
-        fit[going] += np.column_stack([np.ones(going.sum()), tp[going], X[going], tp[going] ** 2,
-                                       tp[going] * X[going]])
-        fit_t0 = np.where(X < 0.5 * X0, np.nan, fit_t0)
-        esc = (bounces[live] > 0) & ~inside & (X >= X0) & (X > prev_X)
-        if record:
-            rt = np.full(m, np.nan)
+        esc = tracks.outgoing(t, X, bounces[live] > 0)
+        if record and n % record_every == 0:
+            rt, ra = np.full(m, np.nan), np.full(m, np.nan)
             rt[live] = X
-            ra = np.full(m, np.nan)
-            ra[live] = shape_amplitude(phi, X, sch.x, sch.wq) if n % record_every == 0 else np.nan
-            if n % record_every == 0:
-                rec_t.append(t)
-                rec_X.append(rt)
-                rec_A.append(ra)
-        prev_phi0, prev_X = phi0, X
-        if esc.any():
-            js = np.flatnonzero(esc)
-            g = live[js]
-            outcome[g] = ESCAPED
-            t_end[g] = t
-            F = fit[js]
-            with np.errstate(divide="ignore", invalid="ignore"):
-                slope = (F[:, 0] * F[:, 4] - F[:, 1] * F[:, 2]) / (F[:, 0] * F[:, 3] - F[:, 1] ** 2)
-            v_out[g] = np.where(F[:, 0] >= 3, slope, np.nan)
-            if not absorb:
-                p_, pt_ = sch.fields(w[js])
-                energy_error[g] = np.abs(sch.energy(p_, pt_) / e0[js] - 1.0)
-            keep = ~esc
-            live, w, Nv = live[keep], w[keep], Nv[keep]
-            inside, t_in, prev_phi0, prev_X = inside[keep], t_in[keep], prev_phi0[keep], prev_X[keep]
-            fit, fit_t0 = fit[keep], fit_t0[keep]
-            if not absorb:
-                e0 = e0[keep]
+            ra[live] = shape_amplitude(phi, X, sch.x, sch.wq, (X - tracks.prev_X) / cfg.dt)
+            rec_t.append(t)
+            rec_X.append(rt)
+            rec_A.append(ra)
+        tracks.remember(phi0, X)
+        stop = np.zeros_like(esc) if stop_after is None else (bounces[live] >= stop_after) & ~esc
+        if not (esc.any() or stop.any()):
+            continue
+        g = live[esc]
+        outcome[g] = ESCAPED
+        v_out[g] = tracks.slope(esc)
+        t_end[live[esc | stop]] = t
+        if not absorb:
+            energy_error_of(live[esc | stop], w[esc | stop], e0[esc | stop])
+        keep = ~(esc | stop)
+        live, w, Nv = live[keep], w[keep], Nv[keep]
+        tracks.keep(keep)
+        if not absorb:
+            e0 = e0[keep]
     if live.size and not absorb:
-        p_, pt_ = sch.fields(w)
-        energy_error[live] = np.abs(sch.energy(p_, pt_) / e0 - 1.0)
+        energy_error_of(live, w, e0)
     k = max(1, int(bounces.max(initial=0)))
     rec = None
     if record:

@@ -17,24 +17,25 @@ Grid and step errors: docs/numerics.md ("phi^4").
 
 from __future__ import annotations
 
-import math
 import time
 
 import numpy as np
 
 from ..errors import SpecError
 from ..physics.sweep import Launches, _critical_task, _edge_task, critical_bracket, find_runs, run_tasks
-from .phi4 import DEFAULT_CONFIG, OUTCOMES, Phi4Config, collide
+from .phi4 import DEFAULT_CONFIG, OUTCOMES, Phi4Config, check_resolution, collide
 
 
-def make_launcher(cfg: Phi4Config = DEFAULT_CONFIG, *, batch: int = 64, progress=None, counter=None):
-    """``launch(v (M,)) -> Launches``: PDE collisions in batches of ``batch`` on one grid."""
+def make_launcher(cfg: Phi4Config = DEFAULT_CONFIG, *, batch: int = 64, progress=None, counter=None,
+                  stop_after: int | None = None):
+    """``launch(v (M,)) -> Launches``: PDE collisions in batches of ``batch`` on one grid
+    (``stop_after``: see :func:`fabkit.waves.phi4.collide`)."""
 
     def launch(v):
         v = np.asarray(v, dtype=float)
         parts = []
         for i in range(0, len(v), batch):
-            parts.append(collide(v[i:i + batch], cfg))
+            parts.append(collide(v[i:i + batch], cfg, stop_after=stop_after))
             if counter is not None:
                 counter["n"] += len(v[i:i + batch])
                 if progress is not None:
@@ -61,14 +62,19 @@ def extrapolate_critical(v, res: Launches, v_c: float, fit_width: float = 0.01):
 
 
 def phi4_sweep(v_in, cfg: Phi4Config = DEFAULT_CONFIG, *, rel_tol: float = 2e-5, k: int = 8,
-               k_edge: int = 6, edge_rel_tol: float = 1e-4, refine: bool = True, progress=None,
-               batch: int = 64) -> dict:
+               k_edge: int = 6, edge_rel_tol: float = 2e-4, refine: bool = True, refine_windows: bool = True,
+               progress=None,
+               batch: int = 64, stop_after: int | None = None) -> dict:
     """Collide at every ``v_in`` (N,) (sorted here) and analyse, as :func:`fabkit.physics.sweep.sweep`.
 
     Returns ``v_in``, ``v_out``, ``bounces``, ``outcome``, ``v_critical``,
     ``v_critical_error``, ``v_critical_reason``, ``v_critical_extrapolated``,
     ``t_max_bias``, ``windows`` [{bounces, lo, hi, samples, edge_error}],
     ``launches``, ``seconds``, ``seconds_per_collision``.
+    ``refine_windows``: False leaves the two-bounce window edges at the samples.
+    ``stop_after``: end sampled launches at that bounce (shown as captured; for
+    figures that colour up to four bounces). Refinement launches always stop at their
+    third bounce: they only ask "one-bounce escape or not" and "two-bounce escape or not".
     """
     t0 = time.perf_counter()
     v = np.sort(np.asarray(v_in, dtype=float).ravel())
@@ -76,8 +82,12 @@ def phi4_sweep(v_in, cfg: Phi4Config = DEFAULT_CONFIG, *, rel_tol: float = 2e-5,
         raise SpecError("no launch speeds given", key="--v-in")
     if not np.all(np.isfinite(v)) or v[0] <= 0 or v[-1] >= 1:
         raise SpecError("speeds must lie in (0, 1) (units of the speed of light)", key="--v-in")
+    reason = check_resolution(v, cfg.dx)
+    if reason:
+        raise SpecError(reason, key="--v-in")
     counted = {"n": 0}
-    launch = make_launcher(cfg, batch=batch, progress=progress, counter=counted)
+    launch = make_launcher(cfg, batch=batch, progress=progress, counter=counted, stop_after=stop_after)
+    refine_launch = make_launcher(cfg, batch=batch, progress=progress, counter=counted, stop_after=3)
     res = launch(v)
     out: dict = {"v_in": v, "v_out": res.v_out, "bounces": res.bounces,
                  "outcome": [OUTCOMES[int(i)] for i in res.outcome]}
@@ -90,7 +100,7 @@ def phi4_sweep(v_in, cfg: Phi4Config = DEFAULT_CONFIG, *, rel_tol: float = 2e-5,
     if refine:
         if lo is not None:
             tasks.append(_critical_task(lo, hi, rel_tol, k))
-        for w, i, j in two:
+        for w, i, j in (two if refine_windows else []):
             tasks.append(_edge_task(float(v[i - 1]) if i > 0 else float(v[i]), float(v[i]), -1, edge_rel_tol,
                                     k_edge))
             tasks.append(_edge_task(float(v[j]), float(v[j + 1]) if j + 1 < len(v) else float(v[j]), +1,
@@ -98,7 +108,7 @@ def phi4_sweep(v_in, cfg: Phi4Config = DEFAULT_CONFIG, *, rel_tol: float = 2e-5,
     extra: list[Launches] = []
 
     def keep(x):
-        r = launch(x)
+        r = refine_launch(x)
         extra.append(r)
         return r
 
@@ -110,7 +120,7 @@ def phi4_sweep(v_in, cfg: Phi4Config = DEFAULT_CONFIG, *, rel_tol: float = 2e-5,
     out["v_critical_error"] = None if lo is None else 0.5 * (hi - lo)
     out["v_critical_reason"] = reason
     for q, (w, i, j) in enumerate(two):
-        if refine:
+        if refine and refine_windows:
             (a1, b1), (a2, b2) = done[2 * q: 2 * q + 2]
             w["lo"] = 0.5 * (a1 + b1) if i > 0 else float(v[i])
             w["hi"] = 0.5 * (a2 + b2) if j + 1 < len(v) else float(v[j])
@@ -140,9 +150,3 @@ def config_dict(cfg: Phi4Config) -> dict:
     return {"dx": cfg.dx, "dt": cfg.dt, "x0": cfg.x0, "length": cfg.length, "layer": cfg.layer,
             "layer_start": cfg.x_layer, "sigma": cfg.sigma, "t_max": cfg.t_max,
             "scheme": "cosine pseudo-spectral (DCT-I, even symmetry) + ETDRK4"}
-
-
-def escape_time_bias(v_c: float, t_max: float, x0: float) -> float:  # pragma: no cover - doc helper
-    """Rough size of the t_max bias: v_out^2 ~ 2 v_c (v - v_c) must reach (x0 / (t_max - x0 / v_c))^2."""
-    t_left = max(t_max - x0 / v_c, 1e-9)
-    return (x0 / t_left) ** 2 / (2 * v_c) if math.isfinite(t_left) else math.nan

@@ -1,0 +1,76 @@
+"""``fabkit compare SPEC [--plot PNG] [--json]``: the seed paper's Fig. 1 for this apparatus.
+
+Four panels of v_out against v_in, both over each panel's v_critical: the phi^4 PDE,
+the CC ODE and the separatrix map (c = 1/4, omega = 1), and the spec's apparatus
+through the simulator's sweep. Coloured by collisions: one black, two blue, three
+green, four red (fabkit/waves/compare.py).
+"""
+
+from __future__ import annotations
+
+from ..errors import SpecError
+from ._common import Timer, emit, plot_format, progress_bar
+
+MAX_SAMPLES = 20_000
+
+
+def _count(value, default: int, flag: str) -> int:
+    if value is None:
+        return default
+    if not 8 <= value <= MAX_SAMPLES:
+        raise SpecError(f"must be in [8, {MAX_SAMPLES}], got {value}", key=flag)
+    return int(value)
+
+
+def run(args) -> int:
+    from ..spec import load_spec
+    from ..waves import compare as cmp
+    from .sweep import speeds
+
+    timer = Timer()
+    n_pde = _count(args.pde_samples, 400, "--pde-samples")
+    n_ode = _count(args.ode_samples, 300, "--ode-samples")
+    fmt = plot_format(args.plot) if args.plot else None     # a bad extension fails before the work
+    spec = load_spec(args.spec, need=("surface", "simulation", "ball", "ramp"), command="compare")
+    v_app = speeds(spec, None)
+    quiet = getattr(args, "no_progress", False)
+    panels = []
+    cb, close = progress_bar(n_pde, quiet, "compare: phi^4")
+    try:
+        panels.append(cmp.pde_panel(n_pde, progress=cb))
+    finally:
+        close()
+    panels.append(cmp.ode_panel(n_ode))
+    panels.append(cmp.map_panel(max(n_ode, 2000)))
+    cb, close = progress_bar(len(v_app), quiet, "compare: apparatus")
+    try:
+        panels.append(cmp.apparatus_panel(spec, v_app, progress=cb))
+    finally:
+        close()
+    seconds = timer.seconds
+    rows = cmp.summary_rows(panels)
+    lines = []
+    for p, r in zip(panels, rows):
+        vc = p["v_critical"]
+        c = r["counts"]
+        vc_txt = f"v_critical {vc:.6g} {p['units']}".rstrip() + f" ({p['v_critical_note']})" if vc is not None \
+            else f"v_critical: none ({p['v_critical_note']})"
+        lines.append(f"compare: {p['name']}: {vc_txt}; escapes after 1/2/3/4 collisions "
+                     f"{c['1']}/{c['2']}/{c['3']}/{c['4']}, other {c['other']}, {p['seconds']:.1f} s")
+        lines.append(f"  {p['params']}")
+    if args.plot:
+        from ..io import write_atomic
+        from ..plots import compare_figure
+
+        png = compare_figure(panels, title=f"v_out against v_in, over each panel's v_critical: "
+                                           f"phi^4, CC ODE, map and {spec.name}", fmt=fmt)
+        write_atomic(args.plot, png)
+        lines.append(f"wrote {args.plot}")
+    lines.append(f"compare: {seconds:.1f} s")
+    payload = {"panels": [{k: p[k] for k in ("name", "params", "v_in", "v_out", "bounces", "outcome", "v_critical",
+                                             "v_critical_note", "units", "launches", "seconds")} for p in panels],
+               "summary": rows, "seconds": seconds}
+    if args.plot:
+        payload["plot"] = str(args.plot)
+    emit(lines, payload, args.json)
+    return 0
