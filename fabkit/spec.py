@@ -139,6 +139,10 @@ SCHEMA: dict[str, dict[str, Any]] = {
     "ball": {
         "diameter": Num(default=2.5, gt=0, le=1e6, length="design"),
         "inertia": Inertia(doc="solid | hollow | k = I/(m r^2)"),
+        "friction": Num(default=None, ge=0, le=1e6,
+                        doc="static friction coefficient (model ball: slipped where |F_t|/N exceeds it)"),
+        "rolling_resistance": Num(default=0.0, ge=0, le=10,
+                                  doc="rolling resistance coefficient (model ball): a force c N opposing v"),
     },
     "ramp": {
         "heights": NumList(ge=0, min_len=1, length="design",
@@ -147,7 +151,7 @@ SCHEMA: dict[str, dict[str, Any]] = {
                        doc="heights sampled in [min, max] (each is a full simulation: at most 10000)"),
     },
     "simulation": {
-        "model": Choice(("full", "simplified"), default="full"),
+        "model": Choice(("full", "simplified", "ball"), default="full"),
         "damping": Num(default=0.0, ge=0, le=1e9, doc="viscous coefficient, 1/s"),
         "nonlinear_damping": Num(default=0.0, ge=0, le=1e9,
                                  doc="the paper's localized damping, coefficient of F(x)^2 y^2 ydot"),

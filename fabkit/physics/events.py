@@ -71,7 +71,8 @@ def _secant(sys, tab, Y, F0, t, h, b0, b1, iters: int = 4):
     K = np.empty((tab.n_stages + 1, nv, m))
     Yt = Y.copy()
     th = np.ones(m)
-    for _ in range(iters):
+    side = np.zeros(m)
+    for i in range(iters):
         th = lo + (hi - lo) * blo / (blo - bhi)
         th = np.where(np.isfinite(th), np.clip(th, lo, hi), 0.5 * (lo + hi))
         Yt = _rk_step(sys, tab, Y, F0, h * th, K)
@@ -81,7 +82,73 @@ def _secant(sys, tab, Y, F0, t, h, b0, b1, iters: int = 4):
         blo = np.where(pos, b, blo)
         hi = np.where(pos, hi, th)
         bhi = np.where(pos, bhi, b)
+        if iters > 4:
+            # longer runs (the ball's guard): Illinois steps, stop once at rounding
+            blo = np.where(~pos & (side == -1), 0.5 * blo, blo)
+            bhi = np.where(pos & (side == 1), 0.5 * bhi, bhi)
+            side = np.where(pos, 1, -1)
+            if np.all((b == 0) | (np.abs(hi - lo) <= 4 * np.spacing(1.0))) or np.all(
+                    np.abs(b) <= 1e-15):
+                break
     return t + h * th, Yt
+
+
+def _quantity(sys, Y, code):
+    """The event quantity of states Y (nv, m) per lane code (0 x, 1 y, 2 xd, 3 z = h)."""
+    h = sys(Y)[1][0]
+    return np.choose(code, (Y[0], Y[1], Y[2], h))
+
+
+def _bracketed(sys, tab, Y, t, h, kind, target, iters: int = 60):
+    """Fallback where Henon's step fails (the event's quantity turns inside the step, e.g.
+    a bounce and the escape in one long step, where x is not monotonic): the event's
+    time by Illinois regula falsi on re-taken RK steps from Y (nv, m) over fractions of
+    the step h (m,). The quantity changes sign over the step by construction. Each
+    iterate is as accurate as a step; iterations stop when the bracket is at rounding."""
+    nv, m = Y.shape
+    code = np.broadcast_to(np.asarray(_KINDS[kind] if isinstance(kind, str) else kind), (m,))
+    F0 = sys(Y)[0]
+    K = np.empty((tab.n_stages + 1, nv, m))
+    lo, hi = np.zeros(m), np.ones(m)
+    glo = _quantity(sys, Y, code) - target
+    Y1 = _rk_step(sys, tab, Y, F0, h, K)
+    ghi = _quantity(sys, Y1, code) - target
+    Yt, th = Y1, np.ones(m)
+    side = np.zeros(m)
+    for _ in range(iters):
+        th = (lo * ghi - hi * glo) / (ghi - glo)
+        th = np.where(np.isfinite(th) & (th > lo) & (th < hi), th, 0.5 * (lo + hi))
+        Yt = _rk_step(sys, tab, Y, F0, h * th, K)
+        gt = _quantity(sys, Yt, code) - target
+        same = np.sign(gt) == np.sign(glo)
+        lo, glo = np.where(same, th, lo), np.where(same, gt, glo)
+        hi, ghi = np.where(same, hi, th), np.where(same, ghi, gt)
+        # Illinois: halve the stale end's value when the same end is kept twice
+        glo = np.where(~same & (side == -1), 0.5 * glo, glo)
+        ghi = np.where(same & (side == 1), 0.5 * ghi, ghi)
+        side = np.where(same, 1, -1)
+        if np.all((hi - lo) <= 4 * np.spacing(1.0) + 0.0 * lo) or np.all(gt == 0):
+            break
+    for c in range(3):
+        Yt[c] = np.where(code == c, target, Yt[c])
+    return t + h * th, Yt
+
+
+def _locate(sys, tab, Y, t, h, kind, target):
+    """Henon's step, and for the lanes where it fails (result outside the step or not
+    finite) the bracketed fallback. Returns (t_event, Y_event, ok)."""
+    te, Ye = _henon(sys, tab, Y, t, kind, target)
+    ok = np.isfinite(te) & (te >= t) & (te <= t + h + 1e-9 * h) & np.isfinite(Ye[:sys.ne]).all(axis=0)
+    if not ok.all():
+        bad = np.flatnonzero(~ok)
+        kd = kind if isinstance(kind, str) else np.asarray(kind)[bad]
+        tg = np.broadcast_to(np.asarray(target, dtype=float), t.shape)[bad]
+        tb, Yb = _bracketed(sys, tab, Y[:, bad], t[bad], h[bad], kd, tg)
+        okb = np.isfinite(tb) & np.isfinite(Yb[:sys.ne]).all(axis=0)
+        te[bad] = np.where(okb, tb, te[bad])
+        Ye[:, bad] = np.where(okb, Yb, Ye[:, bad])
+        ok[bad] = okb
+    return te, Ye, ok
 
 
 def _flush_bounces(sys, tab, queue, out, k_keep):
@@ -98,8 +165,8 @@ def _flush_bounces(sys, tab, queue, out, k_keep):
     if not keep.any():
         return
     Y, t, lane, order, h = Y[:, keep], t[keep], lane[keep], order[keep], h[keep]
-    te, _ = _henon(sys, tab, Y, t, "vx", np.zeros(t.size))
-    ok = np.isfinite(te) & (te >= t) & (te <= t + h)
+    te, _, ok = _locate(sys, tab, Y, t, h, "vx", np.zeros(t.size))
+    ok = ok & (te <= t + h)
     out["bounce_times"][lane, order] = np.where(ok, te, t + h)
 
 
@@ -114,9 +181,8 @@ def _flush_terminal(sys, tab, pending, out, k_keep):
         return
     cat = {k: np.concatenate([p[k] for p in pending], axis=-1) for k in pending[0]}
     pending.clear()
-    te, Ye = _henon(sys, tab, cat["Y"], cat["t"], cat["kind"], cat["target"])
+    te, Ye, ok = _locate(sys, tab, cat["Y"], cat["t"], cat["h"], cat["kind"], cat["target"])
     t_hi = cat["t"] + cat["h"]
-    ok = np.isfinite(te) & (te >= cat["t"]) & (te <= t_hi + 1e-9 * cat["h"]) & np.isfinite(Ye[:4]).all(axis=0)
     te = np.where(ok, te, t_hi)
     Ye = np.where(ok, Ye, cat["Yfb"])
     lane, oc = cat["lane"], cat["outcome"]
@@ -128,12 +194,15 @@ def _flush_terminal(sys, tab, pending, out, k_keep):
     out["outcome"][gl] = oc[first]
     out["t_end"][gl] = tend
     out["x_end"][gl], out["y_end"][gl] = Yend[0], Yend[1]
-    out["vx_end"][gl], out["vy_end"][gl] = Yend[2], Yend[3]
-    out["v_out"][gl] = np.where(oc[first] == ESCAPED, np.abs(Yend[2]), np.nan)
+    vxe, vye = sys.velocity(Yend)
+    out["vx_end"][gl], out["vy_end"][gl] = vxe, vye
+    out["v_out"][gl] = np.where(oc[first] == ESCAPED, np.abs(vxe), np.nan)
     aux_end = sys(Yend)[1]
+    if len(aux_end) > 4:   # (terminal events here are escapes and fly-offs: the end counts)
+        out["max_slip"][gl] = np.fmax(cat["smax"][first], aux_end[4])
     inv = cat["inv"][first]
     E = sys.energy(Yend, aux_end, inv)
-    W = Yend[4] * (inv * inv) if sys.damped else 0.0
+    W = Yend[sys.iw] * (inv * inv) if sys.damped else 0.0
     zmax = np.maximum(cat["zmax"][first], aux_end[0])
     zmin = np.minimum(cat["zmin"][first], aux_end[0])
     escale = cat["kin0"][first] + sys.gt * (zmax - zmin) * (inv * inv)

@@ -57,9 +57,9 @@ import numpy as np
 
 from ..errors import SpecError
 from ..tolerances import DEFAULT
-from .events import _KINDS, PENDING, _flush_bounces, _flush_terminal, _henon, _secant
-from .models import CAPTURED, ESCAPED, FLEW_OFF, LOST_CONTACT, OUTCOMES
-from .rk import _System, _error_norm, _error_norm_scaled, _initial_step, _pow2, _rk_step, tableau
+from .events import _KINDS, PENDING, _flush_bounces, _flush_terminal, _locate, _secant
+from .models import BRIDGED, CAPTURED, ESCAPED, FLEW_OFF, LOST_CONTACT, OUTCOMES
+from .rk import _error_norm, _error_norm_scaled, _initial_step, _pow2, _rk_step, system, tableau
 from .trap import region, trap_energy
 
 CHUNK = 16384         # lanes per chunk (memory bound; the arithmetic does not depend on it)
@@ -106,6 +106,7 @@ class LaunchResult:
     max_z: np.ndarray
     max_abs_y: np.ndarray
     energy_error: np.ndarray
+    max_slip: np.ndarray
     steps: np.ndarray
     rejected: np.ndarray
     status: np.ndarray
@@ -124,7 +125,7 @@ class LaunchResult:
 
 
 _FIELDS = ("outcome", "bounces", "v_out", "bounce_times", "t_end", "x_end", "y_end", "vx_end", "vy_end",
-           "max_z", "max_abs_y", "energy_error", "steps", "rejected", "status")
+           "max_z", "max_abs_y", "energy_error", "max_slip", "steps", "rejected", "status")
 
 
 def _empty(n: int, k: int) -> dict:
@@ -133,7 +134,7 @@ def _empty(n: int, k: int) -> dict:
         "outcome": np.full(n, CAPTURED, dtype=np.int8), "bounces": np.zeros(n, dtype=np.int64),
         "v_out": nan.copy(), "bounce_times": np.full((n, k), np.nan), "t_end": nan.copy(),
         "x_end": nan.copy(), "y_end": nan.copy(), "vx_end": nan.copy(), "vy_end": nan.copy(),
-        "max_z": nan.copy(), "max_abs_y": nan.copy(), "energy_error": nan.copy(),
+        "max_z": nan.copy(), "max_abs_y": nan.copy(), "energy_error": nan.copy(), "max_slip": nan.copy(),
         "steps": np.zeros(n, dtype=np.int64), "rejected": np.zeros(n, dtype=np.int64),
         "status": np.zeros(n, dtype=np.int8),
     }
@@ -157,7 +158,8 @@ def _run_chunk(*args, **kw):
 
 
 def _run_chunk_body(problem, v_in, y0, vy0, rtol, atol, t_max, max_steps, tab, record, k_keep, tick=None):
-    sys = _System(problem)
+    sys = system(problem)
+    ne = sys.ne
     n = len(v_in)
     out = _empty(n, k_keep)
     x_lo, x_hi = problem.x_range[0] + problem.margin, problem.x_range[1] - problem.margin
@@ -168,24 +170,20 @@ def _run_chunk_body(problem, v_in, y0, vy0, rtol, atol, t_max, max_steps, tab, r
     tx0, tx1, ty0, ty1 = region(problem)
     it = 0
 
-    Y = np.zeros((sys.nv, n))
-    Y[0] = start
-    Y[1] = y0
-    Y[2] = v_in
-    Y[3] = vy0
+    Y = sys.initial(start, y0, v_in, vy0)
     F, aux = sys(Y)
     # energies are kept per lane times inv^2 (inv a power of two, 1 for any ordinary speed)
     inv = np.where(np.maximum(np.abs(Y[2]), np.abs(Y[3])) > 1e100,
                    1.0 / _pow2(np.maximum(np.abs(Y[2]), np.abs(Y[3]))), 1.0)
     E0 = sys.energy(Y, aux, inv)
-    Vx, Vy = Y[2] * inv, Y[3] * inv
-    kin0 = 0.5 * (Vx ** 2 + Vy ** 2 + ((aux[1] * Vx + aux[2] * Vy) ** 2 if sys.full else 0.0))
+    kin0 = sys.kinetic(Y, aux, inv)
     t = np.zeros(n)
     h = _initial_step(sys, tab, Y, F, rtol, atol, t_max)
     idx = np.arange(n)
     zmax = aux[0].copy()
     zmin = aux[0].copy()
     ymax = np.abs(Y[1])
+    smax = aux[4].copy() if len(aux) > 4 else np.full(n, np.nan)   # largest slip ratio (ball)
     steps = np.zeros(n, dtype=np.int64)
     rej = np.zeros(n, dtype=np.int64)
     nb = np.zeros(n, dtype=np.int64)
@@ -196,7 +194,20 @@ def _run_chunk_body(problem, v_in, y0, vy0, rtol, atol, t_max, max_steps, tab, r
     # derivatives that overflow at the launch (|v| beyond ~1e150 design units/s on a curved
     # surface: h_xx v^2 is not a float): no step can be taken, and no surface holds such a
     # ball. The lane ends at once as flew_off, status 3, instead of shrinking its step forever.
-    over = ~np.isfinite(F[:4]).all(axis=0)
+    over = ~np.isfinite(F[:ne]).all(axis=0)
+    # the ball launched where its guard is already down (bridged at the start, say): it ends there
+    bad0 = (aux[3] <= 0) & ~over if sys.guarded else np.zeros(n, dtype=bool)
+    if bad0.any():
+        sel = np.flatnonzero(bad0)
+        out["outcome"][sel] = sys.guard_outcome(Y[:, sel])
+        out["t_end"][sel] = 0.0
+        out["x_end"][sel], out["y_end"][sel] = Y[0, sel], Y[1, sel]
+        out["vx_end"][sel], out["vy_end"][sel] = sys.velocity(Y[:, sel])
+        out["max_z"][sel] = aux[0][sel]
+        out["max_abs_y"][sel] = np.abs(Y[1, sel])
+        out["energy_error"][sel] = 0.0
+        out["max_slip"][sel] = smax[sel]
+        over = over | bad0
     if over.any():
         sel = np.flatnonzero(over)
         out["outcome"][sel] = FLEW_OFF
@@ -207,8 +218,10 @@ def _run_chunk_body(problem, v_in, y0, vy0, rtol, atol, t_max, max_steps, tab, r
         out["max_abs_y"][sel] = np.abs(Y[1, sel])
         out["energy_error"][sel] = 0.0
         out["status"][sel] = 3
-        idx, Y, F, t, h, zmax, zmin, ymax, steps, rej, nb, was_rejected, err_prev = _keep(
-            ~over, idx, Y, F, t, h, zmax, zmin, ymax, steps, rej, nb, was_rejected, err_prev)
+        out["outcome"][np.flatnonzero(bad0)] = sys.guard_outcome(Y[:, bad0])
+        out["status"][np.flatnonzero(bad0)] = 0
+        idx, Y, F, t, h, zmax, zmin, ymax, smax, steps, rej, nb, was_rejected, err_prev = _keep(
+            ~over, idx, Y, F, t, h, zmax, zmin, ymax, smax, steps, rej, nb, was_rejected, err_prev)
         aux = _keep(~over, *aux)
 
     queue, queued, pending = [], [0], []
@@ -220,10 +233,10 @@ def _run_chunk_body(problem, v_in, y0, vy0, rtol, atol, t_max, max_steps, tab, r
         K = np.empty((tab.n_stages + 1, sys.nv, m))
         Ynew = _rk_step(sys, tab, Y, F, hstep, K)
         Fnew, auxn = sys(Ynew, out=K[tab.n_stages])
-        scale = atol + np.maximum(np.abs(Y[:4]), np.abs(Ynew[:4])) * rtol
+        scale = atol + np.maximum(np.abs(Y[:ne]), np.abs(Ynew[:ne])) * rtol
         err = _error_norm(tab, K, hstep, scale)
         # (the dissipated work W may overflow at absurd speeds; it only feeds the energy check)
-        okK = np.isfinite(Ynew[:4]).all(axis=0) & np.isfinite(Fnew[:4]).all(axis=0)
+        okK = np.isfinite(Ynew[:ne]).all(axis=0) & np.isfinite(Fnew[:ne]).all(axis=0)
         over = ~np.isfinite(err) & okK
         if over.any():  # the squares overflowed (huge speeds): the same norm, rescaled
             sel = np.flatnonzero(over)
@@ -283,7 +296,7 @@ def _run_chunk_body(problem, v_in, y0, vy0, rtol, atol, t_max, max_steps, tab, r
                     _flush_bounces(sys, tab, queue, out, k_keep)
                     queued[0] = 0
             propose(bmask & tany, "vx", 0.0, -2)
-        lm = (acc & (auxn[3] <= 0) & (aux[3] > 0)) if sys.full else None
+        lm = (acc & (auxn[3] <= 0) & (aux[3] > 0)) if sys.guarded else None
         if cand:
             sel = np.concatenate([c[0] for c in cand])
             kinds = np.concatenate([c[1] for c in cand])
@@ -301,15 +314,13 @@ def _run_chunk_body(problem, v_in, y0, vy0, rtol, atol, t_max, max_steps, tab, r
                         "Yfb": Ynew[:, ls].copy(), "kind": kinds[later], "target": targ[later],
                         "outcome": outc[later], "E0": E0[idx[ls]], "kin0": kin0[idx[ls]], "inv": inv[idx[ls]],
                         "zmax": zmax[ls].copy(), "zmin": zmin[ls].copy(), "ymax": ymax[ls].copy(),
-                        "nb": nb[ls].copy()})
+                        "smax": smax[ls].copy(), "nb": nb[ls].copy()})
                     code[lanes] = PENDING
                     t_ev[lanes] = tnew[lanes]
                     Y_ev[:, lanes] = Ynew[:, lanes]
                     sel, kinds, targ, outc = sel[~later], kinds[~later], targ[~later], outc[~later]
         if cand and sel.size:
-            te, Ye = _henon(sys, tab, Y[:, sel], t[sel], kinds, targ)
-            ok = np.isfinite(te) & (te >= t[sel]) & (te <= tnew[sel] + 1e-9 * hstep[sel]) & \
-                np.isfinite(Ye[:4]).all(axis=0)
+            te, Ye, ok = _locate(sys, tab, Y[:, sel], t[sel], hstep[sel], kinds, targ)
             te = np.where(ok, te, tnew[sel])
             Ye = np.where(ok, Ye, Ynew[:, sel])
             isb = outc == -2
@@ -326,16 +337,16 @@ def _run_chunk_body(problem, v_in, y0, vy0, rtol, atol, t_max, max_steps, tab, r
                     t_ev[i] = te[j]
                     Y_ev[:, i] = Ye[:, j]
                     code[i] = outc[j]
-        if sys.full:
+        if sys.guarded:
             if lm.any():
                 sel = np.flatnonzero(lm)
                 te, Ye = _secant(sys, tab, Y[:, sel], F[:, sel], t[sel], hstep[sel], aux[3][sel],
-                                 auxn[3][sel])
+                                 auxn[3][sel], iters=sys.guard_iters)
                 better = te < t_ev[sel]
                 b = sel[better]
                 t_ev[b] = te[better]
                 Y_ev[:, b] = Ye[:, better]
-                code[b] = LOST_CONTACT
+                code[b] = sys.guard_outcome(Ye[:, better])
         # already outside at the start of the run (start outside the shrunk footprint): ignore
         term = code >= 0
         # a bounce located after the terminal event does not count
@@ -359,6 +370,8 @@ def _run_chunk_body(problem, v_in, y0, vy0, rtol, atol, t_max, max_steps, tab, r
         zmax = np.where(acc, np.maximum(zmax, aux[0]), zmax)
         zmin = np.where(acc, np.minimum(zmin, aux[0]), zmin)
         ymax = np.where(acc, np.maximum(ymax, np.abs(Y[1])), ymax)
+        if len(aux) > 4:
+            smax = np.where(acc & ~term, np.fmax(smax, aux[4]), smax)
         if record:
             for i in np.flatnonzero(acc & ~term):
                 traj[idx[i]].append((t[i], *Y[:4, i], *F[2:4, i]))
@@ -387,12 +400,17 @@ def _run_chunk_body(problem, v_in, y0, vy0, rtol, atol, t_max, max_steps, tab, r
             out["outcome"][gl] = oc
             out["t_end"][gl] = tend
             out["x_end"][gl], out["y_end"][gl] = Yend[0], Yend[1]
-            out["vx_end"][gl], out["vy_end"][gl] = Yend[2], Yend[3]
-            out["v_out"][gl] = np.where(oc == ESCAPED, np.abs(Yend[2]), np.nan)
+            vxe, vye = sys.velocity(Yend)
+            out["vx_end"][gl], out["vy_end"][gl] = vxe, vye
+            out["v_out"][gl] = np.where(oc == ESCAPED, np.abs(vxe), np.nan)
             F_end, aux_end = sys(Yend)
+            if len(aux_end) > 4:
+                # the slip ratio at the end counts, except where contact is lost or bridged
+                out["max_slip"][gl] = np.where((oc == LOST_CONTACT) | (oc == BRIDGED), smax[sel],
+                                               np.fmax(smax[sel], aux_end[4]))
             i2 = inv[gl] * inv[gl]
             E = sys.energy(Yend, aux_end, inv[gl])
-            W = Yend[4] * i2 if sys.damped else 0.0
+            W = Yend[sys.iw] * i2 if sys.damped else 0.0
             # scale: the largest kinetic energy the run can have had (launch + height lost)
             escale = kin0[gl] + sys.gt * (np.maximum(zmax[sel], aux_end[0]) - np.minimum(zmin[sel], aux_end[0])) * i2
             out["energy_error"][gl] = np.abs(E + W - E0[gl]) / np.maximum(escale, 1e-300)
@@ -409,8 +427,8 @@ def _run_chunk_body(problem, v_in, y0, vy0, rtol, atol, t_max, max_steps, tab, r
             keep = ~done
             if tick is not None:
                 tick(n - int(keep.sum()))
-            idx, Y, F, t, h, zmax, zmin, ymax, steps, rej, nb, was_rejected, err_prev = _keep(
-                keep, idx, Y, F, t, h, zmax, zmin, ymax, steps, rej, nb, was_rejected, err_prev)
+            idx, Y, F, t, h, zmax, zmin, ymax, smax, steps, rej, nb, was_rejected, err_prev = _keep(
+                keep, idx, Y, F, t, h, zmax, zmin, ymax, smax, steps, rej, nb, was_rejected, err_prev)
             aux = _keep(keep, *aux)
     _flush_bounces(sys, tab, queue, out, k_keep)
     _flush_terminal(sys, tab, pending, out, k_keep)

@@ -43,9 +43,19 @@ from ..units import gravity
 #: outcome names; the index is the integer outcome code of the simulator's results.
 #: ``captured`` also covers a launch too slow to arrive anywhere before ``t_max``
 #: (it is still on the surface, trapped, when time runs out).
-OUTCOMES = ("escaped", "captured", "flew_off", "lost_contact")
-ESCAPED, CAPTURED, FLEW_OFF, LOST_CONTACT = range(4)
-MODELS = ("full", "simplified")
+#: ``bridged`` and ``slipped`` occur only in the ``ball`` model (:mod:`fabkit.physics.ball`):
+#: the ball touches the surface at two points (r times the largest concave principal
+#: curvature reaches 1), or the friction it needs exceeds ``ball.friction``.
+OUTCOMES = ("escaped", "captured", "flew_off", "lost_contact", "bridged", "slipped")
+ESCAPED, CAPTURED, FLEW_OFF, LOST_CONTACT, BRIDGED, SLIPPED = range(6)
+#: outcomes where the ball leaves the modelled motion: a design with one is unsafe
+UNSAFE = (FLEW_OFF, LOST_CONTACT, BRIDGED, SLIPPED)
+MODELS = ("full", "simplified", "ball")
+
+
+def unsafe(outcome) -> np.ndarray:
+    """Boolean mask of the unsafe outcome codes (:data:`UNSAFE`)."""
+    return np.isin(np.asarray(outcome), UNSAFE)
 
 
 @dataclass(frozen=True, eq=False)
@@ -63,6 +73,9 @@ class Problem:
     stop_trapped   end a launch as ``captured`` as soon as its energy is below the
               trapping energy (:mod:`fabkit.physics.trap`) instead of at ``t_max``;
               escaped, flew_off and lost_contact results are unchanged
+    radius    the ball's radius r (design units; the ``ball`` model only)
+    friction  static friction coefficient (``ball`` model; inf: never slips)
+    rolling_resistance   coefficient c_rr of the rolling resistance c_rr N (``ball`` model)
     """
 
     fns: Any
@@ -83,6 +96,9 @@ class Problem:
     atol: float = 1e-12
     units: str = "mm"
     stop_trapped: bool = False
+    radius: float = 0.0
+    friction: float = np.inf
+    rolling_resistance: float = 0.0
 
     @property
     def g_tilde(self) -> float:
@@ -105,6 +121,8 @@ def problem_from_spec(spec, **overrides) -> Problem:
     spec.require("surface", "simulation", command=None)
     sim, sur = spec.simulation, spec.surface
     k = float(spec.ball.inertia) if spec.has("ball") else 0.4
+    ball = spec.ball if spec.has("ball") else None
+    fr = getattr(ball, "friction", None) if ball is not None else None
     fields = dict(
         fns=spec.surface_functions(), g=gravity(spec.units), k=k, model=sim.model,
         damping=float(sim.damping), nonlinear_damping=float(sim.nonlinear_damping),
@@ -112,6 +130,9 @@ def problem_from_spec(spec, **overrides) -> Problem:
         y_range=(float(sur.y[0]), float(sur.y[1])), top=float(sur.top), margin=float(sim.margin),
         t_max=float(sim.t_max), y0=float(sim.y0), vy0=float(sim.vy0), rtol=float(sim.rtol),
         atol=float(sim.atol), units=spec.units,
+        radius=0.5 * float(ball.diameter) if ball is not None else 0.0,
+        friction=np.inf if fr is None else float(fr),
+        rolling_resistance=float(getattr(ball, "rolling_resistance", 0.0) or 0.0) if ball is not None else 0.0,
     )
     unknown = set(overrides) - set(fields)
     if unknown:
@@ -119,6 +140,9 @@ def problem_from_spec(spec, **overrides) -> Problem:
     fields.update(overrides)
     if fields["model"] not in MODELS:
         raise SpecError(f"must be one of {' | '.join(MODELS)}, got {fields['model']!r}",
+                        file=spec.path, key="simulation.model")
+    if fields["model"] == "ball" and ball is None:
+        raise SpecError("model ball needs the ball section (its diameter and inertia)",
                         file=spec.path, key="simulation.model")
     return Problem(**fields)
 
@@ -279,3 +303,36 @@ def dissipated_power(problem: Problem, x, y, vx, vy, hx, hy):
         zd = hx * vx + hy * vy
         return -(dx * (vx + zd * hx) + dy * (vy + zd * hy))
     return -(dx * vx + dy * vy)
+
+
+# ----------------------------------------------------------------------------
+# the ball model (fabkit/physics/ball.py) through the same entry points
+# ----------------------------------------------------------------------------
+def state_size(problem: Problem) -> int:
+    """Rows of a launch state: 4 (x, y, xd, yd) for the point models, 5 for the ball
+    (+ u, its spin about the normal, a speed)."""
+    return 5 if problem.model == "ball" else 4
+
+
+def ball_quantities(problem: Problem, state) -> dict:
+    """The ball's derivatives, contact force, slip ratio, centre velocity and energy at
+    ``state`` (5, ...) = (x, y, xd, yd, u) (see :func:`fabkit.physics.ball.evaluate`),
+    plus ``kappa`` (largest concave curvature), ``guard`` and ``energy``."""
+    from . import ball
+
+    s = np.asarray(state, dtype=float)
+    P = ball.Params.of(problem)
+    j = ball.jet_function(problem.fns)(s[0], s[1])
+    with np.errstate(all="ignore"):
+        ev = ball.evaluate(j, s[2], s[3], s[4], P)
+        ev["kappa"] = ball.max_concave_curvature(j)
+        ev["guard"] = ball.guard(ev, ev["kappa"], P)
+        ev["energy"] = ball.energy(ev, s[4], P)
+    return ev
+
+
+def ball_rhs(problem: Problem, state):
+    """d(state)/dt of the ball, ``state`` (5, ...) -> (5, ...) (no W row)."""
+    s = np.asarray(state, dtype=float)
+    ev = ball_quantities(problem, s)
+    return np.stack(np.broadcast_arrays(s[2], s[3], ev["xdd"], ev["ydd"], ev["ud"]))

@@ -35,8 +35,14 @@ def _models():
 
 
 def _state_rhs(problem):
-    """f(t, s) for solve_ivp, s = (x, y, xdot, ydot) of shape (4,)."""
+    """f(t, s) for solve_ivp, s = (x, y, xdot, ydot) of shape (4,), or for the ball
+    (x, y, xdot, ydot, u) of shape (5,) (contact point, its velocity, the spin)."""
     m = _models()
+    if problem.model == "ball":
+        def f(t, s):
+            return np.asarray(m.ball_rhs(problem, s), dtype=float).reshape(5)
+
+        return f
 
     def f(t, s):
         return np.asarray(m.rhs(problem, s), dtype=float).reshape(4)
@@ -44,7 +50,13 @@ def _state_rhs(problem):
     return f
 
 
+def _ball(problem, s, key) -> float:
+    return float(np.asarray(_models().ball_quantities(problem, s)[key]).reshape(()))
+
+
 def _energy(problem, s) -> float:
+    if problem.model == "ball":
+        return _ball(problem, s, "energy")
     return float(np.asarray(_models().energy(problem, s)).reshape(()))
 
 
@@ -79,6 +91,13 @@ def _events(problem):
     ]
     if problem.model == "full":
         ev.append(("lost_contact", _event(lambda t, s: _bracket(problem, s), True, -1)))
+    if problem.model == "ball":
+        r = float(problem.radius)
+        ev.append(("lost_contact", _event(lambda t, s: _ball(problem, s, "N"), True, -1)))
+        ev.append(("bridged", _event(lambda t, s: 1.0 - r * _ball(problem, s, "kappa"), True, -1)))
+        if math.isfinite(problem.friction):
+            fr = float(problem.friction)
+            ev.append(("slipped", _event(lambda t, s: fr - min(_ball(problem, s, "slip"), 1e300), True, -1)))
     return ev
 
 
@@ -89,6 +108,8 @@ _REASONS = {
     "flew_off:y_max": "y reaches the footprint's side (minus the margin)",
     "flew_off:y_min": "y reaches the footprint's side (plus the margin)",
     "lost_contact": "the normal force falls to zero",
+    "bridged": "the ball touches the surface at two points (r times the concave curvature reaches 1)",
+    "slipped": "the friction the rolling needs exceeds ball.friction",
 }
 
 
@@ -125,6 +146,13 @@ def solve_launch(problem, v_in: float, y0: float = 0.0, vy0: float = 0.0, *, met
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
     t_max = float(problem.t_max if t_max is None else t_max)
     s0 = np.array([float(problem.start), float(y0), float(v_in), float(vy0)])
+    ball = problem.model == "ball"
+    if ball:  # the centre's horizontal velocity (v_in, vy0): the contact point's velocity, u = 0
+        from .ball import contact_velocity, geometry, jet_function
+
+        geo = geometry(jet_function(problem.fns)(s0[0], s0[1]), float(problem.radius))
+        xd, yd = contact_velocity(geo, s0[2], s0[3])
+        s0 = np.array([s0[0], s0[1], float(xd), float(yd), 0.0])
     events = _events(problem)
     fun = _state_rhs(problem)
     t0 = time.perf_counter()
@@ -159,7 +187,16 @@ def solve_launch(problem, v_in: float, y0: float = 0.0, vy0: float = 0.0, *, met
 
     tb = np.asarray(sol.t_events[0], dtype=float)
     tb = tb[tb <= t_end]
-    v_out = abs(float(end[2])) if outcome == "escaped" else math.nan
+    vx_end, vy_end = float(end[2]), float(end[3])
+    max_slip = math.nan
+    if ball:   # the centre's velocity; the largest slip ratio over the steps and the end
+        q = _models().ball_quantities(problem, end)
+        vx_end, vy_end = float(q["vx"]), float(q["vy"])
+        sl = np.append(_models().ball_quantities(problem, sol.y)["slip"][:-1], q["slip"])
+        if outcome in ("lost_contact", "bridged") and sl.size > 1:
+            sl = sl[:-1]   # the ratio is unbounded where contact is lost
+        max_slip = float(np.nanmax(sl))
+    v_out = abs(vx_end) if outcome == "escaped" else math.nan
 
     xs, ys = sol.y[0], sol.y[1]
     z = np.asarray(problem.fns.h(xs, ys), dtype=float)
@@ -177,8 +214,9 @@ def solve_launch(problem, v_in: float, y0: float = 0.0, vy0: float = 0.0, *, met
         "t_end": t_end,
         "x_end": float(end[0]),
         "y_end": float(end[1]),
-        "xdot_end": float(end[2]),
-        "ydot_end": float(end[3]),
+        "xdot_end": vx_end,
+        "ydot_end": vy_end,
+        "max_slip": max_slip,
         "max_z": float(np.max(z)),
         "max_abs_y": float(np.max(np.abs(ys))),
         "energy_error": drift,

@@ -63,16 +63,27 @@ def tableau(name: str) -> Tableau:
 # ----------------------------------------------------------------------------
 class _System:
     """d/dt of the lane states on (nv, m) arrays, nv = 4 (x, y, xd, yd) or 5 (+ W, the
-    dissipated energy, when damped), with aux (h, h_x, h_y, B) from the same evaluation."""
+    dissipated energy, when damped), with aux (h, h_x, h_y, B) from the same evaluation.
+
+    The interface the loop uses (the ball's :class:`_BallSystem` has the same):
+    ``nv`` state rows, ``ne`` rows in the error norm, ``iw`` the row of W, ``guarded``
+    (aux[3] is a guard whose fall to 0 ends the launch), ``gt``, ``damped``,
+    ``__call__``, ``energy``, ``kinetic``, ``initial``, ``velocity`` and ``guard_outcome``.
+    """
+
+    ne = 4
+    guard_iters = 4   # secant iterations locating the loss of contact
 
     def __init__(self, problem):
         from .models import fused
 
         self.p = problem
         self.full = problem.model == "full"
+        self.guarded = self.full
         self.gt = problem.g_tilde
         self.damped = float(problem.damping) > 0 or float(problem.nonlinear_damping) > 0
         self.nv = 5 if self.damped else 4
+        self.iw = 4
         self.f = fused(problem)
 
     def __call__(self, S, out=None):
@@ -88,6 +99,28 @@ class _System:
             F[4] = P
         return F, (h, hx, hy, br)
 
+    def initial(self, start, y0, v_in, vy0):
+        """The launch states (nv, n)."""
+        Y = np.zeros((self.nv, np.size(v_in)))
+        Y[0] = start
+        Y[1] = y0
+        Y[2] = v_in
+        Y[3] = vy0
+        return Y
+
+    def velocity(self, S):
+        """The reported horizontal velocity (vx, vy) of the states: the ball's."""
+        return S[2], S[3]
+
+    def guard_outcome(self, S):
+        from .models import LOST_CONTACT
+
+        return np.full(S.shape[1], LOST_CONTACT, dtype=np.int8)
+
+    def kinetic(self, S, aux, inv):
+        Vx, Vy = S[2] * inv, S[3] * inv
+        return 0.5 * (Vx ** 2 + Vy ** 2 + ((aux[1] * Vx + aux[2] * Vy) ** 2 if self.full else 0.0))
+
     def energy(self, S, aux, inv=None):
         """E per unit (1 + k) m; with ``inv`` (m,), powers of two, E * inv^2 (exactly
         E where inv is 1): keeps the energy finite for speeds beyond ~1e150."""
@@ -100,6 +133,83 @@ class _System:
             zd = hx * vx + hy * vy
             kin = kin + zd * zd
         return 0.5 * kin + self.gt * h
+
+
+class _BallSystem:
+    """The finite ball (:mod:`fabkit.physics.ball`) on the batch: state (x, y, xd, yd, u[, W])
+    with (x, y) the contact point; aux = (h, h_x, h_y, guard, slip ratio)."""
+
+    ne = 5
+    full = False
+    guarded = True
+    guard_iters = 40  # the guard (a min of three limits) is located to rounding
+
+    def __init__(self, problem):
+        from . import ball
+
+        self.b = ball
+        self.p = problem
+        self.P = ball.Params.of(problem)
+        self.jet = ball.jet_function(problem.fns)
+        self.gt = problem.g_tilde
+        self.damped = float(problem.damping) > 0 or float(problem.rolling_resistance) > 0
+        self.nv = 6 if self.damped else 5
+        self.iw = 5
+
+    def _eval(self, S):
+        j = self.jet(S[0], S[1])
+        ev = self.b.evaluate(j, S[2], S[3], S[4], self.P)
+        return j, ev
+
+    def __call__(self, S, out=None):
+        j, ev = self._eval(S)
+        F = np.empty_like(S) if out is None else out
+        F[0] = S[2]
+        F[1] = S[3]
+        F[2] = ev["xdd"]
+        F[3] = ev["ydd"]
+        F[4] = ev["ud"]
+        if self.damped:
+            F[5] = ev["power"]
+        gd = self.b.guard(ev, self.b.max_concave_curvature(j), self.P)
+        return F, (j[0], j[1], j[2], gd, ev["slip"])
+
+    def initial(self, start, y0, v_in, vy0):
+        n = np.size(v_in)
+        Y = np.zeros((self.nv, n))
+        Y[0] = start
+        Y[1] = y0
+        j = self.jet(Y[0], Y[1])
+        geo = self.b.geometry(j, self.P.r)
+        Y[2], Y[3] = self.b.contact_velocity(geo, np.asarray(v_in, dtype=float), np.asarray(vy0, dtype=float))
+        return Y
+
+    def velocity(self, S):
+        j = self.jet(S[0], S[1])
+        v = self.b.centre_velocity(self.b.geometry(j, self.P.r), S[2], S[3])
+        return v[0], v[1]
+
+    def guard_outcome(self, S):
+        j, ev = self._eval(S)
+        return self.b.guard_reason(ev, self.b.max_concave_curvature(j), self.P)
+
+    def _energy(self, S, inv):
+        j, ev = self._eval(S)
+        if inv is None:
+            return self.b.energy(ev, S[4], self.P), ev
+        s = {"vx": ev["vx"] * inv, "vy": ev["vy"] * inv, "vz": ev["vz"] * inv, "zc": ev["zc"] * (inv * inv)}
+        return self.b.energy(s, S[4] * inv, self.P), ev
+
+    def kinetic(self, S, aux, inv):
+        return self._energy(S, inv)[0] - self.gt * self._energy(S, None)[1]["zc"] * inv * inv
+
+    def energy(self, S, aux, inv=None):
+        return self._energy(S, inv)[0]
+
+
+def system(problem):
+    """The batch right-hand side of ``problem``'s model."""
+    return _BallSystem(problem) if problem.model == "ball" else _System(problem)
 
 
 def _combine(Y, h, K, coeffs, out):
@@ -152,23 +262,34 @@ def _rk_step(sys, tab, Y, F0, h, K):
     return Ynew
 
 
+def _rowsum(a):
+    """a[0] + a[1] + ... in order (the same arithmetic for any number of rows)."""
+    s = a[0] + a[1]
+    for i in range(2, a.shape[0]):
+        s = s + a[i]
+    return s
+
+
 def _error_norm(tab, K, h, scale):
-    """scipy's error norm per lane (m,), over the 4 state components."""
+    """scipy's error norm per lane (m,), over the ne = len(scale) state components
+    (4: x, y, xd, yd; the ball adds its spin u)."""
+    ne = scale.shape[0]
+
     def est(coeffs):
         n = coeffs[-1][0] + 1
-        acc = _add_reduce(np.multiply(K[:n, :4], _dense(coeffs, n)), axis=0)
+        acc = _add_reduce(np.multiply(K[:n, :ne], _dense(coeffs, n)), axis=0)
         acc /= scale
         acc *= acc
-        return acc[0] + acc[1] + acc[2] + acc[3]
+        return _rowsum(acc)
 
     if tab.E3:  # DOP853: the 5th and 3rd order estimates combined (Hairer's DOP853)
         e5 = est(tab.E)
         e3 = est(tab.E3)
         denom = e5 + 0.01 * e3
-        err = np.abs(h) * e5 / np.sqrt(denom * 4.0)
+        err = np.abs(h) * e5 / np.sqrt(denom * float(ne))
         return np.where(denom > 0, err, 0.0)
     e = est(tab.E)
-    return np.abs(h) * np.sqrt(e / 4.0)
+    return np.abs(h) * np.sqrt(e / float(ne))
 
 
 def _error_norm_scaled(tab, K, h, scale):
@@ -176,14 +297,16 @@ def _error_norm_scaled(tab, K, h, scale):
     component (a power of two, so exactly) before squaring. Used only for lanes where
     the plain norm overflows (speeds beyond ~1e100 design units/s), so ordinary lanes
     keep the plain arithmetic bit for bit."""
+    ne = scale.shape[0]
+
     def est(coeffs):
         n = coeffs[-1][0] + 1
-        acc = _add_reduce(np.multiply(K[:n, :4], _dense(coeffs, n)), axis=0)
+        acc = _add_reduce(np.multiply(K[:n, :ne], _dense(coeffs, n)), axis=0)
         acc /= scale
         big = _pow2(np.max(np.abs(acc), axis=0))
         acc /= big
         acc *= acc
-        return acc[0] + acc[1] + acc[2] + acc[3], big
+        return _rowsum(acc), big
 
     if tab.E3:
         e5, b5 = est(tab.E)
@@ -192,10 +315,10 @@ def _error_norm_scaled(tab, K, h, scale):
         M = np.maximum(b5, b3)
         r5, r3 = b5 / M, b3 / M
         denom = e5 * r5 * r5 + 0.01 * e3 * r3 * r3
-        err = np.abs(h) * M * (e5 * r5 * r5) / np.sqrt(denom * 4.0)
+        err = np.abs(h) * M * (e5 * r5 * r5) / np.sqrt(denom * float(ne))
         return np.where(denom > 0, err, 0.0)
     e, b = est(tab.E)
-    return np.abs(h) * b * np.sqrt(e / 4.0)
+    return np.abs(h) * b * np.sqrt(e / float(ne))
 
 
 def _pow2(a):
@@ -205,31 +328,33 @@ def _pow2(a):
 
 
 def _rms4(a):
-    """sqrt(mean of squares) over the 4 state components (m,), without overflow."""
-    big = _pow2(np.max(np.abs(a[:4]), axis=0))
-    b = a[:4] / big
+    """sqrt(mean of squares) over the rows of ``a`` (the error components) (m,),
+    without overflow."""
+    big = _pow2(np.max(np.abs(a), axis=0))
+    b = a / big
     b = b * b
-    return big * np.sqrt((b[0] + b[1] + b[2] + b[3]) / 4.0)
+    return big * np.sqrt(_rowsum(b) / float(a.shape[0]))
 
 
 def _initial_step(sys, tab, Y, F, rtol, atol, t_max):
     """scipy's initial step (Hairer's), per lane. The norms are taken without overflow
     (:func:`_rms4`), so a huge entry speed gives a correspondingly tiny first step
     instead of 0 or nan."""
-    scale = atol + np.abs(Y[:4]) * rtol
+    ne = sys.ne
+    scale = atol + np.abs(Y[:ne]) * rtol
 
     def rms(a):
         sq = a * a
-        r = np.sqrt((sq[0] + sq[1] + sq[2] + sq[3]) / 4.0)
+        r = np.sqrt(_rowsum(sq) / float(ne))
         bad = ~np.isfinite(r) & np.isfinite(a).all(axis=0)
         return np.where(bad, _rms4(a), r) if bad.any() else r
 
-    d0 = rms(Y[:4] / scale)
-    d1 = rms(F[:4] / scale)
+    d0 = rms(Y[:ne] / scale)
+    d1 = rms(F[:ne] / scale)
     h0 = np.where((d0 < 1e-5) | (d1 < 1e-5), 1e-6, 0.01 * d0 / d1)
     Y1 = Y + h0 * F
     F1 = sys(Y1)[0]
-    d2 = rms((F1[:4] - F[:4]) / scale) / h0
+    d2 = rms((F1[:ne] - F[:ne]) / scale) / h0
     dm = np.maximum(d1, d2)
     h1 = np.where(dm <= 1e-15, np.maximum(1e-6, h0 * 1e-3), (0.01 / dm) ** (1.0 / (tab.order + 1)))
     h = np.minimum(np.minimum(100 * h0, h1), t_max)
