@@ -457,7 +457,8 @@ def evaluate_design(spec, v_grid, engine: Engine, *, rel_tol: float = 1e-6, heig
     from .physics.calibrate import ball_k, ramp_heights, v_in_from_height
     from .physics.check import highest_safe, machining
     from .physics.models import OUTCOMES
-    from .physics.sweep import FLEW_OFF, LOST_CONTACT, Launches, sweep
+    from .physics.models import unsafe as unsafe_mask
+    from .physics.sweep import Launches, sweep
 
     t0 = time.perf_counter()
     design = design_of(spec)
@@ -497,7 +498,7 @@ def evaluate_design(spec, v_grid, engine: Engine, *, rel_tol: float = 1e-6, heig
                  "v_critical_reason": sw["v_critical_reason"], "windows": sw["windows"]}
     first_failure = None
     if has_ramp:
-        unsafe = (ramp_res.outcome == FLEW_OFF) | (ramp_res.outcome == LOST_CONTACT)
+        unsafe = unsafe_mask(ramp_res.outcome)
         if unsafe.any():
             i = int(np.flatnonzero(unsafe)[0])
             first_failure = {"height": float(H[i]), "v_in": float(vr[i]),
@@ -509,7 +510,7 @@ def evaluate_design(spec, v_grid, engine: Engine, *, rel_tol: float = 1e-6, heig
         ramp_safe = not bool(unsafe.any())
         out["safe_over"] = "ramp"
     else:
-        unsafe = (grid.outcome == FLEW_OFF) | (grid.outcome == LOST_CONTACT)
+        unsafe = unsafe_mask(grid.outcome)
         highest = None
         ramp_safe = not bool(unsafe.any())
         if unsafe.any():

@@ -86,7 +86,8 @@ def trajectory_png(traj: dict, summary: dict, *, title: str = "", units: str = "
 #: one marker and colour per outcome of a launch that does not escape (escaped
 #: launches are coloured by bounce count); the same everywhere a figure shows outcomes
 OUTCOME_STYLE = {"captured": ("x", "black"), "flew_off": ("^", "tab:orange"),
-                 "lost_contact": ("v", "tab:cyan")}
+                 "lost_contact": ("v", "tab:cyan"), "bridged": ("s", "tab:gray"),
+                 "slipped": ("D", "darkgoldenrod")}
 BOUNCE_COLOURS = {1: "black", 2: "tab:blue", 3: "tab:green", 4: "tab:red"}
 MANY_BOUNCES = "tab:brown"
 

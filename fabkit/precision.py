@@ -127,7 +127,7 @@ def choose_launches(problem, v_grid, n_window: int = 2, n_above: int = 2, edge: 
     (the two-bounce runs used, as (lo, hi))}. Raises DesignError when the range has
     neither a two-bounce window nor one-bounce escapes to measure on."""
     from .errors import DesignError
-    from .physics.models import ESCAPED, FLEW_OFF, LOST_CONTACT
+    from .physics.models import ESCAPED, unsafe
     from .physics.sweep import critical_bracket, make_launcher
 
     v = np.sort(np.asarray(v_grid, dtype=float))
@@ -153,7 +153,7 @@ def choose_launches(problem, v_grid, n_window: int = 2, n_above: int = 2, edge: 
             kinds.append("window")
     # above v_critical: one-bounce escapes, away from v_critical and from the unsafe top
     ok = (n == 1)
-    bad = (res.outcome == FLEW_OFF) | (res.outcome == LOST_CONTACT)
+    bad = unsafe(res.outcome)
     cand = []
     for i in range(edge, len(v) - edge):
         if ok[i - edge:i + edge + 1].all() and not bad[i - edge:i + edge + 1].any() \

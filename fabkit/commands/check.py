@@ -36,6 +36,17 @@ def run(args) -> int:
         lines.append(f"check: v_critical not reached by the ramp ({r['v_critical_reason']})")
     lines.append(f"check: {len(r['reachable_windows'])} two-bounce windows reachable from the ramp"
                  + ("".join(f"; {w['height_lo']:.4f}..{w['height_hi']:.4f} {u}" for w in r["reachable_windows"][:4])))
+    b = r.get("ball")
+    if b is not None:
+        cnt = b["unsafe_counts"]
+        txt = (f"check: ball radius {b['radius']:g} {u}: largest |F_t|/N {b['max_slip']:.4g} at release height "
+               f"{b['max_slip_height']:.4f} {u}" if b["max_slip"] is not None else
+               f"check: ball radius {b['radius']:g} {u}")
+        txt += (f" (ball.friction {b['friction']:g})" if b["friction"] is not None else
+                " (no ball.friction given: slip not tested)")
+        named = [f"{n} {c}" for n, c in cnt.items() if c]
+        txt += "; " + (", ".join(named) + " of the heights" if named else "no bridging, lost contact or slip")
+        lines.append(txt)
     m = r["machining"]
     if m is not None:
         txt = f"check: cut depth {m['depth_mm']:.2f} mm"
@@ -59,6 +70,8 @@ def run(args) -> int:
                                     "reachable_windows", "machining", "heights", "outcomes", "seconds")}
     payload["v_in"] = r["v_in"]
     payload["model"] = r["model"]
+    if r.get("ball") is not None:
+        payload["ball"] = r["ball"]
     payload["units"] = u
     safe = r["safe"] and (m is None or m["feasible"])
     payload["safe"] = safe

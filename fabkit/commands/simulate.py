@@ -34,6 +34,9 @@ def run(args) -> int:
     traj = r.pop("trajectory", None)
     payload = {k: r[k] for k in ("outcome", "bounces", "bounce_times", "v_out", "max_height", "max_abs_y",
                                  "energy_error", "t_end", "steps", "rejected", "status", "method")}
+    if problem.model == "ball":
+        payload.update({"max_slip": r["max_slip"], "radius": problem.radius,
+                        "friction": problem.friction if math.isfinite(problem.friction) else None})
     payload.update({"v_in": v, "model": problem.model, "damping": problem.damping, "rtol": rtol,
                     "atol": atol, "seconds": seconds, "error_estimate": est})
     u = spec.units
@@ -50,6 +53,11 @@ def run(args) -> int:
         + f", {r['steps']} steps ({r['rejected']} rejected), rtol {rtol:g}"
         + (f", method {r['method']}" if r["method"] != "DOP853" else ""),
     ]
+    if problem.model == "ball":
+        ms = r["max_slip"]
+        lines.append(f"ball: radius {problem.radius:g} {u}; largest |F_t|/N {ms:.4g} (the static friction the "
+                     f"rolling needs)" + (f", ball.friction {problem.friction:g}" if math.isfinite(problem.friction)
+                                          else ", no ball.friction given"))
     if "v_out_abs" in est:
         err_txt = f"v_out error < {est['v_out_abs']:.1e} {u}/s (estimated at rtol {rtol / 10:g})"
     elif "bounce_time_abs" in est:

@@ -30,13 +30,22 @@ import time
 
 import numpy as np
 
-from .sweep import ESCAPED, FLEW_OFF, LOST_CONTACT, Launches, make_launcher, sweep
+from .models import unsafe as unsafe_mask
+from .sweep import ESCAPED, LOST_CONTACT, Launches, make_launcher, sweep
 
 
 def _why(problem, outcome: int, x: float, y: float) -> str:
     """A short reason for an unsafe end state."""
+    from .models import BRIDGED, SLIPPED
+
     if outcome == LOST_CONTACT:
         return "loses contact (the normal force falls to zero)"
+    if outcome == BRIDGED:
+        r = float(problem.radius)
+        return (f"bridges: the surface is tighter than the ball (radius {r:g}), which touches it at "
+                f"two points (r times the concave curvature reaches 1)")
+    if outcome == SLIPPED:
+        return f"slips: the rolling needs more friction than ball.friction = {problem.friction:g}"
     x0, x1 = problem.x_range
     y0, y1 = problem.y_range
     m = problem.margin
@@ -80,9 +89,11 @@ def check(spec, *, progress=None, rel_tol: float = 1e-4, v_rel_tol: float = 1e-5
     H = np.sort(np.asarray(ramp_heights(spec), dtype=float))
     v = v_in_from_height(H, g, k)
     lr = _full_launches(problem, v, progress)
-    unsafe = (lr.outcome == FLEW_OFF) | (lr.outcome == LOST_CONTACT)
+    unsafe = unsafe_mask(lr.outcome)
 
     out: dict = {"safe": not bool(unsafe.any()), "model": problem.model, "damping": problem.damping}
+    if problem.model == "ball":
+        out["ball"] = _ball_summary(problem, H, lr)
     first = None
     if unsafe.any():
         i = int(np.flatnonzero(unsafe)[0])
@@ -123,6 +134,24 @@ def check(spec, *, progress=None, rel_tol: float = 1e-4, v_rel_tol: float = 1e-5
     return out
 
 
+def _ball_summary(problem, H, lr) -> dict:
+    """The finite ball's contact figures over the ramp's heights: the largest slip ratio
+    |F_t|/N (the static friction the rolling needs) and where, the counts of the ball's
+    unsafe outcomes, and the surface's bridging limit."""
+    from .models import BRIDGED, OUTCOMES, SLIPPED
+
+    s = np.asarray(lr.max_slip, dtype=float)
+    ok = np.isfinite(s)
+    i = int(np.nanargmax(np.where(ok, s, -np.inf))) if ok.any() else None
+    counts = {OUTCOMES[c]: int(np.sum(lr.outcome == c)) for c in (LOST_CONTACT, BRIDGED, SLIPPED)}
+    return {"radius": float(problem.radius),
+            "friction": None if not math.isfinite(problem.friction) else float(problem.friction),
+            "max_slip": None if i is None else float(s[i]),
+            "max_slip_height": None if i is None else float(H[i]),
+            "max_slip_per_height": [None if not math.isfinite(v) else float(v) for v in s],
+            "unsafe_counts": counts}
+
+
 def highest_safe(launch, h_safe: float, h_fail: float, g: float, k: float, rel_tol: float,
                  m: int = 64) -> float:
     """Highest safe release height in [h_safe, h_fail] (design units) by batched
@@ -133,7 +162,7 @@ def highest_safe(launch, h_safe: float, h_fail: float, g: float, k: float, rel_t
     while h_fail - h_safe > rel_tol * h_fail:
         hs = h_safe + (h_fail - h_safe) * np.arange(1, m + 1) / (m + 1)
         r = launch(np.asarray(v_in_from_height(hs, g, k), dtype=float))
-        bad = np.flatnonzero((r.outcome == FLEW_OFF) | (r.outcome == LOST_CONTACT))
+        bad = np.flatnonzero(unsafe_mask(r.outcome))
         if len(bad) == 0:
             h_safe = float(hs[-1])
         else:

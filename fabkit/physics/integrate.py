@@ -683,6 +683,7 @@ def simulate_one(problem, v_in: float, record: bool = True, **kw) -> dict:
         "max_height": float(r.max_z[0]),
         "max_abs_y": float(r.max_abs_y[0]),
         "energy_error": float(r.energy_error[0]),
+        "max_slip": float(r.max_slip[0]),
         "steps": int(r.steps[0]), "rejected": int(r.rejected[0]), "status": int(r.status[0]),
         "method": r.method, "rtol": r.rtol, "atol": r.atol,
     }

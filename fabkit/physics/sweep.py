@@ -53,7 +53,7 @@ import numpy as np
 from ..errors import SpecError
 from ..tolerances import DEFAULT
 
-ESCAPED, CAPTURED, FLEW_OFF, LOST_CONTACT = 0, 1, 2, 3
+from .models import BRIDGED, CAPTURED, ESCAPED, FLEW_OFF, LOST_CONTACT, SLIPPED, unsafe  # noqa: F401
 
 
 @dataclass
@@ -141,12 +141,12 @@ def critical_bracket(v: np.ndarray, res: Launches):
     """From sorted samples: (lo, hi, reason). lo does not escape after one bounce,
     every sample from hi up does (after setting aside launches flying off or
     losing contact at the top). lo/hi None with a reason if there is no bracket."""
-    unsafe = (res.outcome == FLEW_OFF) | (res.outcome == LOST_CONTACT)
+    bad = unsafe(res.outcome)
     top = len(v)
-    while top > 0 and unsafe[top - 1]:
+    while top > 0 and bad[top - 1]:
         top -= 1
     if top == 0:
-        return None, None, "every launch in the range flies off or loses contact"
+        return None, None, "every launch in the range flies off, loses contact, bridges or slips"
     e1 = res.one_bounce[:top]
     if not e1[-1]:
         note = " below the launches that fly off" if top < len(v) else ""

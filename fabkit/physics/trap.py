@@ -62,6 +62,8 @@ def trap_energy(problem, rel_margin: float = 1e-9) -> float | None:
     its own energy error cannot carry a lane across)."""
     if problem.model == "full" and float(problem.nonlinear_damping) > 0:
         return None
+    if problem.model == "ball":
+        return _ball_trap_energy(problem, rel_margin)
     m = float(problem.margin)
     x0, x1, y0, y1 = region(problem)
     if not (np.isfinite([x0, x1, y0, y1]).all() and x1 > x0 and y1 > y0):
@@ -99,3 +101,82 @@ def region(problem) -> tuple[float, float, float, float]:
     m = float(problem.margin)
     return (max(float(problem.start), float(problem.x_range[0]) + m), float(problem.x_range[1]) - m,
             float(problem.y_range[0]) + m, float(problem.y_range[1]) - m)
+
+
+def _ball_trap_energy(problem, rel_margin: float) -> float | None:
+    """E* for the finite ball (per unit (1 + k) m: E = 1/2 |v|^2 + k/(2 (1 + k)) u^2 + g~ z_C,
+    z_C = h + r n_z the centre's height). None with ``ball.friction`` (slip is not bounded
+    by the energy: a ball at rest on a slope can need more friction than given).
+
+    Exits and their bounds, E >= 1/2 |v|^2 + g~ z_C:
+    * the contact point on the boundary of D: E >= g~ min over the boundary of z_C;
+    * the contact point at top - margin: E >= g~ (top - margin + r min n_z);
+    * bridging (r kappa_1 >= 1): E >= g~ min of z_C where r kappa_1 >= 0.9 (sampled);
+    * loss of contact: N/m = g n_z - v . n' and, in principal directions, v . n' =
+      -sum kappa_i / (1 - r kappa_i) w_i^2 (w = v's components), so N > 0 while
+      |v|^2 < g n_z / lambda, lambda = max over convex directions of |kappa| / (1 + r |kappa|):
+      E >= g~ min z_C + g min n_z / (2 lambda).
+    Sampled minima are lowered by the sampling error bound as in :func:`trap_energy`;
+    lambda is the sampled maximum times 1.5."""
+    from . import ball as B
+
+    if np.isfinite(float(problem.friction)):
+        return None
+    m = float(problem.margin)
+    x0, x1, y0, y1 = region(problem)
+    if not (np.isfinite([x0, x1, y0, y1]).all() and x1 > x0 and y1 > y0):
+        return None
+    r, gt, g = float(problem.radius), problem.g_tilde, float(problem.g)
+    jet = B.jet_function(problem.fns)
+
+    def zc_kappa(x, y):
+        with np.errstate(all="ignore"):
+            j = jet(x, y)
+            geo = B.geometry(j, r)
+            zc = j[0] + r * geo["n"][2]
+            k1 = B.max_concave_curvature(j)
+            hxx, hxy, hyy = j[3], j[4], j[5]
+            spread = np.maximum(np.abs(hxx), np.abs(hyy)) + np.abs(hxy)
+        return zc, k1, geo["n"][2], spread, j
+
+    edges = []
+    s = np.linspace(0.0, 1.0, EDGE_SAMPLES)
+    for xa, ya, xb, yb in ((x0, y0, x1, y0), (x0, y1, x1, y1), (x0, y0, x0, y1), (x1, y0, x1, y1)):
+        zc, _, _, spread, _ = zc_kappa(xa + (xb - xa) * s, ya + (yb - ya) * s)
+        if not (np.isfinite(zc).all() and np.isfinite(spread).all()):
+            return None
+        step = max(abs(xb - xa), abs(yb - ya)) / (EDGE_SAMPLES - 1)
+        # z_C's second derivative along the edge is bounded by about h's (r n_z adds r |h''|^2 terms)
+        edges.append(float(zc.min() - 2.0 * spread.max() * (1.0 + r * spread.max()) * step * step / 8.0))
+    xs, ys = np.linspace(x0, x1, GRID), np.linspace(y0, y1, GRID)
+    X, Y = np.meshgrid(xs, ys)
+    zc, k1, nz, spread, j = zc_kappa(X, Y)
+    if not all(np.isfinite(a).all() for a in (zc, k1, nz, spread)):
+        return None
+    dx, dy = xs[1] - xs[0], ys[1] - ys[0]
+    err = 2.0 * spread.max() * (1.0 + r * spread.max()) * (dx * dx + dy * dy) / 8.0
+    zc_min = float(zc.min() - err)
+    bounds = [gt * min(edges), gt * (float(problem.top) - m + r * float(nz.min()))]
+    near = r * k1 >= 0.9
+    if near.any():
+        bounds.append(gt * (float(zc[near].min()) - err))
+    # the most convex curvature: the smaller principal curvature (negative where convex)
+    _, hx, hy, hxx, hxy, hyy = j[:6]
+    w = np.sqrt(1.0 + hx * hx + hy * hy)
+    E, F, G = 1.0 + hx * hx, hx * hy, 1.0 + hy * hy
+    L, M, N = hxx / w, hxy / w, hyy / w
+    det = E * G - F * F
+    K = (L * N - M * M) / det
+    H = (E * N - 2.0 * F * M + G * L) / (2.0 * det)
+    k2 = H - np.sqrt(np.maximum(H * H - K, 0.0))
+    convex = np.maximum(-k2, 0.0)
+    lam = 1.5 * float((convex / (1.0 + r * convex)).max())
+    if lam > 0:
+        bounds.append(gt * zc_min + g * float(nz.min()) / (2.0 * lam))
+    e_star = min(bounds)
+    if not np.isfinite(e_star):
+        return None
+    e_star -= max(1e-9, float(rel_margin)) * max(abs(e_star), gt * (abs(zc_min) + abs(min(edges)) + 1.0))
+    if e_star <= gt * zc_min:
+        return None
+    return float(e_star)
