@@ -214,3 +214,21 @@ def test_lost_contact_over_a_circular_crest():
     assert res.x_end[0] == pytest.approx(R * math.sqrt(1 - cos_t ** 2), rel=1e-8)
     ref = solve_launch(p, v0, rtol=1e-11, atol=1e-13)
     assert ref["outcome"] == "lost_contact" and ref["x_end"] == pytest.approx(res.x_end[0], rel=1e-8)
+
+
+def test_agrees_with_the_independent_newton_euler_implementation():
+    """fabkit's reduced equations against 3-D Newton-Euler in omega with the contact force
+    solved from the constraint (tests/ball_newton_euler.py: no third derivatives, no
+    spin variable), on the paper's surface with its damping: same outcome and bounce
+    count, v_out and bounce times to 1e-7 (benchmarks/ball_reference.py compares more)."""
+    from ball_newton_euler import NewtonEuler
+
+    spec = load_spec(PAPER)
+    p = problem_from_spec(spec, model="ball").with_(t_max=6.0)
+    r = launch_batch(p, [50.0])
+    ref = NewtonEuler(p).launch(50.0)
+    assert OUTCOMES[r.outcome[0]] == ref["outcome"] == "escaped"
+    assert r.bounces[0] == ref["bounces"] == 2     # a two-bounce escape of the real ball
+    assert r.v_out[0] == pytest.approx(ref["v_out"], rel=1e-7)
+    np.testing.assert_allclose(r.bounce_times[0, :2], ref["bounce_times"], rtol=1e-7)
+    assert abs(ref["spin"]) > 1e-3    # the spin about the normal is not zero: u matters
