@@ -24,8 +24,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tests"))
 
-MM_FORMULA = ("eta*(exp(a*x) - exp(b*x)) + c*y**2*(1 + 0.2*tanh(x/40)) + eps*y/cosh(d*(x + 120))",
-              dict(a=0.0389, b=0.0306, eta=32.7, c=0.00764, eps=2.0, d=0.02))
+MM_FORMULA = ("eta*(exp(a*x) - exp(b*x)) + c*y**2*(1 + 0.2*tanh(x/40)) + eps*y/cosh(d*x)",
+              dict(a=0.0389, b=0.0306, eta=32.7, c=0.00764, eps=0.25, d=0.03))
 
 
 def problems(t_max):

@@ -169,13 +169,14 @@ class Params:
                    problem.friction)
 
 
-def evaluate(j, xd, yd, u, P: Params):
+def evaluate(j, xd, yd, u, P: Params, contact: bool = True):
     """Everything the integrator needs at the states (x, y, xd, yd, u), from the jet.
 
     Returns a dict of arrays: ``xdd``, ``ydd``, ``ud`` (the state's derivatives),
     ``power`` (energy dissipated per unit (1 + k) m and time, >= 0), ``N`` (normal
     force per unit mass), ``slip`` (|F_t| / N; inf where N <= 0), ``vx``, ``vy``,
     ``vz`` (the centre's velocity), ``zc`` (the centre's height), ``h``.
+    ``contact=False`` leaves out ``slip`` (the Runge-Kutta stages need only the rates).
     """
     geo = geometry(j, P.r)
     n, nx, ny = geo["n"], geo["nx"], geo["ny"]
@@ -208,6 +209,11 @@ def evaluate(j, xd, yd, u, P: Params):
     ydd = (G11 * b2 - G12 * b1) / det
     ud = _dot(_cross(n, v), nd)
     power = -_dot(f, v) * inv
+    zc = geo["h"] + P.r * n[2]
+    out = {"xdd": xdd, "ydd": ydd, "ud": ud, "power": power, "N": Nm,
+           "vx": v[0], "vy": v[1], "vz": v[2], "zc": zc, "h": geo["h"], "n": n}
+    if not contact:
+        return out
     # friction: F_t / m = k / (1 + k) (u (n x n') - g_t - f_t); g_t = g_vec - (g_vec . n) n
     gn = -g * n[2]
     gt = (-gn * n[0], -gn * n[1], -g - gn * n[2])
@@ -215,10 +221,8 @@ def evaluate(j, xd, yd, u, P: Params):
     ft = (f[0] - fn * n[0], f[1] - fn * n[1], f[2] - fn * n[2])
     Ft = tuple(k * inv * (u * nxn[i] - gt[i] - ft[i]) for i in range(3))
     Ftm = np.sqrt(_dot(Ft, Ft))
-    slip = np.where(Nm > 0, Ftm / np.where(Nm > 0, Nm, 1.0), np.inf)
-    zc = geo["h"] + P.r * n[2]
-    return {"xdd": xdd, "ydd": ydd, "ud": ud, "power": power, "N": Nm, "slip": slip,
-            "vx": v[0], "vy": v[1], "vz": v[2], "zc": zc, "h": geo["h"], "n": n}
+    out["slip"] = np.where(Nm > 0, Ftm / np.where(Nm > 0, Nm, 1.0), np.inf)
+    return out
 
 
 def energy(ev, u, P: Params):

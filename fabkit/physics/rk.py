@@ -86,6 +86,10 @@ class _System:
         self.iw = 4
         self.f = fused(problem)
 
+    def deriv(self, S, out=None):
+        """Only d(state)/dt (the Runge-Kutta stages)."""
+        return self(S, out)[0]
+
     def __call__(self, S, out=None):
         # floating-point warnings are silenced by the caller (np.errstate around the run):
         # overflow in a rejected trial step is expected and handled by the step control
@@ -160,6 +164,20 @@ class _BallSystem:
         j = self.jet(S[0], S[1])
         ev = self.b.evaluate(j, S[2], S[3], S[4], self.P)
         return j, ev
+
+    def deriv(self, S, out=None):
+        """Only d(state)/dt (the Runge-Kutta stages): no contact quantities."""
+        j = self.jet(S[0], S[1])
+        ev = self.b.evaluate(j, S[2], S[3], S[4], self.P, contact=False)
+        F = np.empty_like(S) if out is None else out
+        F[0] = S[2]
+        F[1] = S[3]
+        F[2] = ev["xdd"]
+        F[3] = ev["ydd"]
+        F[4] = ev["ud"]
+        if self.damped:
+            F[5] = ev["power"]
+        return F
 
     def __call__(self, S, out=None):
         j, ev = self._eval(S)
@@ -256,7 +274,7 @@ def _rk_step(sys, tab, Y, F0, h, K):
     Ys = np.empty_like(Y)
     for s in range(1, tab.n_stages):
         _combine(Y, h, K, tab.A[s], Ys)
-        sys(Ys, out=K[s])
+        sys.deriv(Ys, out=K[s])
     Ynew = np.empty_like(Y)
     _combine(Y, h, K, tab.B, Ynew)
     return Ynew
