@@ -485,6 +485,7 @@ def _run_stiff(problem, v_in, y0, vy0, rtol, atol, t_max, k_keep):
         out["vx_end"][i], out["vy_end"][i] = r["xdot_end"], r["ydot_end"]
         out["max_z"][i], out["max_abs_y"][i] = r["max_z"], r["max_abs_y"]
         out["energy_error"][i] = np.nan  # the Radau path does not track the dissipated work
+        out["max_slip"][i] = r.get("max_slip", np.nan)
         out["steps"][i] = r["nfev"]
         out["status"][i] = 2
     return out
