@@ -232,3 +232,17 @@ def test_agrees_with_the_independent_newton_euler_implementation():
     assert r.v_out[0] == pytest.approx(ref["v_out"], rel=1e-7)
     np.testing.assert_allclose(r.bounce_times[0, :2], ref["bounce_times"], rtol=1e-7)
     assert abs(ref["spin"]) > 1e-3    # the spin about the normal is not zero: u matters
+
+
+def test_trapping_energy_of_the_ball():
+    """E* lies above the lowest centre height (the ball can be trapped) and below the
+    energy of the slowest ramp launch that escapes; none with a friction coefficient."""
+    from fabkit.physics.trap import trap_energy
+
+    spec = load_spec(PAPER)
+    p = problem_from_spec(spec, model="ball")
+    e = trap_energy(p, 1e-8)
+    q = ball_quantities(p, np.array([p.start, 0.0, 16.7, 0.0, 0.0]))
+    assert e is not None and e < float(q["energy"])          # a launch from the ramp starts above E*
+    assert e > p.g_tilde * (-1.8 + p.radius * 0.9)          # above the channel's bottom (h ~ -1.7 cm)
+    assert trap_energy(p.with_(friction=0.5), 1e-8) is None
