@@ -85,6 +85,10 @@ def test_inclined_plane(theta_deg):
     np.testing.assert_allclose(r.t_end, 2 * v_in / a_h, rtol=1e-9)
     np.testing.assert_allclose(r.v_out, v_in, rtol=1e-9)
     np.testing.assert_allclose(r.max_slip, K / (1 + K) * math.tan(th), rtol=1e-9)
+    # the event fallback (regula falsi where a long step holds the bounce and the escape)
+    # is per lane: a launch alone gives the same bits as in a batch
+    alone = launch_batch(p, [v_in], y0=[0.0], vy0=[7.0])
+    assert alone.t_end[0] == r.t_end[1] and alone.v_out[0] == r.v_out[1]
     # along the slope: g sin(theta) / (1 + k), u = 0
     q = ball_quantities(p, np.array([0.0, 0.0, 12.0, 5.0, 0.0]))
     a_slope = q["xdd"] / math.cos(th)          # the centre moves as the contact point on a plane

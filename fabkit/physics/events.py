@@ -71,25 +71,38 @@ def _secant(sys, tab, Y, F0, t, h, b0, b1, iters: int = 4):
     K = np.empty((tab.n_stages + 1, nv, m))
     Yt = Y.copy()
     th = np.ones(m)
+    if iters <= 4:   # the point models: a fixed number of secant steps
+        for _ in range(iters):
+            th = lo + (hi - lo) * blo / (blo - bhi)
+            th = np.where(np.isfinite(th), np.clip(th, lo, hi), 0.5 * (lo + hi))
+            Yt = _rk_step(sys, tab, Y, F0, h * th, K)
+            b = sys(Yt)[1][3]
+            pos = b > 0
+            lo = np.where(pos, th, lo)
+            blo = np.where(pos, b, blo)
+            hi = np.where(pos, hi, th)
+            bhi = np.where(pos, bhi, b)
+        return t + h * th, Yt
+    # longer runs (the ball's guard): Illinois steps, each lane until its bracket is at rounding
     side = np.zeros(m)
-    for i in range(iters):
-        th = lo + (hi - lo) * blo / (blo - bhi)
-        th = np.where(np.isfinite(th), np.clip(th, lo, hi), 0.5 * (lo + hi))
-        Yt = _rk_step(sys, tab, Y, F0, h * th, K)
-        b = sys(Yt)[1][3]
+    act = np.ones(m, dtype=bool)
+    for _ in range(iters):
+        tn = lo + (hi - lo) * blo / (blo - bhi)
+        tn = np.where(np.isfinite(tn), np.clip(tn, lo, hi), 0.5 * (lo + hi))
+        Yn = _rk_step(sys, tab, Y, F0, h * tn, K)
+        b = sys(Yn)[1][3]
+        th = np.where(act, tn, th)
+        Yt = np.where(act, Yn, Yt)
         pos = b > 0
-        lo = np.where(pos, th, lo)
-        blo = np.where(pos, b, blo)
-        hi = np.where(pos, hi, th)
-        bhi = np.where(pos, bhi, b)
-        if iters > 4:
-            # longer runs (the ball's guard): Illinois steps, stop once at rounding
-            blo = np.where(~pos & (side == -1), 0.5 * blo, blo)
-            bhi = np.where(pos & (side == 1), 0.5 * bhi, bhi)
-            side = np.where(pos, 1, -1)
-            if np.all((b == 0) | (np.abs(hi - lo) <= 4 * np.spacing(1.0))) or np.all(
-                    np.abs(b) <= 1e-15):
-                break
+        up_lo, up_hi = act & pos, act & ~pos
+        blo_new = np.where(up_lo, b, np.where(up_hi & (side == -1), 0.5 * blo, blo))
+        bhi_new = np.where(up_hi, b, np.where(up_lo & (side == 1), 0.5 * bhi, bhi))
+        lo, hi = np.where(up_lo, tn, lo), np.where(up_hi, tn, hi)
+        blo, bhi = blo_new, bhi_new
+        side = np.where(act, np.where(pos, 1, -1), side)
+        act = act & ~((hi - lo <= 4 * np.spacing(1.0)) | (b == 0) | (np.abs(b) <= 1e-15))
+        if not act.any():
+            break
     return t + h * th, Yt
 
 
@@ -115,19 +128,24 @@ def _bracketed(sys, tab, Y, t, h, kind, target, iters: int = 60):
     ghi = _quantity(sys, Y1, code) - target
     Yt, th = Y1, np.ones(m)
     side = np.zeros(m)
+    act = np.ones(m, dtype=bool)     # lanes still iterating: each lane's sequence is its own
     for _ in range(iters):
-        th = (lo * ghi - hi * glo) / (ghi - glo)
-        th = np.where(np.isfinite(th) & (th > lo) & (th < hi), th, 0.5 * (lo + hi))
-        Yt = _rk_step(sys, tab, Y, F0, h * th, K)
-        gt = _quantity(sys, Yt, code) - target
-        same = np.sign(gt) == np.sign(glo)
-        lo, glo = np.where(same, th, lo), np.where(same, gt, glo)
-        hi, ghi = np.where(same, hi, th), np.where(same, ghi, gt)
+        tn = (lo * ghi - hi * glo) / (ghi - glo)
+        tn = np.where(np.isfinite(tn) & (tn > lo) & (tn < hi), tn, 0.5 * (lo + hi))
+        Yn = _rk_step(sys, tab, Y, F0, h * tn, K)
+        gn = _quantity(sys, Yn, code) - target
+        th = np.where(act, tn, th)
+        Yt = np.where(act, Yn, Yt)
+        same = np.sign(gn) == np.sign(glo)
+        up_lo, up_hi = act & same, act & ~same
         # Illinois: halve the stale end's value when the same end is kept twice
-        glo = np.where(~same & (side == -1), 0.5 * glo, glo)
-        ghi = np.where(same & (side == 1), 0.5 * ghi, ghi)
-        side = np.where(same, 1, -1)
-        if np.all((hi - lo) <= 4 * np.spacing(1.0) + 0.0 * lo) or np.all(gt == 0):
+        glo_new = np.where(up_lo, gn, np.where(up_hi & (side == -1), 0.5 * glo, glo))
+        ghi_new = np.where(up_hi, gn, np.where(up_lo & (side == 1), 0.5 * ghi, ghi))
+        lo, hi = np.where(up_lo, tn, lo), np.where(up_hi, tn, hi)
+        glo, ghi = glo_new, ghi_new
+        side = np.where(act, np.where(same, 1, -1), side)
+        act = act & ~((hi - lo <= 4 * np.spacing(1.0)) | (gn == 0))
+        if not act.any():
             break
     for c in range(3):
         Yt[c] = np.where(code == c, target, Yt[c])
