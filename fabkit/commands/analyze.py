@@ -90,6 +90,9 @@ def run(args) -> int:
         raise SpecError(f"must be > 0, got {args.fps:g}", key="--fps")
     tracks = [read_track(p, fps=args.fps, video=vm) for p in args.tracks]
     problem = problem_from_spec(spec)
+    if problem.model == "ball":
+        raise SpecError("analyze fits the point models (full, simplified); the ball model is not "
+                        "supported by the track analysis", file=spec.path, key="simulation.model")
     res = analyze(problem, tracks)
     for r, tr in zip(res["tracks"], tracks):
         r["_track"] = {"t": tr.t, "x": tr.x, "y": tr.y}

@@ -161,6 +161,9 @@ def fused(problem: Problem):
     surface is evaluated once), so one call costs a few dozen array operations.
     Outputs that do not depend on the state come back as arrays of the input's shape.
     """
+    if problem.model not in ("full", "simplified"):
+        raise ValueError(f"fused() is the point models' right-hand side; model {problem.model!r} has its own "
+                         "(physics/ball.py)")
     key = (problem.fns, problem.model, problem.g_tilde, float(problem.damping),
            float(problem.nonlinear_damping))
     fn = _FUSED.get(key)
@@ -258,7 +261,10 @@ def accelerations(problem: Problem, x, y, vx, vy):
 
 
 def rhs(problem: Problem, state):
-    """d(state)/dt for ``state`` (4, ...) = (x, y, xd, yd): returns an array (4, ...)."""
+    """d(state)/dt for ``state`` (4, ...) = (x, y, xd, yd): returns an array (4, ...).
+    The ball model: ``state`` (5, ...) = (x, y, xd, yd, u) (:func:`ball_rhs`)."""
+    if problem.model == "ball":
+        return ball_rhs(problem, state)
     x, y, vx, vy = _unpack((state,))
     with np.errstate(all="ignore"):
         ax, ay = fused(problem)(x, y, vx, vy)[:2]
@@ -268,6 +274,8 @@ def rhs(problem: Problem, state):
 def energy(problem: Problem, *args):
     """Mechanical energy per unit (1 + k) m (length^2/s^2): ``energy(problem, state)``
     with state (4, ...) or ``energy(problem, x, y, xd, yd)``; see the module doc."""
+    if problem.model == "ball":   # state (5, ...): 1/2 |v|^2 + k/(2 (1 + k)) u^2 + g~ z_C
+        return ball_quantities(problem, args[0])["energy"]
     x, y, vx, vy = _unpack(args)
     h, hx, hy = problem.fns.all(x, y)[:3]
     kin = vx * vx + vy * vy
