@@ -32,6 +32,9 @@ def test_model_must_name_a_ball(tmp_path):
     spec = write_spec(tmp_path, mutated({"simulation.model": "marble"}))
     code, out, err = run_cli(["simulate", spec, "--v-in", "40"])
     assert code == 2 and "simulation.model" in err
+    spec = write_spec(tmp_path, mutated({"simulation.model": "ball", "simulation.nonlinear_damping": 0.1}))
+    code, out, err = run_cli(["simulate", spec, "--v-in", "40"])
+    assert code == 2 and "simulation.nonlinear_damping" in err
     spec = write_spec(tmp_path, mutated({"simulation.model": "ball", "ball.friction": -1}))
     code, out, err = run_cli(["simulate", spec, "--v-in", "40"])
     assert code == 2 and "ball.friction" in err

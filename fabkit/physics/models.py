@@ -141,6 +141,10 @@ def problem_from_spec(spec, **overrides) -> Problem:
     if fields["model"] not in MODELS:
         raise SpecError(f"must be one of {' | '.join(MODELS)}, got {fields['model']!r}",
                         file=spec.path, key="simulation.model")
+    if fields["model"] == "ball" and fields["nonlinear_damping"]:
+        raise SpecError("the paper's localized damping is a term of the point models; model ball takes "
+                        "simulation.damping and ball.rolling_resistance", file=spec.path,
+                        key="simulation.nonlinear_damping")
     if fields["model"] == "ball" and ball is None:
         raise SpecError("model ball needs the ball section (its diameter and inertia)",
                         file=spec.path, key="simulation.model")
