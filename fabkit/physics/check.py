@@ -42,7 +42,7 @@ def _why(problem, outcome: int, x: float, y: float) -> str:
         return "loses contact (the normal force falls to zero)"
     if outcome == BRIDGED:
         r = float(problem.radius)
-        return (f"bridges: the surface is tighter than the ball (radius {r:g}), which touches it at "
+        return (f"bridges: the surface is tighter than the ball (radius {r:g} {problem.units}), which touches it at "
                 f"two points (r times the concave curvature reaches 1)")
     if outcome == SLIPPED:
         return f"slips: the rolling needs more friction than ball.friction = {problem.friction:g}"
