@@ -63,8 +63,8 @@ def test_explore_and_robustness_take_the_model(tmp_path):
     assert code == 0, err
     d = json.loads(out)
     assert all(not x["safe"] for x in d["designs"])
-    code, out, err = run_cli(["robustness", spec, "--v-in", "40", "44", "2", "--sigma-y", "0.05", "--sigma-vy", "0.1", "--samples",
-                              "3", "--no-progress", "--json"])
+    code, out, err = run_cli(["robustness", spec, "--v-in", "40", "44", "2", "--sigma-y", "0.05",
+                              "--sigma-vy", "0.1", "--samples", "3", "--no-progress", "--json"])
     assert code in (0, 1), err
     d = json.loads(out)
     assert d["model"] == "ball"
