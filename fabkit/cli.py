@@ -197,6 +197,31 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--ode-samples", type=int, default=None, dest="ode_samples", metavar="N",
                    help="CC ODE launches (default 300)")
     c.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+    c = cmd("design", "search spec keys for the design with the most observable two-bounce windows")
+    c.add_argument("--vary", action="append", default=[], metavar="KEY=LO:HI",
+                   help="a spec key and its bounds, e.g. surface.params.eps=0.1:0.4 (repeatable)")
+    c.add_argument("--budget", type=int, default=48, metavar="N",
+                   help="designs screened by the search (default 48)")
+    c.add_argument("--seed", type=int, default=0, metavar="S",
+                   help="random seed of the search and the scatter draws (default 0; same seed, same design)")
+    c.add_argument("--min-width", type=float, default=None, metavar="W", dest="min_width",
+                   help="narrowest observable window, release height in design units (default 1 mm)")
+    c.add_argument("--sigma-y", type=float, default=0.0, metavar="S", dest="sigma_y",
+                   help="standard deviation of the launch's transverse offset y0, design units (default 0: none)")
+    c.add_argument("--sigma-vy", type=float, default=0.0, metavar="S", dest="sigma_vy",
+                   help="standard deviation of the launch's transverse velocity vy0, design units/s (default 0: none)")
+    c.add_argument("--samples", type=int, default=None, metavar="M",
+                   help="random launches per entry speed tried, the centre of each window (a count, default 64; "
+                   "without scatter the nominal launch alone)")
+    c.add_argument("--top", type=int, default=3, metavar="K", help="best designs verified by the full check (default 3)")
+    c.add_argument("--scheduler", metavar="ADDRESS", help="Dask scheduler address, e.g. tcp://127.0.0.1:8786 "
+                   "(default: run in this process)")
+    c.add_argument("-o", "--output", metavar="OUT.yaml", help="the winner's spec (default toolpaths/<name>.design.yaml)")
+    c.add_argument("--json", action="store_true", help="print JSON")
+    c.add_argument("--plot", metavar="FILE", help="the objective over the search and the winner's v_out against "
+                   "release height: " + PLOT)
+    c.add_argument("--no-progress", action="store_true", help="no progress bar")
     return p
 
 

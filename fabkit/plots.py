@@ -446,3 +446,70 @@ def compare_figure(panels: list[dict], *, title: str = "", fmt: str = "png") -> 
         fig.suptitle(title, fontsize=11)
     fig.tight_layout(rect=(0, 0.04, 1, 1))
     return _png(plt, fig, fmt)
+
+
+def design_figure(result: dict, bounds, *, title: str = "", units: str = "", fmt: str = "png") -> bytes:
+    """Figure bytes (``fmt``) for ``fabkit design``: the objective of every screened design in the
+    order of evaluation with the best so far (top), and the winner's v_out against
+    release height from its check, coloured by bounce count, observable windows shaded
+    (bottom)."""
+    plt, fig = _figure(figsize=(8.5, 7.5))
+    ax1 = fig.add_subplot(2, 1, 1)
+    ax2 = fig.add_subplot(2, 1, 2)
+    hist = result["history"]
+    y = np.array([h["objective"] for h in hist], dtype=float)
+    n = np.arange(1, y.size + 1)
+    feas = np.array([h["feasible"] for h in hist], dtype=bool)
+    score = np.where(feas, -y, np.nan)
+    ax1.plot(n[feas], score[feas], "o", ms=3.5, color="C0", label="feasible (screen)", zorder=3)
+    if (~feas).any():
+        ax1.plot(n[~feas], np.zeros((~feas).sum()), "x", ms=4, color="tab:red", label="infeasible")
+    if y.size:
+        best = np.maximum.accumulate(np.where(feas, -y, -np.inf))
+        ok = np.isfinite(best)
+        ax1.step(n[ok], best[ok], where="post", color="k", lw=1.2, label="best so far")
+    pop = result["optimizer"]["population"]
+    for g in range(pop, y.size, pop):
+        ax1.axvline(g + 0.5, color="0.85", lw=0.8)
+    base = result["baseline"]
+    ax1.axhline(base["observable"], color="tab:orange", ls="--", lw=1,
+                label=f"baseline (checked): {base['observable']} observable")
+    ax1.set_xlabel("evaluation (grey lines: generations)")
+    ax1.set_ylabel("observable windows + width / ramp range")
+    ax1.legend(fontsize=7, loc="center right")
+    ax1.grid(alpha=0.3)
+    w = result["winner"]
+    if w is not None and w.get("sweep") is not None:
+        sw = w["sweep"]
+        H = np.asarray(sw["heights"], dtype=float)
+        vo = np.asarray([np.nan if v is None else v for v in sw["v_out"]], dtype=float) \
+            if sw["v_out"] is not None else np.full(H.size, np.nan)
+        nb = np.asarray(sw["bounces"])
+        esc = np.array([o == "escaped" for o in sw["outcome"]])
+        colors = {1: "black", 2: "tab:blue", 3: "tab:green", 4: "tab:red"}
+        for k in sorted(set(nb[esc].tolist())):
+            m = esc & (nb == k)
+            ax2.plot(H[m], vo[m], ".", ms=3, color=colors.get(k, "tab:gray"),
+                     label=f"{k} bounce{'s' if k > 1 else ''}" if k <= 4 else None)
+        if (esc & (nb > 4)).any():
+            ax2.plot([], [], ".", color="tab:gray", label="5+ bounces")
+        if (~esc).any():
+            ax2.plot(H[~esc], np.zeros((~esc).sum()), "|", color="0.6", ms=6, label="captured / off")
+        first = True
+        for win in w["windows"]:
+            if win["observable"]:
+                ax2.axvspan(win["height_lo"], win["height_hi"], color="tab:blue", alpha=0.18, lw=0,
+                            label="observable window" if first else None)
+                first = False
+        if w.get("critical_height") is not None:
+            ax2.axvline(w["critical_height"], color="tab:orange", ls="--", lw=1, label="v_critical")
+        vals = ", ".join(f"{b.key.removeprefix('surface.params.')}={v:g}" for b, v in zip(bounds, w["values"]))
+        ax2.set_title(f"winner: {vals}: {w['observable']} observable", fontsize=9)
+        ax2.legend(fontsize=7, loc="upper left")
+    ax2.set_xlabel(f"release height ({units})" if units else "release height")
+    ax2.set_ylabel(f"v_out ({units}/s)" if units else "v_out")
+    ax2.grid(alpha=0.3)
+    if title:
+        ax1.set_title(title, fontsize=10)
+    fig.tight_layout()
+    return _png(plt, fig, fmt)

@@ -134,7 +134,7 @@ def stage_bar(total: int, disabled: bool, desc: str, delay: float = 2.0):
     return step, close
 
 
-def progress_bar(total: int, disabled: bool, desc: str):
+def progress_bar(total: int, disabled: bool, desc: str, unit: str = "launch"):
     """A tqdm bar of launches on stderr, shown only on a terminal and after 2 s; returns
     (callback(done, total=None), close), or (None, no-op) when disabled. The total grows
     when refinement launches more than estimated; callbacks may come from threads."""
@@ -142,7 +142,7 @@ def progress_bar(total: int, disabled: bool, desc: str):
         return None, lambda: None
     from tqdm import tqdm
 
-    bar = tqdm(total=max(1, int(total)), desc=desc, unit="launch", file=sys.stderr, delay=2.0, leave=False)
+    bar = tqdm(total=max(1, int(total)), desc=desc, unit=unit, file=sys.stderr, delay=2.0, leave=False)
     lock = threading.Lock()
 
     def cb(done, _total=None):

@@ -75,7 +75,8 @@ def check(spec, *, progress=None, rel_tol: float = 1e-4, v_rel_tol: float = 1e-5
     simulation; stock and tool optional). Returns the report dict (see module doc):
     safe, highest_safe_height, first_failure {height, v_in, outcome, reason, x, y, t},
     v_critical, critical_height, reachable_windows, machining, heights, v_in,
-    outcomes, seconds. Heights in design units, speeds in design units/s."""
+    outcomes, bounces, v_out (nan unless escaped), seconds. Heights in design units,
+    speeds in design units/s."""
     from ..units import gravity
     from .calibrate import ball_k, height_from_v_in, ramp_heights, v_in_from_height
     from .models import OUTCOMES, problem_from_spec
@@ -130,6 +131,7 @@ def check(spec, *, progress=None, rel_tol: float = 1e-4, v_rel_tol: float = 1e-5
     out["v_in"] = v
     out["outcomes"] = [OUTCOMES[int(o)] for o in lr.outcome]
     out["bounces"] = lr.bounces
+    out["v_out"] = lr.v_out
     out["seconds"] = time.perf_counter() - t0
     return out
 
