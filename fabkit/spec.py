@@ -49,6 +49,7 @@ class Num:
     length: str | None = None
     integer: bool = False
     doc: str = ""
+    hint: str = ""      # appended to a range error: why the bound is there
 
 
 @dataclass(frozen=True)
@@ -79,10 +80,12 @@ class NumList:
 
     default: Any = REQUIRED
     ge: float | None = None
+    gt: float | None = None
     min_len: int = 1
     max_len: int = 100_000
     length: str | None = None
     doc: str = ""
+    hint: str = ""
 
 
 @dataclass(frozen=True)
@@ -126,7 +129,10 @@ SCHEMA: dict[str, dict[str, Any]] = {
         "feed": Num(default=2500, gt=0, le=1e6, doc="mm/min"),
         "plunge": Num(default=600, gt=0, le=1e6, doc="mm/min"),
         "spindle": Num(default=16000, gt=0, le=1e6, doc="rpm"),
-        "safe_height": Num(default=5, gt=0, le=1000, length="mm"),
+        "safe_height": Num(default=5, ge=0.5, le=1000, length="mm",
+                           doc="mm above the top face for rapids; at least 0.5 mm",
+                           hint="mm above the top face: rapids need a real clearance over stock that is "
+                                "never perfectly flat or zeroed"),
         "dialect": Choice(("linuxcnc", "grbl"), default="linuxcnc"),
         "units": Choice(("mm", "in"), default="mm"),
         "stepdown": Num(default=None, gt=0, le=1000, length="mm", doc="roughing z-step; default: no roughing"),
@@ -145,8 +151,9 @@ SCHEMA: dict[str, dict[str, Any]] = {
                                   doc="rolling resistance coefficient (model ball): a force c N opposing v"),
     },
     "ramp": {
-        "heights": NumList(ge=0, min_len=1, length="design",
-                           doc="[min, max] (sampled densely) or a list of 3 or more heights"),
+        "heights": NumList(gt=0, min_len=1, length="design",
+                           doc="[min, max] (sampled densely) or a list of 3 or more heights, each > 0",
+                           hint="a release height of 0 gives the ball no entry speed"),
         "samples": Num(default=400, ge=2, le=10_000, integer=True,
                        doc="heights sampled in [min, max] (each is a full simulation: at most 10000)"),
     },
@@ -261,15 +268,7 @@ def load_spec(path: str | Path, need: tuple[str, ...] = (), command: str | None 
     import yaml
 
     p = str(path)
-    try:
-        with open(p, "rb") as fh:
-            data = fh.read(MAX_SPEC_BYTES + 1)
-    except FileNotFoundError:
-        raise SpecError("file not found", file=p) from None
-    except IsADirectoryError:
-        raise SpecError("is a folder, not a spec file", file=p) from None
-    except OSError as exc:
-        raise SpecError(f"cannot read: {exc.strerror}", file=p) from None
+    data = _read_spec_bytes(p)
     if len(data) > MAX_SPEC_BYTES:
         raise SpecError(f"file too large (limit {MAX_SPEC_BYTES} bytes)", file=p)
     try:
@@ -292,6 +291,72 @@ def load_spec(path: str | Path, need: tuple[str, ...] = (), command: str | None 
     spec = validate(raw, p)
     spec.require(*need, command=command)
     return spec
+
+
+def _read_spec_bytes(p: str) -> bytes:
+    """The first MAX_SPEC_BYTES + 1 bytes of the regular file ``p``.
+
+    Opened without blocking and checked with fstat on the open descriptor (no
+    race between the check and the read): a named pipe, a device or a socket is
+    refused instead of blocking forever or reading without end."""
+    import os
+    import stat
+
+    try:
+        fd = os.open(p, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_NOCTTY", 0))
+    except FileNotFoundError:
+        raise SpecError("file not found", file=p) from None
+    except IsADirectoryError:
+        raise SpecError("is a folder, not a spec file", file=p) from None
+    except OSError as exc:
+        raise SpecError(f"cannot read: {exc.strerror}", file=p) from None
+    try:
+        mode = os.fstat(fd).st_mode
+        if stat.S_ISDIR(mode):
+            raise SpecError("is a folder, not a spec file", file=p)
+        if not stat.S_ISREG(mode):
+            kind = ("a named pipe (FIFO)" if stat.S_ISFIFO(mode) else "a socket" if stat.S_ISSOCK(mode)
+                    else "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) else "not a regular file")
+            raise SpecError(f"is {kind}, not a regular file: give the spec as a file", file=p)
+        with os.fdopen(fd, "rb", closefd=False) as fh:
+            return fh.read(MAX_SPEC_BYTES + 1)
+    except OSError as exc:
+        raise SpecError(f"cannot read: {exc.strerror}", file=p) from None
+    finally:
+        os.close(fd)
+
+
+# Plain scalars resolved as numbers the way people (and YAML 1.2) write them.
+# YAML 1.1 (PyYAML's default) reads 1e-10 and 1.5e3 as text (its floats need a
+# dot and a signed exponent), 010 as octal 8 and 1:00:00 as base-60 3600. Here:
+# decimal integers (leading zeros allowed, '_' separators), 0x / 0o integers,
+# floats with or without a dot or exponent sign, .inf and .nan (refused later);
+# sexagesimal stays text and the number check names it.
+_INT_RE = re.compile(r"^[-+]?(?:[0-9][0-9_]*|0x[0-9a-fA-F_]+|0o[0-7_]+)$")
+_FLOAT_RE = re.compile(r"^(?:[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9][0-9_]*)(?:[eE][-+]?[0-9]+)?"
+                       r"|[-+]?\.(?:inf|Inf|INF)|\.(?:nan|NaN|NAN))$")
+_SEXAGESIMAL_RE = re.compile(r"^\s*[-+]?[0-9][0-9_]*(?::[0-5]?[0-9])+(?:\.[0-9_]*)?\s*$")
+
+
+def _construct_int(loader, node):
+    text = loader.construct_scalar(node).replace("_", "")
+    sign = -1 if text.startswith("-") else 1
+    text = text.lstrip("+-")
+    if text[:2] in ("0x", "0X"):
+        return sign * int(text[2:], 16)
+    if text[:2] in ("0o", "0O"):
+        return sign * int(text[2:], 8)
+    return sign * int(text, 10)
+
+
+def _construct_float(loader, node):
+    text = loader.construct_scalar(node).replace("_", "")
+    low = text.lower()
+    if low.endswith(".inf"):
+        return -math.inf if low.startswith("-") else math.inf
+    if low == ".nan":
+        return math.nan
+    return float(text)
 
 
 def _make_loader():
@@ -322,6 +387,13 @@ def _make_loader():
                 seen.add(key)
             return super().construct_mapping(node, deep=deep)
 
+    Loader.yaml_implicit_resolvers = {
+        first: [(tag, rx) for tag, rx in resolvers if tag not in ("tag:yaml.org,2002:int", "tag:yaml.org,2002:float")]
+        for first, resolvers in yaml.SafeLoader.yaml_implicit_resolvers.items()}
+    Loader.add_implicit_resolver("tag:yaml.org,2002:int", _INT_RE, list("-+0123456789"))
+    Loader.add_implicit_resolver("tag:yaml.org,2002:float", _FLOAT_RE, list("-+.0123456789"))
+    Loader.add_constructor("tag:yaml.org,2002:int", _construct_int)
+    Loader.add_constructor("tag:yaml.org,2002:float", _construct_float)
     return Loader
 
 
@@ -353,6 +425,8 @@ def _number(value: Any, key: str, file: str, length: str | None, design_unit: st
         m = _LEN_RE.match(value) if length else None
         if not m:
             hint = " (a number, or a length with its unit such as '3.175 mm' or '1/8 in')" if length else ""
+            if _SEXAGESIMAL_RE.match(value):
+                hint = " (base-60 numbers such as 1:00:00 are not read: write the number itself)"
             raise SpecError(f"must be a number{hint}, got {_show(value)}", file=file, key=key)
         num = float(m.group(1))
         if m.group(2):
@@ -382,7 +456,8 @@ def _show(value: Any) -> str:
 
 def _check_range(v: float, f: Num, key: str, file: str) -> None:
     def bad(rel, bound):
-        return SpecError(f"must be {rel} {bound:g}, got {v:g}", file=file, key=key)
+        why = f" ({f.hint})" if f.hint else ""
+        return SpecError(f"must be {rel} {bound:g}, got {v:g}{why}", file=file, key=key)
 
     if f.gt is not None and not v > f.gt:
         raise bad(">", f.gt)
@@ -435,6 +510,9 @@ def _field(f: Any, value: Any, key: str, file: str, unit: str) -> Any:
             v = _number(item, f"{key}[{i}]", file, f.length, unit)
             if f.ge is not None and v < f.ge:
                 raise SpecError(f"must be >= {f.ge:g}, got {v:g}", file=file, key=f"{key}[{i}]")
+            if f.gt is not None and not v > f.gt:
+                why = f" ({f.hint})" if f.hint else ""
+                raise SpecError(f"must be > {f.gt:g}, got {v:g}{why}", file=file, key=f"{key}[{i}]")
             if abs(v) > 1e9:
                 raise SpecError(f"out of range, got {v:g}", file=file, key=f"{key}[{i}]")
             out.append(v)
@@ -526,11 +604,11 @@ def validate(raw: Any, file: str = "<spec>") -> Spec:
                     raise SpecError("missing key", file=file, key=dotted)
                 values[key] = d
         sections[sec] = Section(sec, values)
-    _cross_checks(sections, file)
+    _cross_checks(sections, file, units)
     return Spec(path=file, name=name, units=units, sections=sections, raw=raw)
 
 
-def _cross_checks(s: dict[str, Section], file: str) -> None:
+def _cross_checks(s: dict[str, Section], file: str, units: str = "mm") -> None:
     if "surface" in s:
         from .expr import check_syntax
 
@@ -538,6 +616,10 @@ def _cross_checks(s: dict[str, Section], file: str) -> None:
             check_syntax(s["surface"].height, frozenset(s["surface"].params))
         except SpecError as exc:
             raise exc.with_location(file=file) from None
+    if "surface" in s:
+        _footprint_checks(s["surface"], file, MM_PER[units])
+    if "machining" in s:
+        _machining_checks(s, file)
     if "stock" in s:
         st = s["stock"]
         if st.depth_limit is None:
@@ -562,3 +644,68 @@ def _cross_checks(s: dict[str, Section], file: str) -> None:
         if not y0 < sim.y0 < y1:
             raise SpecError(f"must lie inside surface.y [{y0:g}, {y1:g}], got {sim.y0:g}",
                             file=file, key="simulation.y0")
+        for ax, (lo, hi) in (("x", sur.x), ("y", sur.y)):
+            if not 2 * sim.margin < hi - lo:
+                raise SpecError(f"{sim.margin:g} leaves no room in surface.{ax} [{lo:g}, {hi:g}] (the ball must "
+                                f"stay this far inside the footprint: need 2 x margin < {hi - lo:g})",
+                                file=file, key="simulation.margin")
+
+
+#: the narrowest footprint, mm: below it the block can be neither milled nor simulated
+MIN_FOOTPRINT_MM = 0.1
+
+
+def _footprint_checks(sur: Section, file: str, scale: float) -> None:
+    """surface.x / surface.y must be real widths: at least MIN_FOOTPRINT_MM (``scale``:
+    mm per design unit), and wide against their own magnitude (else the grids
+    collapse onto a few doubles)."""
+    for ax in ("x", "y"):
+        lo, hi = getattr(sur, ax)
+        width_mm = (hi - lo) * scale
+        if not width_mm >= MIN_FOOTPRINT_MM or not (hi - lo) >= 1e-9 * max(abs(lo), abs(hi)):
+            raise SpecError(f"the footprint is {width_mm:.3g} mm wide: at least {MIN_FOOTPRINT_MM:g} mm "
+                            f"(and more than 1e-9 of its coordinates) is needed to mill or simulate it",
+                            file=file, key=f"surface.{ax}")
+
+
+def _program_rounding(value: float, decimals: int) -> float:
+    return float(f"{value:.{decimals}f}")
+
+
+def _machining_checks(s: dict[str, Section], file: str) -> None:
+    """Numbers the program writes must survive its rounding (to 1 %): a spindle of
+    0.4 rpm would be written S0, a feed of 0.0001 mm/min F0; tolerance and
+    stepdown must be representable in the program's decimals, and the roughing
+    levels bounded."""
+    from .tolerances import DEFAULT
+
+    m = s["machining"]
+    inch = m.units == "in"
+    per = 25.4 if inch else 1.0
+    fdec = 3 if inch else 1
+    unit = "in/min" if inch else "mm/min"
+    for key, word, dec, u in (("feed", "F", fdec, unit), ("plunge", "F", fdec, unit), ("spindle", "S", 0, "rpm")):
+        v = getattr(m, key) / (per if u != "rpm" else 1.0)
+        r = _program_rounding(v, dec)
+        if r == 0 or abs(r - v) > 0.01 * v:
+            least = 50 * 10.0 ** -dec
+            step = f"{10.0 ** -dec:g} {u}" if dec else f"whole {u}"
+            raise SpecError(f"{v:g} {u} would be written {word}{r:.{dec}f} (the program writes {step}): "
+                            f"give at least {least:g} {u}", file=file, key=f"machining.{key}")
+    # coordinates get at most 6 decimals in program units; the rounding (half a unit in the
+    # last place) must stay within tolerance / 20 (gcode.MachineProfile.decimals)
+    finest = 20 * 0.5e-6 * per
+    if m.tolerance < finest:
+        raise SpecError(f"{m.tolerance:g} mm is finer than the program can carry: coordinates have at most 6 "
+                        f"decimals in {m.units}; at least {finest:g} mm", file=file, key="machining.tolerance")
+    if m.stepdown is not None:
+        if m.stepdown < finest:
+            raise SpecError(f"{m.stepdown:g} mm is finer than the program can carry; at least {finest:g} mm",
+                            file=file, key="machining.stepdown")
+        if "stock" in s:
+            depth = s["stock"].depth_limit if s["stock"].depth_limit is not None else s["stock"].thickness
+            levels = depth / m.stepdown
+            if levels > DEFAULT.max_rough_levels:
+                raise SpecError(f"{m.stepdown:g} mm would rough up to {levels:.3g} levels down to stock.depth_limit "
+                                f"({depth:g} mm), more than the limit {DEFAULT.max_rough_levels}; raise the stepdown",
+                                file=file, key="machining.stepdown")

@@ -31,6 +31,7 @@ class Tolerances:
     max_verify_points: int = 2_000_000
     max_launches: int = 10_000_000
     max_sim_steps: int = 2_000_000     # per launch
+    max_rough_levels: int = 2_000      # roughing z-levels (stock.depth_limit / machining.stepdown)
 
 
 DEFAULT = Tolerances()

@@ -167,7 +167,21 @@ NUMERIC = [(sec, key) for sec, fields in SCHEMA.items() for key, f in fields.ite
            if isinstance(f, Num) and f"{sec}.{key}" in set(LEAVES) | {"simulation.t_max", "ramp.samples"}]
 # cross-checks against the rest of the paper's spec, beyond each field's own range
 EXTRA = {"stock.depth_limit": (None, 76.2), "stock.thickness": (60.0, None),
-         "simulation.start": (-44.0, 6.0)}
+         "simulation.start": (-44.0, 6.0), "machining.tolerance": (1e-5, None),
+         "machining.stepdown": (60.0 / 2000, None)}
+
+
+def _survives_program(dotted: str, v: float) -> bool:
+    """Feeds (mm/min, written with 1 decimal) and the spindle (whole rpm) must be
+    written within 1 % of the spec's value; the margin must leave room in the
+    25-unit-wide footprint across y."""
+    dec = {"machining.feed": 1, "machining.plunge": 1, "machining.spindle": 0}.get(dotted)
+    if dec is not None:
+        r = float(f"{v:.{dec}f}")
+        return r != 0 and abs(r - v) <= 0.01 * v
+    if dotted == "simulation.margin":
+        return 2 * v < 25.0
+    return True
 
 
 @FAST
@@ -185,7 +199,7 @@ def test_numbers_accepted_iff_finite_and_in_range(field, value):
     lo, hi = EXTRA.get(dotted, (None, None))
     ok = (math.isfinite(v) and (f.gt is None or v > f.gt) and (f.ge is None or v >= f.ge)
           and (f.le is None or v <= f.le) and (not f.integer or v == int(v))
-          and (lo is None or v >= lo) and (hi is None or v <= hi))
+          and (lo is None or v >= lo) and (hi is None or v <= hi) and _survives_program(dotted, v))
     spec, err = _load_text(_dump(_set(RAW, dotted, value)))
     if ok:
         assert err is None, str(err)
@@ -279,7 +293,7 @@ HOSTILE_DOCS = {
     "date": (_dump(RAW).replace("thickness: 76.2", "thickness: 2001-01-01"), "stock.thickness"),
     "binary_tag": (_dump(RAW).replace("thickness: 76.2", "thickness: !!binary aGVsbG8="), "stock.thickness"),
     "set_tag": ("surface: !!set {a, b}\n", "surface"),
-    "sexagesimal": (_dump(RAW).replace("thickness: 76.2", "thickness: 1:20"), None),   # YAML 1.1: 80
+    "sexagesimal": (_dump(RAW).replace("thickness: 76.2", "thickness: 1:20"), "base-60"),  # YAML 1.1 read 80
     "huge_int": (_dump(RAW).replace("thickness: 76.2", "thickness: " + "9" * 5000), "YAML error"),
     "exp_float": (_dump(RAW).replace("thickness: 76.2", "thickness: 1e99999"), "stock.thickness"),
     "bad_date": (_dump(RAW).replace("thickness: 76.2", "thickness: 2001-02-30"), "YAML error"),
