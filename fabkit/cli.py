@@ -7,7 +7,8 @@ exit codes here and nowhere else:
 
     0  ok
     1  a check failed (design unsafe, verified cut out of tolerance)
-    2  bad input (file, YAML, key, value, expression, depth over a limit, size guard)
+    2  bad input (file, YAML, key, value, expression, depth over a limit, size guard), or an
+       output that cannot be written (full disk, read-only folder: an I/O error line)
     3  internal error (a bug: please report it; FABKIT_DEBUG=1 shows the traceback)
   130  interrupted (Ctrl-C); existing outputs are left intact
 """
@@ -225,6 +226,22 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _non_finite_option(parser: argparse.ArgumentParser, args) -> str | None:
+    """The error line for a numeric option given nan or inf (argparse's float()
+    accepts both), naming the option; None when every number is finite."""
+    import math
+
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    for action in sub.choices[args.command]._actions:
+        value = getattr(args, action.dest, None)
+        values = value if isinstance(value, list) else [value]
+        if any(isinstance(v, float) and not math.isfinite(v) for v in values):
+            shown = " ".join(f"{v:g}" for v in values)
+            return f"{action.option_strings[-1] if action.option_strings else action.dest}: numbers must be " \
+                   f"finite, got {shown}"
+    return None
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run fabkit; returns the exit code (never raises, never exits)."""
     argv = sys.argv[1:] if argv is None else list(argv)
@@ -238,6 +255,10 @@ def main(argv: list[str] | None = None) -> int:
         return int(exc.code or 0)
     if not args.command:
         parser.print_help()
+        return 2
+    bad = _non_finite_option(parser, args)
+    if bad:
+        print(f"fabkit {args.command}: {bad}", file=sys.stderr)
         return 2
     try:
         module = importlib.import_module(f"fabkit.commands.{args.command}")
@@ -254,6 +275,12 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     except BrokenPipeError:
         return 0
+    except OSError as exc:  # a file fabkit reads or writes outside io.py: an I/O error, not a bug
+        if os.environ.get("FABKIT_DEBUG"):
+            raise
+        where = f"{one_line(exc.filename, 300)}: " if getattr(exc, "filename", None) else ""
+        print(f"fabkit {args.command}: {where}I/O error: {one_line(exc.strerror or exc, 300)}", file=sys.stderr)
+        return 2
     except Exception as exc:  # a bug: one line, traceback only on request
         if os.environ.get("FABKIT_DEBUG"):
             raise

@@ -41,6 +41,12 @@ class SpecError(FabkitError):
         return ": ".join(parts)
 
 
+class OutputError(SpecError):
+    """An output cannot be written (a full disk, a quota, a read-only or missing
+    folder, an I/O error). Exit 2, like bad input: nothing is written or replaced,
+    and the line names the output: ``<path>: cannot write output: No space left on device``."""
+
+
 def one_line(text: object, limit: int) -> str:
     """``text`` as one printable line of at most ``limit`` characters: line breaks
     and control characters (from keys and file names in a hostile spec) escaped."""

@@ -570,8 +570,10 @@ def draw_scatter(n_v: int, samples: int, sigma_y: float, sigma_vy: float, y0: fl
     return y0 + sigma_y * z[0], vy0 + sigma_vy * z[1]
 
 
-def check_scatter(sigma_y: float, sigma_vy: float, samples: int, n_v: int, tol=DEFAULT) -> None:
-    """SpecError (naming the flag) for a bad sigma, sample count or launch count."""
+def check_scatter(sigma_y: float, sigma_vy: float, samples: int, n_v: int, tol=DEFAULT, seed: int = 0) -> None:
+    """SpecError (naming the flag) for a bad sigma, sample count, launch count or seed."""
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed < 2**63:
+        raise SpecError(f"must be a whole number in 0..2**63-1, got {seed}", key="--seed")
     for flag, s in (("--sigma-y", sigma_y), ("--sigma-vy", sigma_vy)):
         if not (isinstance(s, (int, float)) and math.isfinite(s) and s >= 0):
             raise SpecError(f"must be finite and >= 0, got {s}", key=flag)
@@ -597,7 +599,7 @@ def robustness(spec, v, *, sigma_y: float, sigma_vy: float, samples: int, seed: 
 
     t0 = time.perf_counter()
     v = np.asarray(v, dtype=float).ravel()
-    check_scatter(sigma_y, sigma_vy, samples, v.size, tol)
+    check_scatter(sigma_y, sigma_vy, samples, v.size, tol, seed=seed)
     design = design_of(spec)
     problem = problem_of(design)
     Y, VY = draw_scatter(v.size, samples, float(sigma_y), float(sigma_vy), problem.y0, problem.vy0, seed)

@@ -25,7 +25,7 @@ import tempfile
 import threading
 from pathlib import Path
 
-from .errors import SpecError
+from .errors import OutputError, SpecError
 
 
 #: characters of the target's name kept in the temporary name (at most 4 bytes each; the rest is
@@ -143,11 +143,14 @@ class _Outputs:
         except OSError as exc:
             raise SpecError(f"cannot write output: {exc.strerror}", file=str(target)) from None
         self._pending.append((tmp, target))
-        with os.fdopen(fd, "wb") as fh:
-            os.fchmod(fh.fileno(), _mode_for(target))   # mkstemp gives 0600
-            fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())
+        try:
+            with os.fdopen(fd, "wb") as fh:
+                os.fchmod(fh.fileno(), _mode_for(target))   # mkstemp gives 0600
+                fh.write(data)
+                fh.flush()
+                os.fsync(fh.fileno())
+        except OSError as exc:  # a full disk, a quota, an I/O error: the temporary is discarded
+            raise OutputError(f"cannot write output: {exc.strerror or exc}", file=str(target)) from None
         return target
 
     def _commit(self) -> None:
@@ -155,7 +158,10 @@ class _Outputs:
         # SIGINT/SIGTERM are held for the microseconds of the renames and delivered after.
         with _signals_held():
             for tmp, target in self._pending:
-                os.replace(tmp, target)
+                try:
+                    os.replace(tmp, target)
+                except OSError as exc:
+                    raise OutputError(f"cannot write output: {exc.strerror or exc}", file=str(target)) from None
             self._pending.clear()
 
     def _discard(self) -> None:

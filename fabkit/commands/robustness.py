@@ -24,7 +24,7 @@ def run(args) -> int:
     timer = Timer()
     spec = load_spec(args.spec, need=("surface", "simulation"), command="robustness")
     v = speeds(spec, args.v_in)
-    check_scatter(args.sigma_y, args.sigma_vy, args.samples, len(v))
+    check_scatter(args.sigma_y, args.sigma_vy, args.samples, len(v), seed=args.seed)
     check_paths(args, {"--out": args.out, "--plot": args.plot})
     fmt = table_format(args.out)
     cb, close = progress_bar(len(v) * (args.samples + 1), getattr(args, "no_progress", False), "robustness")

@@ -24,7 +24,7 @@ def speeds(spec, v_in_arg, tol=None) -> np.ndarray:
         lo, hi, n = v_in_arg
         if not (np.isfinite(lo) and np.isfinite(hi) and lo > 0 and hi > lo):
             raise SpecError(f"need 0 < LO < HI, got {lo:g} {hi:g}", key="--v-in")
-        if not (n == int(n) and n >= 2):
+        if not (np.isfinite(n) and n == int(n) and n >= 2):
             raise SpecError(f"N must be a whole number >= 2, got {n:g}", key="--v-in")
         if n > tol.max_launches:
             raise SpecError(f"N = {int(n)} exceeds the limit {tol.max_launches}", key="--v-in")
