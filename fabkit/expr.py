@@ -215,6 +215,89 @@ def _power(a, b, tol: Tolerances):
     return sp.Pow(a, b)
 
 
+# size of f'(u) and f''(u) as (constant, copies of u) for the chain-rule estimate below
+_DERIV_SHAPE = {"exp": ((1, 1), (1, 1)), "log": ((2, 1), (4, 1)), "sin": ((1, 1), (2, 1)),
+                "cos": ((2, 1), (2, 1)), "tan": ((4, 1), (8, 2)), "sinh": ((1, 1), (1, 1)),
+                "cosh": ((1, 1), (1, 1)), "tanh": ((7, 1), (10, 2)), "Abs": ((1, 1), (1, 1)),
+                "sign": ((1, 1), (1, 1))}
+
+
+def derivative_size(h) -> int:
+    """An estimate of the size (tree nodes) of everything :func:`compile_surface`
+    compiles: h, its two first and three second derivatives, from h alone.
+
+    By the product and chain rules on h's expression graph (each shared
+    subexpression visited once): for every node, the tree sizes of the node and
+    of its first and second derivatives, (uv)' = u'v + uv', (uv)'' = u''v + 2u'v'
+    + uv'', f(u)' = f'(u) u', f(u)'' = f''(u) u'^2 + f'(u) u''. It ignores the
+    terms sympy drops (a derivative of a term without x), so it bounds the real
+    size from above for a generic h; :func:`compile_surface` counts the real trees
+    too. Linear in the size of h: a hostile expression is refused in well under a
+    second, before any derivative is built."""
+    memo: dict = {}
+
+    def sizes(e):
+        got = memo.get(e)
+        if got is not None:
+            return got
+        if not e.args:
+            out = (1, 1, 1)
+        elif e.is_Add:
+            parts = [sizes(a) for a in e.args]
+            out = tuple(1 + sum(p[k] for p in parts) for k in range(3))
+        elif e.is_Mul:
+            acc = sizes(e.args[0])
+            for a in e.args[1:]:
+                b = sizes(a)
+                acc = (1 + acc[0] + b[0], 3 + acc[1] + b[0] + acc[0] + b[1],
+                       6 + acc[2] + b[0] + acc[1] + b[1] + acc[0] + b[2])
+            out = acc
+        else:
+            if e.is_Pow and e.exp.is_number:
+                u, (c1, m1), (c2, m2) = sizes(e.base), (4, 1), (6, 1)
+            elif e.is_Pow:   # b**c = exp(c log b)
+                lb = sizes(e.base)
+                lb = (1 + lb[0], 3 + lb[0] + lb[1], 6 + 2 * lb[0] + lb[1] + lb[2])
+                c = sizes(e.exp)
+                u = (1 + c[0] + lb[0], 3 + c[1] + lb[0] + c[0] + lb[1],
+                     6 + c[2] + lb[0] + c[1] + lb[1] + c[0] + lb[2])
+                (c1, m1), (c2, m2) = (1, 1), (1, 1)
+            else:
+                u = sizes(e.args[0])
+                (c1, m1), (c2, m2) = _DERIV_SHAPE.get(type(e).__name__, ((4, 1), (8, 2)))
+            f1, f2 = c1 + m1 * u[0], c2 + m2 * u[0]
+            out = (1 + u[0], 1 + f1 + u[1], 4 + f2 + 2 * u[1] + f1 + u[2])
+        memo[e] = out
+        return out
+
+    s0, s1, s2 = sizes(h)
+    return s0 + 2 * s1 + 3 * s2
+
+
+def _tree_size(exprs, limit: int) -> int:
+    """Total tree nodes of ``exprs``, counting stops just past ``limit``."""
+    import sympy as sp
+
+    n = 0
+    for e in exprs:
+        for _ in sp.preorder_traversal(e):
+            n += 1
+            if n > limit:
+                return n
+    return n
+
+
+def _cse_unevaluated(exprs):
+    """sympy's cse with the rebuilt expressions left unevaluated: evaluating them
+    would ask sympy's assumption system about nested transcendental functions of
+    the (assumption-free) cse symbols, which is exponential in the nesting (ten
+    nested tanh took over 100 s). The tree and the numbers are the same."""
+    import sympy as sp
+
+    with sp.evaluate(False):
+        return sp.cse(exprs)
+
+
 @dataclass(frozen=True)
 class SurfaceFunctions:
     """Vectorized h and its exact derivatives. All take arrays ``x, y`` of one
@@ -235,6 +318,12 @@ def compile_surface(text: str, params: Mapping[str, float], tol: Tolerances = DE
     import sympy as sp
 
     h, x, y = to_sympy(text, params, tol)
+    limit = tol.expr_max_compiled_nodes
+    estimate = derivative_size(h)
+    if estimate > limit:
+        raise _fail(f"expression too costly to compile: h and its first and second derivatives would have "
+                    f"about {estimate:.3g} nodes, limit {limit} (nested functions multiply the size of "
+                    "each derivative; simplify the formula)")
     try:
         hx, hy = sp.diff(h, x), sp.diff(h, y)
         hxx, hxy, hyy = sp.diff(hx, x), sp.diff(hx, y), sp.diff(hy, y)
@@ -242,9 +331,13 @@ def compile_surface(text: str, params: Mapping[str, float], tol: Tolerances = DE
         raise _fail("expression too complex to differentiate") from None
     # d/dx |u| = sign(u) u'; its derivative's DiracDelta is zero almost everywhere.
     parts = [e.replace(sp.DiracDelta, lambda *a: sp.Integer(0)) for e in (h, hx, hy, hxx, hxy, hyy)]
+    size = _tree_size(parts, limit)
+    if size > limit:
+        raise _fail(f"expression too costly to compile: h and its first and second derivatives have more "
+                    f"than {limit} nodes (simplify the formula)")
 
     def make(exprs):
-        fn = sp.lambdify((x, y), exprs, modules="numpy", cse=True)
+        fn = sp.lambdify((x, y), exprs, modules="numpy", cse=_cse_unevaluated)
 
         def wrapped(xa, ya, _fn=fn, _n=len(exprs)):
             xa = np.asarray(xa, dtype=float)

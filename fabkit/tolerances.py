@@ -24,6 +24,7 @@ class Tolerances:
     expr_max_depth: int = 40            # nesting; compile time grows ~quadratically with it (~4 s at 40)
     expr_max_exponent: float = 64.0    # |constant exponent| in a ** b
     expr_max_number: float = 1e12      # |numeric literal|
+    expr_max_compiled_nodes: int = 50_000  # h and its 5 derivatives, tree nodes (expr.derivative_size)
     # guards on sizes derived from user numbers
     max_mesh_triangles: int = 1_000_000    # ~25 s and 50 MB of STL on a 2-core machine
     max_program_points: int = 20_000_000
