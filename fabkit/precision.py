@@ -120,14 +120,20 @@ def _runs(n: np.ndarray):
     return out
 
 
+class NoWellConditionedLaunch(Exception):
+    """The speed range offers no launch the simulation study can measure on (the
+    message says why); the toolpath and mesh studies do not need one."""
+
+
 def choose_launches(problem, v_grid, n_window: int = 2, n_above: int = 2, edge: int = 3) -> dict:
     """Well-conditioned launches of ``problem`` (see the module docstring).
 
-    Returns {"v_in": [...], "kind": ["window" | "above", ...], "v_critical", "windows"
-    (the two-bounce runs used, as (lo, hi))}. Raises DesignError when the range has
-    neither a two-bounce window nor one-bounce escapes to measure on."""
-    from .errors import DesignError
-    from .physics.models import ESCAPED, unsafe
+    Returns {"v_in": [...], "kind": ["window" | "above" | "below", ...], "v_critical",
+    "windows" (the two-bounce runs used, as (lo, hi))}. "above"/"below": one-bounce
+    escapes above v_critical, or below it (a surface where slow balls pass after
+    one bounce), at least 5 % from it. Raises :class:`NoWellConditionedLaunch` when
+    the range has neither a two-bounce window nor such one-bounce escapes."""
+    from .physics.models import ESCAPED, OUTCOMES, unsafe
     from .physics.sweep import critical_bracket, make_launcher
 
     v = np.sort(np.asarray(v_grid, dtype=float))
@@ -157,15 +163,21 @@ def choose_launches(problem, v_grid, n_window: int = 2, n_above: int = 2, edge: 
     cand = []
     for i in range(edge, len(v) - edge):
         if ok[i - edge:i + edge + 1].all() and not bad[i - edge:i + edge + 1].any() \
-                and (vc is None or v[i] > 1.05 * vc):
+                and (vc is None or abs(v[i] - vc) > 0.05 * vc):
             cand.append(i)
     if cand:
         for k in np.linspace(0, len(cand) - 1, n_above + 2)[1:-1].round().astype(int):
             picks.append(float(v[cand[k]]))
-            kinds.append("above")
+            kinds.append("above" if vc is None or v[cand[k]] > vc else "below")
     if not picks:
-        raise DesignError("precision: no well-conditioned launch in the range (no two-bounce window "
-                          "and no one-bounce escape away from v_critical)")
+        counts = {}
+        for o, b in zip(res.outcome.tolist(), res.bounces.tolist()):
+            name = f"escaped after {b}" if o == ESCAPED else OUTCOMES[o]
+            counts[name] = counts.get(name, 0) + 1
+        raise NoWellConditionedLaunch(
+            f"no well-conditioned launch among {len(v)} from v_in {v[0]:.6g} to {v[-1]:.6g} (undamped): no "
+            f"two-bounce window of {2 * edge + 1} samples and no {2 * edge + 1} consecutive one-bounce escapes "
+            "5 % away from v_critical; the launches: " + ", ".join(f"{k} {n}" for k, n in sorted(counts.items())))
     return {"v_in": picks, "kind": kinds, "v_critical": vc, "windows": used,
             "sweep_launches": int(len(v))}
 

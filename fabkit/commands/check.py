@@ -10,6 +10,9 @@ from __future__ import annotations
 from ..errors import DesignError
 from ._common import Timer, emit
 
+#: reachable windows listed in the summary (--json lists every one)
+SHOW = 24
+
 
 def run(args) -> int:
     from ..physics.calibrate import ramp_heights
@@ -33,9 +36,14 @@ def run(args) -> int:
     if vc is not None:
         lines.append(f"check: v_critical {vc:.6f} {u}/s at release height {r['critical_height']:.4f} {u}")
     else:
-        lines.append(f"check: v_critical not reached by the ramp ({r['v_critical_reason']})")
-    lines.append(f"check: {len(r['reachable_windows'])} two-bounce windows reachable from the ramp"
-                 + ("".join(f"; {w['height_lo']:.4f}..{w['height_hi']:.4f} {u}" for w in r["reachable_windows"][:4])))
+        lines.append(f"check: no v_critical over the ramp's speeds ({r['v_critical_reason']})")
+    wins = r["reachable_windows"]
+    lines.append(f"check: {len(wins)} two-bounce window{'' if len(wins) == 1 else 's'} reachable from the ramp"
+                 + (f" (the first {SHOW} listed; all in --json)" if len(wins) > SHOW else "")
+                 + (":" if wins else ""))
+    for w in wins[:SHOW]:
+        lines.append(f"  release height {w['height_lo']:.4f}..{w['height_hi']:.4f} {u} "
+                     f"(v_in {w['lo']:.6f}..{w['hi']:.6f} {u}/s)")
     b = r.get("ball")
     if b is not None:
         cnt = b["unsafe_counts"]

@@ -41,11 +41,18 @@ def _studies(args, spec, cfg, P, problem_from_spec, payload, lines, say, timer) 
         cfg = dict(cfg)
         lo, hi = P.ramp_or_default_range(spec, problem)
         t = Timer()
-        sim = P.simulation_study(problem, cfg, progress=say, v_range=(lo, hi))
+        try:
+            sim = P.simulation_study(problem, cfg, progress=say, v_range=(lo, hi))
+        except P.NoWellConditionedLaunch as exc:
+            sim = None
+            payload["simulation"] = []
+            payload["simulation_skipped"] = str(exc)
+            lines.append(f"precision: simulation study skipped: {exc}")
+    if sim is not None:
+        u = spec.units
         payload["simulation"] = sim["rows"]
         payload["simulation_info"] = {k: sim[k] for k in ("launches", "reference", "monotone", "problem")}
         payload["simulation_info"]["seconds"] = t.seconds
-        u = spec.units
         lines.append(f"precision: simulation, {sim['problem']} at v_in "
                      + ", ".join(f"{v:.4g}" for v in sim["launches"]["v_in"]) + f" {u}/s; reference scipy "
                      f"DOP853 rtol {P.REFERENCE['rtol']:g} (its error ~{sim['reference']['estimated_error']:.1e})")
@@ -58,7 +65,7 @@ def _studies(args, spec, cfg, P, problem_from_spec, payload, lines, say, timer) 
         bad = [m for m, ok in sim["monotone"].items() if not ok]
         lines.append("precision: error falls as the tolerance tightens for every method" if not bad else
                      f"precision: error does NOT fall monotonically for: {', '.join(bad)}")
-    else:
+    elif not (spec.has("surface") and spec.has("simulation")):
         payload["simulation"] = []
 
     tp_spec = P.tile_spec(spec, cfg["tile"])
@@ -98,6 +105,9 @@ def _studies(args, spec, cfg, P, problem_from_spec, payload, lines, say, timer) 
                                               fmt=plot_format(args.plot)))
         payload["plot"] = str(args.plot)
         lines.append(f"wrote {args.plot}")
+    elif args.plot and "simulation_skipped" in payload:
+        warn(f"--plot {args.plot} not written: the figure is the simulator's work-precision diagram, and the "
+             "simulation study was skipped")
     elif args.plot:
         warn(f"--plot {args.plot} not written: the figure is the simulator's work-precision diagram, and the "
              "spec has no surface and simulation sections")

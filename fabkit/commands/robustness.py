@@ -53,7 +53,11 @@ def run(args) -> int:
     lines = [f"robustness: {len(v)} speeds {v[0]:.4g}..{v[-1]:.4g} {u}/s x {args.samples} samples "
              f"(sigma_y {args.sigma_y:g} {u}, sigma_vy {args.sigma_vy:g} {u}/s, seed {args.seed}), "
              f"{res['model']} model, {res['launch_count']} launches {where}"]
-    shown = res["rows"] if len(res["rows"]) <= 40 else res["rows"][:: int(np.ceil(len(res["rows"]) / 40))]
+    step = 1 if len(res["rows"]) <= 40 else int(np.ceil(len(res["rows"]) / 40))
+    shown = res["rows"][::step]
+    if step > 1:
+        lines.append(f"robustness: one speed in {step} listed ({len(shown)} of {len(res['rows'])}; all in --json"
+                     + (f" and {args.out}" if args.out else "") + ")")
     for row in shown:
         nom = (f"{row['nominal_bounces']} bounce(s)" if row["nominal_outcome"] == "escaped"
                else row["nominal_outcome"])

@@ -15,6 +15,10 @@ from ..errors import SpecError
 from ._common import Timer, check_paths, emit, plot_format, progress_bar
 
 
+#: two-bounce windows listed in the summary (--json lists every one)
+SHOW = 24
+
+
 def speeds(spec, v_in_arg, tol=None) -> np.ndarray:
     """The sweep's v_in (N,): ``--v-in LO HI N`` or the ramp's calibrated range."""
     from ..tolerances import DEFAULT
@@ -77,8 +81,10 @@ def run(args) -> int:
     lines = [f"sweep: {len(v)} launches, v_in {v[0]:.4g}..{v[-1]:.4g} {u}/s, {problem.model} model, "
              f"damping {problem.damping:g} 1/s: " + ", ".join(f"{kk} {n}" for kk, n in sorted(counts.items()))]
     two = [w for w in res["windows"] if w["bounces"] == 2]
-    lines.append(f"sweep: {len(res['windows'])} windows of 2+ bounces, {len(two)} of two bounces")
-    for w in two[:12]:
+    shown = two if len(two) <= SHOW else two[:SHOW]
+    lines.append(f"sweep: {len(res['windows'])} windows of 2+ bounces, {len(two)} of two bounces"
+                 + (f" (the first {SHOW} listed; all in --json)" if len(shown) < len(two) else ""))
+    for w in shown:
         lines.append(f"  2-bounce window {w['lo']:.6f} .. {w['hi']:.6f} {u}/s"
                      + (f", T_n {w['T_n']:.4f} s" if "T_n" in w else ""))
     fit = res["tn_fit"]

@@ -31,7 +31,21 @@ import time
 import numpy as np
 
 from .models import unsafe as unsafe_mask
-from .sweep import ESCAPED, LOST_CONTACT, Launches, make_launcher, sweep
+from .sweep import CAPTURED, ESCAPED, FLEW_OFF, LOST_CONTACT, Launches, make_launcher, sweep
+
+
+def end_reason(problem, outcome: int, x: float, y: float, status: int = 0) -> str:
+    """Why a launch ended where it did (x, y in design units): which bound a launch
+    that flies off crossed, that a launch losing contact lost its normal force,
+    what stopped a captured one."""
+    if outcome == ESCAPED:
+        return "crossed the exit"
+    if outcome == CAPTURED:
+        return {1: "the step guard stopped it (counted as captured)",
+                4: "its energy fell below every exit (trapped for good)"}.get(status, "still trapped at t_max")
+    if outcome == FLEW_OFF and status == 3:
+        return "flies off at the launch: the derivatives overflow"
+    return _why(problem, outcome, x, y)
 
 
 def _why(problem, outcome: int, x: float, y: float) -> str:
@@ -39,7 +53,8 @@ def _why(problem, outcome: int, x: float, y: float) -> str:
     from .models import BRIDGED, SLIPPED
 
     if outcome == LOST_CONTACT:
-        return "loses contact (the normal force falls to zero)"
+        return ("loses contact (the normal force falls to zero: the surface falls away faster than gravity "
+                "holds the ball)")
     if outcome == BRIDGED:
         r = float(problem.radius)
         return (f"bridges: the surface is tighter than the ball (radius {r:g} {problem.units}), which touches it at "
@@ -207,4 +222,4 @@ def machining(spec) -> dict | None:
     return out
 
 
-__all__ = ["check", "machining", "ESCAPED"]
+__all__ = ["check", "machining", "end_reason", "ESCAPED"]

@@ -145,19 +145,44 @@ def critical_bracket(v: np.ndarray, res: Launches):
     top = len(v)
     while top > 0 and bad[top - 1]:
         top -= 1
+    n_off = len(v) - top
+    off = (f"the {n_off} launches from v_in {v[top]:.6g} up" if n_off > 1
+           else f"the launch at v_in {v[-1]:.6g}") if n_off else ""
     if top == 0:
-        return None, None, "every launch in the range flies off, loses contact, bridges or slips"
+        return None, None, (f"every launch in the range ({len(v)}, v_in {v[0]:.6g} to {v[-1]:.6g}) "
+                            f"{_unsafe_words(res.outcome, singular=True)}")
     e1 = res.one_bounce[:top]
     if not e1[-1]:
-        note = " below the launches that fly off" if top < len(v) else ""
-        return None, None, (f"no one-bounce escape at the top of the range{note} "
-                            f"(v_in up to {v[top - 1]:.6g}): v_critical is above it")
+        if not n_off:
+            return None, None, (f"no one-bounce escape at the top of the range (v_in up to {v[-1]:.6g}): "
+                                "v_critical is above it")
+        return None, None, (f"no one-bounce escape at v_in {v[top - 1]:.6g} (the fastest launch that stays "
+                            f"on the surface), and {off} "
+                            f"{_unsafe_words(res.outcome[top:], singular=n_off == 1)}: "
+                            "v_critical is not in the range")
     bad = np.flatnonzero(~e1)
     if len(bad) == 0:
-        return None, None, (f"every launch escapes after one bounce: v_critical is below the range "
-                            f"(v_in from {v[0]:.6g})")
+        if not n_off:
+            return None, None, (f"every launch escapes after one bounce: v_critical is below the range "
+                                f"(v_in from {v[0]:.6g})")
+        low = (f"the {top} launches from v_in {v[0]:.6g} to {v[top - 1]:.6g} escape" if top > 1
+               else f"the launch at v_in {v[0]:.6g} escapes")
+        return None, None, (f"{low} after one bounce and {off} "
+                            f"{_unsafe_words(res.outcome[top:], singular=n_off == 1)}: "
+                            "v_critical is not in the range")
     i = int(bad[-1])
     return float(v[i]), float(v[i + 1]), ""
+
+
+def _unsafe_words(outcome: np.ndarray, singular: bool = False) -> str:
+    """What the unsafe launches among ``outcome`` did: 'fly off', 'lose contact or
+    bridge', ... (only those present)."""
+    words = []
+    for code, one, many in ((FLEW_OFF, "flies off", "fly off"), (LOST_CONTACT, "loses contact", "lose contact"),
+                            (BRIDGED, "bridges", "bridge"), (SLIPPED, "slips", "slip")):
+        if (outcome == code).any():
+            words.append(one if singular else many)
+    return ", ".join(words[:-1]) + (" or " if len(words) > 1 else "") + words[-1] if words else "end unsafely"
 
 
 def _critical_task(lo: float, hi: float, rel_tol: float, k: int, max_rounds: int = 40):
