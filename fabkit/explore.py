@@ -411,6 +411,39 @@ class Engine:
                 "tasks": self.tasks, "workers": dict(sorted(self.workers.items())), "launches": self.launches}
 
 
+def _probe_scheduler(address: str, timeout: float) -> None:
+    """Refuse at once (SpecError naming --scheduler) an address Dask cannot use: an
+    unknown scheme, a host that does not resolve, a TCP port nobody listens on."""
+    import socket
+
+    from distributed.comm import parse_address
+    from distributed.comm.registry import backends
+
+    try:
+        scheme, loc = parse_address(address, strict=False)
+    except (ValueError, TypeError) as exc:
+        raise SpecError(f"not a scheduler address: {address!r} ({exc}; e.g. tcp://127.0.0.1:8786)",
+                        key="--scheduler") from None
+    if scheme not in backends:
+        raise SpecError(f"unknown scheme {scheme!r} in {address!r} (known: {', '.join(sorted(backends))}; "
+                        "e.g. tcp://127.0.0.1:8786)", key="--scheduler")
+    if scheme != "tcp":
+        return
+    host, _, port = loc.rpartition(":")
+    host = host.strip("[]")
+    if not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise SpecError(f"not a scheduler address: {address!r} (host:port expected, e.g. tcp://127.0.0.1:8786)",
+                        key="--scheduler")
+    try:
+        socket.create_connection((host, int(port)), timeout=timeout).close()
+    except socket.gaierror:
+        raise SpecError(f"cannot connect to the Dask scheduler at {address}: unknown host {host!r}",
+                        key="--scheduler") from None
+    except OSError as exc:
+        why = "timed out" if isinstance(exc, TimeoutError) else (exc.strerror or str(exc))
+        raise SpecError(f"cannot connect to the Dask scheduler at {address}: {why}", key="--scheduler") from None
+
+
 def _connect(address: str, timeout: float):
     address = str(address).strip()
     if not address or any(ch.isspace() for ch in address):
@@ -420,9 +453,20 @@ def _connect(address: str, timeout: float):
     except ImportError:  # pragma: no cover - a dependency
         raise SpecError("Dask distributed is not installed (pip install 'dask[distributed]')",
                         key="--scheduler") from None
+    _probe_scheduler(address, min(timeout, 3.0))
+
+    class _Client(Client):
+        # a Client whose constructor failed closes itself at garbage collection, waits
+        # 20 s for a loop that never ran and prints a traceback: fabkit closes its clients
+        def __del__(self):
+            pass
+
     try:
-        client = Client(address, timeout=timeout, set_as_default=False)
-    except (OSError, ValueError, TypeError) as exc:
+        client = _Client(address, timeout=timeout, set_as_default=False)
+    except MemoryError:   # something listens there but does not speak Dask's protocol
+        raise SpecError(f"cannot connect to the Dask scheduler at {address}: the service there does not answer "
+                        "as a Dask scheduler", key="--scheduler") from None
+    except Exception as exc:  # noqa: BLE001 - any failure of the remote end is the address's fault
         raise SpecError(f"cannot connect to the Dask scheduler at {address}: {type(exc).__name__}: {exc}",
                         key="--scheduler") from None
     try:
