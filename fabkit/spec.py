@@ -618,6 +618,15 @@ def _cross_checks(s: dict[str, Section], file: str, units: str = "mm") -> None:
             raise exc.with_location(file=file) from None
     if "surface" in s:
         _footprint_checks(s["surface"], file, MM_PER[units])
+        if "tool" in s:
+            d = s["tool"].diameter
+            for ax in ("x", "y"):
+                lo, hi = getattr(s["surface"], ax)
+                width_mm = (hi - lo) * MM_PER[units]
+                if width_mm < d:
+                    raise SpecError(f"the footprint is {width_mm:.4g} mm wide, narrower than the tool "
+                                    f"(tool.diameter {d:g} mm): the ball-end mill cannot shape it",
+                                    file=file, key=f"surface.{ax}")
     if "machining" in s:
         _machining_checks(s, file)
     if "stock" in s:
