@@ -535,3 +535,203 @@ def test_random_expression_text(text):
             check_syntax(text, {"a"})
     except SpecError as exc:
         assert exc.key == "surface.height" and "\n" not in str(exc)
+
+
+# ----------------------------------------------------------------------------
+# issue 11: field defects of the loader and the sandbox
+# ----------------------------------------------------------------------------
+def _with_line(old: str, new: str) -> str:
+    text = _dump(RAW)
+    assert old in text
+    return text.replace(old, new, 1)
+
+
+@pytest.mark.parametrize("written,value", [
+    ("1e-10", 1e-10), ("1E-10", 1e-10), ("1.5e-9", 1.5e-9), ("2e-3", 2e-3), ("+1e-11", 1e-11),
+    (".5e-10", 0.5e-10), ("1e-1", 0.1), ("0.01", 0.01),
+])
+def test_numbers_as_people_write_them(written, value):
+    """YAML 1.1 reads 1e-10 (no dot) and 1.5e-9 (no exponent sign... with a dot it
+    needs one) as text; the docs write them as numbers: both are numbers here."""
+    spec, err = _load_text(_with_line("  margin: 0.5\n", f"  margin: 0.5\n  rtol: {written}\n"))
+    assert err is None, str(err)
+    assert spec.simulation.rtol == value
+
+
+@pytest.mark.parametrize("written,value", [("2_500", 2500.0), ("0x9C4", 2500.0), ("02500", 2500.0),
+                                           ("2.5e3", 2500.0), ("25e2", 2500.0)])
+def test_integer_forms(written, value):
+    spec, err = _load_text(_with_line("feed: 2500", f"feed: {written}"))
+    assert err is None, str(err)
+    assert spec.machining.feed == value
+
+
+@pytest.mark.parametrize("written", ["1:00:00", "41:40", "-1:30"])
+def test_sexagesimal_is_refused(written):
+    spec, err = _load_text(_with_line("  margin: 0.5\n", f"  margin: 0.5\n  t_max: {written}\n"))
+    assert spec is None and err.key == "simulation.t_max" and "base-60" in str(err)
+
+
+def test_scalars_that_are_not_numbers_stay_text():
+    spec, err = _load_text(_with_line("name: surface", "name: 1e-3x"))
+    assert spec is not None and spec.name == "1e-3x", str(err)
+
+
+def test_named_pipe_is_refused_without_blocking(tmp_path):
+    import os
+
+    fifo = tmp_path / "spec.yaml"
+    os.mkfifo(fifo)
+    with bounded(10):
+        with pytest.raises(SpecError) as info:
+            load_spec(fifo)
+    assert "named pipe" in str(info.value) and str(info.value).startswith(str(fifo))
+
+
+def test_device_is_refused():
+    with bounded(10):
+        with pytest.raises(SpecError) as info:
+            load_spec("/dev/zero")
+    assert "device" in str(info.value)
+
+
+@pytest.mark.parametrize("key,value,why", [
+    ("machining.spindle", 0.4, "S0"),
+    ("machining.spindle", 10.4, "S10"),            # 4 % off
+    ("machining.feed", 0.0001, "F0.0"),
+    ("machining.plunge", 0.0001, "F0.0"),
+    ("machining.feed", 0.25, "F0.2"),              # 20 % off
+    ("machining.safe_height", 1e-300, "clearance"),
+    ("machining.safe_height", 0.1, "clearance"),
+    ("machining.stepdown", 1e-300, "finer"),
+    ("machining.stepdown", 0.001, "levels"),
+    ("machining.tolerance", 1e-9, "6 decimals"),
+])
+def test_values_the_program_cannot_carry_are_refused(key, value, why):
+    with pytest.raises(SpecError) as info:
+        validate(_set(RAW, key, value), "s.yaml")
+    assert info.value.key == key and why in str(info.value), str(info.value)
+    assert str(info.value).startswith(f"s.yaml: {key}: ")
+
+
+def test_inch_program_rounding_is_in_inches():
+    """In a G20 program feeds have 3 decimals of in/min: 1.27 mm/min = 0.05 in/min
+    exactly is kept, 0.5 mm/min = 0.0197 in/min (written F0.020, 1.6 % off) is not."""
+    raw = _set(RAW, "machining.units", "in")
+    assert validate(_set(raw, "machining.feed", 1.27), "s.yaml").machining.feed == 1.27
+    with pytest.raises(SpecError) as info:
+        validate(_set(raw, "machining.feed", 0.5), "s.yaml")
+    assert info.value.key == "machining.feed" and "in/min" in str(info.value)
+
+
+def test_real_values_pass():
+    spec = validate(_set(_set(RAW, "machining.spindle", 50), "machining.safe_height", 0.5), "s.yaml")
+    assert spec.machining.spindle == 50 and spec.machining.safe_height == 0.5
+
+
+def test_zero_ramp_height_is_refused_at_load():
+    spec, err = _load_text(_dump(_set(RAW, "ramp.heights", [0, 4.5])))
+    assert spec is None and err.key == "ramp.heights[0]" and "entry speed" in str(err)
+    assert str(err).endswith(")") and "spec.yaml: ramp.heights[0]: must be > 0" in str(err)
+
+
+@pytest.mark.parametrize("key,value,named", [
+    ("surface.x", [0, 1e-300], "surface.x"),
+    ("surface.y", [-1e-300, 1e-300], "surface.y"),
+    ("surface.y", [-0.005, 0.005], "surface.y"),     # 0.1 mm: narrower than the 6.35 mm tool
+    ("surface.x", [1e8, 1e8 + 1e-2], "surface.x"),   # 0.1 mm at 1e9 mm: below 1e-9 relative
+])
+def test_degenerate_footprints_are_refused(key, value, named):
+    raw = _set(RAW, key, value)
+    raw["simulation"]["start"] = value[0] if key == "surface.x" else raw["simulation"]["start"]
+    with pytest.raises(SpecError) as info:
+        validate(raw, "s.yaml")
+    assert info.value.key == named and "wide" in str(info.value)
+
+
+def test_margin_must_leave_room():
+    raw = _drop(_set(RAW, "surface.y", [-0.4, 0.4]), ["tool"])
+    with pytest.raises(SpecError) as info:
+        validate(raw, "s.yaml")
+    assert info.value.key == "simulation.margin" and "no room" in str(info.value)
+
+
+def _nest(form: str, n: int, inner: str = "x") -> str:
+    s = inner
+    for _ in range(n):
+        s = form.format(s)
+    return s
+
+
+def test_nested_functions_compile_and_are_exact():
+    """Ten nested tanh (181 characters) took over 100 s in sympy's cse; now it
+    compiles, and h and h_x agree with the chain rule evaluated in plain Python."""
+    text = _nest("tanh(1.3*{} - 0.2*y)", 10)
+    with bounded(120):
+        f = compile_surface(text, {})
+
+    def exact(x, y):
+        u, du = x, 1.0
+        for _ in range(10):
+            u, du = math.tanh(1.3 * u - 0.2 * y), (1 - math.tanh(1.3 * u - 0.2 * y) ** 2) * 1.3 * du
+        return u, du
+
+    xs, ys = np.array([0.3, -0.7, 1.1]), np.array([0.2, 0.9, -0.4])
+    ref = np.array([exact(a, b) for a, b in zip(xs, ys)])
+    np.testing.assert_allclose(f.h(xs, ys), ref[:, 0], rtol=1e-13)
+    np.testing.assert_allclose(f.grad(xs, ys)[0], ref[:, 1], rtol=1e-12)
+
+
+@pytest.mark.parametrize("text", [
+    _nest("tanh({})", 38, "x*y"),                     # 231 characters, within every text limit
+    _nest("sin(exp({}))", 19, "x*y"),
+    _nest("tanh(1.3*{} - 0.2*y)", 13),
+])
+def test_compile_cost_is_bounded_by_size(text):
+    """Refused from the estimated size of the derivatives, before any is built."""
+    from fabkit.expr import derivative_size, to_sympy
+
+    check_syntax(text, set())                        # the text passes every text limit
+    h, _, _ = to_sympy(text, {})
+    assert derivative_size(h) > DEFAULT.expr_max_compiled_nodes
+    with bounded(10):
+        with pytest.raises(SpecError) as info:
+            compile_surface(text, {})
+    assert info.value.key == "surface.height" and "too costly to compile" in str(info.value)
+
+
+def test_derivative_size_estimate_is_exact_where_nothing_cancels():
+    """x*y*sin(x*y): the estimate counts the trees of h, h_x, h_y, h_xx, h_xy, h_yy
+    as the product and chain rules write them; the real trees are never larger
+    than about twice the estimate on the expressions of these tests."""
+    import sympy as sp
+
+    from fabkit.expr import _tree_size, derivative_size, to_sympy
+
+    for text in ("x*y*sin(x*y)", _nest("tanh({})", 8, "x*y"), "exp(-(x**2 + y**2))*cos(3*x)"):
+        h, x, y = to_sympy(text, {})
+        hx, hy = sp.diff(h, x), sp.diff(h, y)
+        real = _tree_size([h, hx, hy, sp.diff(hx, x), sp.diff(hx, y), sp.diff(hy, y)], 10**9)
+        assert real <= 2 * derivative_size(h), text
+
+
+def test_anchors_are_accepted_and_aliases_refused():
+    """The docs say so (docs/errors.md): an anchor alone is harmless."""
+    spec, err = _load_text(_dump(RAW).replace("ball:\n", "ball: &b\n", 1))
+    assert err is None and spec.ball.diameter == 2.5
+    spec, err = _load_text(_dump(RAW) + "extra: *b\n")
+    assert spec is None
+
+
+def test_docs_state_the_guards_the_code_has():
+    import re
+
+    from conftest import ROOT
+
+    errors_md = (ROOT / "docs" / "errors.md").read_text()
+    stl_md = (ROOT / "docs" / "stl.md").read_text()
+    limit = f"{DEFAULT.max_mesh_triangles:,}".replace(",", " ")
+    assert f"| mesh triangles (`stl`) | {limit}" in errors_md
+    assert f"({limit}," in stl_md
+    assert not re.search(r"triangles.{0,40}5 ?000 ?000", errors_md + stl_md)
+    assert "aliases and anchors" not in errors_md
