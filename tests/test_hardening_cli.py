@@ -438,3 +438,301 @@ def test_calibrate_huge_height(tmp_path):
     code, out, err = run_subprocess(["calibrate", "tiny.yaml", "--height", "1e308"], tmp_path, timeout=60)
     assert_clean_exit(code, err)
     assert code == 2 or "inf" not in out
+
+
+# ----------------------------------------------------------------------------
+# issue 11: exit 3 for bad input, I/O errors, Dask addresses, truthful messages
+# ----------------------------------------------------------------------------
+def _tiny_file(tmp_path: Path, changes: dict | None = None) -> Path:
+    raw = tiny_raw()
+    for key, value in (changes or {}).items():
+        node = raw
+        parts = key.split(".")
+        for p in parts[:-1]:
+            node = node.setdefault(p, {})
+        node[parts[-1]] = value
+    path = tmp_path / "tiny.yaml"
+    path.write_text(yaml.safe_dump(raw, sort_keys=False))
+    return path
+
+
+def _one_line_exit2(code: int, err: str, named: str) -> None:
+    lines = [ln for ln in err.splitlines() if ln and not ln.startswith("warning:")]
+    assert code == 2, err
+    assert len(lines) == 1 and named in lines[0], err
+    assert "internal error" not in err and "Traceback" not in err
+
+
+@pytest.mark.parametrize("argv,named", [
+    (["sweep", "{spec}", "--v-in", "40", "50", "nan"], "--v-in"),
+    (["sweep", "{spec}", "--v-in", "40", "50", "inf"], "--v-in"),
+    (["sweep", "{spec}", "--v-in", "nan", "50", "3"], "--v-in"),
+    (["explore", "{spec}", "--v-in", "40", "50", "inf"], "--v-in"),
+    (["robustness", "{spec}", "--v-in", "40", "50", "nan", "--sigma-y", "0.1", "--sigma-vy", "0.1",
+      "--samples", "2"], "--v-in"),
+    (["robustness", "{spec}", "--v-in", "40", "50", "3", "--sigma-y", "inf", "--sigma-vy", "0.1",
+      "--samples", "2"], "--sigma-y"),
+    (["robustness", "{spec}", "--v-in", "40", "50", "3", "--sigma-y", "0.1", "--sigma-vy", "0.1",
+      "--samples", "2", "--seed", "-1"], "--seed"),
+    (["simulate", "{spec}", "--v-in", "inf"], "--v-in"),
+    (["calibrate", "{spec}", "--height", "nan"], "--height"),
+    (["stl", "{spec}", "--tolerance", "inf"], "--tolerance"),
+])
+def test_bad_numbers_on_the_command_line(tmp_path, argv, named):
+    spec = _tiny_file(tmp_path)
+    with bounded(60):
+        code, out, err = _run([a.format(spec=spec) for a in argv])
+    _one_line_exit2(code, err, named)
+
+
+def _run(argv):
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = main([str(a) for a in argv])
+    return code, out.getvalue(), err.getvalue()
+
+
+def test_full_disk_is_an_io_error_line(tmp_path, monkeypatch):
+    """ENOSPC while writing the output: one line naming the output, exit 2, no file
+    and no temporary left (a real full disk behaves the same: a 64 kB tmpfs was
+    tried by hand)."""
+    import errno
+
+    import fabkit.io as fio
+
+    def full(fd):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(fio.os, "fsync", full)
+    spec = _tiny_file(tmp_path)
+    target = tmp_path / "out" / "x.png"
+    with bounded(60):
+        code, out, err = _run(["simulate", spec, "--v-in", "30", "--plot", target])
+    _one_line_exit2(code, err, "No space left on device")
+    assert str(target) in err
+    assert not any(p.is_file() for p in (tmp_path / "out").iterdir())
+
+
+def test_stray_os_error_is_not_an_internal_error(tmp_path, monkeypatch):
+    import errno
+
+    import fabkit.commands.calibrate as cal
+
+    def broken(args):
+        raise OSError(errno.EIO, os.strerror(errno.EIO), "/some/file")
+
+    monkeypatch.setattr(cal, "run", broken)
+    code, out, err = _run(["calibrate", _tiny_file(tmp_path)])
+    _one_line_exit2(code, err, "I/O error")
+    assert "/some/file" in err
+
+
+@pytest.mark.parametrize("address,why", [
+    ("garbage://x", "unknown scheme"),
+    ("tcp://127.0.0.1:1", "cannot connect"),
+    ("tcp://host.invalid:8786", "unknown host"),
+    ("127.0.0.1", "host:port"),
+])
+def test_bad_dask_address_is_one_line(tmp_path, address, why):
+    import gc
+
+    spec = _tiny_file(tmp_path)
+    out, err = io.StringIO(), io.StringIO()
+    with bounded(20), contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = main(["robustness", str(spec), "--v-in", "30", "40", "2", "--sigma-y", "0.1", "--sigma-vy", "0.1",
+                     "--samples", "2", "--scheduler", address, "--no-progress"])
+        gc.collect()   # a half-built distributed.Client used to print a traceback here, 20 s later
+    _one_line_exit2(code, err.getvalue(), "--scheduler")
+    assert why in err.getvalue() and "Exception ignored" not in err.getvalue()
+
+
+def test_zero_ramp_height_names_file_and_key(tmp_path):
+    spec = _tiny_file(tmp_path, {"ramp.heights": [0, 1.0]})
+    code, out, err = _run(["check", spec, "--no-progress"])
+    _one_line_exit2(code, err, f"{spec}: ramp.heights[0]:")
+
+
+@pytest.mark.parametrize("key,value", [("machining.spindle", 0.4), ("machining.feed", 0.0001),
+                                       ("machining.safe_height", 1e-300)])
+def test_gcode_refuses_values_that_round_away(tmp_path, key, value):
+    spec = _tiny_file(tmp_path, {key: value})
+    code, out, err = _run(["gcode", spec, "-o", tmp_path / "x.ngc"])
+    _one_line_exit2(code, err, key)
+    assert not (tmp_path / "x.ngc").exists()
+
+
+def test_named_pipe_spec_does_not_block(tmp_path):
+    fifo = tmp_path / "pipe.yaml"
+    os.mkfifo(fifo)
+    with bounded(20):
+        code, out, err = _run(["calibrate", fifo])
+    _one_line_exit2(code, err, "named pipe")
+
+
+def _launches(outcomes, bounces):
+    import numpy as np
+
+    from fabkit.physics.sweep import Launches
+
+    n = len(outcomes)
+    return Launches(np.arange(1.0, n + 1), np.array(outcomes, dtype=np.int8), np.array(bounces),
+                    np.zeros(n), np.full((n, 2), np.nan))
+
+
+@pytest.mark.parametrize("outcomes,bounces,says,never", [
+    # specs/bowl.yaml: the slow launches escape after one bounce, the fast ones fly off
+    ([0, 0, 0, 2, 2, 2], [1, 1, 1, 0, 0, 0],
+     "the 3 launches from v_in 1 to 3 escape after one bounce and the 3 launches from v_in 4 up fly off",
+     "every launch escapes"),
+    ([0, 0, 0, 0, 0, 3], [1, 1, 1, 1, 1, 0], "and the launch at v_in 6 loses contact", "every launch escapes"),
+    ([0] * 6, [1] * 6, "every launch escapes after one bounce: v_critical is below the range", "fly off"),
+    ([2, 3, 2, 2, 2, 2], [0] * 6, "every launch in the range (6, v_in 1 to 6) flies off or loses contact", "escape"),
+    ([1, 2, 2, 2, 2, 2], [0] * 6, "no one-bounce escape at v_in 1", "every launch escapes"),
+])
+def test_v_critical_reason_counts_what_the_launches_did(outcomes, bounces, says, never):
+    import numpy as np
+
+    from fabkit.physics.sweep import critical_bracket
+
+    lo, hi, reason = critical_bracket(np.arange(1.0, len(outcomes) + 1), _launches(outcomes, bounces))
+    assert lo is None and says in reason and never not in reason, reason
+
+
+def test_bowl_sweep_reason_in_every_output(tmp_path):
+    """The example that gave 'every launch escapes after one bounce' with 335 of 400 flying off."""
+    import json
+
+    bowl = ROOT / "specs" / "bowl.yaml"
+    with bounded(120):
+        code, out, err = _run(["sweep", bowl, "--v-in", "118", "335", "24", "--json", "--no-progress"])
+    assert code == 0, err
+    res = json.loads(out)
+    n_off = res["outcome"].count("flew_off")
+    assert n_off and res["v_critical"] is None
+    assert f"the {n_off} launches from v_in" in res["v_critical_reason"] and "fly off" in res["v_critical_reason"]
+    assert "every launch escapes" not in res["v_critical_reason"]
+
+
+def test_simulate_says_where_and_why_contact_is_lost():
+    """v_in 400 cm/s on the paper's surface: the ball loses contact. The line gives
+    x, y, t and the reason; at that point the normal-force bracket of eq. (xyODE),
+    B = h_xx xd^2 + 2 h_xy xd yd + h_yy yd^2 + g~, is zero."""
+    import json
+
+    from fabkit import units
+    from fabkit.physics.calibrate import ball_k
+    from fabkit.spec import load_spec
+
+    with bounded(120):
+        code, out, err = _run(["simulate", PAPER, "--v-in", "400", "--json"])
+    assert code == 0, err
+    r = json.loads(out)
+    assert r["outcome"] == "lost_contact" and "normal force falls to zero" in r["end_reason"]
+    spec = load_spec(PAPER)
+    f = spec.surface_functions()
+    hxx, hxy, hyy = (float(a) for a in f.hess(r["x_end"], r["y_end"]))
+    g = units.gravity(spec.units) / (1 + ball_k(spec))
+    xd, yd = r["vx_end"], r["vy_end"]
+    B = hxx * xd ** 2 + 2 * hxy * xd * yd + hyy * yd ** 2 + g
+    assert abs(B) < 1e-5 * g          # B falls from g~ at the launch to zero (event located to ~1e-6)
+    code, out, err = _run(["simulate", PAPER, "--v-in", "400"])
+    line = next(ln for ln in out.splitlines() if ln.startswith("outcome:"))
+    assert f"x = {r['x_end']:.6g} cm" in line and f"t = {r['t_end']:.6g} s" in line and "normal force" in line
+
+
+def test_simulate_keeps_every_bounce_time(tmp_path):
+    """A captured launch bouncing 20-odd times in 30 s: every bounce time is printed
+    and in the JSON (the integrator keeps 16 unless asked), the first 16 equal the
+    default run's (the same steps)."""
+    import json
+
+    import numpy as np
+
+    from fabkit.physics.integrate import simulate_one
+    from fabkit.physics.models import problem_from_spec
+    from fabkit.spec import load_spec
+
+    spec = _tiny_file(tmp_path, {"simulation.t_max": 25.0})
+    with bounded(120):
+        code, out, err = _run(["simulate", spec, "--v-in", "10", "--json"])
+    assert code == 0, err
+    r = json.loads(out)
+    assert r["bounces"] > 16 and len(r["bounce_times"]) == r["bounces"]
+    assert np.all(np.diff(r["bounce_times"]) > 0)
+    first = simulate_one(problem_from_spec(load_spec(spec)), 10.0, record=False)["bounce_times"]
+    assert len(first) == 16 and first == r["bounce_times"][:16]
+    from fabkit.commands.simulate import _bounce_lines
+
+    lines = _bounce_lines(r["bounces"], r["bounce_times"])
+    printed = [float(t) for ln in lines[1:] for t in ln.replace(" s", "").split(",") if t.strip()]
+    assert lines[0] == f"bounces: {r['bounces']} at t =" and len(printed) == r["bounces"]
+    np.testing.assert_allclose(printed, r["bounce_times"], atol=5e-7)
+
+
+def test_check_lists_every_window_or_says_how_many(tmp_path, monkeypatch):
+    """The summary layer: 7 windows are all listed; 30 are listed to 24 with a note;
+    the JSON holds all 30."""
+    import json
+
+    import numpy as np
+
+    import fabkit.physics.check as pc
+
+    def fake(n):
+        def check(spec, *, progress=None, rel_tol=1e-4, v_rel_tol=1e-5, edge_rel_tol=1e-4):
+            wins = [{"lo": 10 + i, "hi": 10.5 + i, "height_lo": 1 + i / 100, "height_hi": 1.004 + i / 100,
+                     "v_out_max": 1.0} for i in range(n)]
+            return {"safe": True, "highest_safe_height": 1.0, "first_failure": None, "v_critical": 50.0,
+                    "v_critical_reason": "", "critical_height": 1.9, "reachable_windows": wins, "machining": None,
+                    "heights": np.array([0.2, 1.0]), "v_in": np.array([16.0, 40.0]), "outcomes": ["escaped"] * 2,
+                    "model": "full", "damping": 0.1, "bounces": np.array([1, 1])}
+        return check
+
+    spec = _tiny_file(tmp_path)
+    for n, listed, note in ((7, 7, False), (30, 24, True)):
+        monkeypatch.setattr(pc, "check", fake(n))
+        code, out, err = _run(["check", spec, "--no-progress"])
+        assert code == 0, err
+        assert sum(ln.startswith("  release height") for ln in out.splitlines()) == listed
+        assert (f"{n} two-bounce windows reachable from the ramp (the first 24 listed; all in --json)" in out) == note
+        code, out, err = _run(["check", spec, "--no-progress", "--json"])
+        assert len(json.loads(out)["reachable_windows"]) == n
+
+
+def test_robustness_says_how_many_speeds_it_lists(tmp_path):
+    import json
+
+    spec = _tiny_file(tmp_path)
+    argv = ["robustness", spec, "--v-in", "20", "40", "81", "--sigma-y", "0", "--sigma-vy", "0", "--samples", "1",
+            "--no-progress"]
+    with bounded(120):
+        code, out, err = _run(argv)
+    assert code == 0, err
+    rows = [ln for ln in out.splitlines() if ln.startswith("  v_in")]
+    assert "one speed in 3 listed (27 of 81; all in --json)" in out and len(rows) == 27
+    code, out, err = _run(argv + ["--json"])
+    assert len(json.loads(out)["rows"]) == 81
+
+
+def test_precision_without_launches_still_studies_toolpath_and_mesh(tmp_path, monkeypatch):
+    """A tilted plane: every launch flies off, so the simulation study cannot run.
+    Exit 0 (not 1: nothing is unsafe), one line saying why, no doubled prefix, the
+    toolpath and mesh rows present, --plot not written (a warning says so)."""
+    import json
+
+    from fabkit import precision as P
+
+    monkeypatch.setitem(P.QUICK, "toolpath", (0.1,))
+    monkeypatch.setitem(P.QUICK, "mesh", (0.1,))
+    spec = _tiny_file(tmp_path, {"surface.height": "-0.05*x + c*y**2", "surface.params": {"c": 0.0764}})
+    with bounded(120):
+        code, out, err = _run(["precision", spec, "--quick", "--json", "--plot", tmp_path / "p.png"])
+    assert code == 0, err
+    res = json.loads(out)
+    assert res["simulation"] == [] and "no well-conditioned launch" in res["simulation_skipped"]
+    assert "flew_off" in res["simulation_skipped"]
+    assert len(res["toolpath"]) == 1 and len(res["mesh"]) == 1
+    assert not (tmp_path / "p.png").exists() and "not written" in err
+    code, out, err = _run(["precision", spec, "--quick"])
+    assert code == 0 and "precision: simulation study skipped: no well-conditioned" in out
+    assert "precision: precision:" not in out + err

@@ -50,7 +50,7 @@ def run(args) -> int:
     traj = r.pop("trajectory", None)
     r["end_reason"] = end_reason(problem, OUTCOMES.index(r["outcome"]), r["x_end"], r["y_end"], r["status"])
     payload = {k: r[k] for k in ("outcome", "bounces", "bounce_times", "v_out", "max_height", "max_abs_y",
-                                 "energy_error", "t_end", "x_end", "y_end", "end_reason", "steps", "rejected",
+                                 "energy_error", "t_end", "x_end", "y_end", "vx_end", "vy_end", "end_reason", "steps", "rejected",
                                  "status", "method")}
     if problem.model == "ball":
         payload.update({"max_slip": r["max_slip"], "radius": problem.radius,
