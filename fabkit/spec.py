@@ -705,11 +705,11 @@ def _machining_checks(s: dict[str, Section], file: str) -> None:
     # last place) must stay within tolerance / 20 (gcode.MachineProfile.decimals)
     finest = 20 * 0.5e-6 * per
     if m.tolerance < finest:
-        raise SpecError(f"{m.tolerance:g} mm is finer than the program can carry: coordinates have at most 6 "
-                        f"decimals in {m.units}; at least {finest:g} mm", file=file, key="machining.tolerance")
+        raise SpecError(f"{m.tolerance:g} mm is finer than the program can carry (limit {finest:g} mm: "
+                        f"coordinates have at most 6 decimals in {m.units})", file=file, key="machining.tolerance")
     if m.stepdown is not None:
         if m.stepdown < finest:
-            raise SpecError(f"{m.stepdown:g} mm is finer than the program can carry; at least {finest:g} mm",
+            raise SpecError(f"{m.stepdown:g} mm is finer than the program can carry (limit {finest:g} mm)",
                             file=file, key="machining.stepdown")
         if "stock" in s:
             depth = s["stock"].depth_limit if s["stock"].depth_limit is not None else s["stock"].thickness
