@@ -38,7 +38,8 @@ class _UsageError(Exception):
 EXIT_CODES = """exit codes:
     0  ok
     1  a check failed: design unsafe, verified cut out of tolerance (outputs still written for inspection)
-    2  bad input: file, YAML, key, value, option or output path (one line naming it; nothing written)
+    2  bad input: file, YAML, key, value, option or output path, or an output that cannot
+       be written (full disk): one line naming it; nothing written
     3  internal error: a bug, please report it (FABKIT_DEBUG=1 shows the traceback)
   130  interrupted (Ctrl-C): existing outputs left intact
 
