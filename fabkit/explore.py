@@ -6,12 +6,11 @@ Pure library code (no printing, no files): the commands ``fabkit explore`` and
 Engine
 ------
 Every launch goes through an :class:`Engine`. Without a scheduler address it
-runs the batched integrator (:func:`integrate.launch_batch`) in this process.
+runs the compiled engine (:func:`integrate.launch_batch`) in this process.
 With ``scheduler='tcp://host:port'`` it splits each batch of launches into
 chunks and submits one Dask task per chunk (task names ``fabkit-launch-<id>``)
-to an existing cluster. A batch costs about as much as its slowest lane (the
-per-step work is mostly Python overhead, shared by all lanes) plus a little per
-lane, so chunks are as large as the cluster allows: by default each batch is
+to an existing cluster. A task has a fixed cost besides its launches, so
+chunks are as large as the cluster allows: by default each batch is
 split evenly over the cluster's threads not already kept busy by other designs
 (at least :data:`MIN_CHUNK` lanes a chunk); ``chunk`` fixes the size instead. The
 compiled right-hand sides of a design do not pickle, so a task carries the
@@ -536,7 +535,7 @@ def evaluate_design(spec, v_grid, engine: Engine, *, rel_tol: float = 1e-6, heig
         ramp_res = None if vr is None else Launches(vr, both.outcome[n:], both.bounces[n:], both.v_out[n:],
                                                      both.bounce_times[n:])
     sw = sweep(problem, v, launcher=launch, initial=grid, rel_tol=rel_tol, error_samples=0, tn=False,
-               k=64, k_edge=32, tol=tol)
+               tol=tol)
 
     out: dict = {"v_critical": sw["v_critical"], "v_critical_error": sw["v_critical_error"],
                  "v_critical_reason": sw["v_critical_reason"], "windows": sw["windows"]}

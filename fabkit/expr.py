@@ -123,10 +123,13 @@ def _did_you_mean(word: str, options: list[str]) -> str:
     return f" (did you mean {close[0]!r}?)" if close else ""
 
 
-def to_sympy(text: str, params: Mapping[str, float], tol: Tolerances = DEFAULT):
+def to_sympy(text: str, params: Mapping[str, float], tol: Tolerances = DEFAULT, symbolic: bool = False):
     """Build the sympy expression of ``text`` with the numeric ``params`` substituted.
 
-    Returns ``(h, x, y)``: the expression and its two (real) symbols.
+    Returns ``(h, x, y)``: the expression and its two (real) symbols. With
+    ``symbolic=True`` each parameter stays a real symbol ``p_<name>`` instead (the
+    compiled engine passes the values at run time); validate the text with the
+    numeric values first.
     """
     import sympy as sp
 
@@ -138,7 +141,10 @@ def to_sympy(text: str, params: Mapping[str, float], tol: Tolerances = DEFAULT):
         "sech": lambda u: 1 / sp.cosh(u), "abs": sp.Abs,
     }
     names = {"x": x, "y": y, "pi": sp.pi}
-    names.update({k: sp.Float(float(v), 17) for k, v in params.items()})
+    if symbolic:
+        names.update({k: sp.Symbol(f"p_{k}", real=True) for k in params})
+    else:
+        names.update({k: sp.Float(float(v), 17) for k, v in params.items()})
 
     def build(node: ast.AST):
         if isinstance(node, ast.Expression):
@@ -153,7 +159,7 @@ def to_sympy(text: str, params: Mapping[str, float], tol: Tolerances = DEFAULT):
             if isinstance(op, ast.Mult):
                 return a * b
             if isinstance(op, ast.Div):
-                if b == 0:
+                if b.is_zero:
                     raise _fail("division by zero")
                 return a / b
             return _power(a, b, tol)
@@ -310,6 +316,7 @@ class SurfaceFunctions:
     all: Callable        # (h, h_x, h_y, h_xx, h_xy, h_yy)
     accel: Callable      # (h_x, h_y, h_xx, h_xy, h_yy): what the simulator needs
     symbolic: object     # the sympy expression of h
+    params: tuple = ()   # ((name, value), ...) as given: the compiled engine passes them at run time
 
 
 def compile_surface(text: str, params: Mapping[str, float], tol: Tolerances = DEFAULT) -> SurfaceFunctions:
@@ -361,4 +368,5 @@ def compile_surface(text: str, params: Mapping[str, float], tol: Tolerances = DE
         all=f_all,
         accel=make(parts[1:6]),
         symbolic=h,
+        params=tuple((str(k), float(v)) for k, v in params.items()),
     )

@@ -13,6 +13,30 @@ import yaml
 
 from fabkit.cli import main
 
+
+def pytest_configure(config):
+    """The compiled simulator's cache (generated and compiled engines) for this test
+    session: a fresh folder, unless FABKIT_CACHE_DIR is set already. Each formula
+    compiles once per session; subprocesses inherit the folder."""
+    import os
+    import tempfile
+
+    if not os.environ.get("FABKIT_CACHE_DIR"):
+        os.environ["FABKIT_CACHE_DIR"] = tempfile.mkdtemp(prefix="fabkit-test-cache-")
+
+
+def pytest_collection_finish(session):
+    """Compile the simulator for the paper's formula once, before any test that runs
+    the simulator, so that command-line tests with a time limit only load it."""
+    from fabkit.commands._common import prepare_simulator
+    from fabkit.spec import load_spec
+
+    needs = ("simulate", "sweep", "check", "explore", "robust", "integrate", "trap", "stream", "extreme",
+             "determinism", "precision", "hardening_cli", "interrupt", "reference", "calibrate")
+    if any(any(n in item.module.__name__ for n in needs) for item in session.items
+           if getattr(item, "module", None) is not None):
+        prepare_simulator(load_spec(PAPER), quiet=True)
+
 ROOT = Path(__file__).resolve().parents[1]
 SPECS = ROOT / "specs"
 PAPER = SPECS / "surface.yaml"

@@ -145,7 +145,7 @@ def test_two_designs_match_direct_sweeps(inprocess):
     assert designs[0]["v_critical"] != designs[1]["v_critical"]
     for d in designs:
         spec = small_spec().with_overrides(d["params"])
-        ref = sweep(problem_from_spec(spec), np.linspace(30, 80, 16), error_samples=0, tn=False, k=64, k_edge=32)
+        ref = sweep(problem_from_spec(spec), np.linspace(30, 80, 16), error_samples=0, tn=False)  # bisection, as explore
         assert d["v_critical"] == ref["v_critical"]      # the same launches, so exactly
         assert d["v_critical_error"] == ref["v_critical_error"] <= 1e-6 * d["v_critical"]
         assert [(w["bounces"], w["lo"], w["hi"]) for w in d["windows"]] == \

@@ -153,3 +153,29 @@ def progress_bar(total: int, disabled: bool, desc: str, unit: str = "launch"):
             bar.update(max(0, done - bar.n))
 
     return cb, bar.close
+
+
+def prepare_simulator(problem_or_spec, quiet: bool = False) -> None:
+    """Load the compiled simulator for a problem (or a spec's problem) before its
+    launches. The first run of a new formula compiles it (fabkit/physics/engine) and
+    says so on stderr when it is a terminal: ``compiling the simulator for this
+    surface (once, about N s)``; later runs only load it from the cache."""
+    from ..physics.integrate import is_stiff
+
+    problem = problem_or_spec
+    if not hasattr(problem, "fns"):
+        from ..physics.models import problem_from_spec
+
+        problem = problem_from_spec(problem_or_spec)
+    from ..physics.integrate import ENGINE_MODELS
+
+    if is_stiff(problem, problem.t_max) or problem.model not in ENGINE_MODELS:
+        return   # the implicit Radau path, or a model on the numpy loop: nothing to compile
+    from ..physics.engine.batch import engine
+
+    def notify(message: str) -> None:
+        if not quiet and sys.stderr.isatty():
+            sys.stderr.write(message + "\n")
+            sys.stderr.flush()
+
+    engine(problem, notify=notify)

@@ -6,7 +6,7 @@ import math
 
 from ..errors import SpecError
 from ..spec import load_spec
-from ._common import Timer, check_paths, emit, plot_format
+from ._common import Timer, check_paths, emit, plot_format, prepare_simulator
 
 
 def _num(v, fmt=".5g"):
@@ -93,6 +93,7 @@ def run(args) -> int:
     if problem.model == "ball":
         raise SpecError("analyze fits the point models (full, simplified); the ball model is not "
                         "supported by the track analysis", file=spec.path, key="simulation.model")
+    prepare_simulator(problem)
     res = analyze(problem, tracks)
     for r, tr in zip(res["tracks"], tracks):
         r["_track"] = {"t": tr.t, "x": tr.x, "y": tr.y}

@@ -8,7 +8,7 @@ why) otherwise, 2 on bad input.
 from __future__ import annotations
 
 from ..errors import DesignError
-from ._common import Timer, emit
+from ._common import Timer, emit, prepare_simulator
 
 #: reachable windows listed in the summary (--json lists every one)
 SHOW = 24
@@ -22,6 +22,7 @@ def run(args) -> int:
 
     timer = Timer()
     spec = load_spec(args.spec, need=("surface", "ball", "ramp", "simulation"), command="check")
+    prepare_simulator(spec)
     cb, close = progress_bar(len(ramp_heights(spec)), getattr(args, "no_progress", False), "check")
     try:
         r = check(spec, progress=cb)

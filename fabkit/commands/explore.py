@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import SpecError
-from ._common import Timer, check_paths, emit, plot_format, progress_bar, warn
+from ._common import Timer, check_paths, emit, plot_format, prepare_simulator, progress_bar, warn
 
 
 def _fmt(x) -> str:
@@ -37,6 +37,8 @@ def run(args) -> int:
     check_paths(args, {"--out": args.out, "--plot": args.plot})
     fmt = table_format(args.out)
     per = (len(v) if v is not None else 0) + (len(ramp_heights(spec)) if spec.has("ramp") else 0)
+    if not args.scheduler:
+        prepare_simulator(spec)
     cb, close = progress_bar(len(grid) * per, getattr(args, "no_progress", False), "explore")
     try:
         with Engine(args.scheduler, chunk=getattr(args, "chunk", None), progress=cb) as engine:

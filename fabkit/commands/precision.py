@@ -9,7 +9,7 @@ footprint for the toolpath and mesh.
 
 from __future__ import annotations
 
-from ._common import Timer, check_paths, emit, plot_format, stage_bar, warn
+from ._common import Timer, check_paths, emit, plot_format, prepare_simulator, stage_bar, warn
 
 
 def run(args) -> int:
@@ -38,6 +38,7 @@ def _studies(args, spec, cfg, P, problem_from_spec, payload, lines, say, timer) 
     sim = None
     if spec.has("surface") and spec.has("simulation"):
         problem = problem_from_spec(spec)
+        prepare_simulator(problem)
         cfg = dict(cfg)
         lo, hi = P.ramp_or_default_range(spec, problem)
         t = Timer()

@@ -6,7 +6,7 @@ from pathlib import Path
 
 from ..errors import SpecError
 from ..spec import load_spec
-from ._common import Timer, check_paths, default_output, emit
+from ._common import Timer, check_paths, default_output, emit, prepare_simulator
 
 
 def run(args) -> int:
@@ -26,6 +26,7 @@ def run(args) -> int:
         raise SpecError(f"unknown mesh format '{path.suffix}' (use one of: "
                         f"{', '.join('.' + f for f in EXPORT_FORMATS)})", key="--output")
     g, k = gravity(spec.units), ball_k(spec)
+    prepare_simulator(spec)
     chk = check(spec)
     t_check = timer.seconds
     targets = mark_targets(chk, g, k)

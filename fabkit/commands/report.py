@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..spec import load_spec
-from ._common import Timer, check_paths, default_output, emit
+from ._common import Timer, check_paths, default_output, emit, prepare_simulator
 
 NEEDS = ("surface", "stock", "tool", "machining", "ball", "ramp", "simulation")
 SURFACE_SAMPLES = (90, 46)   # the 3-D view's grid (x, y)
@@ -70,6 +70,7 @@ def run(args) -> int:
     cal = calibration_table(spec)
     cal["seconds"] = t.seconds
 
+    prepare_simulator(spec)
     chk = check(spec)
 
     t = Timer()

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._common import Timer, check_paths, emit, plot_format
+from ._common import Timer, check_paths, emit, plot_format, prepare_simulator
 
 
 def run(args) -> int:
@@ -27,6 +27,8 @@ def run(args) -> int:
     check_scatter(args.sigma_y, args.sigma_vy, args.samples, len(v), seed=args.seed)
     check_paths(args, {"--out": args.out, "--plot": args.plot})
     fmt = table_format(args.out)
+    if not args.scheduler:
+        prepare_simulator(spec)
     cb, close = progress_bar(len(v) * (args.samples + 1), getattr(args, "no_progress", False), "robustness")
     try:
         with Engine(args.scheduler, chunk=getattr(args, "chunk", None), progress=cb) as engine:

@@ -6,7 +6,7 @@ import math
 
 from ..errors import SpecError
 from ..spec import load_spec
-from ._common import Timer, check_paths, emit, plot_format
+from ._common import Timer, check_paths, emit, plot_format, prepare_simulator
 
 
 def _bounce_lines(n: int, times: list) -> list[str]:
@@ -32,6 +32,7 @@ def run(args) -> int:
     if not math.isfinite(v) or v < 0:
         raise SpecError(f"must be finite and >= 0, got {v:g}", key="--v-in")
     problem = problem_from_spec(spec)
+    prepare_simulator(problem)
     rtol, atol = problem.rtol, problem.atol
     r = simulate_one(problem, v, record=bool(args.plot))
     if r["bounces"] > len(r["bounce_times"]):

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import SpecError
-from ._common import Timer, check_paths, emit, plot_format, progress_bar
+from ._common import Timer, check_paths, emit, plot_format, prepare_simulator, progress_bar
 
 
 #: two-bounce windows listed in the summary (--json lists every one)
@@ -57,6 +57,7 @@ def run(args) -> int:
     check_paths(args, {"--plot": args.plot})
     v = speeds(spec, args.v_in)
     problem = problem_from_spec(spec)
+    prepare_simulator(problem)
     cb, close = progress_bar(len(v), getattr(args, "no_progress", False), "sweep")
     try:
         res = sweep(problem, v, progress=cb)

@@ -10,11 +10,13 @@ margin) or loses contact (full model). It reports:
   and the reason;
 * ``highest_safe_height``: the top of the ramp if all are safe; otherwise the
   boundary between the last safe and the first failing sampled height,
-  narrowed by batched k-section to ``rel_tol`` (1e-4) relative (the reported
+  narrowed by bisection to ``rel_tol`` (1e-4) relative (the reported
   height is the safe end of the final bracket);
-* ``v_critical`` (by :func:`sweep.sweep` over the ramp's speeds, 1e-5 relative)
-  and the release height that gives it; the two-bounce windows the ramp can
-  reach (both edges inside the ramp's v_in range, refined to 1e-4 relative);
+* ``v_critical`` (by :func:`sweep.sweep` over the ramp's speeds, bisection to 1e-6
+  relative) and the release height that gives it; the two-bounce windows the ramp
+  can reach (both edges inside the ramp's v_in range, refined by 24-point k-section
+  to 1e-4 relative: near v_critical the windows crowd together, and the check reports
+  the connected run the k-section sees, as the ramp's marks expect);
 * machining feasibility when the spec has stock and tool: the depth of the cut
   against ``stock.depth_limit``, ``stock.thickness`` and ``tool.reach``, and the
   tool radius against the surface's smallest concave radius.
@@ -84,7 +86,7 @@ def _full_launches(problem, v, progress=None, rtol=None, atol=None):
     return r
 
 
-def check(spec, *, progress=None, rel_tol: float = 1e-4, v_rel_tol: float = 1e-5,
+def check(spec, *, progress=None, rel_tol: float = 1e-4, v_rel_tol: float = 1e-6,
           edge_rel_tol: float = 1e-4) -> dict:
     """Run the pre-fabrication check of ``spec`` (sections surface, ball, ramp,
     simulation; stock and tool optional). Returns the report dict (see module doc):
@@ -127,7 +129,7 @@ def check(spec, *, progress=None, rel_tol: float = 1e-4, v_rel_tol: float = 1e-5
 
     # v_critical and windows over the ramp's speeds (reusing these launches)
     initial = Launches(v, lr.outcome, lr.bounces, lr.v_out, lr.bounce_times)
-    sw = sweep(problem, v, initial=initial, rel_tol=v_rel_tol, error_samples=0, tn=False, k=256, k_edge=24,
+    sw = sweep(problem, v, initial=initial, rel_tol=v_rel_tol, error_samples=0, tn=False, k=1, k_edge=24,
                edge_rel_tol=edge_rel_tol)
     vc = sw["v_critical"]
     out["v_critical"] = vc
@@ -170,9 +172,9 @@ def _ball_summary(problem, H, lr) -> dict:
 
 
 def highest_safe(launch, h_safe: float, h_fail: float, g: float, k: float, rel_tol: float,
-                 m: int = 64) -> float:
-    """Highest safe release height in [h_safe, h_fail] (design units) by batched
-    k-section, ``m`` launches a round, to width <= rel_tol * h_fail; returns the safe
+                 m: int = 1) -> float:
+    """Highest safe release height in [h_safe, h_fail] (design units) by bisection
+    (``m`` = 1, the default) or batched k-section, ``m`` launches a round, to width <= rel_tol * h_fail; returns the safe
     end of the bracket. ``launch``: a launcher ``v_in (M,) -> Launches`` (sweep.py)."""
     from .calibrate import v_in_from_height
 

@@ -11,9 +11,9 @@ What :func:`sweep` computes, and how accurately
 * ``v_critical``: the smallest v_in above which every launch escapes after
   exactly one bounce. The largest sampled v_in that does not escape after one
   bounce and the next sample up bracket it; the bracket is then narrowed by
-  batched k-section (``k`` launches per round, always keeping the largest
-  non-one-bounce launch as the lower end, so windows of higher bounce counts
-  inside the bracket cannot fool it) until its width is below ``rel_tol``
+  plain bisection (or, with ``k`` > 1, batched k-section, ``k`` launches per
+  round, always keeping the largest non-one-bounce launch as the lower end)
+  until its width is below ``rel_tol``
   (default 1e-6) times v_critical. Reported value: the bracket's midpoint;
   ``v_critical_error``: half its width (the integrator's own error, far smaller
   at the default tolerances, adds to it). Launches that fly off or lose contact
@@ -22,7 +22,7 @@ What :func:`sweep` computes, and how accurately
   ``v_critical_reason`` says why.
 * ``windows``: maximal runs of consecutive samples that escape with the same
   bounce count n >= 2, as ``{bounces, lo, hi, samples}``. For n = 2 the edges are
-  refined by k-section to ``rel_tol`` relative, toward the boundary of the
+  refined by bisection to ``rel_tol`` relative, toward the boundary of the
   connected run of two-bounce launches (``edge_error`` gives the half-width);
   for n >= 3 ``lo``/``hi`` are the outermost samples inside the run (accurate to
   one sample spacing).
@@ -205,8 +205,8 @@ def _critical_task(lo: float, hi: float, rel_tol: float, k: int, max_rounds: int
 
 def run_tasks(launch, tasks: list) -> list:
     """Drive refinement generators together: every round, the speeds all live
-    tasks ask for go to the launcher in ONE batch (a batch costs about as much
-    as its slowest launch, so merging rounds is what makes refinement cheap).
+    tasks ask for go to the launcher in ONE batch (one call into the compiled
+    engine, or one set of Dask tasks, per round).
     Returns each task's return value."""
     results = [None] * len(tasks)
     pending = {}
@@ -349,9 +349,9 @@ def fit_tn(T_n: list[float], v_in: list[float], T_shape: float) -> dict:
 # the sweep
 # ----------------------------------------------------------------------------
 def sweep(problem, v_in, *, launcher=None, method: str = "fabkit", rtol: float | None = None,
-          atol: float | None = None, progress=None, rel_tol: float = 1e-6, k: int = 64,
+          atol: float | None = None, progress=None, rel_tol: float = 1e-6, k: int = 1,
           refine: bool = True, error_samples: int = 48, initial: Launches | None = None, tn: bool = True,
-          k_edge: int = 32, edge_rel_tol: float | None = None,
+          k_edge: int = 1, edge_rel_tol: float | None = None,
           tol=DEFAULT) -> dict:
     """Launch at every ``v_in`` (N,) (design units/s, sorted ascending here) and analyse.
 
@@ -363,8 +363,9 @@ def sweep(problem, v_in, *, launcher=None, method: str = "fabkit", rtol: float |
     (total run), ``seconds``. Accuracy: see the module docstring.
     ``initial``: results already computed for the sorted ``v_in`` (not re-run).
     ``tn``: False skips the v_out maximization (no T_n fit). ``k``, ``k_edge``:
-    launches per refinement round for v_critical and for each window edge (a
-    round costs about its slowest launch, so wide rounds are cheap).
+    launches per refinement round for v_critical and for each window edge (default
+    1: plain bisection; a launch costs a few hundredths of a millisecond on the
+    compiled engine, so rounds of one launch per task are the cheapest).
     ``edge_rel_tol``: relative width the two-bounce window edges are refined to
     (default ``rel_tol``).
     """

@@ -1,0 +1,259 @@
+"""Generated surface code for the compiled engine, and the cache it lives in.
+
+From the exact symbolic h(x, y) of the spec (:mod:`fabkit.expr`), this module
+prints plain ``math`` source for h and its derivatives with common
+subexpressions shared (each exponential of the surface is evaluated once), puts
+it in front of a model template (:mod:`.point`; a model of its own, such as the
+finite-radius ball, brings its template and the derivative orders it needs) and
+the step loop (:mod:`.dop853`), and writes the module ONCE per formula to the
+user cache, where numba compiles it with ``cache=True``: later runs only load it.
+
+Key: a hash of the formula with its parameters as symbols (the values are passed
+at run time, so a design study over ``surface.params`` compiles once), the names
+of the parameters, the template's name and source, the step loop's source, and
+the fabkit and numba versions.
+
+Cache directory: ``FABKIT_CACHE_DIR`` if set, else the user cache
+(``$XDG_CACHE_HOME/fabkit`` or ``~/.cache/fabkit`` on Linux, ``~/Library/Caches/fabkit``
+on macOS, ``%LOCALAPPDATA%\\fabkit\\Cache`` on Windows), subfolder ``engine``.
+Never the repository or site-packages. Deleting the folder is always safe.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+
+_HERE = Path(__file__).resolve().parent
+
+#: the step loop, common to every model (a template: included, not imported)
+ENGINE_TEMPLATE = "dop853.py"
+
+
+@dataclass(frozen=True)
+class Template:
+    """A model for the engine: its template file (defining NV, NE, W, rhs, energy,
+    kinetic, FULL, GT: see dop853.py) and the surface functions it calls, as
+    ``name -> derivative list`` with each derivative a tuple of variables
+    (``()`` is h, ``("x",)`` is h_x, ``("x", "y")`` is h_xy ...), plus ``"F"`` for
+    F(x) = h_y(x, 0), the coupling of the nonlinear damping."""
+
+    name: str
+    source: str                 # file name next to this module
+    functions: tuple = field(default_factory=tuple)   # ((fname, (derivs...)), ...)
+    n_model_params: int = 4     # P[:n] are the model's, P[n:] the surface's
+
+
+POINT = Template(
+    "point", "point.py",
+    (("surface", ((), ("x",), ("y",), ("x", "x"), ("x", "y"), ("y", "y"), "F")),),
+    4)
+
+TEMPLATES = {"point": POINT}
+
+
+def cache_dir() -> Path:
+    """The folder of generated and compiled engines (created on demand)."""
+    env = os.environ.get("FABKIT_CACHE_DIR")
+    if env:
+        base = Path(env).expanduser()
+    elif sys.platform == "darwin":
+        base = Path.home() / "Library" / "Caches" / "fabkit"
+    elif os.name == "nt":
+        base = Path(os.environ.get("LOCALAPPDATA", Path.home() / "AppData" / "Local")) / "fabkit" / "Cache"
+    else:
+        base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "fabkit"
+    return base / "engine"
+
+
+@dataclass(frozen=True)
+class Formula:
+    """The surface as the engine sees it: h with its parameters as symbols."""
+
+    h: object                 # sympy expression
+    x: object
+    y: object
+    names: tuple              # parameter names, in the order of P[n_model_params:]
+    values: tuple             # their values
+    symbols: tuple            # their sympy symbols
+
+
+def formula(fns) -> Formula:
+    """The :class:`Formula` of compiled surface functions (``expr.SurfaceFunctions``).
+
+    With the text and parameters at hand the parameters become symbols; otherwise
+    (surface functions built some other way) the numeric expression is used as is.
+    """
+    import sympy as sp
+
+    from ...expr import to_sympy
+
+    params = dict(getattr(fns, "params", ()) or ())
+    text = getattr(fns, "text", None)
+    if text is not None and (params or not fns.symbolic.free_symbols - _xy(fns.symbolic)):
+        h, x, y = to_sympy(text, params, symbolic=True)
+        used = sorted((s for s in h.free_symbols if s.name.startswith("p_")), key=lambda s: s.name)
+        names = tuple(s.name[2:] for s in used)
+        return Formula(h, x, y, names, tuple(float(params[n]) for n in names), tuple(used))
+    h = fns.symbolic
+    syms = {s.name: s for s in h.free_symbols}
+    x = syms.get("x", sp.Symbol("x", real=True))
+    y = syms.get("y", sp.Symbol("y", real=True))
+    return Formula(h, x, y, (), (), ())
+
+
+def _xy(h):
+    return {s for s in h.free_symbols if s.name in ("x", "y")}
+
+
+def _source(name: str) -> str:
+    return (_HERE / name).read_text()
+
+
+def _versions() -> list[str]:
+    from ... import __version__
+
+    try:
+        import numba
+        nv = numba.__version__
+    except ImportError:  # pragma: no cover - numba is a dependency
+        nv = "none"
+    return [__version__, nv, f"{sys.version_info[0]}.{sys.version_info[1]}", _source("codegen.py")]
+
+
+def _digest(parts) -> str:
+    m = hashlib.sha256()
+    for part in parts:
+        m.update(part.encode())
+        m.update(b"\0")
+    return m.hexdigest()[:24]
+
+
+def engine_key(template: Template = POINT) -> str:
+    """The cache key of the engine of a model template (its source, the step loop's,
+    the fabkit, numba and Python versions): the engine compiles once per install."""
+    return _digest([template.name, _source(template.source), _source(ENGINE_TEMPLATE), *_versions()])
+
+
+def key(f: Formula, template: Template = POINT) -> str:
+    """The cache key of a formula's surface functions under a model template: the
+    formula with its parameters as symbols (so their values do not count), the
+    parameters' names, the template and the versions."""
+    import sympy as sp
+
+    return _digest([sp.srepr(f.h), ",".join(f.names), template.name, repr(template.functions), *_versions()])
+
+
+# ----------------------------------------------------------------------------
+# printing
+# ----------------------------------------------------------------------------
+def derivatives(f: Formula, wanted) -> list:
+    """The exact derivatives ``wanted`` (tuples of 'x'/'y', or 'F') of h."""
+    import sympy as sp
+
+    var = {"x": f.x, "y": f.y}
+    cache: dict = {(): f.h}
+
+    def d(spec):
+        spec = tuple(sorted(spec))
+        if spec not in cache:
+            cache[spec] = sp.diff(d(spec[:-1]), var[spec[-1]])
+        return cache[spec]
+
+    out = []
+    for w in wanted:
+        e = d(("y",)).subs(f.y, 0) if w == "F" else d(w)
+        # d/dx |u| = sign(u) u'; its derivative's DiracDelta is zero almost everywhere
+        out.append(e.replace(sp.DiracDelta, lambda *a: sp.Integer(0)))
+    return out
+
+
+def print_function(name: str, f: Formula, exprs: list, n_model_params: int) -> str:
+    """Plain ``math`` source of ``name(x, y, P) -> tuple(exprs)``, common
+    subexpressions shared; parameters read from P[n_model_params + i]."""
+    import sympy as sp
+    from sympy.printing.pycode import PythonCodePrinter
+
+    printer = PythonCodePrinter({"fully_qualified_modules": True, "standard": "python3"})
+    temps = sp.numbered_symbols("_t")
+    subs, reduced = sp.cse(exprs, symbols=temps, optimizations="basic")
+    used = set()
+    for e in [e for _, e in subs] + list(reduced):
+        used |= e.free_symbols
+    lines = [f"@jit\ndef {name}(x, y, P):"]
+    for i, s in enumerate(f.symbols):
+        if s in used:
+            lines.append(f"    {s.name} = P[{n_model_params + i}]")
+    for s, e in subs:
+        lines.append(f"    {s.name} = {printer.doprint(e)}")
+    outs = ", ".join(f"float({printer.doprint(e)})" for e in reduced)
+    lines.append(f"    return ({outs},)" if len(reduced) == 1 else f"    return {outs}")
+    return "\n".join(lines) + "\n"
+
+
+_HEADER = """# Generated by fabkit {version}: {what}.
+# Do not edit: delete this folder to rebuild (fabkit/physics/engine/codegen.py).
+import math
+
+import numpy as np
+from numba import cfunc, njit, types
+
+jit = njit(cache=True, nogil=True, error_model="numpy")
+"""
+
+
+def generate_surface(f: Formula, template: Template = POINT) -> str:
+    """The surface module's source: one compiled C callback per surface function of
+    the template, ``name(x, y, P) -> (values...)`` with P a pointer to the run-time
+    parameters."""
+    from ... import __version__
+
+    text = " ".join(f"h(x, y) = {f.h}".split())[:2000]
+    parts = [_HEADER.format(version=__version__, what=f"surface functions ({template.name} template) of "
+                            f"{text}; parameters passed at run time: {', '.join(f.names) or '(none)'}")]
+    for fname, wanted in template.functions:
+        parts.append(f"_sig_{fname} = types.UniTuple(types.float64, {len(wanted)})("
+                     "types.float64, types.float64, types.CPointer(types.float64))")
+        src = print_function(fname, f, derivatives(f, wanted), template.n_model_params)
+        parts.append(src.replace("@jit\n", f'@cfunc(_sig_{fname}, cache=True, error_model="numpy")\n', 1))
+    return "\n\n".join(parts)
+
+
+def generate_engine(template: Template = POINT) -> str:
+    """The engine module's source: the model template, then the step loop."""
+    from ... import __version__
+
+    parts = [_HEADER.format(version=__version__, what=f"the launch engine, {template.name} template")]
+    for src in (template.source, ENGINE_TEMPLATE):
+        parts.append(f"# ---- {src} " + "-" * 60 + "\n" + _source(src))
+    return "\n\n".join(parts)
+
+
+def _write_once(path: Path, make) -> Path:
+    """Write ``make()`` to ``path`` atomically unless it exists. An existing file is
+    never rewritten: numba's cache is keyed on its time stamp."""
+    if path.exists():
+        return path
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.parent / f".{path.name}.{os.getpid()}.tmp"
+    tmp.write_text(make())
+    if not path.exists():
+        os.replace(tmp, path)
+    else:
+        tmp.unlink(missing_ok=True)
+    return path
+
+
+def write_engine(template: Template = POINT) -> Path:
+    """The engine module of ``template`` in the cache (written if missing)."""
+    return _write_once(cache_dir() / f"fk_engine_{template.name}_{engine_key(template)}.py",
+                       lambda: generate_engine(template))
+
+
+def write_surface(f: Formula, template: Template = POINT) -> Path:
+    """The surface module of formula ``f`` in the cache (written if missing)."""
+    return _write_once(cache_dir() / f"fk_surface_{template.name}_{key(f, template)}.py",
+                       lambda: generate_surface(f, template))
