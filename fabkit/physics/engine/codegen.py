@@ -179,7 +179,10 @@ def print_function(name: str, f: Formula, exprs: list, n_model_params: int) -> s
 
     printer = PythonCodePrinter({"fully_qualified_modules": True, "standard": "python3"})
     temps = sp.numbered_symbols("_t")
-    subs, reduced = sp.cse(exprs, symbols=temps, optimizations="basic")
+    # unevaluated, as expr._cse_unevaluated: evaluating the rebuilt tree asks sympy's
+    # assumptions about nested functions of the cse symbols (exponential in the nesting)
+    with sp.evaluate(False):
+        subs, reduced = sp.cse(exprs, symbols=temps)
     used = set()
     for e in [e for _, e in subs] + list(reduced):
         used |= e.free_symbols
