@@ -298,36 +298,48 @@ def _edges(ws, cx, cy, R, best, idx_all, nsamp, iters):
         k = min(2, nsamp)
         start = np.argsort(-V, axis=1, kind="stable")[:, :k]
         t = np.take_along_axis(T, start, axis=1)
-        aa = a[:, None]
-        tcc = tc[:, None]
-        lo = np.arcsin(np.clip((t0[:, None] - tcc) / aa, -1.0, 1.0))
-        hi = np.arcsin(np.clip((t1[:, None] - tcc) / aa, -1.0, 1.0))
-        ph = np.clip(np.arcsin(np.clip((t - tcc) / aa, -1.0, 1.0)), lo, hi)
+        shp = t.shape
+        aa = np.broadcast_to(a[:, None], shp).ravel()
+        tcc = np.broadcast_to(tc[:, None], shp).ravel()
+        lo = np.arcsin(np.clip((np.broadcast_to(t0[:, None], shp).ravel() - tcc) / aa, -1.0, 1.0))
+        hi = np.arcsin(np.clip((np.broadcast_to(t1[:, None], shp).ravel() - tcc) / aa, -1.0, 1.0))
+        ph = np.clip(np.arcsin(np.clip((t.ravel() - tcc) / aa, -1.0, 1.0)), lo, hi)
 
-        def fval(ph_):
-            X_, Y_ = pts(tcc + aa * np.sin(ph_))
-            return np.minimum(ws.H(X_, Y_), 0.0) + aa * np.cos(ph_)
+        def fval(i, ph_):
+            X_, Y_ = pts(tcc[i] + aa[i] * np.sin(ph_))
+            return np.minimum(ws.H(X_, Y_), 0.0) + aa[i] * np.cos(ph_)
 
+        act = np.arange(ph.size)
         for _ in range(iters + 4):
-            sn, cs = np.sin(ph), np.cos(ph)
-            X, Y = pts(tcc + aa * sn)
-            _, gx, gy, hxx, _, hyy = ws.all(X, Y)
+            if act.size == 0:
+                break
+            p_, a_ = ph[act], aa[act]
+            sn, cs = np.sin(p_), np.cos(p_)
+            X, Y = pts(tcc[act] + a_ * sn)
+            H0, gx, gy, hxx, _, hyy = ws.all(X, Y)
             Ht, Htt = (gx, hxx) if axis == 1 else (gy, hyy)
-            d1 = aa * (Ht * cs - sn)
-            d2 = aa * (Htt * aa * cs * cs - Ht * sn - cs)
+            d1 = a_ * (Ht * cs - sn)
+            d2 = a_ * (Htt * a_ * cs * cs - Ht * sn - cs)
             st = np.where(d2 < 0, -d1 / np.where(d2 < 0, d2, -1.0), 0.1 * np.sign(d1))
             st = np.clip(np.nan_to_num(st), -0.5, 0.5)
-            f0 = fval(ph)
-            moved = np.zeros(ph.shape, dtype=bool)
+            f0 = np.minimum(H0, 0.0) + a_ * cs
+            moved = np.zeros(act.size, dtype=bool)
+            sub = np.arange(act.size)
             for _bt in range(6):
-                cand = np.clip(ph + st, lo, hi)
-                f1 = fval(cand)
-                good = ~moved & np.isfinite(f1) & (f1 >= f0 - 1e-13 * R)
-                ph = np.where(good, cand, ph)
-                moved |= good
-                st = np.where(moved, st, 0.5 * st)
-            if (np.abs(np.where(moved, st, 0.0)) * aa).max(initial=0.0) < XTOL:
-                break
+                cand = np.clip(p_[sub] + st[sub], lo[act[sub]], hi[act[sub]])
+                f1 = fval(act[sub], cand)
+                good = np.isfinite(f1) & (f1 >= f0[sub] - 1e-13 * R)
+                p_[sub[good]] = cand[good]
+                moved[sub[good]] = True
+                sub = sub[~good]
+                if sub.size == 0:
+                    break
+                st[sub] *= 0.5
+            ph[act] = p_
+            done = ~moved | (np.abs(st) * a_ < XTOL)
+            act = act[~done]
+        ph = ph.reshape(shp)
+        aa, tcc = aa.reshape(shp), tcc.reshape(shp)
         t = tcc + aa * np.sin(ph)
         X, Y = pts(t)
         best.offer(idx, val(t), X, Y, EDGE)
