@@ -198,8 +198,11 @@ def _newton_interior(ws, cx, cy, R, px, py, iters):
         f = np.where(nw > lim, lim / np.maximum(nw, 1e-300), 1.0)
         dwx, dwy = dwx * f, dwy * f
         step = np.hypot(sx, sy) * f
-        ok = np.zeros(act.size, dtype=bool)
+        # small Newton steps near a strict maximum are accepted as they are; the others
+        # are backtracked until F does not decrease
+        ok = negdef & (step < 0.02 * R) & (f == 1.0)
         nx_, ny_ = ax.copy(), ay.copy()
+        nx_[ok], ny_[ok] = ax[ok] + dwx[ok], ay[ok] + dwy[ok]
         for _bt in range(8):
             todo = ~ok
             if not todo.any():

@@ -20,8 +20,8 @@ import numpy as np
 from ..errors import SpecError
 
 # measured per-unit costs of the planner on the 2-core reference machine, seconds
-SEC_PER_PASS_NODE = 4.0e-5      # pass placement: exact tip heights and material bounds, per node
-SEC_PER_POINT = 6.0e-5          # point spacing, links and roughing, per program point
+SEC_PER_PASS_NODE = 1.2e-4     # pass placement: exact tip heights and material bounds, per node
+SEC_PER_POINT = 2.0e-4         # point spacing, links and roughing, per program point
 SEC_FIXED = 1.0
 
 

@@ -100,6 +100,10 @@ class _Pass:
         self.keep = _trim_outside(ug, Z, fr.Lu, depth_lim, contact_top)
         k = np.nonzero(self.keep)[0]
         f = _hermite(ug, Z, dZ, uf)
+        # the material bounds count the balls at most 7/8 R beyond the edges: further
+        # out the tip height rises too steeply for the Hermite profile (fewer balls:
+        # a higher, still valid bound)
+        f = np.where((uf >= -0.875 * R) & (uf <= fr.Lu + 0.875 * R), f, np.inf)
         self.fine = np.where((uf >= ug[k[0]]) & (uf <= ug[k[-1]]), f, np.inf) if k.size \
             else np.full_like(uf, np.inf)
 
@@ -169,7 +173,10 @@ def _between(lo, hi, Lv, n=9):
 def u_grid(fr, R):
     du = min(1.0, R / 2.0)
     n_in = max(2, int(math.ceil(fr.Lu / du)) + 1)
-    side = np.linspace(0.0, R, 9)
+    # beyond the edges: every R/8, then closer to R (a steep wall running out at the
+    # edge is reached only by a ball almost wholly beyond it); the node a whole R out
+    # is dropped again by _trim_outside (vertical tangent)
+    side = R * np.r_[np.linspace(0.0, 0.875, 8), 0.95, 0.99, 0.999, 1.0]
     return np.concatenate([-side[:0:-1], np.linspace(0.0, fr.Lu, n_in), fr.Lu + side[1:]])
 
 
@@ -248,20 +255,23 @@ def place_passes(ws, fr, R: float, scallop: float, depth_lim: float, max_passes:
             i, j = np.unravel_index(int(np.argmax(fl)), fl.shape)
             unreach[:] = [float(fl[i, j]), float(uq[j]), float(vs[i, j])]
 
-    def check(pa, pb, older):
-        """Ratio of the stepover's material (above the reachable floor) to the target."""
+    def check(pa, pb, older, use_floor=True):
+        """Ratio of the stepover's material (above the reachable floor when
+        ``use_floor``) to the target."""
         vs = _between(pa.cv[inside_u], pb.cv[inside_u], Lv)
         ml = left(vs, [pb, pa] + older)
         if pb.v >= Lv:
             ml = np.vstack([ml, edge_left(pb, [pa] + older, Lv)])
             vs = np.vstack([vs, _between(pb.cv[inside_u], np.full(uq.shape, Lv), Lv)])
-        if ml.max(initial=0.0) <= target:
+        if ml.max(initial=0.0) <= target or not use_floor:
             return ml.max(initial=0.0) / target
         mids = make([pa.v + f * (pb.v - pa.v) for f in (0.25, 0.5, 0.75)])
         fl = left(vs[:9], [pb, *mids, pa] + older)
         if pb.v >= Lv:
             fl = np.vstack([fl, edge_left(pb, [*mids, pa] + older, Lv)])
-        floor = fl > FLOOR_SHARE * target
+        # unreachable: the dense passes leave a good share of the target AND most of
+        # what the two passes leave (a scallop they would cut down to ~1/16)
+        floor = (fl > FLOOR_SHARE * target) & (fl > 0.5 * ml)
         ex = np.where(floor, ml - fl, ml)
         note_floor(np.where(floor, fl, 0.0), vs)
         return float(ex.max(initial=0.0)) / target
@@ -318,7 +328,7 @@ def place_passes(ws, fr, R: float, scallop: float, depth_lim: float, max_passes:
             vl = [pa.v + k * s for k in (1, 2, 3) if pa.v + k * s < Lv]
             cands = make(vl)
             cand, ahead = cands[0], cands[1:]
-        ratio = check(pa, cand, older)
+        ratio = check(pa, cand, older, use_floor=False)
         pb = cand if ratio <= 1.0 else None
         tries = 0
         while pb is None:
@@ -329,7 +339,9 @@ def place_passes(ws, fr, R: float, scallop: float, depth_lim: float, max_passes:
             trial = sorted({max(s * g, s_min) for g in (1.0, 0.85, 0.7, 0.55)}, reverse=True)
             cands = make([pa.v + t for t in trial])
             for c in cands:
-                ratio = check(pa, c, older)
+                # the reachable floor only once plain stepovers failed twice (material
+                # beyond the ball's reach): elsewhere the bound is the plain one
+                ratio = check(pa, c, older, use_floor=tries >= 2)
                 if ratio <= 1.0:
                     pb = c
                     break

@@ -37,20 +37,15 @@ def rough_runs(spec, ws, fr, R, V, runs, passes_cut, depth_lim):
             for r in runs[p]:
                 z = np.maximum(level, r[:, 1] + leave)
                 act = z < prev - AIR_EPS
-                # keep nodes that are active or next to an active one
+                # keep nodes that are active or next to an active one, in runs of >= 2
                 near = act | np.r_[act[1:], False] | np.r_[False, act[:-1]]
-                i = 0
-                while i < len(r):
-                    if not near[i]:
-                        i += 1
-                        continue
-                    j = i
-                    while j < len(r) and near[j]:
-                        j += 1
+                if not near.any():
+                    continue
+                edges = np.diff(np.r_[0, near.astype(np.int8), 0])
+                for i, j in zip(np.nonzero(edges == 1)[0], np.nonzero(edges == -1)[0]):
                     if j - i >= 2:
                         X, Y = fr.xy(r[i:j, 0], np.full(j - i, V[p]))
                         pieces.append(np.column_stack([X, Y, z[i:j]]))
-                    i = j
             if n % 2:
                 pieces = [q[::-1] for q in pieces[::-1]]
             out += [(("r", k, p), q) for q in pieces]
