@@ -92,7 +92,7 @@ class WorkSurface:
         return (X >= 0.0) & (X <= self.L) & (Y >= 0.0) & (Y <= self.W)
 
 
-RING_SLOPES = (0.4, 1.2, 3.0, 8.0, 25.0)
+RING_SLOPES = (0.5, 1.5, 4.0, 12.0)
 
 
 def _polar(R: float, rings=RING_SLOPES, angles: int = 12) -> np.ndarray:

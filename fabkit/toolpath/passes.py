@@ -255,26 +255,23 @@ def place_passes(ws, fr, R: float, scallop: float, depth_lim: float, max_passes:
             i, j = np.unravel_index(int(np.argmax(fl)), fl.shape)
             unreach[:] = [float(fl[i, j]), float(uq[j]), float(vs[i, j])]
 
-    def check(pa, pb, older, use_floor=True):
-        """Ratio of the stepover's material (above the reachable floor when
-        ``use_floor``) to the target."""
+    def check(pa, pb, older, allowed):
+        """Largest ratio, per position along u, of the material between pa and pb
+        (and beyond pb to the edge when pb is on or past it) to ``allowed``."""
         vs = _between(pa.cv[inside_u], pb.cv[inside_u], Lv)
-        ml = left(vs, [pb, pa] + older)
+        ml = left(vs, [pb, pa] + older).max(axis=0)
         if pb.v >= Lv:
-            ml = np.vstack([ml, edge_left(pb, [pa] + older, Lv)])
-            vs = np.vstack([vs, _between(pb.cv[inside_u], np.full(uq.shape, Lv), Lv)])
-        if ml.max(initial=0.0) <= target or not use_floor:
-            return ml.max(initial=0.0) / target
-        mids = make([pa.v + f * (pb.v - pa.v) for f in (0.25, 0.5, 0.75)])
-        fl = left(vs[:9], [pb, *mids, pa] + older)
-        if pb.v >= Lv:
-            fl = np.vstack([fl, edge_left(pb, [*mids, pa] + older, Lv)])
-        # unreachable: the dense passes leave a good share of the target AND most of
-        # what the two passes leave (a scallop they would cut down to ~1/16)
-        floor = (fl > FLOOR_SHARE * target) & (fl > 0.5 * ml)
-        ex = np.where(floor, ml - fl, ml)
-        note_floor(np.where(floor, fl, 0.0), vs)
-        return float(ex.max(initial=0.0)) / target
+            ml = np.maximum(ml, edge_left(pb, [pa] + older, Lv).max(axis=0))
+        return float((ml / allowed).max(initial=0.0))
+
+    def floor_of(pa, older):
+        """Per u, the material a pass right beside pa leaves too: beyond the ball's
+        reach (a valley tighter than the tool, a V crease); no stepover removes it."""
+        pt = make([min(pa.v + MIN_STEP_SHARE * s_flat, Lv)])[0]
+        vs = _between(pa.cv[inside_u], pt.cv[inside_u], Lv)
+        fl = left(vs, [pt, pa] + older)
+        note_floor(np.where(fl > FLOOR_SHARE * target, fl, 0.0), vs)
+        return fl.max(axis=0)
 
     def deep(p):
         k = p.keep
@@ -308,12 +305,16 @@ def place_passes(ws, fr, R: float, scallop: float, depth_lim: float, max_passes:
         if pa.v >= Lv:
             break
         s = max(min(s_next, s_flat), s_min)
+        allowed = np.full(uq.shape, target)
         if pa.v + s >= Lv:
             # the last pass: on or beyond the edge v = Lv, milling it
             pb, ml = edge_pass(Lv, 1.0, [pa] + older)
             if pb is None:
                 pb, ml = make([Lv])[0], math.inf
-            r = check(pa, pb, older)
+            r = check(pa, pb, older, allowed)
+            if r > 1.0:
+                allowed = np.maximum(target, floor_of(pa, older) + 0.1 * target)
+                r = check(pa, pb, older, allowed)
             if r <= 1.0 or Lv - pa.v <= 2 * s_min:
                 if r > 1.0 and (relaxed is None or r * target > relaxed[0]):
                     relaxed = (r * target, float(uq[-1]) if uq.size else 0.0, Lv)
@@ -328,28 +329,44 @@ def place_passes(ws, fr, R: float, scallop: float, depth_lim: float, max_passes:
             vl = [pa.v + k * s for k in (1, 2, 3) if pa.v + k * s < Lv]
             cands = make(vl)
             cand, ahead = cands[0], cands[1:]
-        ratio = check(pa, cand, older, use_floor=False)
+        ratio = check(pa, cand, older, allowed)
         pb = cand if ratio <= 1.0 else None
+        tried = [(ratio, cand)]
+        floor_done = False
         tries = 0
         while pb is None:
             ahead = []
             tries += 1
+            if not floor_done:
+                # material even a pass right beside pa leaves is allowed (reported)
+                floor_done = True
+                fl = floor_of(pa, older)
+                if (fl > target).any():
+                    allowed = np.maximum(target, fl + 0.1 * target)
+                    ratio = check(pa, cand, older, allowed)
+                    tried.append((ratio, cand))
+                    if ratio <= 1.0:
+                        pb = cand
+                        break
             f = min(0.97, max(0.3, 0.99 / math.sqrt(max(ratio, 1e-12))))
             s = max(s * f, s_min)
             trial = sorted({max(s * g, s_min) for g in (1.0, 0.85, 0.7, 0.55)}, reverse=True)
             cands = make([pa.v + t for t in trial])
             for c in cands:
-                # the reachable floor only once plain stepovers failed twice (material
-                # beyond the ball's reach): elsewhere the bound is the plain one
-                ratio = check(pa, c, older, use_floor=tries >= 2)
+                ratio = check(pa, c, older, allowed)
+                tried.append((ratio, c))
                 if ratio <= 1.0:
                     pb = c
                     break
-            if pb is None and (trial[-1] <= s_min * (1 + 1e-9) or tries >= 6):
-                pb = cands[-1]          # the bound is not met even right beside pa: relax
+            if pb is None and (trial[-1] <= s_min * (1 + 1e-9) or tries >= 8):
+                # the bound is not met even right beside pa: relax, at the largest
+                # stepover within 10 % of the best ratio (smaller ones do not help)
+                rmin = min(r for r, _ in tried)
+                ratio, pb = max(((r, c) for r, c in tried if r <= 1.1 * rmin),
+                                key=lambda rc: rc[1].v)
                 if relaxed is None or ratio * target > relaxed[0]:
                     relaxed = (ratio * target, float(uq[0]) if uq.size else 0.0, pa.v)
-            s = pb.v - pa.v if pb is not None else trial[-1]
+            s = trial[-1]
         passes.append(pb)
         if len(passes) > max_passes:
             raise SpecError(f"needs more than {max_passes} passes; raise the scallop",
