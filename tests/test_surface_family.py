@@ -42,7 +42,7 @@ THETA_V = math.atan(3.0)
 # (id, height, x, y, direction, units, unreachable band |x| < w (design x), unreachable height)
 CASES = [
     ("plane4_y", "4*x - 20", (0, 12), (0, 8), "y", "mm", None),
-    ("plane8_x_in", "8*x - 20", (0, 8), (0, 6), "x", "in", None),
+    ("wall8_x_in", "4*tanh(2*(x-4)) - 8", (0, 8), (0, 6), "x", "in", None),
     ("vcrease", "3*abs(x) - 12", (-8, 8), (0, 6), "y", "mm",
      (R * math.sin(THETA_V), R * (1 / math.cos(THETA_V) - 1))),
     ("expwall", "exp(0.4*x) - 12", (-6, 10), (0, 6), "x", "mm", None),

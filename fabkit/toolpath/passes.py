@@ -173,10 +173,7 @@ def _between(lo, hi, Lv, n=9):
 def u_grid(fr, R):
     du = min(1.0, R / 2.0)
     n_in = max(2, int(math.ceil(fr.Lu / du)) + 1)
-    # beyond the edges: every R/8, then closer to R (a steep wall running out at the
-    # edge is reached only by a ball almost wholly beyond it); the node a whole R out
-    # is dropped again by _trim_outside (vertical tangent)
-    side = R * np.r_[np.linspace(0.0, 0.875, 8), 0.95, 0.99, 0.999, 1.0]
+    side = np.linspace(0.0, R, 9)
     return np.concatenate([-side[:0:-1], np.linspace(0.0, fr.Lu, n_in), fr.Lu + side[1:]])
 
 
