@@ -55,7 +55,7 @@ CASES = [
 
 @pytest.mark.rs274
 @pytest.mark.parametrize("name, height, x, y, direction, units, band", CASES,
-                         ids=[c[0] if isinstance(c, tuple) else c.values[0] for c in CASES])
+                         ids=[c[0] if isinstance(c[0], str) else c[0][0] for c in CASES])
 def test_family_verified_and_independent_rs274_cut(cli, tmp_path, name, height, x, y, direction,
                                                    units, band):
     spec = write_spec(tmp_path, _raw(height, x, y, direction, units))
@@ -78,6 +78,7 @@ def test_family_verified_and_independent_rs274_cut(cli, tmp_path, name, height, 
         pytest.skip("LinuxCNC rs274 not installed")
     from test_verify import brute_cut, rs274_moves
     pts, _ = rs274_moves(tmp_path / "p.ngc")
+    pts = pts * k                     # rs274 reports canonical moves in the program's units
     L, W = x[1] - x[0], y[1] - y[0]
     rng = np.random.default_rng(3)
     px, py = rng.uniform(0, L, 700), rng.uniform(0, W, 700)
