@@ -71,7 +71,7 @@ def run(args) -> int:
     check_depth(spec, surface)
     R = spec.tool.diameter / 2.0
     conc = surface.min_concave_radius()
-    if conc.z * spec.scale < R:
+    if conc.z * spec.scale < R and args.no_verify:    # verified: the sheet reports what is left
         warn(f"tool radius {R:g} mm is larger than the smallest concave radius {conc.z * spec.scale:.3g} mm "
              f"(at x={conc.x:.4g}, y={conc.y:.4g}): the tool bridges that valley and leaves material there")
 
@@ -104,7 +104,8 @@ def _finish(args, spec, surface, toolpath, profile, text, out, paths, R, t_plan,
     if not args.no_verify:
         step("verifying the cut")
         check = verify_cut(surface, program, R, spec.machining.verify_points,
-                           depth_limit=spec.stock.depth_limit, reach=spec.tool.reach)
+                           depth_limit=spec.stock.depth_limit, reach=spec.tool.reach,
+                           unreachable_min=spec.machining.tolerance)
     t_verify = t.seconds
 
     step("setup sheet")
@@ -124,6 +125,12 @@ def _finish(args, spec, surface, toolpath, profile, text, out, paths, R, t_plan,
     t_sheet = t.seconds
 
     bad = failures(check, spec) if check else []
+    un = check.get("unreachable") if check else None
+    if un:
+        x, y = un["at"]
+        warn(f"material the ball cannot reach is left (not gouged): up to {un['height']:.3f} mm above "
+             f"the design at X{x:.2f} Y{y:.2f}, over about {un['area']:.3g} mm^2 "
+             "(material_left_unreachable in the setup sheet)")
     seconds = total.seconds
     so = (f"{toolpath.stepover_min:.2f}-{toolpath.stepover:.2f}" if toolpath.stepover_min < toolpath.stepover
           else f"{toolpath.stepover:.2f}")

@@ -30,6 +30,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import math
+
 import numpy as np
 
 # contact kinds reported in CompensationInfo.kind
@@ -90,11 +92,17 @@ class WorkSurface:
         return (X >= 0.0) & (X <= self.L) & (Y >= 0.0) & (Y <= self.W)
 
 
-def _polar(R: float, rings: int, angles: int) -> np.ndarray:
-    """(K, 2) offsets: the centre and ``rings`` rings of ``angles`` points, staggered."""
+RING_SLOPES = (0.5, 1.5, 4.0, 12.0)
+
+
+def _polar(R: float, rings=RING_SLOPES, angles: int = 12) -> np.ndarray:
+    """(K, 2) offsets: the centre and one ring of ``angles`` points (staggered) per
+    surface slope in ``rings``: the ring where the ball touches a plane of that slope,
+    radius R w / sqrt(1 + w^2). Steep contacts lie in a thin band at the disk's rim
+    (slope 8: beyond 0.99 R), which rings evenly spaced in radius would miss."""
     pts = [(0.0, 0.0)]
-    for j in range(1, rings + 1):
-        r = R * j / rings * 0.97
+    for j, w in enumerate(rings, start=1):
+        r = R * w / math.sqrt(1.0 + w * w)
         ph = np.pi * j / angles + 2 * np.pi * np.arange(angles) / angles
         pts.extend(zip(r * np.cos(ph), r * np.sin(ph)))
     return np.array(pts)
@@ -141,43 +149,80 @@ def _value(ws, cx, cy, R, px, py):
 
 
 def _newton_interior(ws, cx, cy, R, px, py, iters):
-    """Newton on grad H(p) = (p - c)/q, q = sqrt(R^2 - |p-c|^2), exact Hessian.
-    Ascends (bounded gradient step) where the Hessian of F is not negative definite.
+    """Stationary points of F = H + sqrt(R^2 - |p - c|^2) in the disk, in the slope
+    coordinates w = (p - c)/q (q = sqrt(R^2 - |p - c|^2)): p = c + R w / sqrt(1 + |w|^2)
+    maps the whole plane onto the open disk, so contacts on steep ground (|w| = the
+    surface slope, p near the disk's rim) are as well conditioned as on flat ground.
+    Newton (exact Hessian) where the Hessian of F is negative definite, gradient
+    ascent elsewhere; every step is backtracked until F does not decrease.
     Returns the final points and a flag: converged to a strict local maximum."""
-    px, py = px.copy(), py.copy()
-    conv = np.zeros(len(px), dtype=bool)
-    act = np.arange(len(px))
-    rmax = R * (1 - 1e-9)
+    n = len(px)
+    dx, dy = px - cx, py - cy
+    q = np.sqrt(np.maximum(R * R - dx * dx - dy * dy, 1e-6 * R * R))
+    wx, wy = dx / q, dy / q
+    conv = np.zeros(n, dtype=bool)
+    act = np.arange(n)
+
+    def point(i, wx_, wy_):
+        s = np.sqrt(1.0 + wx_ * wx_ + wy_ * wy_)
+        return cx[i] + R * wx_ / s, cy[i] + R * wy_ / s, s
+
     for _ in range(iters):
         if act.size == 0:
             break
-        x, y, ax, ay = px[act], py[act], cx[act], cy[act]
-        _, gx, gy, hxx, hxy, hyy = ws.all(x, y)
-        dx, dy = x - ax, y - ay
-        q = np.sqrt(np.maximum(R * R - dx * dx - dy * dy, 1e-30 * R * R))
-        q3 = q ** 3
-        Gx, Gy = gx - dx / q, gy - dy / q
-        a = hxx - 1 / q - dx * dx / q3
-        b = hxy - dx * dy / q3
-        d = hyy - 1 / q - dy * dy / q3
+        ax, ay = wx[act], wy[act]
+        x, y, s = point(act, ax, ay)
+        H, gx, gy, hxx, hxy, hyy = ws.all(x, y)
+        F0 = np.minimum(H, 0.0) + R / s
+        Gx, Gy = gx - ax, gy - ay                 # grad_p F
+        k = s / R                                  # Jp^-1 = k (I + w w^T)
+        a = hxx - k * (1 + ax * ax)
+        b = hxy - k * ax * ay
+        d = hyy - k * (1 + ay * ay)
         det = a * d - b * b
-        negdef = (a < 0) & (det > 0)
-        with np.errstate(all="ignore"):
-            sx = np.where(negdef, -(d * Gx - b * Gy) / det, Gx * 0.05 * R)
-            sy = np.where(negdef, -(-b * Gx + a * Gy) / det, Gy * 0.05 * R)
+        negdef = (a < 0) & (det > 0) & np.isfinite(det)
+        safe = np.where(negdef, det, 1.0)
+        # p-space step: Newton -Hess_F^-1 G, or ascent along G (at most R/4)
+        px_n = -(d * Gx - b * Gy) / safe
+        py_n = -(-b * Gx + a * Gy) / safe
+        gn = np.hypot(Gx, Gy)
+        asc = 0.25 * R / np.maximum(1.0, gn) / np.maximum(1.0, k * R)
+        sx = np.where(negdef, px_n, Gx * asc)
+        sy = np.where(negdef, py_n, Gy * asc)
         sx, sy = np.nan_to_num(sx), np.nan_to_num(sy)
-        n = np.hypot(sx, sy)
-        lim = 0.25 * R
-        f = np.where(n > lim, lim / np.maximum(n, 1e-300), 1.0)
-        x, y = x + f * sx, y + f * sy
-        dx, dy = x - ax, y - ay
-        r = np.hypot(dx, dy)
-        g = np.where(r > rmax, rmax / np.maximum(r, 1e-300), 1.0)
-        px[act], py[act] = ax + g * dx, ay + g * dy
-        done = negdef & (n * f < XTOL)
-        conv[act[done]] = True
+        # to w: dw = Jp^-1 dp
+        wd = ax * sx + ay * sy
+        dwx, dwy = k * (sx + ax * wd), k * (sy + ay * wd)
+        lim = 0.5 * (1.0 + np.hypot(ax, ay))
+        nw = np.hypot(dwx, dwy)
+        f = np.where(nw > lim, lim / np.maximum(nw, 1e-300), 1.0)
+        dwx, dwy = dwx * f, dwy * f
+        step = np.hypot(sx, sy) * f
+        # small Newton steps near a strict maximum are accepted as they are; the others
+        # are backtracked until F does not decrease
+        ok = negdef & (step < 0.02 * R) & (f == 1.0)
+        nx_, ny_ = ax.copy(), ay.copy()
+        nx_[ok], ny_[ok] = ax[ok] + dwx[ok], ay[ok] + dwy[ok]
+        for _bt in range(8):
+            todo = ~ok
+            if not todo.any():
+                break
+            tx, ty = ax[todo] + dwx[todo], ay[todo] + dwy[todo]
+            x1, y1, s1 = point(act[todo], tx, ty)
+            F1 = np.minimum(ws.H(x1, y1), 0.0) + R / s1
+            good = np.isfinite(F1) & (F1 >= F0[todo] - 1e-13 * R)
+            j = np.nonzero(todo)[0][good]
+            nx_[j], ny_[j] = tx[good], ty[good]
+            ok[j] = True
+            dwx[todo] *= 0.5
+            dwy[todo] *= 0.5
+            step[todo] *= 0.5
+        wx[act], wy[act] = nx_, ny_
+        done = (negdef & ok & (step < XTOL)) | ~ok
+        conv[act[done & negdef & ok]] = True
         act = act[~done]
-    return px, py, conv
+    x, y, _ = point(np.arange(n), wx, wy)
+    return x, y, conv
 
 
 def _newton_crease(ws, cx, cy, px, py, iters):
@@ -250,25 +295,55 @@ def _edges(ws, cx, cy, R, best, idx_all, nsamp, iters):
         Xf, Yf = pts(tf)
         Vf = np.where(ws.H(Xf, Yf) >= 0, val(tf), -np.inf)
         best.offer(idx, Vf[:, 0], Xf[:, 0], Yf[:, 0], EDGE)
-        # smooth part: 1-D Newton on H_t - (t - tc)/q = 0 from the two best samples
+        # smooth part: 1-D Newton in the angle phi (t = tc + a sin phi: no square-root
+        # singularity at the disk's rim, where steep ground puts the contact), from the
+        # two best samples, each step backtracked until the value does not decrease
         k = min(2, nsamp)
         start = np.argsort(-V, axis=1, kind="stable")[:, :k]
         t = np.take_along_axis(T, start, axis=1)
-        lo, hi = t0[:, None], t1[:, None]
-        for _ in range(iters):
-            X, Y = pts(t)
-            _, gx, gy, hxx, _, hyy = ws.all(X, Y)
-            Ht, Htt = (gx, hxx) if axis == 1 else (gy, hyy)
-            dt = t - tc[:, None]
-            q = np.sqrt(np.maximum(rho2 - dt * dt, 1e-30 * R * R))
-            G = Ht - dt / q
-            J = Htt - 1 / q - dt * dt / q ** 3
-            with np.errstate(all="ignore"):
-                st = np.where(J < 0, -G / J, G * 0.05 * R)
-            st = np.clip(np.nan_to_num(st), -0.25 * R, 0.25 * R)
-            t = np.clip(t + st, lo, hi)
-            if np.abs(st).max(initial=0.0) < XTOL:
+        shp = t.shape
+        aa = np.broadcast_to(a[:, None], shp).ravel()
+        tcc = np.broadcast_to(tc[:, None], shp).ravel()
+        lo = np.arcsin(np.clip((np.broadcast_to(t0[:, None], shp).ravel() - tcc) / aa, -1.0, 1.0))
+        hi = np.arcsin(np.clip((np.broadcast_to(t1[:, None], shp).ravel() - tcc) / aa, -1.0, 1.0))
+        ph = np.clip(np.arcsin(np.clip((t.ravel() - tcc) / aa, -1.0, 1.0)), lo, hi)
+
+        def fval(i, ph_):
+            X_, Y_ = pts(tcc[i] + aa[i] * np.sin(ph_))
+            return np.minimum(ws.H(X_, Y_), 0.0) + aa[i] * np.cos(ph_)
+
+        act = np.arange(ph.size)
+        for _ in range(iters + 4):
+            if act.size == 0:
                 break
+            p_, a_ = ph[act], aa[act]
+            sn, cs = np.sin(p_), np.cos(p_)
+            X, Y = pts(tcc[act] + a_ * sn)
+            H0, gx, gy, hxx, _, hyy = ws.all(X, Y)
+            Ht, Htt = (gx, hxx) if axis == 1 else (gy, hyy)
+            d1 = a_ * (Ht * cs - sn)
+            d2 = a_ * (Htt * a_ * cs * cs - Ht * sn - cs)
+            st = np.where(d2 < 0, -d1 / np.where(d2 < 0, d2, -1.0), 0.1 * np.sign(d1))
+            st = np.clip(np.nan_to_num(st), -0.5, 0.5)
+            f0 = np.minimum(H0, 0.0) + a_ * cs
+            moved = np.zeros(act.size, dtype=bool)
+            sub = np.arange(act.size)
+            for _bt in range(6):
+                cand = np.clip(p_[sub] + st[sub], lo[act[sub]], hi[act[sub]])
+                f1 = fval(act[sub], cand)
+                good = np.isfinite(f1) & (f1 >= f0[sub] - 1e-13 * R)
+                p_[sub[good]] = cand[good]
+                moved[sub[good]] = True
+                sub = sub[~good]
+                if sub.size == 0:
+                    break
+                st[sub] *= 0.5
+            ph[act] = p_
+            done = ~moved | (np.abs(st) * a_ < XTOL)
+            act = act[~done]
+        ph = ph.reshape(shp)
+        aa, tcc = aa.reshape(shp), tcc.reshape(shp)
+        t = tcc + aa * np.sin(ph)
         X, Y = pts(t)
         best.offer(idx, val(t), X, Y, EDGE)
         # crease crossings on the edge: safeguarded Newton inside each sign change
@@ -302,7 +377,7 @@ def _edges(ws, cx, cy, R, best, idx_all, nsamp, iters):
                 best.offer(idx[r_], v, X, Y, CREASE, unique=False)
 
 
-def compensate(surface, X, Y, R: float, *, return_info: bool = False, rings: int = 3,
+def compensate(surface, X, Y, R: float, *, return_info: bool = False, rings=RING_SLOPES,
                angles: int = 12, starts: int = 3, iters: int = 12):
     """Exact drop-cutter tip heights for a ball of radius ``R`` mm.
 
@@ -312,6 +387,12 @@ def compensate(surface, X, Y, R: float, *, return_info: bool = False, rings: int
     ~1e-9 mm; -inf where the tool's disk misses the footprint (touches no material).
     With ``return_info`` also a :class:`CompensationInfo`.
     """
+    # nothing here may warn: overflowing trial points are rejected as -inf candidates
+    with np.errstate(all="ignore"):
+        return _compensate(surface, X, Y, R, return_info, rings, angles, starts, iters)
+
+
+def _compensate(surface, X, Y, R, return_info, rings, angles, starts, iters):
     ws = surface if isinstance(surface, WorkSurface) else WorkSurface(surface)
     X, Y = np.broadcast_arrays(np.asarray(X, dtype=float), np.asarray(Y, dtype=float))
     shape = X.shape
@@ -345,7 +426,7 @@ def compensate(surface, X, Y, R: float, *, return_info: bool = False, rings: int
         sy = np.take_along_axis(PY, order, axis=1).ravel()
         owner = np.repeat(np.arange(todo.size), k)
         ax, ay = tx[owner], ty[owner]
-        px, py, conv = _newton_interior(ws, ax, ay, R, sx, sy, iters)
+        px, py, conv = _newton_interior(ws, ax, ay, R, sx, sy, iters + 8)
         v = _value(ws, ax, ay, R, px, py)
         best.offer(todo, v.reshape(-1, k), px.reshape(-1, k), py.reshape(-1, k), INTERIOR)
         # bridged: two converged local maxima in the smooth part, distinct points

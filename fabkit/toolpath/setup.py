@@ -132,6 +132,12 @@ def setup_sheet(spec, surface, toolpath, profile, program_path, check: dict | No
         sheet["gouge_at"] = [_r(v * k) for v in check["gouge_at"]]
         sheet["material_left_at"] = [_r(v * k) for v in check["material_at"]]
         sheet["rapid_clearance"] = _r(check["rapid_clearance"] * k)
+        if "max_material_above_design" in check:
+            sheet["max_material_above_design"] = _r(check["max_material_above_design"] * k)
+        un = check.get("unreachable")
+        sheet["material_left_unreachable"] = None if not un else {
+            "height": _r(un["height"] * k), "at": [_r(v * k) for v in un["at"]],
+            "area": _r(un["area"] * k * k)}
     if program is not None:
         need = machine_needs(program, profile.spindle)
         axes = need["axis_rate_max"]
@@ -247,6 +253,11 @@ def sheet_markdown(sheet: dict, png_name: str | None) -> str:
         lines += [f"- Largest gouge {sheet['max_gouge']:.4g} {u} (allowed {sheet['tolerance']:g})",
                   f"- Largest material left {sheet['max_material_left']:.4g} {u} "
                   f"(allowed {sheet['scallop'] + sheet['tolerance']:.4g})",
+                  *([f"- Material the ball cannot reach (a valley tighter than the tool, a crease): up to "
+                     f"{sheet['material_left_unreachable']['height']:.4g} {u} above the design at "
+                     f"X{sheet['material_left_unreachable']['at'][0]:g} Y{sheet['material_left_unreachable']['at'][1]:g}, "
+                     f"over about {sheet['material_left_unreachable']['area']:.4g} {u}^2 (left, not gouged)"]
+                    if sheet.get("material_left_unreachable") else []),
                   f"- Checked at {sheet['verification_points']} points across the whole stock, edges and "
                   "crease included, by sweeping the ball along every move read back from the program."]
     else:

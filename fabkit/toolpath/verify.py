@@ -289,6 +289,15 @@ def sample_points(ws, n: int, seed: int = 0, tol: Tolerances = DEFAULT):
     return X, Y
 
 
+def _uniform_count(ws, n: int) -> int:
+    """How many of :func:`sample_points` come first and are spread uniformly (grid and
+    jitter; the crease points follow): the share of them flagged estimates an area."""
+    half = max(n // 2, 4)
+    nx = max(2, int(round(np.sqrt(half * ws.L / ws.W))) + 1)
+    ny = max(2, int(np.ceil(half / nx)) + 1)
+    return nx * ny + max(n - nx * ny, n // 2)
+
+
 def _crease_points(ws, gx, gy):
     xs, ys = [], []
     for along_x in (True, False):
@@ -319,13 +328,18 @@ def _crease_points(ws, gx, gy):
 
 def verify_cut(surface, program: Program, R: float, points: int = 40000, *, seed: int = 0,
                depth_limit: float = np.inf, reach: float = np.inf, tol: Tolerances = DEFAULT,
-               detail: bool = False) -> dict:
+               detail: bool = False, unreachable_min: float = 1e-3) -> dict:
     """Sweep a ball-end tool of radius ``R`` mm along every move of ``program`` and
     compare the cut with the design (``surface``: a Surface or WorkSurface).
 
     Returns a dict (lengths mm, work coordinates):
       max_gouge          largest (design - cut) over the sample points (>0: cut below design)
-      max_material_left  largest (cut - design)
+      max_material_left  largest (cut - what the ball can reach): material above the
+                         design where the ball reaches it, above the lowest ball surface
+                         where it cannot (see :func:`reachable_height`)
+      max_material_above_design  largest (cut - design), unreachable material included
+      unreachable        None, or {height, at, area (mm^2), points}: material above the
+                         design no ball position removes (more than ``unreachable_min``)
       gouge_at, material_at   (X, Y) where they occur
       checked_points     number of sample points
       rapid_clearance    smallest (material present when the rapid runs - lowest
@@ -366,8 +380,17 @@ def verify_cut(surface, program: Program, R: float, points: int = 40000, *, seed
                        max_pairs=50 * tol.max_program_points)
     cut = np.minimum(grid.lowest(px, py), 0.0)
     gouge = design - cut
-    left = cut - design
+    # material the ball cannot reach (a valley tighter than it, a V crease) is
+    # separated from the material the program leaves where the ball can reach
+    reach_z, _ = reachable_height(ws, px, py, R)
+    unreach = reach_z - design
+    above = cut - design
+    left = cut - np.maximum(design, reach_z)
     ig, il = int(np.argmax(gouge)), int(np.argmax(left))
+    ia = int(np.argmax(above))
+    un = unreach > unreachable_min
+    n_uniform = _uniform_count(ws, int(points))
+    iu = int(np.argmax(unreach))
 
     # rapids below the top face: the ball must stay above the material present at
     # that moment (cut by the moves before it), at the sample points near the rapid
@@ -405,6 +428,11 @@ def verify_cut(surface, program: Program, R: float, points: int = 40000, *, seed
         "max_material_left": float(left[il]),
         "material_at": (float(px[il]), float(py[il])),
         "checked_points": int(len(px)),
+        "max_material_above_design": float(above[ia]),
+        "material_above_design_at": (float(px[ia]), float(py[ia])),
+        "unreachable": ({"height": float(unreach[iu]), "at": (float(px[iu]), float(py[iu])),
+                         "area": float(L * W * un[:n_uniform].mean()) if n_uniform else 0.0,
+                         "points": int(un.sum())} if un.any() else None),
         "rapid_clearance": clearance,
         "rapid_clearance_at": clearance_at,
         "rapids_checked": int(len(rap)),
@@ -414,8 +442,48 @@ def verify_cut(surface, program: Program, R: float, points: int = 40000, *, seed
         "segments": int(n),
     }
     if detail:
-        out.update(X=px, Y=py, design=design, cut=cut)
+        out.update(X=px, Y=py, design=design, cut=cut, reach=reach_z)
     return out
+
+
+def reachable_height(ws, px, py, R: float, chunk: int = 20000):
+    """Lowest height a ball of radius R can cut at the points (X, Y) (work mm): the
+    design where a ball touching the design there (centre R along its normal) is free
+    of the surface, else an upper bound of the lowest ball surface over nearby centres
+    (the centre above the point, the normal-offset centre, 24 more within R/4..3R/4 of
+    the point, each at its exact drop-cutter height). Returns (height, reachable)."""
+    from .compensate import compensate
+
+    H, hx, hy = ws.all(px, py)[:3]
+    design = np.minimum(H, 0.0)
+    with np.errstate(all="ignore"):
+        w = np.sqrt(1.0 + hx * hx + hy * hy)
+        top = H >= 0
+        nx, ny, nz = np.where(top, 0.0, -hx / w), np.where(top, 0.0, -hy / w), np.where(top, 1.0, 1.0 / w)
+    cx, cy = px + R * nx, py + R * ny
+    tip = design + R * nz - R
+    Z = np.concatenate([compensate(ws, cx[i:i + chunk], cy[i:i + chunk], R)
+                        for i in range(0, len(px), chunk)]) if len(px) else np.zeros(0)
+    ok = top | ~np.isfinite(Z) | (Z <= tip + 1e-7)
+    out = design.copy()
+    bad = np.nonzero(~ok)[0]
+    if bad.size:
+        ang = 2 * np.pi * np.arange(8) / 8
+        offs = [(0.0, 0.0)] + [(f * R * np.cos(a), f * R * np.sin(a)) for f in (0.25, 0.5, 0.75)
+                               for a in ang]
+        best = np.full(bad.size, np.inf)
+        bx, by = px[bad], py[bad]
+        cands = [(cx[bad] - bx, cy[bad] - by)] + [(np.full(bad.size, ox), np.full(bad.size, oy))
+                                                  for ox, oy in offs]
+        for ox, oy in cands:
+            qx, qy = bx + ox, by + oy
+            zq = np.concatenate([compensate(ws, qx[i:i + chunk], qy[i:i + chunk], R)
+                                 for i in range(0, bad.size, chunk)])
+            with np.errstate(invalid="ignore"):
+                low = zq + R - np.sqrt(np.maximum(R * R - ox * ox - oy * oy, 0.0))
+            best = np.minimum(best, np.where(np.isfinite(low), low, np.inf))
+        out[bad] = np.maximum(design[bad], np.minimum(best, 0.0))
+    return out, ok
 
 
 def _dist_to_segment(px, py, a, b):
@@ -428,4 +496,4 @@ def _dist_to_segment(px, py, a, b):
 
 
 __all__ = ["Program", "read_program", "estimate_time", "capsule_lower", "SegmentGrid", "sample_points",
-           "verify_cut", "RAPID", "FEED"]
+           "verify_cut", "reachable_height", "RAPID", "FEED"]

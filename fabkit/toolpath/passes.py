@@ -1,0 +1,373 @@
+"""Pass placement for the ball-end raster: the passes across, each with its exact
+tip heights (drop cutter) along the pass, spaced by the slope-aware stepover.
+
+Work coordinates, mm. A pass runs along ``u`` (X for ``direction: x``, Y for
+``direction: y``) at a fixed ``v`` across.
+
+* Stepover, pass by pass: the next pass is the farthest (never beyond the
+  flat-ground stepover) for which the material left between the two balls,
+  measured VERTICALLY above the design in each cross-section u = const, stays
+  <= 0.95 * scallop. The bound is computed from the actual ball centres of both
+  passes on a grid along u (1 mm or R/2) at 9 points between their contact
+  lines, balls within R along the pass included, so it holds on steep walls (on a
+  plane of slope angle theta across the passes the vertical cusp is
+  (R - sqrt(R^2 - (s / (2 cos theta))^2)) / cos theta) and on slopes along the
+  pass (the contact lies up to R ahead of the ball; the flat stepover holds).
+* Reachable surface: where passes right between the two (three more, evenly
+  spaced) leave more than a quarter of the target too, that material is beyond
+  the ball's reach (a valley tighter than the tool, a V crease); the bound then
+  applies to the material ABOVE what those dense passes leave, so the stepover is
+  bounded by the reachable surface and the unreachable material is reported, not
+  chased with ever smaller stepovers.
+* Edges: across, the first and last passes lie on the footprint edges or beyond
+  them (up to 0.999 R out: a steep wall at the edge is reached only by a ball
+  almost wholly outside), until the edge is milled.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..errors import SpecError
+from .compensate import compensate
+
+AIR_EPS = 1e-7          # mm: a tip this close below the top face touches nothing worth a move
+SCALLOP_SAFETY = 0.95   # stepover keeps the cross-section bound below this fraction of the scallop
+FLOOR_SHARE = 0.25      # material the dense passes leave above this share of the target: unreachable
+MIN_STEP_SHARE = 0.02   # smallest stepover tried, share of the flat-ground stepover
+EDGE_OUT = (0.0, 0.125, 0.25, 0.375, 0.5, 0.625, 0.75, 0.875, 0.95, 0.99, 0.999)  # edge passes, x R out
+
+
+def flat_stepover(R: float, scallop: float) -> float:
+    """Stepover leaving cusps of height ``scallop`` on flat ground, mm (exact)."""
+    if scallop >= R:
+        return 2.0 * R
+    return 2.0 * math.sqrt(2.0 * R * scallop - scallop * scallop)
+
+
+def tilted_plane_cusp(R: float, s: float, theta: float) -> float:
+    """Vertical cusp height between two balls of radius R on a plane of slope angle
+    ``theta`` across passes ``s`` apart horizontally, mm (closed form)."""
+    half = s / (2.0 * math.cos(theta))
+    return (R - math.sqrt(R * R - half * half)) / math.cos(theta)
+
+
+class Frame:
+    """Pass coordinates (u along, v across) <-> work (X, Y)."""
+
+    def __init__(self, direction: str, L: float, W: float):
+        self.direction = direction
+        self.Lu, self.Lv = (L, W) if direction == "x" else (W, L)
+
+    def xy(self, u, v):
+        return (u, v) if self.direction == "x" else (v, u)
+
+
+def _hermite(ug, Z, dZ, uf):
+    """Cubic Hermite interpolation of the pass profile (exact values and slopes at
+    the nodes ug) at uf; +inf outside the finite nodes."""
+    i = np.clip(np.searchsorted(ug, uf, side="right") - 1, 0, len(ug) - 2)
+    h = ug[i + 1] - ug[i]
+    t = (uf - ug[i]) / h
+    t2, t3 = t * t, t * t * t
+    with np.errstate(invalid="ignore"):
+        z = ((2 * t3 - 3 * t2 + 1) * Z[i] + (t3 - 2 * t2 + t) * h * dZ[i]
+             + (-2 * t3 + 3 * t2) * Z[i + 1] + (t3 - t2) * h * dZ[i + 1])
+    return np.where(np.isfinite(z), z, np.inf)
+
+
+class _Pass:
+    """One pass: v, exact tip heights Z and slopes dZ/du at the grid ug, the nodes
+    kept, and the profile on a fine grid uf (Hermite; +inf where not machined)."""
+
+    def __init__(self, fr, R, ug, uf, v, X, Y, Z, ci, depth_lim=math.inf, contact_top=None):
+        pu = ci.contact_x if fr.direction == "x" else ci.contact_y
+        d2 = (ci.contact_x - X) ** 2 + (ci.contact_y - Y) ** 2
+        with np.errstate(all="ignore"):
+            dZ = np.clip(np.nan_to_num((pu - ug) / np.sqrt(np.maximum(R * R - d2, 0.0))), -20, 20)
+        self.v, self.Z, self.dZ, self.bridged = v, Z, dZ, ci.bridged
+        # the contact curve where it crosses each cross-section u (contacts lie up to
+        # R along the pass from their ball's centre on steep ground)
+        cv = ci.contact_y if fr.direction == "x" else ci.contact_x
+        ok = np.isfinite(pu) & np.isfinite(cv)
+        if ok.any():
+            o = np.argsort(pu[ok], kind="stable")
+            self.cv = np.interp(ug, pu[ok][o], cv[ok][o])
+        else:
+            self.cv = np.full_like(ug, v)
+        self.keep = _trim_outside(ug, Z, fr.Lu, depth_lim, contact_top)
+        k = np.nonzero(self.keep)[0]
+        f = _hermite(ug, Z, dZ, uf)
+        # the material bounds count the balls at most 7/8 R beyond the edges: further
+        # out the tip height rises too steeply for the Hermite profile (fewer balls:
+        # a higher, still valid bound)
+        f = np.where((uf >= -0.875 * R) & (uf <= fr.Lu + 0.875 * R), f, np.inf)
+        self.fine = np.where((uf >= ug[k[0]]) & (uf <= ug[k[-1]]), f, np.inf) if k.size \
+            else np.full_like(uf, np.inf)
+
+
+def compensate_passes(ws, fr, R, ug, uf, vlist, depth_lim):
+    """Several passes at once (one vectorized compensation call)."""
+    vv = np.asarray(vlist, float)[:, None] + 0 * ug[None, :]
+    uu = np.broadcast_to(ug, vv.shape)
+    X, Y = fr.xy(uu, vv)
+    Z, ci = compensate(ws, X, Y, R, return_info=True)
+    # the ball touches the stock only on its top face (contact at or above it)
+    top = ws.H(np.nan_to_num(ci.contact_x), np.nan_to_num(ci.contact_y)) >= -AIR_EPS
+    top &= np.isfinite(ci.contact_x)
+    out = []
+    for k, v in enumerate(vlist):
+        row = type(ci)(ci.contact_x[k], ci.contact_y[k], ci.kind[k], ci.bridged[k])
+        out.append(_Pass(fr, R, ug, uf, float(v), X[k], Y[k], Z[k], row, depth_lim, top[k]))
+    return out
+
+
+def sweep_material(ws, fr, R, uq, vs, cutters, uf, threshold=0.0):
+    """Upper bound of the material left vertically above the design at the points
+    (uq, vs) (mm; vs (m, nq) across, uq (nq,) along) after the passes ``cutters``
+    (list of :class:`_Pass`). Each point is cut by the lowest of the balls at the
+    fine positions uf of those passes: a discrete subset of the continuous sweep,
+    so the bound is conservative (by at most (du/4)^2 / (8 R) along steep slopes).
+    Where a first bound from the balls at the same u alone is <= ``threshold`` it
+    is returned as is (the caller needs no better). Returns (m, nq) mm."""
+    df = uf[1] - uf[0]
+    K = int(math.ceil(R / df))
+    j0 = np.clip(np.rint((uq - uf[0]) / df).astype(int), 0, len(uf) - 1)
+    X, Y = fr.xy(np.broadcast_to(uq, vs.shape), vs)
+    design = np.minimum(ws.H(X, Y), 0.0)
+
+    def bound(cols, offsets):
+        """Material at the columns ``cols`` using the balls at fine offsets."""
+        J = np.clip(j0[cols, None] + offsets[None, :], 0, len(uf) - 1)
+        du2 = (uq[cols, None] - uf[J]) ** 2
+        v = vs[:, cols]
+        cut = np.full(v.shape, np.inf)
+        for p in cutters:
+            dv2 = (v - p.v) ** 2
+            r2 = R * R - du2[None, :, :] - dv2[:, :, None]
+            with np.errstate(invalid="ignore"):
+                b = (p.fine[J] + R)[None, :, :] - np.sqrt(r2)
+            cut = np.minimum(cut, np.where(r2 >= 0, b, np.inf).min(axis=2))
+        return np.minimum(cut, 0.0) - design[:, cols]
+
+    # stage 1: balls at the same u only (fewer balls: a higher, still valid bound)
+    all_cols = np.arange(len(uq))
+    ml = bound(all_cols, np.zeros(1, int))
+    # stage 2: the whole sweep within R along the pass, where stage 1 is not enough
+    hot = np.nonzero((ml > threshold).any(axis=0))[0]
+    if hot.size:
+        ml[:, hot] = bound(hot, np.arange(-K, K + 1))
+    return ml
+
+
+def _between(lo, hi, Lv, n=9):
+    """(n, nq) sample points across from lo to hi per position, clipped to [0, Lv]."""
+    a, b = np.minimum(lo, hi), np.maximum(lo, hi)
+    a, b = np.clip(a, 0.0, Lv), np.clip(b, 0.0, Lv)
+    w = np.linspace(0.0, 1.0, n)[:, None]
+    return a[None, :] + (b - a)[None, :] * w
+
+
+def u_grid(fr, R):
+    du = min(1.0, R / 2.0)
+    n_in = max(2, int(math.ceil(fr.Lu / du)) + 1)
+    side = np.linspace(0.0, R, 9)
+    return np.concatenate([-side[:0:-1], np.linspace(0.0, fr.Lu, n_in), fr.Lu + side[1:]])
+
+
+def _trim_outside(ug, Z, Lu, depth_lim, contact_top=None):
+    """Nodes kept along u: all inside the footprint; outside, while the ball still
+    overlaps the stock (within R of the edge: it mills the edge from the side) and
+    the tip stays within the depth limit. ``contact_top`` (bool per node): the ball
+    touches the stock only on its top face; such nodes beyond the stock mill nothing,
+    and they are dropped from the outer end inward (the kept nodes stay contiguous)."""
+    inside = (ug >= 0) & (ug <= Lu)
+    # not the nodes a whole radius out: there the ball touches the edge with its equator
+    # and the tip height has a vertical tangent (Z = H_edge + sqrt(R^2 - u^2) - R) that no
+    # chord of the program's resolution follows within the tolerance (it gouged the edge
+    # by 6-7 um); the next node in, 7/8 R out, has a slope below 2
+    reach = np.maximum(-ug, ug - Lu) < (1.0 - 1e-9) * np.max(np.maximum(-ug, ug - Lu))
+    keep = inside | (reach & np.isfinite(Z) & (Z >= -depth_lim))
+    if contact_top is not None:
+        n = len(ug)
+        i = 0
+        while i < n and not inside[i] and (contact_top[i] or not keep[i]):
+            keep[i] = False
+            i += 1
+        i = n - 1
+        while i >= 0 and not inside[i] and (contact_top[i] or not keep[i]):
+            keep[i] = False
+            i -= 1
+    return keep
+
+
+
+
+class PassPlan:
+    """The placed passes and what the placement found.
+
+    passes:       list of :class:`_Pass`, increasing v
+    ug, uf:       the node grid along u and the fine grid of the material bounds
+    s_flat:       the flat-ground stepover (mm)
+    unreachable:  (mm, u, v): the most material the dense passes between two
+                  passes leave (beyond the ball's reach), and where
+    relaxed:      (mm, u, v) or None: the stepover hit its floor with the bound unmet
+    """
+
+    def __init__(self, passes, ug, uf, s_flat, unreachable, relaxed):
+        self.passes, self.ug, self.uf, self.s_flat = passes, ug, uf, s_flat
+        self.unreachable, self.relaxed = unreachable, relaxed
+
+
+def place_passes(ws, fr, R: float, scallop: float, depth_lim: float, max_passes: int,
+                 spec_path=None) -> PassPlan:
+    """Place the passes across, pass by pass (the rules in the module docstring).
+
+    Raises SpecError (``machining.scallop``) past ``max_passes`` passes."""
+    ug = u_grid(fr, R)
+    inside_u = (ug >= 0) & (ug <= fr.Lu)
+    uq = ug[inside_u]
+    uf = np.linspace(ug[0], ug[-1], 4 * (len(ug) - 1) + 1)
+    target = SCALLOP_SAFETY * scallop
+    s_flat = flat_stepover(R, target)
+    s_min = MIN_STEP_SHARE * s_flat
+    Lv = fr.Lv
+    unreach = [0.0, math.nan, math.nan]
+    relaxed = None
+
+    def make(vlist):
+        return compensate_passes(ws, fr, R, ug, uf, vlist, depth_lim)
+
+    def left(vs, cutters):
+        ml = sweep_material(ws, fr, R, uq, vs, cutters, uf, 0.5 * target)
+        return np.nan_to_num(ml, nan=np.inf, posinf=np.inf)
+
+    def edge_left(p, older, edge):
+        return left(_between(p.cv[inside_u], np.full(uq.shape, edge), Lv), [p] + older)
+
+    def note_floor(fl, vs):
+        if fl.size and fl.max() > unreach[0]:
+            i, j = np.unravel_index(int(np.argmax(fl)), fl.shape)
+            unreach[:] = [float(fl[i, j]), float(uq[j]), float(vs[i, j])]
+
+    def check(pa, pb, older, allowed):
+        """Largest ratio, per position along u, of the material between pa and pb
+        (and beyond pb to the edge when pb is on or past it) to ``allowed``."""
+        vs = _between(pa.cv[inside_u], pb.cv[inside_u], Lv)
+        ml = left(vs, [pb, pa] + older).max(axis=0)
+        if pb.v >= Lv:
+            ml = np.maximum(ml, edge_left(pb, [pa] + older, Lv).max(axis=0))
+        return float((ml / allowed).max(initial=0.0))
+
+    def floor_of(pa, older):
+        """Per u, the material a pass right beside pa leaves too: beyond the ball's
+        reach (a valley tighter than the tool, a V crease); no stepover removes it."""
+        pt = make([min(pa.v + MIN_STEP_SHARE * s_flat, Lv)])[0]
+        vs = _between(pa.cv[inside_u], pt.cv[inside_u], Lv)
+        fl = left(vs, [pt, pa] + older)
+        note_floor(np.where(fl > FLOOR_SHARE * target, fl, 0.0), vs)
+        return fl.max(axis=0)
+
+    def deep(p):
+        k = p.keep
+        return bool(k.any() and p.Z[k].min() < -depth_lim)
+
+    def edge_pass(edge, sign, older):
+        """The first pass on or beyond an edge that mills it (v = edge + sign f R)."""
+        cands = make([edge + sign * f * R for f in EDGE_OUT])
+        best, best_ml = None, math.inf
+        for c in cands:
+            if deep(c) or not c.keep.any():
+                continue
+            ml = edge_left(c, older, edge).max(initial=0.0)
+            if ml <= target:
+                return c, 0.0
+            if ml < best_ml:
+                best, best_ml = c, ml
+        return best, best_ml
+
+    p0, ml0 = edge_pass(0.0, -1.0, [])
+    if p0 is None:
+        p0, ml0 = make([0.0])[0], math.inf
+    if ml0 > target and math.isfinite(ml0) and ml0 > unreach[0]:
+        unreach[:] = [ml0, float(uq[0]) if uq.size else 0.0, 0.0]
+    passes = [p0]
+    s_next = s_flat
+    ahead = []
+    while True:
+        pa = passes[-1]
+        older = passes[-2:-1]
+        if pa.v >= Lv:
+            break
+        s = max(min(s_next, s_flat), s_min)
+        allowed = np.full(uq.shape, target)
+        if pa.v + s >= Lv:
+            # the last pass: on or beyond the edge v = Lv, milling it
+            pb, ml = edge_pass(Lv, 1.0, [pa] + older)
+            if pb is None:
+                pb, ml = make([Lv])[0], math.inf
+            r = check(pa, pb, older, allowed)
+            if r > 1.0:
+                allowed = np.maximum(target, floor_of(pa, older) + 0.1 * target)
+                r = check(pa, pb, older, allowed)
+            if r <= 1.0 or Lv - pa.v <= 2 * s_min:
+                if r > 1.0 and (relaxed is None or r * target > relaxed[0]):
+                    relaxed = (r * target, float(uq[-1]) if uq.size else 0.0, Lv)
+                if target < ml < math.inf and ml > unreach[0]:
+                    unreach[:] = [ml, float(uq[-1]) if uq.size else 0.0, Lv]
+                passes.append(pb)
+                break
+            s = min(s, 0.6 * (Lv - pa.v))
+            ahead = []
+        cand = ahead.pop(0) if ahead and abs(ahead[0].v - (pa.v + s)) < 1e-12 else None
+        if cand is None:
+            vl = [pa.v + k * s for k in (1, 2, 3) if pa.v + k * s < Lv]
+            cands = make(vl)
+            cand, ahead = cands[0], cands[1:]
+        ratio = check(pa, cand, older, allowed)
+        pb = cand if ratio <= 1.0 else None
+        tried = [(ratio, cand)]
+        floor_done = False
+        tries = 0
+        while pb is None:
+            ahead = []
+            tries += 1
+            if not floor_done:
+                # material even a pass right beside pa leaves is allowed (reported)
+                floor_done = True
+                fl = floor_of(pa, older)
+                if (fl > target).any():
+                    allowed = np.maximum(target, fl + 0.1 * target)
+                    ratio = check(pa, cand, older, allowed)
+                    tried.append((ratio, cand))
+                    if ratio <= 1.0:
+                        pb = cand
+                        break
+            f = min(0.97, max(0.3, 0.99 / math.sqrt(max(ratio, 1e-12))))
+            s = max(s * f, s_min)
+            trial = sorted({max(s * g, s_min) for g in (1.0, 0.85, 0.7, 0.55)}, reverse=True)
+            cands = make([pa.v + t for t in trial])
+            for c in cands:
+                ratio = check(pa, c, older, allowed)
+                tried.append((ratio, c))
+                if ratio <= 1.0:
+                    pb = c
+                    break
+            if pb is None and (trial[-1] <= s_min * (1 + 1e-9) or tries >= 8):
+                # the bound is not met even right beside pa: relax, at the largest
+                # stepover within 10 % of the best ratio (smaller ones do not help)
+                rmin = min(r for r, _ in tried)
+                ratio, pb = max(((r, c) for r, c in tried if r <= 1.1 * rmin),
+                                key=lambda rc: rc[1].v)
+                if relaxed is None or ratio * target > relaxed[0]:
+                    relaxed = (ratio * target, float(uq[0]) if uq.size else 0.0, pa.v)
+            s = trial[-1]
+        passes.append(pb)
+        if len(passes) > max_passes:
+            raise SpecError(f"needs more than {max_passes} passes; raise the scallop",
+                            file=spec_path, key="machining.scallop")
+        # predict the next stepover from this one's margin (cusp ~ s^2)
+        s_next = max(pb.v - pa.v, s_min) * min(1.15, 0.97 / math.sqrt(max(ratio, 1e-12)))
+    return PassPlan(passes, ug, uf, s_flat, tuple(unreach), relaxed)

@@ -1,0 +1,106 @@
+"""``fabkit gcode`` on a family of surfaces a user writes (steep planes in both
+raster directions, a V crease, a valley tighter than the tool, an exponential wall
+meeting the top face, a step), small blocks, mm and inch programs. Each program is
+checked by the built-in verification AND by an independent brute-force cut of the
+moves LinuxCNC's ``rs274 -g`` reads back from it: gouge <= tolerance everywhere,
+material left <= scallop + tolerance wherever the ball can reach (closed forms say
+where), and the unreachable material reported where there is some."""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+
+import numpy as np
+import pytest
+
+from conftest import write_spec
+
+RS274 = shutil.which("rs274")
+R = 1.5875                              # 1/8 in ball
+SCALLOP, TOL = 0.05, 0.01
+
+
+def _raw(height, x, y, direction="y", units="mm", verify_points=6000):
+    return {"name": "fam", "units": "mm",
+            "surface": {"height": height, "x": list(x), "y": list(y), "top": 0.0},
+            "stock": {"thickness": 50, "depth_limit": 40},
+            "tool": {"shape": "ball", "diameter": 2 * R, "reach": 30},
+            "machining": {"scallop": SCALLOP, "tolerance": TOL, "direction": direction,
+                          "units": units, "verify_points": verify_points, "feed": 1500,
+                          "plunge": 400, "safe_height": 3}}
+
+
+def _design(height, X, Y, x0, y0):
+    from fabkit.expr import compile_surface
+    f = compile_surface(height, {})
+    return np.minimum(f.h(X + x0, Y + y0), 0.0)
+
+
+THETA_V = math.atan(3.0)
+# (id, height, x, y, direction, units, unreachable band |x| < w (design x), unreachable height)
+CASES = [
+    ("plane4_y", "4*x - 20", (0, 12), (0, 8), "y", "mm", None),
+    # the wall's feet curve tighter than the ball (radius ~0.08 mm): some unreachable material
+    ("wall8_x_in", "4*tanh(2*(x-4)) - 8", (0, 8), (0, 6), "x", "in", "any"),
+    ("vcrease", "3*abs(x) - 12", (-8, 8), (0, 6), "y", "mm",
+     (R * math.sin(THETA_V), R * (1 / math.cos(THETA_V) - 1))),
+    ("expwall", "exp(0.4*x) - 12", (-6, 10), (0, 6), "x", "mm", None),
+    pytest.param("step", "5*tanh(2*(x-5)) - 10", (0, 10), (0, 6), "y", "in", "any",
+                 marks=pytest.mark.xfail(reason="known defect: gouge 0.13 mm where the passes leave "
+                                                "the stock across a slope-10 wall (edge drop cutter)")),
+]
+
+
+@pytest.mark.rs274
+@pytest.mark.parametrize("name, height, x, y, direction, units, band", CASES,
+                         ids=[c[0] if isinstance(c[0], str) else c[0][0] for c in CASES])
+def test_family_verified_and_independent_rs274_cut(cli, tmp_path, name, height, x, y, direction,
+                                                   units, band):
+    spec = write_spec(tmp_path, _raw(height, x, y, direction, units))
+    code, out, err = cli("gcode", spec, "-o", tmp_path / "p.ngc", "--json")
+    assert code == 0, err
+    s = json.loads(out)
+    k = 25.4 if units == "in" else 1.0
+    assert s["max_gouge"] * k <= TOL
+    assert s["max_material_left"] * k <= SCALLOP + TOL
+    assert "Traceback" not in err and "RuntimeWarning" not in err
+    un = s["material_left_unreachable"]
+    if band is None:
+        assert un is None or un["height"] * k < 0.1
+    elif band != "any":
+        w, hmax = band
+        assert un is not None and un["height"] * k == pytest.approx(hmax, rel=0.02)
+        assert un["area"] * k * k == pytest.approx(2 * w * (y[1] - y[0]), rel=0.2)
+        assert err.count("warning") == 1
+    if RS274 is None:
+        pytest.skip("LinuxCNC rs274 not installed")
+    from test_verify import brute_cut, rs274_moves
+    pts, _ = rs274_moves(tmp_path / "p.ngc")
+    pts = pts * k                     # rs274 reports canonical moves in the program's units
+    L, W = x[1] - x[0], y[1] - y[0]
+    rng = np.random.default_rng(3)
+    px, py = rng.uniform(0, L, 700), rng.uniform(0, W, 700)
+    cut = brute_cut(px, py, pts[:-1], pts[1:], R, step=0.01)
+    design = _design(height, px, py, x[0], y[0])
+    assert np.max(design - cut) <= TOL + 2e-4                     # no gouge anywhere
+    reach = np.ones(len(px), bool)
+    if band == "any":
+        reach = np.ones(len(px), bool)
+        # where the built-in check finds unreachable material, the ball cannot reach:
+        # only the gouge is asserted there (above)
+        from fabkit.spec import load_spec
+        from fabkit.surface import Surface
+        from fabkit.toolpath.compensate import WorkSurface
+        from fabkit.toolpath.verify import reachable_height
+        ws = WorkSurface(Surface.from_spec(load_spec(spec)))
+        _, reach = reachable_height(ws, px, py, R)
+    elif band is not None:
+        reach = np.abs(px + x[0]) > band[0] + 0.05                  # the ball reaches there
+        # in the band, nothing above the lowest ball (centred on the crease) + scallop
+        xb = px[~reach] + x[0]
+        lowest = -12 + R / math.cos(THETA_V) - np.sqrt(R * R - xb ** 2)
+        assert np.all(cut[~reach] <= lowest + SCALLOP + TOL)
+    # the brute cut is a subset of the sweep (balls every 0.01 mm): up to 2e-4 high
+    assert np.max((cut - design)[reach]) <= SCALLOP + TOL + 2e-4
