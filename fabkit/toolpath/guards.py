@@ -81,7 +81,7 @@ def guard(est: dict, tol, spec_path=None, scallop=None, tolerance=None) -> None:
     """Refuse (SpecError, exit 2, naming the key and the estimate) beyond the guards."""
     for key, val in (("machining.scallop", scallop), ("machining.tolerance", tolerance)):
         if val is not None and val < MIN_LENGTH_MM:
-            raise SpecError(f"{val:g} mm is below {MIN_LENGTH_MM:g} mm, finer than any machine "
+            raise SpecError(f"must be >= {MIN_LENGTH_MM:g} mm, got {val:g} mm: finer than any machine "
                             "resolves (the program has at most 6 decimals)", file=spec_path, key=key)
     if est["passes"] > tol.max_passes:
         raise SpecError(f"needs about {est['passes']:.3g} passes (limit {tol.max_passes}); "
