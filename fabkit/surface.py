@@ -132,16 +132,7 @@ class Surface:
     def principal_curvatures(self, x, y):
         """(k1, k2), k1 >= k2, of the graph z = h with the upward normal, in
         1/design unit. Positive: concave up (a valley a ball-end tool must fit)."""
-        _, hx, hy, hxx, hxy, hyy = self.derivatives(x, y)
-        w2 = 1.0 + hx * hx + hy * hy
-        w = np.sqrt(w2)
-        E, F, G = 1.0 + hx * hx, hx * hy, 1.0 + hy * hy
-        L, M, N = hxx / w, hxy / w, hyy / w
-        det = E * G - F * F
-        K = (L * N - M * M) / det
-        H = (E * N - 2 * F * M + G * L) / (2 * det)
-        disc = np.sqrt(np.maximum(H * H - K, 0.0))
-        return H + disc, H - disc
+        return principal_curvatures(*self.derivatives(x, y)[1:6])
 
     def min_concave_radius(self) -> Extremum:
         """Smallest radius of concave curvature where the surface is cut (h < top),
@@ -207,3 +198,16 @@ def check_depth(spec, surface: Surface) -> float:
                 f"the surface is {depth:.3f} mm deep (lowest at x={low.x:.4g}, y={low.y:.4g}), "
                 f"{depth - limit:.3f} mm more than the limit {limit:g} mm", file=spec.path, key=key)
     return depth
+
+
+def principal_curvatures(hx, hy, hxx, hxy, hyy):
+    """(k1, k2), k1 >= k2, of the graph z = h with the upward normal, from its first
+    and second derivatives (arrays of one shape; 1/length). Positive: concave up."""
+    w = np.sqrt(1.0 + hx * hx + hy * hy)
+    E, F, G = 1.0 + hx * hx, hx * hy, 1.0 + hy * hy
+    L, M, N = hxx / w, hxy / w, hyy / w
+    det = E * G - F * F
+    K = (L * N - M * M) / det
+    H = (E * N - 2.0 * F * M + G * L) / (2.0 * det)
+    disc = np.sqrt(np.maximum(H * H - K, 0.0))
+    return H + disc, H - disc

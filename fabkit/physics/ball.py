@@ -37,6 +37,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..surface import principal_curvatures
+
 #: jet layout: indices into the tuple returned by the jet function
 JET = ("h", "hx", "hy", "hxx", "hxy", "hyy", "hxxx", "hxxy", "hxyy", "hyyy")
 
@@ -128,15 +130,7 @@ def geometry(j, r):
 def max_concave_curvature(j):
     """The largest principal curvature of z = h with the upward normal (1/length;
     positive: concave up, a valley), from the jet."""
-    _, hx, hy, hxx, hxy, hyy = j[:6]
-    w2 = 1.0 + hx * hx + hy * hy
-    w = np.sqrt(w2)
-    E, F, G = 1.0 + hx * hx, hx * hy, 1.0 + hy * hy
-    L, M, N = hxx / w, hxy / w, hyy / w
-    det = E * G - F * F
-    K = (L * N - M * M) / det
-    H = (E * N - 2.0 * F * M + G * L) / (2.0 * det)
-    return H + np.sqrt(np.maximum(H * H - K, 0.0))
+    return principal_curvatures(*j[1:6])[0]
 
 
 def centre_velocity(geo, xd, yd):
