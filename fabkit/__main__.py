@@ -1,5 +1,5 @@
 import sys
 
-from fabkit.cli import main
+from fabkit.cli import entry
 
-sys.exit(main())
+sys.exit(entry())

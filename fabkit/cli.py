@@ -16,6 +16,7 @@ exit codes here and nowhere else:
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import os
 import sys
@@ -290,5 +291,24 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_INTERNAL
 
 
+def entry() -> int:
+    """The console entry point: :func:`main`, then the process exit.
+
+    After Ctrl-C the process ends with ``os._exit(130)`` once the streams are
+    flushed. A normal exit is not used there: CPython (3.11) marks a
+    KeyboardInterrupt raised inside code run by ``exec`` of a string (scipy does
+    so while it is imported) as unhandled even when it is caught, and then kills
+    the process with SIGINT at exit, so the shell would see -2 instead of 130.
+    Outputs are already discarded by then; nothing else needs the shutdown.
+    """
+    code = main()
+    if code == EXIT_INTERRUPTED:
+        for stream in (sys.stdout, sys.stderr):
+            with contextlib.suppress(Exception):
+                stream.flush()
+        os._exit(code)
+    return code
+
+
 if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())
+    sys.exit(entry())

@@ -226,3 +226,23 @@ def test_ctrl_c_during_the_renames_leaves_a_consistent_pair(tmp_path, monkeypatc
     assert len(calls) == 2
     assert a.read_text() == "new program" and b.read_text() == "new sheet"
     assert temporaries(tmp_path) == []
+
+
+def test_ctrl_c_inside_exec_of_a_string_still_exits_130(tmp_path):
+    """CPython marks a KeyboardInterrupt raised in code run by ``exec`` of a
+    string (scipy does that while importing) as unhandled even when caught, and
+    kills the process with SIGINT at exit (-2): the entry point exits 130."""
+    script = (
+        "import sys, fabkit.cli as cli\n"
+        "def main():\n"
+        "    try:\n"
+        "        exec('raise KeyboardInterrupt')\n"
+        "    except KeyboardInterrupt:\n"
+        "        print('fabkit stl: interrupted; existing outputs left intact', file=sys.stderr)\n"
+        "        return cli.EXIT_INTERRUPTED\n"
+        "cli.main = main\n"
+        "sys.exit(cli.entry())\n")
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    proc = subprocess.run([sys.executable, "-c", script], cwd=tmp_path, env=env, capture_output=True, timeout=60)
+    assert proc.returncode == 130, (proc.returncode, proc.stderr)
+    assert proc.stderr.decode().strip() == "fabkit stl: interrupted; existing outputs left intact"
