@@ -166,11 +166,13 @@ def _cpu_seconds(pid: int) -> float:
 
 
 @pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc")
-@pytest.mark.parametrize("command,busy_cpu_s", [("stl", 1.2), ("stl", 2.0), ("gcode", 1.5)])
+@pytest.mark.parametrize("command,busy_cpu_s", [("stl", 0.9), ("stl", 1.2), ("gcode", 1.5)])
 def test_sigint_to_running_command(tmp_path, command, busy_cpu_s):
     """Ctrl-C once the process has used ``busy_cpu_s`` of CPU (past start-up,
     inside surface compilation, the mesh build or the planning): exit 130, one
-    line, the previous output byte-identical, no temporary file."""
+    line, the previous output byte-identical, no temporary file. About 0.9 s
+    lands in scipy's import, where CPython used to turn a caught Ctrl-C into a
+    SIGINT death (-2) at exit (see ``fabkit.cli.entry``)."""
     spec = tmp_path / "tiny.yaml"
     raw = tiny_raw()
     raw["surface"].update(x=[-44, 6], y=[-12.5, 12.5])        # the paper's block: a few seconds of work
@@ -227,22 +229,3 @@ def test_ctrl_c_during_the_renames_leaves_a_consistent_pair(tmp_path, monkeypatc
     assert a.read_text() == "new program" and b.read_text() == "new sheet"
     assert temporaries(tmp_path) == []
 
-
-def test_ctrl_c_inside_exec_of_a_string_still_exits_130(tmp_path):
-    """CPython marks a KeyboardInterrupt raised in code run by ``exec`` of a
-    string (scipy does that while importing) as unhandled even when caught, and
-    kills the process with SIGINT at exit (-2): the entry point exits 130."""
-    script = (
-        "import sys, fabkit.cli as cli\n"
-        "def main():\n"
-        "    try:\n"
-        "        exec('raise KeyboardInterrupt')\n"
-        "    except KeyboardInterrupt:\n"
-        "        print('fabkit stl: interrupted; existing outputs left intact', file=sys.stderr)\n"
-        "        return cli.EXIT_INTERRUPTED\n"
-        "cli.main = main\n"
-        "sys.exit(cli.entry())\n")
-    env = dict(os.environ, PYTHONPATH=str(ROOT))
-    proc = subprocess.run([sys.executable, "-c", script], cwd=tmp_path, env=env, capture_output=True, timeout=60)
-    assert proc.returncode == 130, (proc.returncode, proc.stderr)
-    assert proc.stderr.decode().strip() == "fabkit stl: interrupted; existing outputs left intact"
