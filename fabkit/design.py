@@ -128,8 +128,8 @@ def searchable_keys(spec) -> list[str]:
 def parse_bound(text: str, spec, flag: str = "--vary") -> Bound:
     """``KEY=LO:HI`` -> :class:`Bound`; SpecError naming ``--vary`` (did-you-mean
     for an unknown key)."""
-    from .explore import _all_keys, _num
-    from .spec import SCHEMA, _suggest
+    from .explore import _num, refuse_key
+    from .spec import SCHEMA
 
     text = str(text)
     if "=" not in text:
@@ -138,16 +138,7 @@ def parse_bound(text: str, spec, flag: str = "--vary") -> Bound:
     key, rhs = key.strip(), rhs.strip()
     allowed = searchable_keys(spec)
     if key not in allowed:
-        parts = key.split(".")
-        if key in _all_keys() and not spec.has(parts[0]):
-            raise SpecError(f"{key}: the spec has no {parts[0]} section", key=flag)
-        if key in _all_keys():
-            raise SpecError(f"{key}: not a number key (a search varies numbers)", key=flag)
-        if key.startswith("surface.params."):
-            names = list(spec.surface.params) if spec.has("surface") else []
-            raise SpecError(f"{key}: no such parameter in surface.params"
-                            f"{_suggest(key, [f'surface.params.{n}' for n in names])}", key=flag)
-        raise SpecError(f"unknown key {key!r}{_suggest(key, allowed)}", key=flag)
+        refuse_key(key, allowed, spec, flag, "not a number key (a search varies numbers)")
     parts = rhs.split(":")
     if len(parts) != 2 or not all(p.strip() for p in parts):
         raise SpecError(f"{key}: expected LO:HI, got {rhs!r}", key=flag)

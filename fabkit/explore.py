@@ -119,6 +119,22 @@ def _num(text: str, what: str, flag: str) -> float:
     return x
 
 
+def refuse_key(key: str, allowed, spec, flag: str, not_variable: str):
+    """Raise the SpecError for a ``--vary`` key outside ``allowed``: a section the
+    spec lacks, a key that exists but cannot be varied (``not_variable`` says why),
+    an unknown surface parameter or an unknown key, with a did-you-mean."""
+    section = key.split(".")[0]
+    if key in _all_keys() and not spec.has(section):
+        raise SpecError(f"{key}: the spec has no {section} section", key=flag)
+    if key in _all_keys():
+        raise SpecError(f"{key}: {not_variable}", key=flag)
+    if key.startswith("surface.params."):
+        names = list(spec.surface.params) if spec.has("surface") else []
+        raise SpecError(f"{key}: no such parameter in surface.params"
+                        f"{_suggest(key, [f'surface.params.{n}' for n in names])}", key=flag)
+    raise SpecError(f"unknown key {key!r}{_suggest(key, allowed)}", key=flag)
+
+
 def parse_vary(text: str, spec, flag: str = "--vary") -> Vary:
     """``KEY=LO:HI:N`` (N evenly spaced values, both ends included) or
     ``KEY=V1,V2,...`` (values as given; words for choice keys such as
@@ -134,16 +150,7 @@ def parse_vary(text: str, spec, flag: str = "--vary") -> Vary:
     key, rhs = key.strip(), rhs.strip()
     allowed = variable_keys(spec)
     if key not in allowed:
-        parts = key.split(".")
-        if key in _all_keys() and not spec.has(parts[0]):
-            raise SpecError(f"{key}: the spec has no {parts[0]} section", key=flag)
-        if key in _all_keys():
-            raise SpecError(f"{key}: not a number or choice key (it cannot be varied on a grid)", key=flag)
-        if key.startswith("surface.params."):
-            names = list(spec.surface.params) if spec.has("surface") else []
-            raise SpecError(f"{key}: no such parameter in surface.params"
-                            f"{_suggest(key, [f'surface.params.{n}' for n in names])}", key=flag)
-        raise SpecError(f"unknown key {key!r}{_suggest(key, allowed)}", key=flag)
+        refuse_key(key, allowed, spec, flag, "not a number or choice key (it cannot be varied on a grid)")
     field = None
     if not key.startswith("surface.params."):
         sec, name = key.split(".")

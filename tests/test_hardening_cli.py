@@ -25,6 +25,7 @@ import os
 import subprocess
 import sys
 import tempfile
+import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -233,19 +234,37 @@ def test_guards_refuse_or_bound(tmp_path, command, extra, key, value, names):
 # ----------------------------------------------------------------------------
 # acceptance: forty mutated paper specs and junk files through stl and check
 # ----------------------------------------------------------------------------
+def _cpu_seconds(pid: int) -> float:
+    """CPU time (user + system, all threads) of a running process, from /proc."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except (FileNotFoundError, ProcessLookupError, IndexError):
+        return 0.0
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
 def run_subprocess(argv: list[str], cwd: Path, timeout: float = 30, fail: bool = True):
-    """(exit code, stdout, stderr) of ``python -m fabkit ARGV``; a run past ``timeout``
+    """(exit code, stdout, stderr) of ``python -m fabkit ARGV``. A run that uses more
+    than ``timeout`` seconds of CPU (a hang or a runaway loop; CPU, not wall time, so
+    that a loaded machine does not fail the test), or sleeps past ten times that,
     fails the test (or, with ``fail=False``, gives exit code None)."""
     env = dict(os.environ, PYTHONPATH=str(ROOT), PYTHONWARNINGS="ignore")
     env.pop("FABKIT_DEBUG", None)
-    try:
-        proc = subprocess.run([sys.executable, "-m", "fabkit", *map(str, argv)], cwd=cwd, env=env,
-                              capture_output=True, timeout=timeout)
-    except subprocess.TimeoutExpired:
-        if fail:
-            pytest.fail(f"fabkit {' '.join(map(str, argv))} still running after {timeout} s")
-        return None, "", f"still running after {timeout} s"
-    return proc.returncode, proc.stdout.decode("utf-8", "replace"), proc.stderr.decode("utf-8", "replace")
+    proc = subprocess.Popen([sys.executable, "-m", "fabkit", *map(str, argv)], cwd=cwd, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    wall_limit = time.monotonic() + 10 * timeout
+    while True:
+        try:
+            out, err = proc.communicate(timeout=0.25)
+            break
+        except subprocess.TimeoutExpired:
+            if _cpu_seconds(proc.pid) > timeout or time.monotonic() > wall_limit:
+                proc.kill()
+                proc.communicate()
+                if fail:
+                    pytest.fail(f"fabkit {' '.join(map(str, argv))} still running after {timeout} s of CPU")
+                return None, "", f"still running after {timeout} s of CPU"
+    return proc.returncode, out.decode("utf-8", "replace"), err.decode("utf-8", "replace")
 
 
 def _m(**changes):
@@ -396,7 +415,7 @@ SLOW: dict = {}   # (command, kind, case) -> an xfail mark for a case known to b
 def test_acceptance_mutations_and_junk(acceptance, cmd, kind, name):
     r = acceptance[(cmd, kind, name)]
     assert not r["pwned"]
-    assert r["code"] is not None, f"fabkit {cmd} {name}: {r['err']} (limit 30 s)"
+    assert r["code"] is not None, f"fabkit {cmd} {name}: {r['err']} (limit 30 s of CPU)"
     if isinstance(r["expect"], dict):
         assert_clean_exit(r["code"], r["err"], r["expect"][cmd])
         if r["code"] == 2:
