@@ -42,28 +42,44 @@ class Engine:
     template: codegen.Template
 
     def params(self, problem) -> tuple:
-        """P: (Pa, surface functions...) with Pa the model's run-time parameters,
-        then the surface's (see point.py)."""
-        full = 1.0 if problem.model == "full" else 0.0
-        Pa = np.array([problem.g_tilde, float(problem.damping), float(problem.nonlinear_damping), full,
-                       *self.formula.values], dtype=float)
+        """P: (Pa, surface functions...) with Pa the model's run-time parameters (see
+        the template: point.py, ball.py), then the surface's."""
+        Pa = np.array([*MODEL_PARAMS[self.template.name](problem), *self.formula.values], dtype=float)
         return (Pa, *self.params_functions())
 
     def params_functions(self) -> tuple:
         return tuple(getattr(self.surface, name) for name, _ in self.template.functions)
 
 
-def _formula(fns):
-    """(Formula, surface module path) of surface functions, memoized per object."""
-    hit = _BY_FNS.get(id(fns))
+def _point_params(problem) -> list:
+    """point.py's Pa[:4]: g~, mu, mu_nl, 1 for the full model (0 simplified)."""
+    return [problem.g_tilde, float(problem.damping), float(problem.nonlinear_damping),
+            1.0 if problem.model == "full" else 0.0]
+
+
+def _ball_params(problem) -> list:
+    """ball.py's Pa[:8]: g, k, r, mu, c_rr, friction, v_s, g~ (physics/ball.Params)."""
+    from ..ball import Params
+
+    b = Params.of(problem)
+    return [b.g, b.k, b.r, b.mu, b.c_rr, b.friction, b.v_s, problem.g_tilde]
+
+
+#: each template's run-time model parameters from a problem
+MODEL_PARAMS = {"point": _point_params, "ball": _ball_params}
+
+
+def _formula(fns, template=codegen.POINT):
+    """(Formula, surface module path) of surface functions under a template, memoized."""
+    hit = _BY_FNS.get((id(fns), template.name))
     if hit is not None and hit[0] is fns:
         return hit[1], hit[2]
     f = codegen.formula(fns)
-    path = codegen.write_surface(f, codegen.POINT)
+    path = codegen.write_surface(f, template)
     with _LOCK:
         if len(_BY_FNS) > 256:
             _BY_FNS.clear()
-        _BY_FNS[id(fns)] = (fns, f, path)
+        _BY_FNS[(id(fns), template.name)] = (fns, f, path)
     return f, path
 
 
@@ -76,8 +92,9 @@ def _cached(path, entry: str) -> bool:
 
 def is_compiled(problem) -> bool:
     """True when the engine and ``problem``'s surface are in the cache (they load quickly)."""
-    _, path = _formula(problem.fns)
-    return _cached(codegen.write_engine(codegen.POINT), "run_batch") and _cached(path, "surface")
+    tpl = codegen.template_of(problem.model)
+    _, path = _formula(problem.fns, tpl)
+    return _cached(codegen.write_engine(tpl), "run_batch") and _cached(path, tpl.functions[0][0])
 
 
 def compile_estimate() -> float:
@@ -91,26 +108,29 @@ def compile_estimate() -> float:
 def engine(problem, notify=None) -> Engine:
     """The compiled engine for ``problem``, built and compiled on first use.
 
-    The step loop compiles once per installation, each formula's surface functions
-    once (a second or two); later runs load both from the cache.
-    ``notify(message)`` is called before a first-time compile (the commands print
-    ``compiling the simulator for this surface (once, about N s)``).
+    The model picks the template (:func:`codegen.template_of`: the point's or the
+    finite ball's); the step loop, the events and these drivers are shared. Each
+    template's engine compiles once per installation, each formula's surface
+    functions once per template (a second or two); later runs load both from the
+    cache. ``notify(message)`` is called before a first-time compile (the commands
+    print ``compiling the simulator for this surface (once, about N s)``).
     """
-    f, spath = _formula(problem.fns)
-    epath = codegen.write_engine(codegen.POINT)
+    tpl = codegen.template_of(problem.model)
+    f, spath = _formula(problem.fns, tpl)
+    epath = codegen.write_engine(tpl)
     with _LOCK:
         cold_e = not _cached(epath, "run_batch")
-        cold_s = not _cached(spath, "surface")
+        cold_s = not _cached(spath, tpl.functions[0][0])
         if (cold_e or cold_s) and notify is not None:
             est = compile_estimate() if cold_e else 2.0
             notify(f"compiling the simulator for this surface (once, about {max(1, round(est))} s)")
         t0 = time.perf_counter()
         smod = _LOADED.get(str(spath)) or _import(spath)
         emod = _LOADED.get(str(epath))
-        eng = Engine(emod, smod, f, codegen.POINT)
+        eng = Engine(emod, smod, f, tpl)
         if emod is None:
             emod = _import(epath)
-            eng = Engine(emod, smod, f, codegen.POINT)
+            eng = Engine(emod, smod, f, tpl)
             _warm(eng)
             if cold_e:
                 _store_estimate(time.perf_counter() - t0)
@@ -178,16 +198,16 @@ def _warm(eng: Engine) -> None:
     """Compile (or load) the batch entry point with its one signature: zero launches."""
     A, B, E, E3, n, order, dop = tableau_arrays("DOP853")
     z = np.zeros(0)
-    P = (np.zeros(8), *eng.params_functions())
+    P = (np.zeros(eng.template.n_model_params + 4), *eng.params_functions())
     eng.module.run_batch(z, z, z, P, np.zeros(16), A, B, E, E3, n, order, dop,
-                  np.zeros((0, 8)), np.zeros((0, 9)), np.zeros((0, 6), dtype=np.int64),
-                  np.zeros((0, 0, 7)), False)
+                         np.zeros((0, 8)), np.zeros((0, N_FLOAT)), np.zeros((0, N_INT), dtype=np.int64),
+                         np.zeros((0, 0, 7)), False)
 
 
 # ----------------------------------------------------------------------------
 # runs
 # ----------------------------------------------------------------------------
-N_FLOAT, N_INT = 9, 6
+N_FLOAT, N_INT = 10, 6
 
 
 def config(problem, rtol, atol, t_max, max_steps, e_star) -> np.ndarray:
@@ -204,7 +224,7 @@ def config(problem, rtol, atol, t_max, max_steps, e_star) -> np.ndarray:
 
 def run(eng: Engine, problem, v, y0, vy0, *, rtol, atol, t_max, max_steps, k_keep, method="DOP853",
         record=False, e_star=None, threads=1, progress=None, rec_cap=4096):
-    """Launch every v[i] (y0[i], vy0[i]); returns (FO (N, 9), IO (N, 6), BT (N, K), TR).
+    """Launch every v[i] (y0[i], vy0[i]); returns (FO (N, 10), IO (N, 6), BT (N, K), TR).
 
     ``threads`` > 1 runs blocks of launches on that many threads; ``progress(done)``
     is called after each block. Results do not depend on either.

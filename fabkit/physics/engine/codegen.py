@@ -52,7 +52,19 @@ POINT = Template(
     (("surface", ((), ("x",), ("y",), ("x", "x"), ("x", "y"), ("y", "y"), "F")),),
     4)
 
-TEMPLATES = {"point": POINT}
+BALL = Template(
+    "ball", "ball.py",
+    (("jet", ((), ("x",), ("y",), ("x", "x"), ("x", "y"), ("y", "y"),
+              ("x", "x", "x"), ("x", "x", "y"), ("x", "y", "y"), ("y", "y", "y"))),),
+    8)
+
+TEMPLATES = {"point": POINT, "ball": BALL}
+
+
+def template_of(model: str) -> Template:
+    """The template that runs ``simulation.model``: the finite ball's, or the point's
+    (``full``, ``simplified``)."""
+    return BALL if model == "ball" else POINT
 
 
 def cache_dir() -> Path:

@@ -8,9 +8,18 @@ engine module in the user cache, where numba compiles it once per installation
 callbacks, one small module per formula) and reach the engine inside ``P``, which
 the engine passes through untouched to the model. The model supplies
 
-    NV, NE            state size and the number of components in the error norm
-    rhs(S, P, F)      F = dS/dt for the state S (NV,); returns (z, zd, B): the height,
-                      dz/dt and the contact bracket (B <= 0: contact lost)
+    NV, NE            state size and the number of components in the error norm; the
+                      state starts (x, y, xd, yd, ...) with (x, y) the point whose events
+                      are watched (the ball's contact point)
+    rhs(S, P, F, contact)   F = dS/dt for the state S (NV,); returns (z, zd, B, slip): the
+                      height, dz/dt, the contact bracket (B <= 0: the model no longer
+                      holds) and the slip ratio |F_t| / N (nan for a point). B and slip
+                      are needed only where ``contact`` (step ends, not the stages)
+    GUARD_ITERS       iterations locating the bracket's zero (<= 4: secant steps, more:
+                      Illinois steps to rounding)
+    GUARD_OUTCOME(S, P, F)  the outcome where the bracket reached 0 at S (F scratch)
+    INIT(S, P)        turns the launch velocity in S[2:4] into the state's
+    VEL(S, P)         the reported horizontal velocity (vx, vy) at S
     energy(S, P, inv) the energy per unit (1 + k) m, velocities scaled by inv
     kinetic(S, P, inv)   its kinetic part
     W                 the index of the dissipated work in S
@@ -22,8 +31,10 @@ Method: an embedded explicit Runge-Kutta pair given as data (``A``, ``B``, ``E``
 ``RK45``), with scipy's error norm, step-size controller and initial step, so
 ``rtol``/``atol`` mean what they mean in scipy. Events are located by Henon's
 trick (one RK step with the event's quantity as the independent variable, landing
-on it exactly, from the start of the step that crossed it), the loss of contact by
-secant iterations on re-taken steps: each event carries the step's own local error.
+on it exactly, from the start of the step that crossed it; where that fails, as in a
+long step holding a bounce and the escape, by Illinois regula falsi on re-taken
+steps), the loss of contact by secant iterations on re-taken steps: each event
+carries the step's own local error.
 Scalar arithmetic on small per-launch arrays; nothing is allocated in the step loop.
 
 Per-launch outputs (``FO`` floats, ``IO`` ints, ``BT`` bounce times) use the column
@@ -37,8 +48,8 @@ from numba import njit
 jit = njit(cache=True, nogil=True, error_model="numpy")
 
 # outcomes (models.OUTCOMES) and the output columns
-ESCAPED, CAPTURED, FLEW_OFF, LOST_CONTACT = 0, 1, 2, 3
-F_VOUT, F_T, F_X, F_Y, F_VX, F_VY, F_ZMAX, F_YMAX, F_EERR = 0, 1, 2, 3, 4, 5, 6, 7, 8
+ESCAPED, CAPTURED, FLEW_OFF, LOST_CONTACT, BRIDGED = 0, 1, 2, 3, 4
+F_VOUT, F_T, F_X, F_Y, F_VX, F_VY, F_ZMAX, F_YMAX, F_EERR, F_SLIP = 0, 1, 2, 3, 4, 5, 6, 7, 8, 9
 I_OUT, I_NB, I_STEPS, I_REJ, I_STATUS, I_NREC = 0, 1, 2, 3, 4, 5
 # the configuration vector C
 C_START, C_XLO, C_XHI, C_YLO, C_YHI, C_ZLIM, C_TMAX, C_RTOL, C_ATOL = 0, 1, 2, 3, 4, 5, 6, 7, 8
@@ -69,7 +80,7 @@ def rk_step(Y, F0, h, P, A, Bw, ns, K, Ys, Ynew):
             for j in range(s):
                 acc += A[s, j] * K[j, c]
             Ys[c] = Y[c] + h * acc
-        rhs(Ys, P, K[s])
+        rhs(Ys, P, K[s], False)
     for c in range(n):
         acc = 0.0
         for j in range(ns):
@@ -173,7 +184,7 @@ def initial_step(Y, F, P, rtol, atol, t_max, order, scale, Y1, F1, D):
         h0 = 0.01 * d0 / d1
     for c in range(Y.shape[0]):
         Y1[c] = Y[c] + h0 * F[c]
-    rhs(Y1, P, F1)
+    rhs(Y1, P, F1, False)
     for c in range(NE):
         D[c] = F1[c] - F[c]
     d2 = rms(D, scale) / h0
@@ -194,7 +205,7 @@ def initial_step(Y, F, P, rtol, atol, t_max, order, scale, Y1, F1, D):
 def _henon_g(Z, P, kind, G):
     """d/ds of the augmented state (S, t) with s the event quantity of ``kind``."""
     nv = Z.shape[0] - 1
-    z, zd, B = rhs(Z[:nv], P, G[:nv])
+    z, zd, B, sl = rhs(Z[:nv], P, G[:nv], False)
     if kind == K_Z:
         r = zd
     else:
@@ -214,7 +225,7 @@ def henon(Y, t, kind, target, P, A, Bw, ns, KH, Z, Zs, Zout):
         Z[c] = Y[c]
     Z[nv] = t
     if kind == K_Z:
-        z0, zd0, B0 = rhs(Y, P, Zs[:nv])
+        z0, zd0, B0, sl0 = rhs(Y, P, Zs[:nv], False)
         s0 = z0
     else:
         s0 = Y[kind]
@@ -239,27 +250,124 @@ def henon(Y, t, kind, target, P, A, Bw, ns, KH, Z, Zs, Zout):
 
 @jit
 def secant(Y, F0, t, h, b0, b1, P, A, Bw, ns, K, Ys, Yt):
-    """Time where the bracket B crosses 0 inside the step of size h from Y, by four
-    secant iterations on re-taken RK steps (each as accurate as the step); the state
-    is left in Yt."""
+    """Time where the bracket B crosses 0 inside the step of size h from Y, on re-taken
+    RK steps (each as accurate as the step): GUARD_ITERS secant iterations, or beyond
+    four Illinois iterations until the bracket is at rounding. The state is left in Yt."""
     lo, hi = 0.0, 1.0
     blo, bhi = b0, b1
     th = 1.0
-    for _ in range(4):
+    if GUARD_ITERS <= 4:
+        for _ in range(GUARD_ITERS):
+            th = lo + (hi - lo) * blo / (blo - bhi)
+            if math.isfinite(th):
+                th = min(max(th, lo), hi)
+            else:
+                th = 0.5 * (lo + hi)
+            rk_step(Y, F0, h * th, P, A, Bw, ns, K, Ys, Yt)
+            z, zd, b, sl = rhs(Yt, P, Ys, True)
+            if b > 0:
+                lo = th
+                blo = b
+            else:
+                hi = th
+                bhi = b
+        return t + h * th
+    side = 0
+    for _ in range(GUARD_ITERS):
         th = lo + (hi - lo) * blo / (blo - bhi)
         if math.isfinite(th):
             th = min(max(th, lo), hi)
         else:
             th = 0.5 * (lo + hi)
         rk_step(Y, F0, h * th, P, A, Bw, ns, K, Ys, Yt)
-        z, zd, b = rhs(Yt, P, Ys)
+        z, zd, b, sl = rhs(Yt, P, Ys, True)
         if b > 0:
             lo = th
             blo = b
+            if side == 1:
+                bhi = 0.5 * bhi
+            side = 1
         else:
             hi = th
             bhi = b
+            if side == -1:
+                blo = 0.5 * blo
+            side = -1
+        if hi - lo <= 4 * np.spacing(1.0) or b == 0 or abs(b) <= 1e-15:
+            break
     return t + h * th
+
+
+@jit
+def _quantity(S, P, kind, Fs):
+    """The event quantity of ``kind`` at S (x, y, xd, or the height)."""
+    if kind == K_Z:
+        return rhs(S, P, Fs, False)[0]
+    return S[kind]
+
+
+@jit
+def _sign(a):
+    return 1.0 if a > 0 else (-1.0 if a < 0 else (0.0 if a == 0 else a))
+
+
+@jit
+def bracketed(Y, F0, t, h, kind, target, P, A, Bw, ns, K, Ys, Yn, Yt, Fs):
+    """Where Henon's step fails (the event's quantity turns inside the step, e.g. a bounce
+    and the escape in one long step): the event's time by Illinois regula falsi on
+    re-taken RK steps over fractions of the step h. The quantity changes sign over the
+    step by construction; each iterate is as accurate as a step; iterations stop when
+    the bracket is at rounding. The state is left in Yt."""
+    nv = Y.shape[0]
+    lo, hi = 0.0, 1.0
+    glo = _quantity(Y, P, kind, Fs) - target
+    rk_step(Y, F0, h, P, A, Bw, ns, K, Ys, Yt)
+    ghi = _quantity(Yt, P, kind, Fs) - target
+    th = 1.0
+    side = 0
+    for _ in range(60):
+        tn = (lo * ghi - hi * glo) / (ghi - glo)
+        if not (math.isfinite(tn) and tn > lo and tn < hi):
+            tn = 0.5 * (lo + hi)
+        rk_step(Y, F0, h * tn, P, A, Bw, ns, K, Ys, Yn)
+        gn = _quantity(Yn, P, kind, Fs) - target
+        th = tn
+        for c in range(nv):
+            Yt[c] = Yn[c]
+        if _sign(gn) == _sign(glo):
+            lo = tn
+            glo = gn
+            if side == 1:
+                ghi = 0.5 * ghi
+            side = 1
+        else:
+            hi = tn
+            ghi = gn
+            if side == -1:
+                glo = 0.5 * glo
+            side = -1
+        if hi - lo <= 4 * np.spacing(1.0) or gn == 0:
+            break
+    if kind != K_Z:
+        Yt[kind] = target
+    return t + h * th
+
+
+@jit
+def locate(Y, F0, t, h, kind, target, P, A, Bw, ns, K, KH, Z, Zs, Zout, Yn, Yt, Fs):
+    """The time of an event inside the step of size h from (Y, t): Henon's step, and
+    where it fails (outside the step, not finite) the bracketed fallback. Returns
+    (time, ok); the state is in Zout[:NV]."""
+    nv = Y.shape[0]
+    te = henon(Y, t, kind, target, P, A, Bw, ns, KH, Z, Zs, Zout)
+    if math.isfinite(te) and te >= t and te <= t + h + 1e-9 * h and _all_finite(Zout, NE):
+        return te, True
+    tb = bracketed(Y, F0, t, h, kind, target, P, A, Bw, ns, K, Zs[:nv], Yn, Yt, Fs)
+    if math.isfinite(tb) and _all_finite(Yt, NE):
+        for c in range(nv):
+            Zout[c] = Yt[c]
+        return tb, True
+    return te, False
 
 
 @jit
@@ -285,17 +393,30 @@ def _record(TR, IO, t, S, F):
 
 
 @jit
-def _finish(S, t, outcome, status, P, E0, kin0, inv, zmax, zmin, ymax, FO, IO, F):
+def _fmax(a, b):
+    """max ignoring nan (numpy's fmax)."""
+    if a != a:
+        return b
+    if b != b:
+        return a
+    return max(a, b)
+
+
+@jit
+def _finish(S, t, outcome, status, P, E0, kin0, inv, zmax, zmin, ymax, smax, FO, IO, F):
     """The launch's summary at its final state S, time t."""
-    z, zd, B = rhs(S, P, F)
+    z, zd, B, sl = rhs(S, P, F, True)
     IO[I_OUT] = outcome
     IO[I_STATUS] = status
+    vx, vy = VEL(S, P)
     FO[F_T] = t
     FO[F_X] = S[0]
     FO[F_Y] = S[1]
-    FO[F_VX] = S[2]
-    FO[F_VY] = S[3]
-    FO[F_VOUT] = abs(S[2]) if outcome == ESCAPED else np.nan
+    FO[F_VX] = vx
+    FO[F_VY] = vy
+    FO[F_VOUT] = abs(vx) if outcome == ESCAPED else np.nan
+    # the slip ratio at the end counts, except where contact is lost or the ball bridges
+    FO[F_SLIP] = smax if outcome == LOST_CONTACT or outcome == BRIDGED else _fmax(smax, sl)
     zmax = max(zmax, z)
     zmin = min(zmin, z)
     FO[F_ZMAX] = zmax
@@ -307,6 +428,25 @@ def _finish(S, t, outcome, status, P, E0, kin0, inv, zmax, zmin, ymax, FO, IO, F
 
 
 @jit
+def _start_end(Y, P, outcome, status, z, sl, FO, IO, F):
+    """A launch that ends where it starts (status 3: derivatives that overflow; or the
+    bracket already down: the ball bridged at the launch, say)."""
+    IO[I_OUT] = outcome
+    IO[I_STATUS] = status
+    vx, vy = VEL(Y, P)
+    FO[F_T] = 0.0
+    FO[F_X] = Y[0]
+    FO[F_Y] = Y[1]
+    FO[F_VX] = vx
+    FO[F_VY] = vy
+    FO[F_VOUT] = np.nan
+    FO[F_ZMAX] = z
+    FO[F_YMAX] = abs(Y[1])
+    FO[F_EERR] = 0.0
+    FO[F_SLIP] = sl
+
+
+@jit
 def launch(v, y0, vy0, P, C, A, Bw, Ew, E3w, ns, order, dop, BT, FO, IO, TR, record, WS):
     """One launch at x = C[C_START], y = y0 with velocity (v, vy0), to its end.
 
@@ -314,13 +454,14 @@ def launch(v, y0, vy0, P, C, A, Bw, Ew, E3w, ns, order, dop, BT, FO, IO, TR, rec
     points when ``record``; WS the scratch arrays of :func:`workspace`.
     """
     nv = NV
-    K, KH, Y, F, Ynew, Ys, scale, Yev, Z, Zout, Fnew = WS
+    K, KH, Y, F, Ynew, Ys, scale, Yev, Z, Zout, Fnew, Yn, Yt, Fs = WS
     for c in range(nv):
         Y[c] = 0.0
     Y[0] = C[C_START]
     Y[1] = y0
     Y[2] = v
     Y[3] = vy0
+    INIT(Y, P)
     for j in range(BT.shape[0]):
         BT[j] = np.nan
     kkeep = BT.shape[0]
@@ -333,7 +474,7 @@ def launch(v, y0, vy0, P, C, A, Bw, Ew, E3w, ns, order, dop, BT, FO, IO, TR, rec
     e_star = C[C_ESTAR]
     max_steps = C[C_MAXSTEPS]
     full = FULL(P)
-    z, zd, B = rhs(Y, P, F)
+    z, zd, B, smax = rhs(Y, P, F, True)
     vmax = max(abs(Y[2]), abs(Y[3]))
     inv = 1.0 / pow2(vmax) if vmax > 1e100 else 1.0
     E0 = energy(Y, P, inv)
@@ -349,17 +490,11 @@ def launch(v, y0, vy0, P, C, A, Bw, Ew, E3w, ns, order, dop, BT, FO, IO, TR, rec
     if not _all_finite(F, NE):
         # derivatives that overflow at the launch: no step can be taken, and no surface
         # holds such a ball: flew_off at once, status 3
-        IO[I_OUT] = FLEW_OFF
-        IO[I_STATUS] = 3
-        FO[F_T] = 0.0
-        FO[F_X] = Y[0]
-        FO[F_Y] = Y[1]
-        FO[F_VX] = Y[2]
-        FO[F_VY] = Y[3]
-        FO[F_VOUT] = np.nan
-        FO[F_ZMAX] = z
-        FO[F_YMAX] = abs(Y[1])
-        FO[F_EERR] = 0.0
+        _start_end(Y, P, FLEW_OFF, 3, z, np.nan, FO, IO, Fs)
+        return
+    if full and B <= 0:
+        # the model does not hold at the launch (the ball bridged there, say): it ends there
+        _start_end(Y, P, GUARD_OUTCOME(Y, P, Fs), 0, z, smax, FO, IO, Fs)
         return
     t = 0.0
     h = initial_step(Y, F, P, rtol, atol, t_max, order, scale, Ynew, K[1], K[2])
@@ -374,7 +509,7 @@ def launch(v, y0, vy0, P, C, A, Bw, Ew, E3w, ns, order, dop, BT, FO, IO, TR, rec
         hstep = min(h, t_max - t)
         last = hstep >= t_max - t
         rk_step(Y, F, hstep, P, A, Bw, ns, K, Ys[:nv], Ynew)
-        zn, zdn, Bn = rhs(Ynew, P, K[ns])
+        zn, zdn, Bn, sln = rhs(Ynew, P, K[ns], True)
         for c in range(NE):
             scale[c] = atol + max(abs(Y[c]), abs(Ynew[c])) * rtol
         err = error_norm(K, hstep, scale, Ew, E3w, ns + 1, dop)
@@ -426,9 +561,8 @@ def launch(v, y0, vy0, P, C, A, Bw, Ew, E3w, ns, order, dop, BT, FO, IO, TR, rec
                     kind, target = K_Y, y_lo
                 if kind < 0:
                     continue
-                te = henon(Y, t, kind, target, P, A, Bw, ns, KH, Z, Ys, Zout)
-                if not (math.isfinite(te) and te >= t and te <= tnew + 1e-9 * hstep
-                        and _all_finite(Zout, NE)):
+                te, ok = locate(Y, F, t, hstep, kind, target, P, A, Bw, ns, K, KH, Z, Ys, Zout, Yn, Yt, Fs)
+                if not ok:
                     te = tnew
                     for c in range(nv):
                         Zout[c] = Ynew[c]
@@ -441,13 +575,13 @@ def launch(v, y0, vy0, P, C, A, Bw, Ew, E3w, ns, order, dop, BT, FO, IO, TR, rec
                 te = secant(Y, F, t, hstep, B, Bn, P, A, Bw, ns, K, Ys[:nv], Zout[:nv])
                 if te < t_ev:
                     t_ev = te
-                    code = LOST_CONTACT
+                    code = GUARD_OUTCOME(Zout[:nv], P, Fs)
                     for c in range(nv):
                         Yev[c] = Zout[c]
             if Y[2] > 0 and Ynew[2] <= 0:
                 # a bounce (maximum of x): not terminal; counts only before a terminal event
-                tb = henon(Y, t, K_VX, 0.0, P, A, Bw, ns, KH, Z, Ys, Zout)
-                if not (math.isfinite(tb) and tb >= t and tb <= tnew + 1e-9 * hstep):
+                tb, ok = locate(Y, F, t, hstep, K_VX, 0.0, P, A, Bw, ns, K, KH, Z, Ys, Zout, Yn, Yt, Fs)
+                if not (ok and tb <= tnew + 1e-9 * hstep):
                     tb = tnew
                 if code < 0 or tb <= t_ev:
                     if nb < kkeep:
@@ -463,13 +597,14 @@ def launch(v, y0, vy0, P, C, A, Bw, Ew, E3w, ns, order, dop, BT, FO, IO, TR, rec
                 zmax = max(zmax, z)
                 zmin = min(zmin, z)
                 ymax = max(ymax, abs(Y[1]))
+                smax = _fmax(smax, sln)
                 if record:
                     _record(TR, IO, t, Y, F)
             else:
                 IO[I_NB] = nb
                 IO[I_STEPS] = steps
                 IO[I_REJ] = rej
-                _finish(Yev[:nv], t_ev, code, 0, P, E0, kin0, inv, zmax, zmin, ymax, FO, IO, Ys[:nv])
+                _finish(Yev[:nv], t_ev, code, 0, P, E0, kin0, inv, zmax, zmin, ymax, smax, FO, IO, Ys[:nv])
                 if record:
                     _record(TR, IO, t_ev, Yev, Ys)
                 return
@@ -490,16 +625,17 @@ def launch(v, y0, vy0, P, C, A, Bw, Ew, E3w, ns, order, dop, BT, FO, IO, TR, rec
             IO[I_NB] = nb
             IO[I_STEPS] = steps
             IO[I_REJ] = rej
-            _finish(Y, t, CAPTURED, status, P, E0, kin0, inv, zmax, zmin, ymax, FO, IO, Ys[:nv])
+            _finish(Y, t, CAPTURED, status, P, E0, kin0, inv, zmax, zmin, ymax, smax, FO, IO, Ys[:nv])
             return
 
 
 @jit
 def workspace(ns):
     """Scratch arrays of one launch: K (ns + 1, NV) stages, KH (ns + 1, NV + 1) Henon
-    stages, and the vectors Y, F, Ynew, Ys, scale, Yev, Z, Zout, Fnew."""
+    stages, and the vectors Y, F, Ynew, Ys, scale, Yev, Z, Zout, Fnew, Yn, Yt, Fs."""
     return (np.empty((ns + 1, NV)), np.empty((ns + 1, NV + 1)), np.empty(NV), np.empty(NV), np.empty(NV),
-            np.empty(NV + 1), np.empty(NV), np.empty(NV + 1), np.empty(NV + 1), np.empty(NV + 1), np.empty(NV))
+            np.empty(NV + 1), np.empty(NV), np.empty(NV + 1), np.empty(NV + 1), np.empty(NV + 1), np.empty(NV),
+            np.empty(NV), np.empty(NV), np.empty(NV))
 
 
 @jit

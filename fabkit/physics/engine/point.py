@@ -25,6 +25,8 @@ State (NV = 5): x, y, xd, yd and W, the energy dissipated by damping (per unit
 or eq. (xyODE_simp) [xdd, ydd] = - g~ [h_x, h_y], plus the damping - mu [xd, yd] and
 - mu_nl F(x)^2 y^2 yd on y; dW/dt = - D . (v + zd grad h) (full) or - D . v.
 """
+import math
+
 from numba import njit
 
 jit = njit(cache=True, nogil=True, error_model="numpy")
@@ -33,6 +35,8 @@ NV = 5
 NE = 4
 W = 4
 N_MODEL_PARAMS = 4
+#: secant iterations locating the loss of contact
+GUARD_ITERS = 4
 
 
 @jit
@@ -46,8 +50,9 @@ def GT(P):
 
 
 @jit
-def rhs(S, P, F):
-    """F = dS/dt; returns (z, dz/dt, B) (B = 1 in the simplified model: no contact check)."""
+def rhs(S, P, F, contact):
+    """F = dS/dt; returns (z, dz/dt, B, slip) (B = 1 in the simplified model: no contact
+    check; no slip ratio for a point: nan). ``contact`` is the ball's (B costs nothing here)."""
     x = S[0]
     y = S[1]
     vx = S[2]
@@ -82,7 +87,25 @@ def rhs(S, P, F):
         F[2] = -q * hx
         F[3] = -q * hy
         F[4] = 0.0
-    return h, zd, B
+    return h, zd, B, math.nan
+
+
+@jit
+def GUARD_OUTCOME(S, P, F):
+    """The bracket of eq. (xyODE) fell to 0: the point lost contact."""
+    return 3
+
+
+@jit
+def INIT(S, P):
+    """The launch state needs no change: (xd, yd) is the launch velocity."""
+    return
+
+
+@jit
+def VEL(S, P):
+    """The reported horizontal velocity (xd, yd)."""
+    return S[2], S[3]
 
 
 @jit
