@@ -17,7 +17,12 @@ Rows (every time is wall and CPU of a fresh ``fabkit`` process unless stated):
 4. compile: ``fabkit simulate`` of one launch with an empty cache (cold) and again
    (warm), in a scratch ``FABKIT_CACHE_DIR``;
 5. threads: ``launch_batch`` of 20 000 launches with ``workers=2`` against 1, in
-   this process.
+   this process;
+6. the finite ball (``simulation.model: ball``, the same spec and rtol): its marginal
+   cost per launch, (t(N2) - t(N1)) / (N2 - N1) of ``launch_batch`` in this process
+   (``--ball-n``), against the point model's (``full``) measured the same way, and
+   against scipy ``solve_ivp(DOP853)`` of the ball one launch at a time (same
+   events, ``--sample`` launches). ``--ball-only`` runs this row alone.
 
 Each timed command runs ``--repeat`` times, interleaved; the best is kept. The
 machine is shared: read the ratios, not the absolute times.
@@ -62,6 +67,8 @@ def main(argv=None) -> int:
     ap.add_argument("--sample", type=int, default=12, help="launches timed with scipy")
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--skip-cold", action="store_true", help="skip the cold compile row")
+    ap.add_argument("--ball-n", type=int, nargs=2, default=(1000, 5000), help="N1 N2 of the ball row")
+    ap.add_argument("--ball-only", action="store_true", help="run only the ball row (6)")
     args = ap.parse_args(argv)
 
     from fabkit.physics.integrate import launch_batch
@@ -87,6 +94,10 @@ def main(argv=None) -> int:
           f"load average {os.getloadavg()[0]:.1f} at the start")
     print(f"# spec {args.spec} at rtol 1e-8 / atol 1e-10, v_in {lo:.4g}..{hi:.4g}, model {problem.model}, "
           f"damping {problem.damping:g}")
+
+    if args.ball_only:
+        ball_row(problem, lo, hi, args)
+        return 0
 
     # warm the cache (and this process)
     subprocess.run([*fabkit, "simulate", str(spec8), "--v-in", "40"], check=True, stdout=subprocess.DEVNULL)
@@ -161,7 +172,44 @@ def main(argv=None) -> int:
             t_rows[w].append(time.perf_counter() - t0)
     print(f"launch_batch 20 000 launches: 1 thread {min(t_rows[1]):.2f} s, 2 threads {min(t_rows[2]):.2f} s "
           f"(speed-up {min(t_rows[1]) / min(t_rows[2]):.2f}x); load average {os.getloadavg()[0]:.1f} at the end")
+    ball_row(problem, lo, hi, args)
     return 0
+
+
+def ball_row(problem, lo, hi, args) -> None:
+    """6. the ball's marginal cost per launch against the point model's and scipy's."""
+    from fabkit.physics.integrate import launch_batch
+    from fabkit.physics.reference import solve_launch
+
+    ball = problem.with_(model="ball")
+    full = problem.with_(model="full")
+    n1, n2 = args.ball_n
+    for p in (ball, full):   # compile or load, and warm this process
+        launch_batch(p, [40.0])
+    rows = {("ball", n1): [], ("ball", n2): [], ("full", n1): [], ("full", n2): [], "scipy": []}
+    sub = np.linspace(lo, hi, args.sample)
+    for _ in range(args.repeat):
+        for name, p in (("ball", ball), ("full", full)):
+            for n in (n1, n2):
+                c0 = time.process_time()
+                r = launch_batch(p, np.linspace(lo, hi, n))
+                rows[(name, n)].append((time.process_time() - c0, int(r.steps.sum())))
+        c0 = time.process_time()
+        for v in sub:
+            solve_launch(ball, float(v), method="DOP853", rtol=ball.rtol, atol=ball.atol)
+        rows["scipy"].append(((time.process_time() - c0) / len(sub), 0))
+    m = {name: (min(t for t, _ in rows[(name, n2)]) - min(t for t, _ in rows[(name, n1)])) / (n2 - n1)
+         for name in ("ball", "full")}
+    steps = {name: rows[(name, n2)][0][1] / n2 for name in ("ball", "full")}
+    sc = min(t for t, _ in rows["scipy"])
+    print(f"\n| ball row (rtol {ball.rtol:g}, atol {ball.atol:g}, CPU) | per launch | accepted steps a launch |")
+    print("|---|---|---|")
+    print(f"| ball, marginal ({n2} - {n1} launches) | {m['ball'] * 1e3:.4f} ms | {steps['ball']:.0f} |")
+    print(f"| full (point), marginal | {m['full'] * 1e3:.4f} ms | {steps['full']:.0f} |")
+    print(f"| scipy DOP853, the ball one launch at a time | {sc * 1e3:.2f} ms | |")
+    print(f"| **ratios** ball / point: **{m['ball'] / m['full']:.2f}x** ({m['ball'] / m['full'] * steps['full'] / steps['ball']:.2f}x a step); "
+          f"scipy / ball: **{sc / m['ball']:.0f}x** | | |")
+    print(f"load average {os.getloadavg()[0]:.1f} at the end")
 
 
 if __name__ == "__main__":

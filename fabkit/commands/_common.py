@@ -170,7 +170,7 @@ def prepare_simulator(problem_or_spec, quiet: bool = False) -> None:
     from ..physics.integrate import ENGINE_MODELS
 
     if is_stiff(problem, problem.t_max) or problem.model not in ENGINE_MODELS:
-        return   # the implicit Radau path, or a model on the numpy loop: nothing to compile
+        return   # the implicit Radau path: nothing to compile
     from ..physics.engine.batch import engine
 
     def notify(message: str) -> None:

@@ -1,19 +1,20 @@
-"""The compiled launch engine: one launch wholly in compiled code (numba).
+"""The compiled launch engine: one launch wholly in compiled code (numba), for every model.
 
     codegen.py   sympy -> plain ``math`` source for the surface, written once per formula
-                 to the user cache (``FABKIT_CACHE_DIR`` overrides), with the model template
-    point.py     the point-particle model template (full, simplified, damping)
-    dop853.py    the step loop template: Dormand-Prince 8(5,3) / 5(4) with scipy's step
+                 and template to the user cache (``FABKIT_CACHE_DIR`` overrides)
+    point.py     the point-particle models' template (full, simplified, damping)
+    ball.py      the finite-radius rolling ball's template (third derivatives of h, the
+                 spin about the normal, the contact guard: lost contact, bridging, slip)
+    dop853.py    the step loop, shared: Dormand-Prince 8(5,3) / 5(4) with scipy's step
                  control, the events, the per-launch summaries
     batch.py     loading (compile on first use, then cache loads), serial and threaded runs
 
-Adding a model (the finite-radius ball, say: state (x, y, xd, yd, u, W), third
-derivatives of h): write its template next to ``point.py`` (NV, NE, W, rhs, energy,
-kinetic, FULL, GT; see dop853.py), declare a ``codegen.Template`` with the surface
+A model is a template (NV, NE, W, GUARD_ITERS, rhs, GUARD_OUTCOME, INIT, VEL, energy,
+kinetic, FULL, GT; see dop853.py) declared as a ``codegen.Template`` with the surface
 derivatives it needs (``("x", "x", "y")`` is h_xxy) and the number of its run-time
-parameters, and let :func:`batch.engine` pick the template from ``problem.model``.
-The step loop, the events and the batch drivers are shared; ``Engine.params`` builds
-the run-time parameter vector of the template.
+parameters; :func:`codegen.template_of` picks it from ``problem.model`` and
+``batch.MODEL_PARAMS`` builds its run-time parameter vector. The step loop, the
+events and the batch drivers are shared.
 
 Importing this package does not import numba; :func:`batch.engine` does.
 """
