@@ -81,6 +81,25 @@ def test_threads_and_blocks_give_identical_results():
             assert np.array_equal(getattr(one, name), getattr(other, name), equal_nan=True), (kw, name)
 
 
+def test_ball_identical_for_any_batch_threads_and_parameters():
+    """The ball's template: a launch gives the same bits alone, in a batch and on threads;
+    its constants are run-time parameters (another radius runs on the same compiled code)."""
+    p = paper().with_(model="ball", radius=1.25)
+    v = np.linspace(30.0, 75.0, 6)
+    y0 = np.array([0.0, 0.3, 0.0, -0.2, 0.0, 0.1])
+    one = launch_batch(p, v, y0)
+    names = ("outcome", "bounces", "v_out", "bounce_times", "t_end", "x_end", "vx_end", "max_slip",
+             "energy_error", "steps", "max_z")
+    other = launch_batch(p, v, y0, workers=2)
+    for name in names:
+        assert np.array_equal(getattr(one, name), getattr(other, name), equal_nan=True), name
+    alone = launch_batch(p, v[3:4], y0[3:4])
+    for name in names:
+        assert np.array_equal(getattr(one, name)[3:4], getattr(alone, name), equal_nan=True), name
+    small = launch_batch(p.with_(radius=0.5), v, y0)      # the same compiled engine and surface
+    assert not np.array_equal(one.t_end, small.t_end)
+
+
 def test_new_formula_says_it_compiles_once():
     # a formula never seen before (its literal is new on every run): not in the cache
     import time
