@@ -34,6 +34,8 @@ W = 5
 N_MODEL_PARAMS = 8
 #: Illinois iterations locating the guard's zero (to rounding: it is a min of three limits)
 GUARD_ITERS = 40
+#: a ball launched where its guard is down (bridged there, say) ends there
+GUARD_AT_LAUNCH = True
 #: the outcomes of models.OUTCOMES the guard can name
 _LOST_CONTACT, _BRIDGED, _SLIPPED = 3, 4, 5
 

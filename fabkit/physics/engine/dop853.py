@@ -18,6 +18,8 @@ the engine passes through untouched to the model. The model supplies
     GUARD_ITERS       iterations locating the bracket's zero (<= 4: secant steps, more:
                       Illinois steps to rounding)
     GUARD_OUTCOME(S, P, F)  the outcome where the bracket reached 0 at S (F scratch)
+    GUARD_AT_LAUNCH   True: a launch whose bracket is already <= 0 ends at once with
+                      that outcome (the ball bridged at the launch, say)
     INIT(S, P)        turns the launch velocity in S[2:4] into the state's
     VEL(S, P)         the reported horizontal velocity (vx, vy) at S
     energy(S, P, inv) the energy per unit (1 + k) m, velocities scaled by inv
@@ -492,7 +494,7 @@ def launch(v, y0, vy0, P, C, A, Bw, Ew, E3w, ns, order, dop, BT, FO, IO, TR, rec
         # holds such a ball: flew_off at once, status 3
         _start_end(Y, P, FLEW_OFF, 3, z, np.nan, FO, IO, Fs)
         return
-    if full and B <= 0:
+    if GUARD_AT_LAUNCH and B <= 0:
         # the model does not hold at the launch (the ball bridged there, say): it ends there
         _start_end(Y, P, GUARD_OUTCOME(Y, P, Fs), 0, z, smax, FO, IO, Fs)
         return

@@ -37,6 +37,9 @@ W = 4
 N_MODEL_PARAMS = 4
 #: secant iterations locating the loss of contact
 GUARD_ITERS = 4
+#: the bracket is watched from the first step on (a launch beyond the surface's hold, such
+#: as 1e20 cm/s over a crest, leaves the footprint within the first step: flew_off)
+GUARD_AT_LAUNCH = False
 
 
 @jit
