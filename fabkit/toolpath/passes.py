@@ -323,7 +323,11 @@ def place_passes(ws, fr, R: float, scallop: float, depth_lim: float, max_passes:
             ahead = []
         cand = ahead.pop(0) if ahead and abs(ahead[0].v - (pa.v + s)) < 1e-12 else None
         if cand is None:
-            vl = [pa.v + k * s for k in (1, 2, 3) if pa.v + k * s < Lv]
+            # at the flat stepover the next passes likely follow at the same stepover:
+            # computed with this one (one call); elsewhere the next stepover depends on
+            # this pass's margin, and speculative passes would be wasted
+            look = (1, 2, 3) if s >= s_flat else (1,)
+            vl = [pa.v + k * s for k in look if pa.v + k * s < Lv]
             cands = make(vl)
             cand, ahead = cands[0], cands[1:]
         ratio = check(pa, cand, older, allowed)
