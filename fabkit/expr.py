@@ -317,6 +317,8 @@ class SurfaceFunctions:
     accel: Callable      # (h_x, h_y, h_xx, h_xy, h_yy): what the simulator needs
     symbolic: object     # the sympy expression of h
     params: tuple = ()   # ((name, value), ...) as given: the compiled engine passes them at run time
+    raw_h: Callable | None = None    # the generated functions themselves: float64 arrays of one
+    raw_all: Callable | None = None  # shape in, a list out (constants as Python numbers), no checks
 
 
 def compile_surface(text: str, params: Mapping[str, float], tol: Tolerances = DEFAULT) -> SurfaceFunctions:
@@ -343,8 +345,11 @@ def compile_surface(text: str, params: Mapping[str, float], tol: Tolerances = DE
         raise _fail(f"expression too costly to compile: h and its first and second derivatives have more "
                     f"than {limit} nodes (simplify the formula)")
 
-    def make(exprs):
-        fn = sp.lambdify((x, y), exprs, modules="numpy", cse=_cse_unevaluated)
+    def generate(exprs):
+        return sp.lambdify((x, y), exprs, modules="numpy", cse=_cse_unevaluated)
+
+    def make(exprs, fn=None):
+        fn = generate(exprs) if fn is None else fn
 
         def wrapped(xa, ya, _fn=fn, _n=len(exprs)):
             xa = np.asarray(xa, dtype=float)
@@ -358,8 +363,9 @@ def compile_surface(text: str, params: Mapping[str, float], tol: Tolerances = DE
 
         return wrapped
 
-    f_all = make(parts)
-    f_h = make(parts[:1])
+    raw_all, raw_h = generate(parts), generate(parts[:1])
+    f_all = make(parts, raw_all)
+    f_h = make(parts[:1], raw_h)
     return SurfaceFunctions(
         text=text,
         h=lambda xa, ya: f_h(xa, ya)[0],
@@ -369,4 +375,6 @@ def compile_surface(text: str, params: Mapping[str, float], tol: Tolerances = DE
         accel=make(parts[1:6]),
         symbolic=h,
         params=tuple((str(k), float(v)) for k, v in params.items()),
+        raw_h=raw_h,
+        raw_all=raw_all,
     )

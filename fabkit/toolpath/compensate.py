@@ -69,21 +69,46 @@ class WorkSurface:
         self.y0 = surface.y_range[0]
         self.top = surface.top
         self.L, self.W = surface.stock_size_mm
+        # the generated functions themselves (fabkit.expr), called directly on float
+        # arrays of one shape: the planner evaluates the surface ~100 times per
+        # compensation call, mostly on a few hundred points, where the checks of the
+        # general wrappers cost more than the arithmetic. Same arithmetic, same values.
+        fns = getattr(surface, "fns", None)
+        self._raw_h = getattr(fns, "raw_h", None)
+        self._raw_all = getattr(fns, "raw_all", None)
 
     def _xy(self, X, Y):
         return X / self.s + self.x0, Y / self.s + self.y0
 
+    @staticmethod
+    def _plain(X, Y):
+        return (type(X) is np.ndarray and type(Y) is np.ndarray and X.shape == Y.shape
+                and X.dtype == np.float64 and Y.dtype == np.float64)
+
     def H(self, X, Y):
         """Unclipped height above the top face, mm (negative where cut)."""
         with np.errstate(all="ignore"):
+            if self._raw_h is not None and self._plain(X, Y):
+                s = self.s
+                h = self._raw_h(X / s + self.x0, Y / s + self.y0)[0]
+                if type(h) is not np.ndarray or h.shape != X.shape or h.dtype != np.float64:
+                    h = np.broadcast_to(np.asarray(h, dtype=float), X.shape)
+                return s * (h - self.top)
             return self.s * (self.surface.height(*self._xy(X, Y)) - self.top)
 
     def all(self, X, Y):
         """(H, H_X, H_Y, H_XX, H_XY, H_YY), exact."""
         with np.errstate(all="ignore"):
-            h, hx, hy, hxx, hxy, hyy = self.surface.derivatives(*self._xy(X, Y))
             s = self.s
             shape = np.shape(X)
+            if self._raw_all is not None and self._plain(X, Y):
+                out = self._raw_all(X / s + self.x0, Y / s + self.y0)
+                for i, v in enumerate(out):
+                    if type(v) is not np.ndarray or v.shape != shape or v.dtype != np.float64:
+                        out[i] = np.broadcast_to(np.asarray(v, dtype=float), shape)
+                h, hx, hy, hxx, hxy, hyy = out
+            else:
+                h, hx, hy, hxx, hxy, hyy = self.surface.derivatives(*self._xy(X, Y))
             out = [s * (h - self.top), hx, hy, hxx / s, hxy / s, hyy / s]
             return [v if np.shape(v) == shape else np.broadcast_to(np.asarray(v, dtype=float), shape)
                     for v in out]
@@ -203,20 +228,27 @@ def _newton_interior(ws, cx, cy, R, px, py, iters):
         ok = negdef & (step < 0.02 * R) & (f == 1.0)
         nx_, ny_ = ax.copy(), ay.copy()
         nx_[ok], ny_[ok] = ax[ok] + dwx[ok], ay[ok] + dwy[ok]
-        for _bt in range(8):
-            todo = ~ok
-            if not todo.any():
+        # backtracking: the full step for all, then the halved steps 1/2 .. 1/128 of
+        # those that failed at once (one surface call each, not one per halving);
+        # the first that does not decrease F is taken, and the reported step is the
+        # accepted one halved once more (the stop test below)
+        todo = np.nonzero(~ok)[0]
+        for halvings in (np.ones(1), 0.5 ** np.arange(1, 8)):
+            if todo.size == 0:
                 break
-            tx, ty = ax[todo] + dwx[todo], ay[todo] + dwy[todo]
-            x1, y1, s1 = point(act[todo], tx, ty)
+            tx = ax[todo, None] + dwx[todo, None] * halvings
+            ty = ay[todo, None] + dwy[todo, None] * halvings
+            x1, y1, s1 = point(act[todo, None], tx, ty)
             F1 = np.minimum(ws.H(x1, y1), 0.0) + R / s1
-            good = np.isfinite(F1) & (F1 >= F0[todo] - 1e-13 * R)
-            j = np.nonzero(todo)[0][good]
-            nx_[j], ny_[j] = tx[good], ty[good]
+            good = np.isfinite(F1) & (F1 >= F0[todo, None] - 1e-13 * R)
+            hit = good.any(axis=1)
+            k = np.argmax(good, axis=1)[hit]
+            j = todo[hit]
+            nx_[j], ny_[j] = tx[hit, k], ty[hit, k]
             ok[j] = True
-            dwx[todo] *= 0.5
-            dwy[todo] *= 0.5
-            step[todo] *= 0.5
+            step[j] *= 0.5 * halvings[k]
+            todo = todo[~hit]
+        step[todo] *= 0.5 ** 8
         wx[act], wy[act] = nx_, ny_
         done = (negdef & ok & (step < XTOL)) | ~ok
         conv[act[done & negdef & ok]] = True
@@ -237,21 +269,26 @@ def _newton_crease(ws, cx, cy, px, py, iters):
             py = py - np.nan_to_num(H * gy / g2)
         H, gx, gy = ws.all(px, py)[:3]
         lam = np.nan_to_num(((px - cx) * gx + (py - cy) * gy) / (gx * gx + gy * gy))
+        # Newton on the points still moving (a point whose step fell below XTOL, or
+        # whose system is singular or not finite, keeps its place)
+        act = np.arange(len(px))
         for _ in range(iters):
-            H, gx, gy, hxx, hxy, hyy = ws.all(px, py)
-            J = np.empty((len(px), 3, 3))
-            J[:, 0] = np.stack([1 - lam * hxx, -lam * hxy, -gx], axis=1)
-            J[:, 1] = np.stack([-lam * hxy, 1 - lam * hyy, -gy], axis=1)
+            if act.size == 0:
+                break
+            x, y, la = px[act], py[act], lam[act]
+            H, gx, gy, hxx, hxy, hyy = ws.all(x, y)
+            J = np.empty((act.size, 3, 3))
+            J[:, 0] = np.stack([1 - la * hxx, -la * hxy, -gx], axis=1)
+            J[:, 1] = np.stack([-la * hxy, 1 - la * hyy, -gy], axis=1)
             J[:, 2] = np.stack([gx, gy, np.zeros_like(gx)], axis=1)
-            rhs = -np.stack([px - cx - lam * gx, py - cy - lam * gy, H], axis=1)
+            rhs = -np.stack([x - cx[act] - la * gx, y - cy[act] - la * gy, H], axis=1)
             ok = np.isfinite(J).all(axis=(1, 2)) & np.isfinite(rhs).all(axis=1) & \
                 (np.abs(np.linalg.det(np.where(np.isfinite(J), J, 0.0))) > 1e-300)
             step = np.zeros_like(rhs)
             if ok.any():
                 step[ok] = np.linalg.solve(J[ok], rhs[ok][..., None])[..., 0]
-            px, py, lam = px + step[:, 0], py + step[:, 1], lam + step[:, 2]
-            if np.abs(step[:, :2]).max(initial=0.0) < XTOL:
-                break
+            px[act], py[act], lam[act] = x + step[:, 0], y + step[:, 1], la + step[:, 2]
+            act = act[ok & (np.abs(step[:, :2]).max(axis=1) >= XTOL)]
     return px, py
 
 
@@ -451,13 +488,20 @@ def _compensate(surface, X, Y, R, return_info, rings, angles, starts, iters):
         seeds_k = [near[has_top], order[:, 0]]
         # only where the top region is near: a sample on top or within R/4 of it
         nearish = has_top | (np.where(inF, HS, -np.inf).max(axis=1) > -0.25 * R)
-        for si, sk in zip(seeds_i, seeds_k):
-            m = nearish[si]
-            si, sk = si[m], sk[m]
-            if si.size:
-                qx, qy = _newton_crease(ws, tx[si], ty[si], PX[si, sk], PY[si, sk], iters)
-                v = _value(ws, tx[si], ty[si], R, qx, qy)
-                best.offer(todo[si], v, qx, qy, CREASE)
+        # both seeds in one Newton call (each point's iteration is its own), offered
+        # seed by seed
+        groups = [(si[nearish[si]], sk[nearish[si]]) for si, sk in zip(seeds_i, seeds_k)]
+        si = np.concatenate([g[0] for g in groups])
+        if si.size:
+            sk = np.concatenate([g[1] for g in groups])
+            qx, qy = _newton_crease(ws, tx[si], ty[si], PX[si, sk], PY[si, sk], iters)
+            v = _value(ws, tx[si], ty[si], R, qx, qy)
+            a = 0
+            for g, _ in groups:
+                b = a + g.size
+                if g.size:
+                    best.offer(todo[g], v[a:b], qx[a:b], qy[a:b], CREASE)
+                a = b
 
     # (iii)/(iv) edges and corners where the disk crosses the footprint boundary
     edge = ~ontop & ((cx < R) | (cy < R) | (cx > ws.L - R) | (cy > ws.W - R))
