@@ -145,3 +145,34 @@ def test_scale_design_units_to_work_mm():
     X = np.array([5.0, 30.0, 59.0, 1.0])
     Y = np.array([5.0, 20.0, 39.0, 38.0])
     np.testing.assert_allclose(compensate(cm, X, Y, R), compensate(mm, X, Y, R), atol=1e-9)
+
+
+def test_fast_surface_evaluation_matches_the_general_path():
+    # the generated code called directly (in chunks on large arrays) gives the values of
+    # the checked wrappers, constants (a plane's second derivatives) broadcast
+    from fabkit.toolpath.compensate import CHUNK, WorkSurface
+
+    for height in ("0.3*x - 0.1*y - 2", "0.01*x**2 + exp(0.05*y) - 9"):
+        surf = _surface(height)
+        ws = WorkSurface(surf)
+        rng = np.random.default_rng(3)
+        X, Y = rng.uniform(-5, 65, (2 * CHUNK + 5, 2)).T.copy()
+        x, y = X / ws.s + ws.x0, Y / ws.s + ws.y0
+        general = [ws.s * (surf.height(x, y) - ws.top)] + list(surf.derivatives(x, y)[1:])
+        fast = ws.all(X, Y)
+        assert all(f.shape == X.shape for f in fast)
+        for f, g in zip(fast, general):
+            np.testing.assert_array_equal(f, g)
+        np.testing.assert_array_equal(ws.H(X[:7], Y[:7]), general[0][:7])
+        np.testing.assert_array_equal(ws.H(X, Y), general[0])
+
+
+def test_top_samples_order_as_a_stable_sort():
+    from fabkit.toolpath.compensate import _top
+
+    rng = np.random.default_rng(5)
+    F = rng.choice([0.0, -0.0, 0.5, 1.0, -np.inf], size=(400, 49))
+    F[:3] = -np.inf
+    G = rng.normal(size=(400, 49))
+    for A in (F, np.where(rng.random(G.shape) < 0.3, -np.inf, G)):
+        assert np.array_equal(_top(A, 3), np.argsort(-A, axis=1, kind="stable")[:, :3])
