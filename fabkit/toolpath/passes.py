@@ -264,7 +264,9 @@ def place_passes(ws, fr, R: float, scallop: float, depth_lim: float, max_passes:
     def floor_of(pa, older):
         """Per u, the material a pass right beside pa leaves too: beyond the ball's
         reach (a valley tighter than the tool, a V crease); no stepover removes it."""
-        pt = make([min(pa.v + MIN_STEP_SHARE * s_flat, Lv)])[0]
+        floor_used[0] = True
+        vf = min(pa.v + MIN_STEP_SHARE * s_flat, Lv)
+        pt = floor_ahead.pop(vf, None) or make([vf])[0]
         vs = _between(pa.cv[inside_u], pt.cv[inside_u], Lv)
         fl = left(vs, [pt, pa] + older)
         note_floor(np.where(fl > FLOOR_SHARE * target, fl, 0.0), vs)
@@ -296,11 +298,16 @@ def place_passes(ws, fr, R: float, scallop: float, depth_lim: float, max_passes:
     passes = [p0]
     s_next = s_flat
     ahead = []
+    # the pass right beside pa (floor_of) is computed with the next candidate, in the
+    # same call, where the previous step needed one too (unreachable regions run on)
+    floor_used, floor_ahead = [False], {}
     while True:
         pa = passes[-1]
         older = passes[-2:-1]
         if pa.v >= Lv:
             break
+        floor_last, floor_used[0] = floor_used[0], False
+        floor_ahead.clear()
         s = max(min(s_next, s_flat), s_min)
         allowed = np.full(uq.shape, target)
         if pa.v + s >= Lv:
@@ -328,7 +335,10 @@ def place_passes(ws, fr, R: float, scallop: float, depth_lim: float, max_passes:
             # this pass's margin, and speculative passes would be wasted
             look = (1, 2, 3) if s >= s_flat else (1,)
             vl = [pa.v + k * s for k in look if pa.v + k * s < Lv]
-            cands = make(vl)
+            vf = min(pa.v + MIN_STEP_SHARE * s_flat, Lv)
+            cands = make(vl + [vf] if floor_last else vl)
+            if floor_last:
+                floor_ahead[vf] = cands.pop()
             cand, ahead = cands[0], cands[1:]
         ratio = check(pa, cand, older, allowed)
         pb = cand if ratio <= 1.0 else None
