@@ -30,6 +30,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import functools
 import math
 
 import numpy as np
@@ -146,6 +147,7 @@ class WorkSurface:
 RING_SLOPES = (0.5, 1.5, 4.0, 12.0)
 
 
+@functools.lru_cache(maxsize=8)
 def _polar(R: float, rings=RING_SLOPES, angles: int = 12) -> np.ndarray:
     """(K, 2) offsets: the centre and one ring of ``angles`` points (staggered) per
     surface slope in ``rings``: the ring where the ball touches a plane of that slope,
@@ -156,7 +158,9 @@ def _polar(R: float, rings=RING_SLOPES, angles: int = 12) -> np.ndarray:
         r = R * w / math.sqrt(1.0 + w * w)
         ph = np.pi * j / angles + 2 * np.pi * np.arange(angles) / angles
         pts.extend(zip(r * np.cos(ph), r * np.sin(ph)))
-    return np.array(pts)
+    out = np.array(pts)
+    out.flags.writeable = False         # cached: shared by every call
+    return out
 
 
 class _Best:
@@ -207,14 +211,17 @@ def _nan_to_num(a):
     return a if np.isfinite(a).all() else np.nan_to_num(a)
 
 
-def _value(ws, cx, cy, R, px, py):
-    """F at feasible points (-inf where p is outside the disk or the footprint)."""
+def _value(ws, cx, cy, R, px, py, with_H=False):
+    """F at feasible points (-inf where p is outside the disk or the footprint);
+    with ``with_H`` also H there."""
     d2 = (px - cx) ** 2 + (py - cy) ** 2
     ok = ws.inside(px, py) & (d2 <= R * R)
-    zc = np.minimum(ws.H(px, py), 0.0)
+    H = ws.H(px, py)
+    zc = np.minimum(H, 0.0)
     with np.errstate(invalid="ignore"):
         v = zc + np.sqrt(np.maximum(R * R - d2, 0.0))
-    return np.where(ok & np.isfinite(v), v, -np.inf)
+    v = np.where(ok & np.isfinite(v), v, -np.inf)
+    return (v, H) if with_H else v
 
 
 def _newton_interior(ws, cx, cy, R, px, py, iters):
@@ -498,7 +505,7 @@ def _compensate(surface, X, Y, R, return_info, rings, angles, starts, iters):
     todo = np.nonzero(~ontop)[0]
     if todo.size:
         tx, ty = cx[todo], cy[todo]
-        off = _polar(R, rings, angles)
+        off = _polar(R, tuple(rings), angles)
         K = len(off)
         PX, PY = tx[:, None] + off[:, 0], ty[:, None] + off[:, 1]
         inF = ws.inside(PX, PY)
@@ -520,20 +527,17 @@ def _compensate(surface, X, Y, R, return_info, rings, angles, starts, iters):
         parts = [_newton_interior(ws, ax[i:i + CHUNK], ay[i:i + CHUNK], R, sx[i:i + CHUNK],
                                   sy[i:i + CHUNK], iters + 8) for i in range(0, sx.size, CHUNK)]
         px, py, conv = (np.concatenate(c) for c in zip(*parts)) if len(parts) > 1 else parts[0]
-        v = _value(ws, ax, ay, R, px, py)
+        v, Hp = _value(ws, ax, ay, R, px, py, with_H=True)
         best.offer(todo, v.reshape(-1, k), px.reshape(-1, k), py.reshape(-1, k), INTERIOR)
         # bridged: two converged local maxima in the smooth part, distinct points
-        lm = conv & np.isfinite(v) & (ws.H(px, py) < 0)
+        lm = conv & np.isfinite(v) & (Hp < 0)
         if lm.any():
-            o, qx, qy = owner[lm], px[lm], py[lm]
-            srt = np.lexsort((qy, qx, o))
-            o, qx, qy = o[srt], qx[srt], qy[srt]
-            first_x = np.full(todo.size, np.nan)
-            first_y = np.full(todo.size, np.nan)
-            # reversed assignment keeps the first occurrence per owner
-            first_x[o[::-1]], first_y[o[::-1]] = qx[::-1], qy[::-1]
-            far = np.hypot(qx - first_x[o], qy - first_y[o]) > 1e-4 * R
-            bridged[todo[np.unique(o[far])]] = True
+            # per position, the converged maxima against the first of them in (x, y) order
+            lm2, qx, qy = lm.reshape(-1, k), px.reshape(-1, k), py.reshape(-1, k)
+            fx = np.where(lm2, qx, np.inf).min(axis=1)
+            fy = np.where(lm2 & (qx == fx[:, None]), qy, np.inf).min(axis=1)
+            far = lm2 & (np.hypot(qx - fx[:, None], qy - fy[:, None]) > 1e-4 * R)
+            bridged[todo[far.any(axis=1)]] = True
 
         # (ii) crease: seeds = the nearest top-region sample and the best sample
         r2 = (off ** 2).sum(axis=1)
