@@ -87,7 +87,7 @@ def _full_launches(problem, v, progress=None, rtol=None, atol=None):
 
 
 def check(spec, *, progress=None, rel_tol: float = 1e-4, v_rel_tol: float = 1e-6,
-          edge_rel_tol: float = 1e-4) -> dict:
+          edge_rel_tol: float = 1e-6, gap_rel_tol: float = 1e-4) -> dict:
     """Run the pre-fabrication check of ``spec`` (sections surface, ball, ramp,
     simulation; stock and tool optional). Returns the report dict (see module doc):
     safe, highest_safe_height, first_failure {height, v_in, outcome, reason, x, y, t},
@@ -129,8 +129,8 @@ def check(spec, *, progress=None, rel_tol: float = 1e-4, v_rel_tol: float = 1e-6
 
     # v_critical and windows over the ramp's speeds (reusing these launches)
     initial = Launches(v, lr.outcome, lr.bounces, lr.v_out, lr.bounce_times)
-    sw = sweep(problem, v, initial=initial, rel_tol=v_rel_tol, error_samples=0, tn=False, k=1, k_edge=24,
-               edge_rel_tol=edge_rel_tol)
+    sw = sweep(problem, v, initial=initial, rel_tol=v_rel_tol, error_samples=0, tn=False, k=1, k_edge=1,
+               edge_rel_tol=edge_rel_tol, gap_rel_tol=gap_rel_tol)
     vc = sw["v_critical"]
     out["v_critical"] = vc
     out["v_critical_reason"] = sw["v_critical_reason"]
