@@ -9,7 +9,9 @@ from __future__ import annotations
 
 import json
 
-from conftest import SMALL_STUDY, mutated, run_cli, write_spec
+import pytest
+
+from conftest import ROOT, SMALL_STUDY, mutated, run_cli, write_spec
 
 WIDE = {"simulation.model": "ball", "ball.diameter": 15.0, "ramp.samples": 6}
 
@@ -69,3 +71,36 @@ def test_explore_and_robustness_take_the_model(tmp_path):
     d = json.loads(out)
     assert d["model"] == "ball"
     assert "bridged" in json.dumps(d)
+
+
+MM = ROOT / "tests" / "fixtures" / "ball" / "mm_formula.yaml"
+#: v_critical of the mm formula (t_max 8 s) by the independent implementation: plain bisection
+#: of tests/ball_newton_euler.py (scipy DOP853, rtol 1e-11) to +- 4.0e-5 mm/s
+#: (benchmarks/ball_reference.py --vc)
+MM_VC_INDEPENDENT = 408.516790
+
+
+def test_sweep_and_simulate_agree_with_the_independent_implementation_in_mm():
+    """Another formula, in mm (tests/fixtures/ball/mm_formula.yaml: the paper's surface read
+    in mm, the channel's width varying along x), with a 25 mm ball: `fabkit sweep` finds
+    v_critical within 1e-4 of the independent implementation's, and `fabkit simulate`
+    inside a two-bounce window (203..262 mm/s) gives its bounce count exactly and v_out
+    to 1e-3 (they agree to 1e-8)."""
+    from ball_newton_euler import NewtonEuler
+
+    from fabkit.physics.models import problem_from_spec
+    from fabkit.spec import load_spec
+
+    code, out, err = run_cli(["sweep", MM, "--v-in", "408.47", "408.57", "2", "--json", "--no-progress"])
+    assert code == 0, err
+    sw = json.loads(out)
+    assert sw["v_critical"] == pytest.approx(MM_VC_INDEPENDENT, rel=1e-4)
+    assert sw["v_critical_error"] <= 1e-6 * sw["v_critical"]
+    assert sw["bounces"] == [1, 1] and sw["outcome"] == ["captured", "escaped"]
+    code, out, err = run_cli(["simulate", MM, "--v-in", "232.85", "--json"])
+    assert code == 0, err
+    sim = json.loads(out)
+    ref = NewtonEuler(problem_from_spec(load_spec(MM))).launch(232.85)
+    assert sim["outcome"] == ref["outcome"] == "escaped" and sim["bounces"] == ref["bounces"] == 2
+    assert sim["v_out"] == pytest.approx(ref["v_out"], rel=1e-3)
+    assert sim["v_out"] == pytest.approx(ref["v_out"], rel=1e-7)    # what they give

@@ -129,7 +129,7 @@ def test_check_edge_next_to_v_critical_agrees_with_the_converged_reference():
     # missed it.
     spec = validate(mutated({"simulation.t_max": 20}), "paper.yaml")
     p = models.problem_from_spec(spec).with_(stop_trapped=True)
-    res = sweep(p, [46.02224, 51.26950, 52.25577], error_samples=0, tn=False)
+    res = sweep(p, [46.02224, 51.26950, 51.76, 52.25577], error_samples=0, tn=False)
     w = res["windows"][0]
     assert w["bounces"] == 2 and w["edge_error"] <= 0.5e-6 * 51.3
     assert w["hi"] == pytest.approx(51.2904780, rel=1e-6)
