@@ -66,7 +66,8 @@ def main(argv=None):
     ap.add_argument("--t-max", type=float, default=20.0)
     ap.add_argument("--vc", action="store_true",
                     help="only the mm formula's v_critical at its spec's t_max (8 s), fabkit's sweep against a "
-                         "bisection of the independent implementation (the constant in tests/test_ball_cli.py)")
+                         "bisection of the independent implementation, and its launch at 232.85 mm/s (the "
+                         "constants in tests/test_ball_cli.py)")
     args = ap.parse_args(argv)
     if args.vc:
         from fabkit.physics.models import problem_from_spec
@@ -78,6 +79,9 @@ def main(argv=None):
         print(f"mm formula, t_max {p.t_max:g} s: fabkit sweep v_critical {sw['v_critical']:.6f} "
               f"+- {sw['v_critical_error']:.1e}; independent {vc:.6f} +- {err:.1e} mm/s; relative difference "
               f"{abs(sw['v_critical'] - vc) / vc:.1e}")
+        r = NewtonEuler(p).launch(232.85)
+        print(f"mm formula at 232.85 mm/s (window 204..262): independent {r['outcome']}, {r['bounces']} bounces, "
+              f"v_out {r['v_out']!r} mm/s")
         return
     for name, (p, (lo, hi)) in problems(args.t_max).items():
         ne = NewtonEuler(p)
