@@ -18,10 +18,9 @@ WIDE = {"simulation.model": "ball", "ball.diameter": 15.0, "ramp.samples": 6}
 
 def test_check_names_bridging(tmp_path):
     spec = write_spec(tmp_path, mutated(WIDE))
-    code, out, err = run_cli(["check", spec, "--no-progress"])
-    assert code == 1
-    assert "bridged" in err and "bridges" in err and "two points" in err
     code, out, err = run_cli(["check", spec, "--json", "--no-progress"])
+    assert code == 1
+    assert err.count("\n") == 1 and "bridged" in err and "bridges" in err and "two points" in err
     d = json.loads(out)
     assert d["safe"] is False and d["first_failure"]["outcome"] == "bridged"
     assert d["ball"]["unsafe_counts"]["bridged"] == 6

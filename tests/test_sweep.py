@@ -26,18 +26,6 @@ def _one_bounce(p, v):
     return r["outcome"] == "escaped" and r["bounces"] == 1
 
 
-def _reference_vc(p, lo, hi, rel=1e-5):
-    """Plain bisection with the rtol-1e-12 reference, from a verified bracket."""
-    assert not _one_bounce(p, lo) and _one_bounce(p, hi)
-    while hi - lo > rel * hi:
-        m = 0.5 * (lo + hi)
-        if _one_bounce(p, m):
-            hi = m
-        else:
-            lo = m
-    return 0.5 * (lo + hi)
-
-
 @pytest.mark.slow
 @pytest.mark.parametrize("model,lo,hi", [("full", 43.9, 44.4), ("simplified", 48.6, 49.1)])
 def test_v_critical_agrees_with_converged_reference(model, lo, hi):
@@ -45,8 +33,10 @@ def test_v_critical_agrees_with_converged_reference(model, lo, hi):
     res = sweep(p, np.linspace(lo, hi, 6), error_samples=0, tn=False, k=128, k_edge=32)
     vc = res["v_critical"]
     assert vc is not None and res["v_critical_error"] <= 1e-6 * vc
-    ref = _reference_vc(p, vc * (1 - 3e-5), vc * (1 + 3e-5))
-    assert vc == pytest.approx(ref, rel=1e-4)
+    # the rtol-1e-12 reference brackets its own v_critical within 3e-5 of vc: at vc (1 - 3e-5) it
+    # does not escape after one bounce, at vc (1 + 3e-5) it does (bisecting that bracket further
+    # would only narrow what the two launches already show: vc agrees with it to 3e-5 < 1e-4)
+    assert not _one_bounce(p, vc * (1 - 3e-5)) and _one_bounce(p, vc * (1 + 3e-5))
     # every sample above v_critical escapes after one bounce
     v = res["v_in"]
     above = v > vc
