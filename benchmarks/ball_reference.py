@@ -4,11 +4,14 @@ constraint, scipy DOP853 at rtol 1e-11).
 
     python benchmarks/ball_reference.py [--n N] [--t-max T]
 
-For the paper's surface (cm) and another formula in mm, both with a 2.5 cm ball:
+For the paper's surface (cm) and another formula in mm (tests/fixtures/ball/mm_formula.yaml),
+both with a 2.5 cm ball:
 * v_critical from fabkit's sweep (1e-6 relative); the independent implementation
   launched at v_critical (1 -/+ 1e-4) must agree on the bounce counts there;
 * N launches spread over the range: outcome and bounce counts exact, v_out where both
-  escape after two bounces (the relative difference reported; acceptance 1e-3).
+  escape after two bounces (the relative difference reported; acceptance 1e-3);
+* ``--vc``: the mm formula's v_critical (t_max 8 s) by a plain bisection of the
+  independent implementation, against fabkit's sweep.
 """
 
 from __future__ import annotations
@@ -24,21 +27,31 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tests"))
 
-MM_FORMULA = ("eta*(exp(a*x) - exp(b*x)) + c*y**2*(1 + 0.2*tanh(x/40)) + eps*y/cosh(d*x)",
-              dict(a=0.0389, b=0.0306, eta=32.7, c=0.00764, eps=0.25, d=0.03))
+MM_SPEC = ROOT / "tests" / "fixtures" / "ball" / "mm_formula.yaml"
 
 
 def problems(t_max):
-    from fabkit.expr import compile_surface
     from fabkit.physics.models import problem_from_spec
     from fabkit.spec import load_spec
 
     spec = load_spec(ROOT / "specs" / "surface.yaml")
     paper = problem_from_spec(spec.with_overrides({"simulation.model": "ball"})).with_(t_max=t_max)
-    mm = paper.with_(fns=compile_surface(*MM_FORMULA), g=9806.65, units="mm", radius=12.5, start=-300.0,
-                     x_range=(-440.0, 60.0), y_range=(-125.0, 125.0), top=50.0, margin=5.0,
-                     damping=0.127, atol=1e-11)
+    mm = problem_from_spec(load_spec(MM_SPEC)).with_(t_max=t_max)
     return {"paper (cm)": (paper, (16.7, 79.4)), "mm formula": (mm, (167.0, 794.0))}
+
+
+def independent_vc(ne, lo: float, hi: float, rel: float = 2e-7) -> tuple[float, float]:
+    """v_critical by plain bisection of the independent implementation from a bracket
+    [lo, hi] it verifies (lo not a one-bounce escape, hi one); (midpoint, half-width)."""
+    one = lambda v: (lambda r: r["outcome"] == "escaped" and r["bounces"] == 1)(ne.launch(v))  # noqa: E731
+    assert not one(lo) and one(hi), "not a bracket"
+    while hi - lo > rel * hi:
+        m = 0.5 * (lo + hi)
+        if one(m):
+            hi = m
+        else:
+            lo = m
+    return 0.5 * (lo + hi), 0.5 * (hi - lo)
 
 
 def main(argv=None):
@@ -51,7 +64,25 @@ def main(argv=None):
     ap = argparse.ArgumentParser()
     ap.add_argument("--n", type=int, default=40)
     ap.add_argument("--t-max", type=float, default=20.0)
+    ap.add_argument("--vc", action="store_true",
+                    help="only the mm formula's v_critical at its spec's t_max (8 s), fabkit's sweep against a "
+                         "bisection of the independent implementation, and its launch at 232.85 mm/s (the "
+                         "constants in tests/test_ball_cli.py)")
     args = ap.parse_args(argv)
+    if args.vc:
+        from fabkit.physics.models import problem_from_spec
+        from fabkit.spec import load_spec
+
+        p = problem_from_spec(load_spec(MM_SPEC))
+        sw = sweep(p, [408.47, 408.57], error_samples=0, tn=False)
+        vc, err = independent_vc(NewtonEuler(p), 408.4759, 408.5576)
+        print(f"mm formula, t_max {p.t_max:g} s: fabkit sweep v_critical {sw['v_critical']:.6f} "
+              f"+- {sw['v_critical_error']:.1e}; independent {vc:.6f} +- {err:.1e} mm/s; relative difference "
+              f"{abs(sw['v_critical'] - vc) / vc:.1e}")
+        r = NewtonEuler(p).launch(232.85)
+        print(f"mm formula at 232.85 mm/s (window 204..262): independent {r['outcome']}, {r['bounces']} bounces, "
+              f"v_out {r['v_out']!r} mm/s")
+        return
     for name, (p, (lo, hi)) in problems(args.t_max).items():
         ne = NewtonEuler(p)
         v = np.linspace(lo, hi, args.n)

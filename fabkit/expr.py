@@ -222,24 +222,60 @@ def _power(a, b, tol: Tolerances):
 
 
 # size of f'(u) and f''(u) as (constant, copies of u) for the chain-rule estimate below
-_DERIV_SHAPE = {"exp": ((1, 1), (1, 1)), "log": ((2, 1), (4, 1)), "sin": ((1, 1), (2, 1)),
-                "cos": ((2, 1), (2, 1)), "tan": ((4, 1), (8, 2)), "sinh": ((1, 1), (1, 1)),
-                "cosh": ((1, 1), (1, 1)), "tanh": ((7, 1), (10, 2)), "Abs": ((1, 1), (1, 1)),
-                "sign": ((1, 1), (1, 1))}
+# (c, m) per order: the tree size of f^(k)(u) is about c + m * size(u), for k = 1, 2, 3
+_DERIV_SHAPE = {"exp": ((1, 1), (1, 1), (1, 1)), "log": ((2, 1), (4, 1), (6, 1)),
+                "sin": ((1, 1), (2, 1), (2, 1)), "cos": ((2, 1), (2, 1), (1, 1)),
+                "tan": ((4, 1), (8, 2), (16, 4)), "sinh": ((1, 1), (1, 1), (1, 1)),
+                "cosh": ((1, 1), (1, 1), (1, 1)), "tanh": ((7, 1), (10, 2), (20, 4)),
+                "Abs": ((1, 1), (1, 1), (1, 1)), "sign": ((1, 1), (1, 1), (1, 1))}
+_GENERIC_SHAPE = ((4, 1), (8, 2), (16, 4))
+_POWER_SHAPE = ((4, 1), (6, 1), (6, 1))          # u**n: n u**(n-1), n (n-1) u**(n-2), ...
+_EXP_SHAPE = ((1, 1), (1, 1), (1, 1))
+
+#: what each order of :func:`derivative_size` counts, for the messages
+DERIVATIVE_ORDERS = {2: "h and its first and second derivatives",
+                     3: "h and its first, second and third derivatives"}
 
 
-def derivative_size(h) -> int:
-    """An estimate of the size (tree nodes) of everything :func:`compile_surface`
-    compiles: h, its two first and three second derivatives, from h alone.
+def _mul_sizes(a, b):
+    """Tree sizes of the product uv and its first three derivatives from those of u
+    and v (Leibniz; for the third, the mixed partials' extra terms counted: (uv)_xxy
+    has 6)."""
+    return (1 + a[0] + b[0],
+            3 + a[1] + b[0] + a[0] + b[1],
+            6 + a[2] + b[0] + a[1] + b[1] + a[0] + b[2],
+            13 + a[3] + b[0] + 2 * (a[2] + b[1]) + 2 * (a[1] + b[2]) + a[0] + b[3])
+
+
+def _chain_sizes(u, shape):
+    """Tree sizes of f(u) and its first three derivatives (Faa di Bruno, mixed partials
+    counted: f(u)_xxy = f3(u) u_x^2 u_y + f2(u) (u_xx u_y + 2 u_x u_xy) + f1(u) u_xxy)."""
+    (c1, m1), (c2, m2), (c3, m3) = shape
+    f1, f2, f3 = c1 + m1 * u[0], c2 + m2 * u[0], c3 + m3 * u[0]
+    return (1 + u[0],
+            1 + f1 + u[1],
+            4 + f2 + 2 * u[1] + f1 + u[2],
+            10 + f3 + 5 * u[1] + f2 + 2 * u[2] + f1 + u[3])
+
+
+def derivative_size(h, order: int = 2) -> int:
+    """An estimate of the size (tree nodes) of h and all its partial derivatives up
+    to ``order`` (2: what :func:`compile_surface` compiles, h, its two first and three
+    second derivatives; 3: the finite ball's jet, with the four third derivatives too),
+    from h alone.
 
     By the product and chain rules on h's expression graph (each shared
-    subexpression visited once): for every node, the tree sizes of the node and
-    of its first and second derivatives, (uv)' = u'v + uv', (uv)'' = u''v + 2u'v'
-    + uv'', f(u)' = f'(u) u', f(u)'' = f''(u) u'^2 + f'(u) u''. It ignores the
-    terms sympy drops (a derivative of a term without x), so it bounds the real
-    size from above for a generic h; :func:`compile_surface` counts the real trees
-    too. Linear in the size of h: a hostile expression is refused in well under a
-    second, before any derivative is built."""
+    subexpression visited once): for every node, the tree sizes of the node and of
+    its derivatives, with D^k the k-th derivative, D(uv) = Du v + u Dv, D2(uv) =
+    D2u v + 2 Du Dv + u D2v, D3(uv) = D3u v + 3 D2u Dv + 3 Du D2v + u D3v, D f(u) =
+    f1(u) Du, D2 f(u) = f2(u) Du^2 + f1(u) D2u, D3 f(u) = f3(u) Du^3 + 3 f2(u) Du D2u
+    + f1(u) D3u (mixed partials' terms counted). It ignores the terms sympy drops
+    (a derivative of a term without x), so it bounds the real size from above for a
+    generic h; :func:`compile_surface` counts the real trees too. Linear in the size
+    of h: a hostile expression is refused in well under a second, before any
+    derivative is built."""
+    if order not in DERIVATIVE_ORDERS:
+        raise ValueError(f"order must be one of {sorted(DERIVATIVE_ORDERS)}")
     memo: dict = {}
 
     def sizes(e):
@@ -247,37 +283,43 @@ def derivative_size(h) -> int:
         if got is not None:
             return got
         if not e.args:
-            out = (1, 1, 1)
+            out = (1, 1, 1, 1)
         elif e.is_Add:
             parts = [sizes(a) for a in e.args]
-            out = tuple(1 + sum(p[k] for p in parts) for k in range(3))
+            out = tuple(1 + sum(p[k] for p in parts) for k in range(4))
         elif e.is_Mul:
             acc = sizes(e.args[0])
             for a in e.args[1:]:
-                b = sizes(a)
-                acc = (1 + acc[0] + b[0], 3 + acc[1] + b[0] + acc[0] + b[1],
-                       6 + acc[2] + b[0] + acc[1] + b[1] + acc[0] + b[2])
+                acc = _mul_sizes(acc, sizes(a))
             out = acc
+        elif e.is_Pow and e.exp.is_number:
+            out = _chain_sizes(sizes(e.base), _POWER_SHAPE)
+        elif e.is_Pow:   # b**c = exp(c log b)
+            b = sizes(e.base)
+            lb = (1 + b[0], 3 + b[0] + b[1], 6 + 2 * b[0] + b[1] + b[2], _chain_sizes(b, _DERIV_SHAPE["log"])[3])
+            out = _chain_sizes(_mul_sizes(sizes(e.exp), lb), _EXP_SHAPE)
         else:
-            if e.is_Pow and e.exp.is_number:
-                u, (c1, m1), (c2, m2) = sizes(e.base), (4, 1), (6, 1)
-            elif e.is_Pow:   # b**c = exp(c log b)
-                lb = sizes(e.base)
-                lb = (1 + lb[0], 3 + lb[0] + lb[1], 6 + 2 * lb[0] + lb[1] + lb[2])
-                c = sizes(e.exp)
-                u = (1 + c[0] + lb[0], 3 + c[1] + lb[0] + c[0] + lb[1],
-                     6 + c[2] + lb[0] + c[1] + lb[1] + c[0] + lb[2])
-                (c1, m1), (c2, m2) = (1, 1), (1, 1)
-            else:
-                u = sizes(e.args[0])
-                (c1, m1), (c2, m2) = _DERIV_SHAPE.get(type(e).__name__, ((4, 1), (8, 2)))
-            f1, f2 = c1 + m1 * u[0], c2 + m2 * u[0]
-            out = (1 + u[0], 1 + f1 + u[1], 4 + f2 + 2 * u[1] + f1 + u[2])
+            out = _chain_sizes(sizes(e.args[0]), _DERIV_SHAPE.get(type(e).__name__, _GENERIC_SHAPE))
         memo[e] = out
         return out
 
-    s0, s1, s2 = sizes(h)
-    return s0 + 2 * s1 + 3 * s2
+    s = sizes(h)
+    # 1, 2, 3 (and 4) distinct partial derivatives of orders 0, 1, 2 (and 3)
+    return sum((k + 1) * s[k] for k in range(order + 1))
+
+
+def check_derivative_size(h, order: int, tol: Tolerances = DEFAULT) -> int:
+    """Refuse (SpecError on surface.height) a formula whose derivatives up to ``order``
+    would exceed ``tol.expr_max_compiled_nodes`` nodes by :func:`derivative_size`'s
+    estimate; returns the estimate."""
+    limit = tol.expr_max_compiled_nodes
+    estimate = derivative_size(h, order)
+    if estimate > limit:
+        need = " (the finite ball's rolling needs them)" if order == 3 else ""
+        raise _fail(f"expression too costly to compile: {DERIVATIVE_ORDERS[order]}{need} would have about "
+                    f"{estimate:.3g} nodes, limit {limit} (nested functions multiply the size of each "
+                    "derivative; simplify the formula)")
+    return estimate
 
 
 def _tree_size(exprs, limit: int) -> int:
@@ -328,11 +370,7 @@ def compile_surface(text: str, params: Mapping[str, float], tol: Tolerances = DE
 
     h, x, y = to_sympy(text, params, tol)
     limit = tol.expr_max_compiled_nodes
-    estimate = derivative_size(h)
-    if estimate > limit:
-        raise _fail(f"expression too costly to compile: h and its first and second derivatives would have "
-                    f"about {estimate:.3g} nodes, limit {limit} (nested functions multiply the size of "
-                    "each derivative; simplify the formula)")
+    check_derivative_size(h, 2, tol)
     try:
         hx, hy = sp.diff(h, x), sp.diff(h, y)
         hxx, hxy, hyy = sp.diff(hx, x), sp.diff(hx, y), sp.diff(hy, y)

@@ -715,6 +715,40 @@ def test_derivative_size_estimate_is_exact_where_nothing_cancels():
         assert real <= 2 * derivative_size(h), text
 
 
+def test_third_derivative_size_bounds_the_ball_jet_and_refuses_what_explodes(tmp_path):
+    """Order 3 (the finite ball's jet: h and its 2 + 3 + 4 partial derivatives): the
+    estimate bounds the real trees, and a formula the point models compile (its second
+    derivatives are small enough) but whose third derivatives explode is refused for
+    model ball with one line naming the file and surface.height, before any third
+    derivative is built."""
+    import sympy as sp
+
+    from fabkit.expr import _tree_size, derivative_size, to_sympy
+    from fabkit.physics.models import problem_from_spec
+
+    for text in ("x*y*sin(x*y)", _nest("tanh({})", 3, "x*y"), RAW["surface"]["height"]):
+        h, x, y = to_sympy(text, RAW["surface"]["params"])
+        d = [h, sp.diff(h, x), sp.diff(h, y)]
+        d += [sp.diff(d[1], x), sp.diff(d[1], y), sp.diff(d[2], y)]
+        d += [sp.diff(d[3], x), sp.diff(d[3], y), sp.diff(d[4], y), sp.diff(d[5], y)]
+        assert _tree_size(d, 10**9) <= derivative_size(h, 3), text
+    text = _nest("cosh(1.1*{} + y)", 7)             # order 2: about 9e3 nodes; order 3: 1.1e5
+    h, _, _ = to_sympy(text, {})
+    assert derivative_size(h) < DEFAULT.expr_max_compiled_nodes < derivative_size(h, 3)
+    raw = copy.deepcopy(RAW)
+    raw["surface"]["height"], raw["surface"]["params"] = text, {}
+    path = tmp_path / "nested.yaml"
+    path.write_text(yaml.safe_dump(raw))
+    spec = load_spec(path)
+    assert problem_from_spec(spec).model == "full"            # the point model takes it
+    with bounded(10):
+        with pytest.raises(SpecError) as info:
+            problem_from_spec(spec, model="ball")
+    msg = str(info.value)
+    assert info.value.key == "surface.height" and str(path) in msg and "\n" not in msg
+    assert "third derivatives" in msg and "too costly to compile" in msg
+
+
 def test_anchors_are_accepted_and_aliases_refused():
     """The docs say so (docs/errors.md): an anchor alone is harmless."""
     spec, err = _load_text(_dump(RAW).replace("ball:\n", "ball: &b\n", 1))

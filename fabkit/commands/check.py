@@ -74,9 +74,12 @@ def run(args) -> int:
     lines.append(f"check: highest safe release height "
                  + (f"{hs:.4f} {u}" if hs is not None else "none (the lowest height already fails)")
                  + f"; error: heights bracketed to {tols['rel_tol']:g}, v_critical to {tols['v_rel_tol']:g}, "
-                 f"window edges to {tols['edge_rel_tol']:g} relative, {r['seconds']:.1f} s")
-    payload = {kk: r[kk] for kk in ("safe", "highest_safe_height", "first_failure", "v_critical", "critical_height",
-                                    "reachable_windows", "machining", "heights", "outcomes", "seconds")}
+                 f"window edges to {tols['edge_rel_tol']:g} relative"
+                 + (f" (gaps over {tols['gap_rel_tol']:g} seen)" if tols.get("gap_rel_tol") else "")
+                 + f", {r['seconds']:.1f} s")
+    payload = {kk: r.get(kk) for kk in ("safe", "highest_safe_height", "first_failure", "v_critical",
+                                        "v_critical_error", "critical_height", "reachable_windows", "machining",
+                                        "heights", "outcomes", "seconds")}
     payload["v_in"] = r["v_in"]
     payload["model"] = r["model"]
     if r.get("ball") is not None:

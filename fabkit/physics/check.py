@@ -14,9 +14,12 @@ margin) or loses contact (full model). It reports:
   height is the safe end of the final bracket);
 * ``v_critical`` (by :func:`sweep.sweep` over the ramp's speeds, bisection to 1e-6
   relative) and the release height that gives it; the two-bounce windows the ramp
-  can reach (both edges inside the ramp's v_in range, refined by 24-point k-section
-  to 1e-4 relative: near v_critical the windows crowd together, and the check reports
-  the connected run the k-section sees, as the ramp's marks expect);
+  can reach (both edges inside the ramp's v_in range), each edge bisected to 1e-6
+  relative (``edge_error``) after a walk from the window's end sample that isolates the
+  edge of its connected two-bounce run (``sweep.py``: gaps between windows narrower than
+  1e-4 relative are not seen; near v_critical the windows crowd together, separated by
+  gaps far narrower than the ramp's sampling, and a bisection of the sampled bracket
+  alone ends on any of their edges);
 * machining feasibility when the spec has stock and tool: the depth of the cut
   against ``stock.depth_limit``, ``stock.thickness`` and ``tool.reach``, and the
   tool radius against the surface's smallest concave radius.
@@ -87,11 +90,12 @@ def _full_launches(problem, v, progress=None, rtol=None, atol=None):
 
 
 def check(spec, *, progress=None, rel_tol: float = 1e-4, v_rel_tol: float = 1e-6,
-          edge_rel_tol: float = 1e-4) -> dict:
+          edge_rel_tol: float = 1e-6, gap_rel_tol: float = 1e-4) -> dict:
     """Run the pre-fabrication check of ``spec`` (sections surface, ball, ramp,
     simulation; stock and tool optional). Returns the report dict (see module doc):
     safe, highest_safe_height, first_failure {height, v_in, outcome, reason, x, y, t},
-    v_critical, critical_height, reachable_windows, machining, heights, v_in,
+    v_critical, v_critical_error, critical_height, reachable_windows [{lo, hi, height_lo,
+    height_hi, v_out_max, edge_error}], machining, heights, v_in,
     outcomes, bounces, v_out (nan unless escaped), seconds. Heights in design units,
     speeds in design units/s."""
     from ..units import gravity
@@ -129,10 +133,11 @@ def check(spec, *, progress=None, rel_tol: float = 1e-4, v_rel_tol: float = 1e-6
 
     # v_critical and windows over the ramp's speeds (reusing these launches)
     initial = Launches(v, lr.outcome, lr.bounces, lr.v_out, lr.bounce_times)
-    sw = sweep(problem, v, initial=initial, rel_tol=v_rel_tol, error_samples=0, tn=False, k=1, k_edge=24,
-               edge_rel_tol=edge_rel_tol)
+    sw = sweep(problem, v, initial=initial, rel_tol=v_rel_tol, error_samples=0, tn=False, k=1, k_edge=1,
+               edge_rel_tol=edge_rel_tol, gap_rel_tol=gap_rel_tol)
     vc = sw["v_critical"]
     out["v_critical"] = vc
+    out["v_critical_error"] = sw["v_critical_error"]
     out["v_critical_reason"] = sw["v_critical_reason"]
     out["critical_height"] = None if vc is None else float(height_from_v_in(vc, g, k))
     vmin, vmax = float(v[0]), float(v[-1])
@@ -141,7 +146,7 @@ def check(spec, *, progress=None, rel_tol: float = 1e-4, v_rel_tol: float = 1e-6
         if w["bounces"] == 2 and vmin < w["lo"] and w["hi"] < vmax:
             reach.append({"lo": w["lo"], "hi": w["hi"], "height_lo": float(height_from_v_in(w["lo"], g, k)),
                           "height_hi": float(height_from_v_in(w["hi"], g, k)),
-                          "v_out_max": w.get("v_out_max")})
+                          "v_out_max": w.get("v_out_max"), "edge_error": w.get("edge_error")})
     out["reachable_windows"] = reach
     out["machining"] = machining(spec)
     out["heights"] = H

@@ -148,6 +148,15 @@ def problem_from_spec(spec, **overrides) -> Problem:
     if fields["model"] == "ball" and ball is None:
         raise SpecError("model ball needs the ball section (its diameter and inertia)",
                         file=spec.path, key="simulation.model")
+    if fields["model"] == "ball":
+        # the ball's rolling needs h's third derivatives: refuse a formula whose third
+        # derivatives would explode before any is built (expr.derivative_size)
+        from ..expr import check_derivative_size
+
+        try:
+            check_derivative_size(fields["fns"].symbolic, 3)
+        except SpecError as exc:
+            raise exc.with_location(file=spec.path) from None
     return Problem(**fields)
 
 

@@ -185,9 +185,45 @@ def _unsafe_words(outcome: np.ndarray, singular: bool = False) -> str:
     return ", ".join(words[:-1]) + (" or " if len(words) > 1 else "") + words[-1] if words else "end unsafely"
 
 
-def _critical_task(lo: float, hi: float, rel_tol: float, k: int, max_rounds: int = 40):
+def _isolate(inside_end: float, outside_end: float, gap: float, inside, scan: int = 16):
+    """Generator: walks from ``inside_end`` (a launch that is inside) toward
+    ``outside_end`` (one that is not) in steps of at most ``gap`` (absolute), ``scan``
+    launches the first round and twice as many each round after, and stops at the first
+    launch that is not inside. ``inside(Launches) -> bool array``. Returns (last inside,
+    first outside): a bracket of the boundary of the connected run that starts at
+    ``inside_end``, in which no gap (or island) wider than ``gap`` is left unseen.
+    A plain bisection of a bracket holding several boundaries converges to any one of
+    them (near v_critical the two-bounce windows crowd together, separated by gaps
+    narrower than the samples' spacing): this walk is what makes the bisection that
+    follows refine the right one."""
+    d = outside_end - inside_end
+    n_total = int(math.ceil(abs(d) / gap)) - 1 if gap > 0 else 0
+    if n_total <= 0:
+        return inside_end, outside_end
+    step = d / (n_total + 1)
+    last_in, done, size = inside_end, 0, max(int(scan), 1)
+    while done < n_total:
+        m = min(size, n_total - done)
+        pts = inside_end + step * (done + 1 + np.arange(m))
+        r = yield pts
+        out = np.flatnonzero(~inside(r))
+        if len(out):
+            j = int(out[0])
+            return (float(pts[j - 1]) if j > 0 else last_in), float(pts[j])
+        last_in, done, size = float(pts[-1]), done + m, 2 * size
+    return last_in, outside_end
+
+
+def _critical_task(lo: float, hi: float, rel_tol: float, k: int, max_rounds: int = 40,
+                   gap_rel_tol: float | None = None):
     """Generator: narrows [lo, hi] (lo: not a one-bounce escape, hi: one) by
-    k-section; yields speeds to launch, receives their Launches; returns (lo, hi)."""
+    k-section (``k`` = 1: plain bisection); yields speeds to launch, receives their
+    Launches; returns (lo, hi). With ``gap_rel_tol``, a walk down from ``hi``
+    (:func:`_isolate`) first finds the highest launch that is not a one-bounce escape
+    to that resolution, so one-bounce islands below v_critical cannot capture the
+    bisection."""
+    if gap_rel_tol:
+        hi, lo = yield from _isolate(hi, lo, gap_rel_tol * abs(hi), lambda r: r.one_bounce)
     for _ in range(max_rounds):
         if hi - lo <= rel_tol * abs(hi):
             break
@@ -252,17 +288,30 @@ def find_runs(res: Launches) -> list[tuple[int, int, int]]:
     return runs
 
 
-def _edge_task(a: float, b: float, side: int, rel_tol: float, k: int = 16, max_rounds: int = 40):
-    """Generator: k-section of one window edge. side -1 (left edge): b inside the
-    two-bounce window, a outside; +1 (right edge): a inside, b outside. Keeps the
-    edge of the connected two-bounce run touching the inside end; returns (a, b)
-    narrowed to width <= rel_tol * max(|a|, |b|)."""
+def _two_bounce(r: Launches) -> np.ndarray:
+    return (r.outcome == ESCAPED) & (r.bounces == 2)
+
+
+def _edge_task(a: float, b: float, side: int, rel_tol: float, k: int = 16, max_rounds: int = 40,
+               gap_rel_tol: float | None = None):
+    """Generator: k-section (``k`` = 1: plain bisection) of one window edge. side -1
+    (left edge): b inside the two-bounce window, a outside; +1 (right edge): a inside,
+    b outside. Keeps the edge of the connected two-bounce run touching the inside end;
+    returns (a, b) narrowed to width <= rel_tol * max(|a|, |b|). With ``gap_rel_tol``,
+    a walk from the inside end (:func:`_isolate`) first brackets the run's first
+    boundary to that resolution (gaps narrower than it are not seen)."""
+    if gap_rel_tol:
+        gap = gap_rel_tol * max(abs(a), abs(b))
+        if side < 0:
+            b, a = yield from _isolate(b, a, gap, _two_bounce)
+        else:
+            a, b = yield from _isolate(a, b, gap, _two_bounce)
     for _ in range(max_rounds):
         if b - a <= rel_tol * max(abs(a), abs(b)):
             break
         p = a + (b - a) * np.arange(1, k + 1) / (k + 1)
         r = yield p
-        inside = (r.outcome == ESCAPED) & (r.bounces == 2)
+        inside = _two_bounce(r)
         if side < 0:   # walk down from b while inside: p[j:] inside, p[j-1] outside
             j = k
             while j > 0 and inside[j - 1]:
@@ -351,7 +400,7 @@ def fit_tn(T_n: list[float], v_in: list[float], T_shape: float) -> dict:
 def sweep(problem, v_in, *, launcher=None, method: str = "fabkit", rtol: float | None = None,
           atol: float | None = None, progress=None, rel_tol: float = 1e-6, k: int = 1,
           refine: bool = True, error_samples: int = 48, initial: Launches | None = None, tn: bool = True,
-          k_edge: int = 1, edge_rel_tol: float | None = None,
+          k_edge: int = 1, edge_rel_tol: float | None = None, gap_rel_tol: float | None = 1e-4,
           tol=DEFAULT) -> dict:
     """Launch at every ``v_in`` (N,) (design units/s, sorted ascending here) and analyse.
 
@@ -367,7 +416,10 @@ def sweep(problem, v_in, *, launcher=None, method: str = "fabkit", rtol: float |
     1: plain bisection; a launch costs a few hundredths of a millisecond on the
     compiled engine, so rounds of one launch per task are the cheapest).
     ``edge_rel_tol``: relative width the two-bounce window edges are refined to
-    (default ``rel_tol``).
+    (default ``rel_tol``). ``gap_rel_tol``: before the bisections, a walk from the
+    bracket's known end isolates the boundary to this relative resolution (default
+    1e-4: gaps between windows, and islands below v_critical, narrower than that are
+    not seen); None skips it.
     """
     from .models import OUTCOMES
 
@@ -402,11 +454,12 @@ def sweep(problem, v_in, *, launcher=None, method: str = "fabkit", rtol: float |
     e_tol = rel_tol if edge_rel_tol is None else float(edge_rel_tol)
     if refine:
         if lo is not None:
-            tasks.append(_critical_task(lo, hi, rel_tol, k))
+            tasks.append(_critical_task(lo, hi, rel_tol, k, gap_rel_tol=gap_rel_tol))
         for w, i, j in two:
-            tasks.append(_edge_task(float(v[i - 1]) if i > 0 else float(v[i]), float(v[i]), -1, e_tol, k_edge))
+            tasks.append(_edge_task(float(v[i - 1]) if i > 0 else float(v[i]), float(v[i]), -1, e_tol, k_edge,
+                                    gap_rel_tol=gap_rel_tol))
             tasks.append(_edge_task(float(v[j]), float(v[j + 1]) if j + 1 < len(v) else float(v[j]), +1,
-                                    e_tol, k_edge))
+                                    e_tol, k_edge, gap_rel_tol=gap_rel_tol))
             tasks.append(_maximize_task(float(v[max(i - 1, 0)]), float(v[min(j + 1, len(v) - 1)]))
                          if tn else iter(()))
     done = run_tasks(counting, tasks)
