@@ -37,6 +37,7 @@ AIR_EPS = 1e-7          # mm: a tip this close below the top face touches nothin
 SCALLOP_SAFETY = 0.95   # stepover keeps the cross-section bound below this fraction of the scallop
 FLOOR_SHARE = 0.25      # material the dense passes leave above this share of the target: unreachable
 MIN_STEP_SHARE = 0.02   # smallest stepover tried, share of the flat-ground stepover
+STEEP_ALONG = 1.5       # the material bound's stage 3 runs where the slope along the pass exceeds this
 EDGE_NODES = (0.95, 0.99)   # extra nodes along the passes beyond the edges, x R out
 EDGE_OUT = (0.0, 0.125, 0.25, 0.375, 0.5, 0.625, 0.75, 0.875, 0.95, 0.99, 0.999)  # edge passes, x R out
 
@@ -135,14 +136,17 @@ def compensate_passes(ws, fr, R, ug, uf, vlist, depth_lim):
     return out
 
 
-def sweep_material(ws, fr, R, uq, vs, cutters, uf, threshold=0.0):
+def sweep_material(ws, fr, R, uq, vs, cutters, uf, threshold=0.0, chord=0.0):
     """Upper bound of the material left vertically above the design at the points
     (uq, vs) (mm; vs (m, nq) across, uq (nq,) along) after the passes ``cutters``
     (list of :class:`_Pass`). Each point is cut by the lowest of the balls at the
     fine positions uf of those passes: a discrete subset of the continuous sweep,
     so the bound is conservative (by at most (du/4)^2 / (8 R) along steep slopes).
     Where a first bound from the balls at the same u alone is <= ``threshold`` it
-    is returned as is (the caller needs no better). Returns (m, nq) mm."""
+    is returned as is (the caller needs no better). On ground steep along the pass the
+    lowest ball between the fine positions is found (stage 3); that bound follows the
+    exact path, so the chords of the program (within ``chord`` mm of it) are added to
+    it. Returns (m, nq) mm."""
     df = float(np.diff(uf).max())   # the even spacing (nodes beyond the edges added between)
     K = int(math.ceil(R / df)) + len(EDGE_NODES) + 1    # and the edge nodes between
     j0 = np.clip(np.searchsorted(uf, uq), 0, len(uf) - 1)
@@ -174,7 +178,15 @@ def sweep_material(ws, fr, R, uq, vs, cutters, uf, threshold=0.0):
     # (slope 8: 0.99 R ahead), where a step du between balls leaves ~ du^2 / (2 R cos^3)
     # (1.6 mm at the fine grid's 0.1 mm): the lowest ball between the fine positions,
     # per pass, by golden-section search along the pass
-    hot = np.nonzero((ml > threshold).any(axis=0))[0]
+    hot = np.nonzero((ml > threshold + chord).any(axis=0))[0]
+    if hot.size:
+        # only where the design is steep along the pass (slope > STEEP_ALONG) near the
+        # column: elsewhere the fine grid's error, <= df^2 (1 + slope^2)^1.5 / (8 R), is small
+        uu = uq[hot][None, :] + np.array([-1.0, -0.5, 0.0, 0.5, 1.0])[:, None] * R
+        Xs, Ys = fr.xy(uu, np.broadcast_to(vs[vs.shape[0] // 2, hot], uu.shape))
+        d = ws.all(Xs, Ys)
+        su = np.abs(np.nan_to_num(d[1] if fr.direction == "x" else d[2]))
+        hot = hot[(su * (d[0] < 0)).max(axis=0) > STEEP_ALONG]
     if hot.size:
         v = vs[:, hot][:, :, None]
         u0 = uq[hot][None, :, None]
@@ -205,7 +217,7 @@ def sweep_material(ws, fr, R, uq, vs, cutters, uf, threshold=0.0):
                 gc, gd = np.where(lt, gn, gd), np.where(lt, gc, gn)
             best = np.minimum(np.min(g, axis=2), np.minimum(gc, gd)[..., 0])
             cut = np.minimum(cut, best)
-        ml[:, hot] = np.minimum(ml[:, hot], np.minimum(cut, 0.0) - design[:, hot])
+        ml[:, hot] = np.minimum(ml[:, hot], np.minimum(cut, 0.0) - design[:, hot] + chord)
     return ml
 
 
@@ -281,8 +293,10 @@ class PassPlan:
 
 
 def place_passes(ws, fr, R: float, scallop: float, depth_lim: float, max_passes: int,
-                 spec_path=None) -> PassPlan:
+                 spec_path=None, chord: float = 0.0) -> PassPlan:
     """Place the passes across, pass by pass (the rules in the module docstring).
+    ``chord``: the program's chord tolerance (mm), added to the bound where it follows
+    the exact path (steep ground along the pass).
 
     Raises SpecError (``machining.scallop``) past ``max_passes`` passes."""
     ug = u_grid(fr, R)
@@ -300,7 +314,7 @@ def place_passes(ws, fr, R: float, scallop: float, depth_lim: float, max_passes:
         return compensate_passes(ws, fr, R, ug, uf, vlist, depth_lim)
 
     def left(vs, cutters):
-        ml = sweep_material(ws, fr, R, uq, vs, cutters, uf, 0.5 * target)
+        ml = sweep_material(ws, fr, R, uq, vs, cutters, uf, 0.5 * target, chord)
         return np.nan_to_num(ml, nan=np.inf, posinf=np.inf)
 
     def edge_left(p, older, edge):
