@@ -239,10 +239,16 @@ def u_grid(fr, R):
     return np.concatenate([-side[:0:-1], np.linspace(0.0, fr.Lu, n_in), fr.Lu + side[1:]])
 
 
-def fine_grid(ug):
-    """The material bounds' grid along u: four steps per even node step, and the nodes
-    beyond the edges."""
-    n = 4 * (len(ug) - 1 - 2 * len(EDGE_NODES)) + 1
+def fine_grid(ug, R=None, target=None):
+    """The material bounds' grid along u: four steps per even node step (more where
+    the target is small: the balls df apart along a pass leave up to df^2 / (8 R) between
+    them, kept below a tenth of the target; else the bound never meets a small scallop
+    and the stepover collapses), and the nodes beyond the edges."""
+    sub = 4
+    if R is not None and target:
+        du = float(np.diff(ug).max())
+        sub = max(4, int(math.ceil(du / math.sqrt(0.8 * R * target))))
+    n = sub * (len(ug) - 1 - 2 * len(EDGE_NODES)) + 1
     lu = ug[-1] + ug[0]
     out = np.maximum(-ug, ug - lu) / -ug[0]
     return np.unique(np.r_[np.linspace(ug[0], ug[-1], n), ug[(out > 0.9) & (out < 1.0)]])
@@ -302,8 +308,8 @@ def place_passes(ws, fr, R: float, scallop: float, depth_lim: float, max_passes:
     ug = u_grid(fr, R)
     inside_u = (ug >= 0) & (ug <= fr.Lu)
     uq = ug[inside_u]
-    uf = fine_grid(ug)
     target = SCALLOP_SAFETY * scallop
+    uf = fine_grid(ug, R, target)
     s_flat = flat_stepover(R, target)
     s_min = MIN_STEP_SHARE * s_flat
     Lv = fr.Lv
