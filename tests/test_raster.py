@@ -222,6 +222,7 @@ def test_open_edges_do_not_gouge_at_a_fine_tolerance():
     c = verify_cut(surf, prog, R, 40000)
     assert c["max_gouge"] <= 0.004
     assert c["max_material_left"] <= 0.1 + 0.004
-    # the pass nodes beyond the stock stay short of the equator contact
+    # the pass nodes beyond the stock stay short of the equator contact (at most 0.99 R out:
+    # a steep foot at the edge is reached only from there)
     cut = tp.points[tp.kinds == CUT]
-    assert cut[:, 0].min() >= -R * 7 / 8 - 1e-9
+    assert cut[:, 0].min() >= -R * 0.99 - 1e-9
