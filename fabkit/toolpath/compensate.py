@@ -345,6 +345,10 @@ def _newton_crease(ws, cx, cy, px, py, iters):
     return px, py
 
 
+EDGE_SLOPES = (0.5, 1.5, 4.0, 8.0, 12.0, 20.0, 40.0)
+_EDGE_OFF = np.array([sg * w / math.sqrt(1.0 + w * w) for w in EDGE_SLOPES for sg in (-1.0, 1.0)])
+
+
 def _edges(ws, cx, cy, R, best, idx_all, nsamp, iters):
     """Candidates (iii)/(iv) on the four footprint edges within each disk."""
     L, W = ws.L, ws.W
@@ -374,8 +378,14 @@ def _edges(ws, cx, cy, R, best, idx_all, nsamp, iters):
             zc = np.minimum(ws.H(X, Y), 0.0)
             return zc + np.sqrt(np.maximum(rho2 - (t - tc[:, None]) ** 2, 0.0))
 
+        # samples even along the chord, and where the ball touches a line of each slope
+        # in EDGE_SLOPES (t - tc = a w / sqrt(1 + w^2)): on a steep wall the contact lies
+        # within a few hundredths of R of the chord's end, between two even samples
+        # whose values are both far below it
         u = np.linspace(0.0, 1.0, nsamp)
         T = t0[:, None] + (t1 - t0)[:, None] * u[None, :]
+        Ts = tc[:, None] + a[:, None] * _EDGE_OFF[None, :]
+        T = np.sort(np.concatenate([T, np.clip(Ts, t0[:, None], t1[:, None])], axis=1), axis=1)
         V = val(T)
         idx = idx_all[sel]
         X, Y = pts(T)
@@ -387,9 +397,15 @@ def _edges(ws, cx, cy, R, best, idx_all, nsamp, iters):
         best.offer(idx, Vf[:, 0], Xf[:, 0], Yf[:, 0], EDGE)
         # smooth part: 1-D Newton in the angle phi (t = tc + a sin phi: no square-root
         # singularity at the disk's rim, where steep ground puts the contact), from the
-        # two best samples, each step backtracked until the value does not decrease
-        k = min(2, nsamp)
-        start = np.argsort(-V, axis=1, kind="stable")[:, :k]
+        # three best local maxima of the samples (a wall's foot and the floor under the
+        # ball's centre are separate hills of nearly equal height), each step backtracked
+        # until the value does not decrease
+        Vf = np.where(np.isfinite(V), V, -np.inf)
+        lm = np.ones(V.shape, dtype=bool)
+        lm[:, 1:] &= Vf[:, 1:] >= Vf[:, :-1]
+        lm[:, :-1] &= Vf[:, :-1] >= Vf[:, 1:]
+        k = 3
+        start = np.argsort(-np.where(lm, Vf, -np.inf), axis=1, kind="stable")[:, :k]
         t = np.take_along_axis(T, start, axis=1)
         shp = t.shape
         aa = np.broadcast_to(a[:, None], shp).ravel()

@@ -37,6 +37,8 @@ AIR_EPS = 1e-7          # mm: a tip this close below the top face touches nothin
 SCALLOP_SAFETY = 0.95   # stepover keeps the cross-section bound below this fraction of the scallop
 FLOOR_SHARE = 0.25      # material the dense passes leave above this share of the target: unreachable
 MIN_STEP_SHARE = 0.02   # smallest stepover tried, share of the flat-ground stepover
+STEEP_ALONG = 1.5       # the material bound's stage 3 runs where the slope along the pass exceeds this
+EDGE_NODES = (0.95, 0.99)   # extra nodes along the passes beyond the edges, x R out
 EDGE_OUT = (0.0, 0.125, 0.25, 0.375, 0.5, 0.625, 0.75, 0.875, 0.95, 0.99, 0.999)  # edge passes, x R out
 
 
@@ -100,12 +102,22 @@ class _Pass:
         self.keep = _trim_outside(ug, Z, fr.Lu, depth_lim, contact_top)
         k = np.nonzero(self.keep)[0]
         f = _hermite(ug, Z, dZ, uf)
-        # the material bounds count the balls at most 7/8 R beyond the edges: further
-        # out the tip height rises too steeply for the Hermite profile (fewer balls:
-        # a higher, still valid bound)
-        f = np.where((uf >= -0.875 * R) & (uf <= fr.Lu + 0.875 * R), f, np.inf)
+        # the material bounds count the balls at most 7/8 R beyond the edges, and further
+        # out only those at the nodes (exact heights): there the tip height rises too
+        # steeply for the Hermite profile (fewer balls: a higher, still valid bound)
+        out = np.maximum(-uf, uf - fr.Lu)
+        f = np.where((out <= 0.875 * R) | np.isin(uf, ug[np.isfinite(Z)]), f, np.inf)
         self.fine = np.where((uf >= ug[k[0]]) & (uf <= ug[k[-1]]), f, np.inf) if k.size \
             else np.full_like(uf, np.inf)
+        self._ug = ug
+        self._lo = max(ug[k[0]], -0.875 * R) if k.size else math.inf
+        self._hi = min(ug[k[-1]], fr.Lu + 0.875 * R) if k.size else -math.inf
+
+    def profile(self, u):
+        """Tip height (Hermite) at any positions u along the pass; +inf where the
+        fine profile is (not machined, or more than 7/8 R beyond the edges)."""
+        z = _hermite(self._ug, self.Z, self.dZ, u)
+        return np.where((u >= self._lo) & (u <= self._hi), z, np.inf)
 
 
 def compensate_passes(ws, fr, R, ug, uf, vlist, depth_lim):
@@ -124,17 +136,20 @@ def compensate_passes(ws, fr, R, ug, uf, vlist, depth_lim):
     return out
 
 
-def sweep_material(ws, fr, R, uq, vs, cutters, uf, threshold=0.0):
+def sweep_material(ws, fr, R, uq, vs, cutters, uf, threshold=0.0, chord=0.0):
     """Upper bound of the material left vertically above the design at the points
     (uq, vs) (mm; vs (m, nq) across, uq (nq,) along) after the passes ``cutters``
     (list of :class:`_Pass`). Each point is cut by the lowest of the balls at the
     fine positions uf of those passes: a discrete subset of the continuous sweep,
     so the bound is conservative (by at most (du/4)^2 / (8 R) along steep slopes).
     Where a first bound from the balls at the same u alone is <= ``threshold`` it
-    is returned as is (the caller needs no better). Returns (m, nq) mm."""
-    df = uf[1] - uf[0]
-    K = int(math.ceil(R / df))
-    j0 = np.clip(np.rint((uq - uf[0]) / df).astype(int), 0, len(uf) - 1)
+    is returned as is (the caller needs no better). On ground steep along the pass the
+    lowest ball between the fine positions is found (stage 3); that bound follows the
+    exact path, so the chords of the program (within ``chord`` mm of it) are added to
+    it. Returns (m, nq) mm."""
+    df = float(np.diff(uf).max())   # the even spacing (nodes beyond the edges added between)
+    K = int(math.ceil(R / df)) + len(EDGE_NODES) + 1    # and the edge nodes between
+    j0 = np.clip(np.searchsorted(uf, uq), 0, len(uf) - 1)
     X, Y = fr.xy(np.broadcast_to(uq, vs.shape), vs)
     design = np.minimum(ws.H(X, Y), 0.0)
 
@@ -159,6 +174,50 @@ def sweep_material(ws, fr, R, uq, vs, cutters, uf, threshold=0.0):
     hot = np.nonzero((ml > threshold).any(axis=0))[0]
     if hot.size:
         ml[:, hot] = bound(hot, np.arange(-K, K + 1))
+    # stage 3: on ground steep along the pass the ball cuts a cross-section with its rim
+    # (slope 8: 0.99 R ahead), where a step du between balls leaves ~ du^2 / (2 R cos^3)
+    # (1.6 mm at the fine grid's 0.1 mm): the lowest ball between the fine positions,
+    # per pass, by golden-section search along the pass
+    hot = np.nonzero((ml > threshold + chord).any(axis=0))[0]
+    if hot.size:
+        # only where the design is steep along the pass (slope > STEEP_ALONG) near the
+        # column: elsewhere the fine grid's error, <= df^2 (1 + slope^2)^1.5 / (8 R), is small
+        uu = uq[hot][None, :] + np.array([-1.0, -0.5, 0.0, 0.5, 1.0])[:, None] * R
+        Xs, Ys = fr.xy(uu, np.broadcast_to(vs[vs.shape[0] // 2, hot], uu.shape))
+        d = ws.all(Xs, Ys)
+        su = np.abs(np.nan_to_num(d[1] if fr.direction == "x" else d[2]))
+        hot = hot[(su * (d[0] < 0)).max(axis=0) > STEEP_ALONG]
+    if hot.size:
+        v = vs[:, hot][:, :, None]
+        u0 = uq[hot][None, :, None]
+        o = np.linspace(-R, R, 65)
+        h = o[1] - o[0]
+        cut = np.full(v.shape[:2], np.inf)
+        for p in cutters:
+            dv2 = (v - p.v) ** 2
+
+            def ball(oo):
+                r2 = R * R - oo * oo - dv2
+                with np.errstate(invalid="ignore"):
+                    b = p.profile(u0 + oo) + R - np.sqrt(r2)
+                return np.where(r2 >= 0, b, np.inf)
+
+            g = ball(o[None, None, :] + 0 * v)
+            j = np.argmin(g, axis=2)[..., None]
+            a = np.take_along_axis(np.broadcast_to(o, g.shape), j, axis=2) - h
+            b = a + 2 * h
+            gr = 0.5 * (math.sqrt(5.0) - 1.0)
+            c, d = b - gr * (b - a), a + gr * (b - a)
+            gc, gd = ball(c), ball(d)
+            for _ in range(24):
+                lt = gc <= gd
+                a, b = np.where(lt, a, c), np.where(lt, d, b)
+                c, d = np.where(lt, b - gr * (b - a), d), np.where(lt, c, a + gr * (b - a))
+                gn = ball(np.where(lt, c, d))
+                gc, gd = np.where(lt, gn, gd), np.where(lt, gc, gn)
+            best = np.minimum(np.min(g, axis=2), np.minimum(gc, gd)[..., 0])
+            cut = np.minimum(cut, best)
+        ml[:, hot] = np.minimum(ml[:, hot], np.minimum(cut, 0.0) - design[:, hot] + chord)
     return ml
 
 
@@ -171,10 +230,28 @@ def _between(lo, hi, Lv, n=9):
 
 
 def u_grid(fr, R):
+    """Nodes along the passes: at most 1 mm (or R/2) apart inside, R/8 apart beyond
+    the edges, and at EDGE_NODES x R out: on ground rising steeply away from an edge the
+    ball reaches the edge's foot only from almost a whole radius out (slope 8: 0.992 R)."""
     du = min(1.0, R / 2.0)
     n_in = max(2, int(math.ceil(fr.Lu / du)) + 1)
-    side = np.linspace(0.0, R, 9)
+    side = np.sort(np.r_[np.linspace(0.0, R, 9), R * np.array(EDGE_NODES)])
     return np.concatenate([-side[:0:-1], np.linspace(0.0, fr.Lu, n_in), fr.Lu + side[1:]])
+
+
+def fine_grid(ug, R=None, target=None):
+    """The material bounds' grid along u: four steps per even node step (more where
+    the target is small: the balls df apart along a pass leave up to df^2 / (8 R) between
+    them, kept below a tenth of the target; else the bound never meets a small scallop
+    and the stepover collapses), and the nodes beyond the edges."""
+    sub = 4
+    if R is not None and target:
+        du = float(np.diff(ug).max())
+        sub = max(4, int(math.ceil(du / math.sqrt(0.8 * R * target))))
+    n = sub * (len(ug) - 1 - 2 * len(EDGE_NODES)) + 1
+    lu = ug[-1] + ug[0]
+    out = np.maximum(-ug, ug - lu) / -ug[0]
+    return np.unique(np.r_[np.linspace(ug[0], ug[-1], n), ug[(out > 0.9) & (out < 1.0)]])
 
 
 def _trim_outside(ug, Z, Lu, depth_lim, contact_top=None):
@@ -222,15 +299,17 @@ class PassPlan:
 
 
 def place_passes(ws, fr, R: float, scallop: float, depth_lim: float, max_passes: int,
-                 spec_path=None) -> PassPlan:
+                 spec_path=None, chord: float = 0.0) -> PassPlan:
     """Place the passes across, pass by pass (the rules in the module docstring).
+    ``chord``: the program's chord tolerance (mm), added to the bound where it follows
+    the exact path (steep ground along the pass).
 
     Raises SpecError (``machining.scallop``) past ``max_passes`` passes."""
     ug = u_grid(fr, R)
     inside_u = (ug >= 0) & (ug <= fr.Lu)
     uq = ug[inside_u]
-    uf = np.linspace(ug[0], ug[-1], 4 * (len(ug) - 1) + 1)
     target = SCALLOP_SAFETY * scallop
+    uf = fine_grid(ug, R, target)
     s_flat = flat_stepover(R, target)
     s_min = MIN_STEP_SHARE * s_flat
     Lv = fr.Lv
@@ -241,7 +320,7 @@ def place_passes(ws, fr, R: float, scallop: float, depth_lim: float, max_passes:
         return compensate_passes(ws, fr, R, ug, uf, vlist, depth_lim)
 
     def left(vs, cutters):
-        ml = sweep_material(ws, fr, R, uq, vs, cutters, uf, 0.5 * target)
+        ml = sweep_material(ws, fr, R, uq, vs, cutters, uf, 0.5 * target, chord)
         return np.nan_to_num(ml, nan=np.inf, posinf=np.inf)
 
     def edge_left(p, older, edge):

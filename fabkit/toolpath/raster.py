@@ -32,7 +32,7 @@ from .passes import (SCALLOP_SAFETY, Frame, flat_stepover, place_passes, sweep_m
                      tilted_plane_cusp)
 from .path import RAPID, Toolpath
 from .rough import rough_runs
-from .spacing import _runs, space_points
+from .spacing import CHORD_SAFETY, _runs, space_points
 
 LINK_CLEARANCE = 1.0    # mm above material for short links and approaches (<= safe_height)
 
@@ -114,7 +114,8 @@ def plan_toolpath(spec, surface, tol: Tolerances = DEFAULT) -> Toolpath:
     depth_lim = min(float(spec.stock.depth_limit), float(spec.tool.reach))
 
     est = plan_estimate(spec, surface, tol)
-    plan = place_passes(ws, fr, R, scallop, depth_lim, tol.max_passes, spec.path)
+    plan = place_passes(ws, fr, R, scallop, depth_lim, tol.max_passes, spec.path,
+                        chord=CHORD_SAFETY * tolerance)
     passes = plan.passes
     V = np.array([p.v for p in passes])
     Z = np.vstack([p.Z for p in passes])
