@@ -258,22 +258,7 @@ def secant(Y, F0, t, h, b0, b1, P, A, Bw, ns, K, Ys, Yt):
     lo, hi = 0.0, 1.0
     blo, bhi = b0, b1
     th = 1.0
-    if GUARD_ITERS <= 4:
-        for _ in range(GUARD_ITERS):
-            th = lo + (hi - lo) * blo / (blo - bhi)
-            if math.isfinite(th):
-                th = min(max(th, lo), hi)
-            else:
-                th = 0.5 * (lo + hi)
-            rk_step(Y, F0, h * th, P, A, Bw, ns, K, Ys, Yt)
-            z, zd, b, sl = rhs(Yt, P, Ys, True)
-            if b > 0:
-                lo = th
-                blo = b
-            else:
-                hi = th
-                bhi = b
-        return t + h * th
+    illinois = GUARD_ITERS > 4     # a template constant: numba folds the branches
     side = 0
     for _ in range(GUARD_ITERS):
         th = lo + (hi - lo) * blo / (blo - bhi)
@@ -286,16 +271,16 @@ def secant(Y, F0, t, h, b0, b1, P, A, Bw, ns, K, Ys, Yt):
         if b > 0:
             lo = th
             blo = b
-            if side == 1:
+            if illinois and side == 1:
                 bhi = 0.5 * bhi
             side = 1
         else:
             hi = th
             bhi = b
-            if side == -1:
+            if illinois and side == -1:
                 blo = 0.5 * blo
             side = -1
-        if hi - lo <= 4 * np.spacing(1.0) or b == 0 or abs(b) <= 1e-15:
+        if illinois and (hi - lo <= 4 * np.spacing(1.0) or b == 0 or abs(b) <= 1e-15):
             break
     return t + h * th
 
