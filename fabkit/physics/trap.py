@@ -36,6 +36,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..surface import principal_curvatures
+
 EDGE_SAMPLES = 4097     # points per boundary edge
 GRID = 257              # points per axis over D (h_min, kappa)
 
@@ -161,14 +163,7 @@ def _ball_trap_energy(problem, rel_margin: float) -> float | None:
     if near.any():
         bounds.append(gt * (float(zc[near].min()) - err))
     # the most convex curvature: the smaller principal curvature (negative where convex)
-    _, hx, hy, hxx, hxy, hyy = j[:6]
-    w = np.sqrt(1.0 + hx * hx + hy * hy)
-    E, F, G = 1.0 + hx * hx, hx * hy, 1.0 + hy * hy
-    L, M, N = hxx / w, hxy / w, hyy / w
-    det = E * G - F * F
-    K = (L * N - M * M) / det
-    H = (E * N - 2.0 * F * M + G * L) / (2.0 * det)
-    k2 = H - np.sqrt(np.maximum(H * H - K, 0.0))
+    _, k2 = principal_curvatures(*j[1:6])
     convex = np.maximum(-k2, 0.0)
     lam = 1.5 * float((convex / (1.0 + r * convex)).max())
     if lam > 0:
