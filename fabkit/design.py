@@ -34,9 +34,10 @@ launch if they fail), then the ramp launched at release heights spaced
 them) in one batch, read by :func:`physics.sweep.critical_bracket` and
 :func:`physics.sweep.find_runs` without refinement launches (v_critical to one sample
 spacing, about 1 %; window edges halfway between samples, to ``min_width / 6``), then
-the scatter launches at each candidate window's centre. :func:`verify` is the full one: :func:`physics.check.check` itself (400
-heights by default, edges to 1e-4 relative, the highest safe height) and the same
-centre launches. Only verified designs are reported or written; the screen only
+the scatter launches at each candidate window's centre. :func:`verify` is the full one:
+:func:`physics.check.check` itself with its defaults (400 heights, window edges and
+v_critical bisected to 1e-6 relative, :func:`check_tolerances`; the highest safe height)
+and the same centre launches. Only verified designs are reported or written; the screen only
 steers the search (the report gives both counts for each finalist).
 
 Search
@@ -396,10 +397,20 @@ def screen(spec, opts: Options) -> dict:
     return _summarise(ev)
 
 
+def check_tolerances() -> dict:
+    """The tolerances :func:`verify` runs the check with (its defaults): ``rel_tol``
+    (highest safe height), ``v_rel_tol`` (v_critical), ``edge_rel_tol`` (window edges),
+    ``gap_rel_tol`` (gaps between windows seen), all relative."""
+    from .physics.check import check
+
+    return dict(check.__kwdefaults__)
+
+
 def verify(spec, opts: Options) -> dict:
     """The full evaluation: :func:`physics.check.check` of the design and the centre
     launches on its reachable windows. Returns what :func:`screen` returns, plus
-    ``check`` ('pass' | 'fail': what ``fabkit check`` would say), ``highest_safe_height``,
+    ``v_critical_error`` and each window's ``edge_error`` (the check's bisection brackets,
+    half-widths in v_in), ``check`` ('pass' | 'fail': what ``fabkit check`` would say), ``highest_safe_height``,
     ``first_failure``, ``machining``, and ``sweep`` (the check's heights, outcomes,
     bounces and v_out, for the plot)."""
     from .physics.check import check
@@ -426,7 +437,9 @@ def verify(spec, opts: Options) -> dict:
           "check": "pass" if check_ok else "fail", "v_critical": r["v_critical"], "v_top": v_top,
           "critical_height": r["critical_height"], "depth_mm": None if m is None else m["depth_mm"],
           "highest_safe_height": r["highest_safe_height"], "first_failure": r["first_failure"], "machining": m,
-          "windows": _centres(spec, _problem(spec), [{kk: w[kk] for kk in ("lo", "hi", "height_lo", "height_hi")}
+          "v_critical_error": r.get("v_critical_error"),
+          "windows": _centres(spec, _problem(spec), [{kk: w.get(kk) for kk in ("lo", "hi", "height_lo", "height_hi",
+                                                                             "edge_error")}
                                                      for w in r["reachable_windows"]], opts),
           "sweep": {"heights": r["heights"], "v_in": r["v_in"], "outcome": r["outcomes"], "bounces": r["bounces"],
                     "v_out": r.get("v_out")}}

@@ -264,6 +264,21 @@ def test_windows_agree_with_the_check_of_the_written_spec(tiny):
     assert w["observable"] == sum(x["observable"] for x in w["windows"])
 
 
+def test_stated_accuracy_is_the_checks(tiny):
+    """The accuracy the command states is the one the check ran with, and the winner's
+    brackets (v_critical, every window edge) are that narrow."""
+    from fabkit.physics.check import check
+
+    res = tiny["json"]
+    tols = res["check_tolerances"]
+    assert tols == {kk: vv for kk, vv in check.__kwdefaults__.items() if kk.endswith("rel_tol")}
+    w = res["winner"]
+    assert 0 < w["v_critical_error"] <= 0.5 * tols["v_rel_tol"] * w["v_critical"]
+    assert w["windows"]
+    for x in w["windows"]:
+        assert 0 < x["edge_error"] <= 0.5 * tols["edge_rel_tol"] * x["hi"]
+
+
 def test_same_seed_same_design(tiny):
     folder = tiny["folder"]
     code, out, err = run_cli(["design", tiny["path"], *TINY, "--json", "-o", folder / "again.yaml"])

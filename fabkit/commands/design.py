@@ -54,7 +54,8 @@ def _public(ev: dict | None, bounds) -> dict | None:
 
 
 def run(args) -> int:
-    from ..design import DEFAULT_SAMPLES, Options, Runner, check_request, parse_bound, search, winner_yaml
+    from ..design import (DEFAULT_SAMPLES, Options, Runner, check_request, check_tolerances, parse_bound, search,
+                          winner_yaml)
     from ..io import atomic_outputs
     from ..spec import load_spec
 
@@ -110,7 +111,9 @@ def run(args) -> int:
         lines.append(f"design: winner {'(the spec as it is) ' if w is res['baseline'] else ''}"
                      f"{_values(bounds, w['values'])}: {w['observable']} observable two-bounce windows "
                      f"(baseline {res['baseline']['observable']}) -> {output}")
-    lines.append(f"design: window edges to 1e-4 relative in v_in (fabkit check), P(2 bounces) from "
+    tols = {kk: vv for kk, vv in check_tolerances().items() if kk.endswith("rel_tol")}
+    lines.append(f"design: window edges to {tols['edge_rel_tol']:g} relative in v_in, v_critical to "
+                 f"{tols['v_rel_tol']:g} (fabkit check), P(2 bounces) from "
                  f"{opts.samples if opts.sigma_y > 0 or opts.sigma_vy > 0 else 1} launches; {res['seconds']:.1f} s"
                  + (f"; plot in {args.plot}" if args.plot else ""))
     payload = {"baseline": _public(res["baseline"], bounds),
@@ -118,7 +121,7 @@ def run(args) -> int:
                "winner": _public(w, bounds), "output": str(output) if w is not None else None,
                "history": res["history"], "optimizer": opt, "options": res["options"],
                "bounds": [{"key": b.key, "lo": b.lo, "hi": b.hi, "step": b.step} for b in bounds],
-               "engine": engine, "units": u, "seconds": res["seconds"]}
+               "engine": engine, "check_tolerances": tols, "units": u, "seconds": res["seconds"]}
     emit(lines, payload, args.json)
     if w is None:
         raise DesignError("no design within the bounds passes the constraints (see the table)")
