@@ -162,3 +162,32 @@ def test_cli_sweep_keys(cli):
     assert 0.2598 < d["v_critical"] < 0.29
     assert d["v_critical_extrapolated"] is None or abs(d["v_critical_extrapolated"] - 0.2600) < 2e-3
     assert all(set(w) >= {"bounces", "lo", "hi"} for w in d["windows"])
+
+
+def test_sweep_splits_windows_the_sampling_merged():
+    # a closed-form stand-in for the PDE: two bounces exactly on the intervals W, one-bounce escape
+    # above v_c = 0.3, capture elsewhere. The samples 0.20, 0.21, 0.22 escape after two bounces, but
+    # 0.22 lies in another window than 0.21 (a capture on (0.2135, 0.2165) between them, as the PDE
+    # has near 0.2541..0.2547): the sweep must report the two windows, each edge to its tolerance
+    from fabkit.physics.sweep import CAPTURED, ESCAPED, Launches
+    from fabkit.waves.sweep import phi4_sweep
+
+    W = [(0.1975, 0.2135), (0.2165, 0.2245), (0.2495, 0.2515)]
+
+    def launch(x):
+        x = np.asarray(x, dtype=float)
+        two = np.zeros(x.size, dtype=bool)
+        for a, b in W:
+            two |= (x >= a) & (x <= b)
+        one = x > 0.3
+        return Launches(x, np.where(two | one, ESCAPED, CAPTURED).astype(np.int8), np.where(one, 1, 2),
+                        np.where(two | one, 0.1, np.nan), np.zeros((x.size, 0)))
+
+    r = phi4_sweep(np.linspace(0.19, 0.31, 13), launchers=(launch, launch))
+    two = [w for w in r["windows"] if w["bounces"] == 2]
+    assert len(two) == 3
+    for w, (a, b) in zip(two, W):
+        assert abs(w["lo"] - a) <= w["edge_error"] <= 2e-4 * b
+        assert abs(w["hi"] - b) <= w["edge_error"]
+    assert [w["samples"] for w in two] == [2, 1, 1]
+    assert r["v_critical"] == pytest.approx(0.3, abs=r["v_critical_error"])

@@ -17,6 +17,7 @@ Grid and step errors: docs/numerics.md ("phi^4").
 
 from __future__ import annotations
 
+import math
 import time
 
 import numpy as np
@@ -61,17 +62,70 @@ def extrapolate_critical(v, res: Launches, v_c: float, fit_width: float = 0.01):
     return float(-b / a)
 
 
+def split_runs(v: np.ndarray, runs: list[tuple[int, int, int]], probe, gap_rel_tol: float) -> list[dict]:
+    """The two-bounce runs of sorted samples ``v`` (``find_runs``' ``(2, i, j)``), each
+    checked between its consecutive samples for windows that the sampling merged: two
+    neighbouring samples may escape after two bounces in two different windows with a
+    capture between them (near v_critical the windows crowd together). Probes are
+    launched (``probe(x) -> Launches``, all in one call) between consecutive samples of
+    every run, spaced at most ``gap_rel_tol`` relative, so no gap wider than that is left
+    unseen inside a run. Returns the connected sub-runs in order, each ``{run, lo_in,
+    hi_in, lo_out, hi_out, samples}``: its outermost two-bounce launches, the launches just
+    outside it (None at the range's ends) and the number of samples it holds."""
+    from ..physics.sweep import _two_bounce
+
+    plan = []
+    for _, i, j in runs:
+        pts = []
+        for q in range(i, j):
+            a, b = float(v[q]), float(v[q + 1])
+            n = int(math.ceil((b - a) / (gap_rel_tol * abs(b)))) - 1 if gap_rel_tol > 0 else 0
+            if n > 0:
+                pts.append(a + (b - a) * np.arange(1, n + 1) / (n + 1))
+        plan.append(np.concatenate(pts) if pts else np.zeros(0))
+    sizes = [len(x) for x in plan]
+    inside = np.zeros(0, dtype=bool)
+    if sum(sizes):
+        inside = np.asarray(_two_bounce(probe(np.concatenate(plan))), dtype=bool)
+    out, at = [], 0
+    for (n_b, i, j), pts, m in zip(runs, plan, sizes):
+        x = np.concatenate([v[i:j + 1], pts])
+        ins = np.concatenate([np.ones(j - i + 1, dtype=bool), inside[at:at + m]])
+        sample = np.concatenate([np.ones(j - i + 1, dtype=bool), np.zeros(m, dtype=bool)])
+        at += m
+        order = np.argsort(x, kind="stable")
+        x, ins, sample = x[order], ins[order], sample[order]
+        q = 0
+        while q < len(x):
+            if not ins[q]:
+                q += 1
+                continue
+            r = q
+            while r + 1 < len(x) and ins[r + 1]:
+                r += 1
+            lo_out = float(x[q - 1]) if q > 0 else (float(v[i - 1]) if i > 0 else None)
+            hi_out = float(x[r + 1]) if r + 1 < len(x) else (float(v[j + 1]) if j + 1 < len(v) else None)
+            out.append({"run": (n_b, i, j), "lo_in": float(x[q]), "hi_in": float(x[r]), "lo_out": lo_out,
+                        "hi_out": hi_out, "samples": int(sample[q:r + 1].sum())})
+            q = r + 1
+    return out
+
+
 def phi4_sweep(v_in, cfg: Phi4Config = DEFAULT_CONFIG, *, rel_tol: float = 2e-5, k: int = 8,
-               k_edge: int = 6, edge_rel_tol: float = 2e-4, refine: bool = True, refine_windows: bool = True,
-               progress=None,
-               batch: int = 64, stop_after: int | None = None) -> dict:
+               k_edge: int = 6, edge_rel_tol: float = 2e-4, gap_rel_tol: float = 2e-4, refine: bool = True,
+               refine_windows: bool = True, progress=None,
+               batch: int = 64, stop_after: int | None = None, launchers=None) -> dict:
     """Collide at every ``v_in`` (N,) (sorted here) and analyse, as :func:`fabkit.physics.sweep.sweep`.
 
     Returns ``v_in``, ``v_out``, ``bounces``, ``outcome``, ``v_critical``,
     ``v_critical_error``, ``v_critical_reason``, ``v_critical_extrapolated``,
     ``t_max_bias``, ``windows`` [{bounces, lo, hi, samples, edge_error}],
     ``launches``, ``seconds``, ``seconds_per_collision``.
-    ``refine_windows``: False leaves the two-bounce window edges at the samples.
+    ``refine_windows``: False leaves the two-bounce window edges at the samples; True
+    first probes every sampled two-bounce run between its samples (:func:`split_runs`,
+    ``gap_rel_tol``) and splits it where a probe does not escape after two bounces, then
+    refines each window's edges. ``launchers``: ``(launch, refine_launch)`` in place of
+    the PDE (each ``v (M,) -> Launches``; the tests' closed-form stand-ins).
     ``stop_after``: end sampled launches at that bounce (shown as captured; for
     figures that colour up to four bounces). Refinement launches always stop at their
     third bounce: they only ask "one-bounce escape or not" and "two-bounce escape or not".
@@ -86,31 +140,55 @@ def phi4_sweep(v_in, cfg: Phi4Config = DEFAULT_CONFIG, *, rel_tol: float = 2e-5,
     if reason:
         raise SpecError(reason, key="--v-in")
     counted = {"n": 0}
-    launch = make_launcher(cfg, batch=batch, progress=progress, counter=counted, stop_after=stop_after)
-    refine_launch = make_launcher(cfg, batch=batch, progress=progress, counter=counted, stop_after=3)
-    res = launch(v)
-    out: dict = {"v_in": v, "v_out": res.v_out, "bounces": res.bounces,
-                 "outcome": [OUTCOMES[int(i)] for i in res.outcome]}
-    lo, hi, reason = critical_bracket(v, res)
-    runs = find_runs(res)
-    windows = [{"bounces": n, "lo": float(v[i]), "hi": float(v[j]), "samples": j - i + 1, "edge_error": None}
-               for n, i, j in runs]
-    two = [(w, i, j) for w, (n, i, j) in zip(windows, runs) if n == 2]
-    tasks = []
-    if refine:
-        if lo is not None:
-            tasks.append(_critical_task(lo, hi, rel_tol, k))
-        for w, i, j in (two if refine_windows else []):
-            tasks.append(_edge_task(float(v[i - 1]) if i > 0 else float(v[i]), float(v[i]), -1, edge_rel_tol,
-                                    k_edge))
-            tasks.append(_edge_task(float(v[j]), float(v[j + 1]) if j + 1 < len(v) else float(v[j]), +1,
-                                    edge_rel_tol, k_edge))
+    if launchers is None:
+        launch = make_launcher(cfg, batch=batch, progress=progress, counter=counted, stop_after=stop_after)
+        refine_launch = make_launcher(cfg, batch=batch, progress=progress, counter=counted, stop_after=3)
+    else:
+        def counting(f):
+            def g(x):
+                counted["n"] += len(x)
+                return f(x)
+            return g
+        launch, refine_launch = (counting(f) for f in launchers)
     extra: list[Launches] = []
 
     def keep(x):
         r = refine_launch(x)
         extra.append(r)
         return r
+
+    res = launch(v)
+    out: dict = {"v_in": v, "v_out": res.v_out, "bounces": res.bounces,
+                 "outcome": [OUTCOMES[int(i)] for i in res.outcome]}
+    lo, hi, reason = critical_bracket(v, res)
+    runs = find_runs(res)
+    two_runs = [r for r in runs if r[0] == 2]
+    if refine and refine_windows:
+        subs = split_runs(v, two_runs, keep, gap_rel_tol)
+    else:
+        subs = [{"run": r, "lo_in": float(v[r[1]]), "hi_in": float(v[r[2]]),
+                 "lo_out": float(v[r[1] - 1]) if r[1] > 0 else None,
+                 "hi_out": float(v[r[2] + 1]) if r[2] + 1 < len(v) else None, "samples": r[2] - r[1] + 1}
+                for r in two_runs]
+    windows, two = [], []
+    for n, i, j in runs:
+        if n != 2:
+            windows.append({"bounces": n, "lo": float(v[i]), "hi": float(v[j]), "samples": j - i + 1,
+                            "edge_error": None})
+            continue
+        for sub in (x for x in subs if x["run"] == (n, i, j)):
+            w = {"bounces": 2, "lo": sub["lo_in"], "hi": sub["hi_in"], "samples": sub["samples"], "edge_error": None}
+            windows.append(w)
+            two.append((w, sub))
+    tasks = []
+    if refine:
+        if lo is not None:
+            tasks.append(_critical_task(lo, hi, rel_tol, k))
+        for w, sub in (two if refine_windows else []):
+            a = sub["lo_out"] if sub["lo_out"] is not None else sub["lo_in"]
+            b = sub["hi_out"] if sub["hi_out"] is not None else sub["hi_in"]
+            tasks.append(_edge_task(a, sub["lo_in"], -1, edge_rel_tol, k_edge))
+            tasks.append(_edge_task(sub["hi_in"], b, +1, edge_rel_tol, k_edge))
 
     done = run_tasks(keep, tasks)
     if refine and lo is not None:
@@ -119,11 +197,11 @@ def phi4_sweep(v_in, cfg: Phi4Config = DEFAULT_CONFIG, *, rel_tol: float = 2e-5,
     out["v_critical"] = vc
     out["v_critical_error"] = None if lo is None else 0.5 * (hi - lo)
     out["v_critical_reason"] = reason
-    for q, (w, i, j) in enumerate(two):
+    for q, (w, sub) in enumerate(two):
         if refine and refine_windows:
             (a1, b1), (a2, b2) = done[2 * q: 2 * q + 2]
-            w["lo"] = 0.5 * (a1 + b1) if i > 0 else float(v[i])
-            w["hi"] = 0.5 * (a2 + b2) if j + 1 < len(v) else float(v[j])
+            w["lo"] = 0.5 * (a1 + b1) if sub["lo_out"] is not None else sub["lo_in"]
+            w["hi"] = 0.5 * (a2 + b2) if sub["hi_out"] is not None else sub["hi_in"]
             w["edge_error"] = 0.5 * max(b1 - a1, b2 - a2)
     out["windows"] = windows
     # v_out -> 0 extrapolation over every launch run (samples and refinement)
