@@ -223,6 +223,38 @@ def atomic_outputs():
         raise
 
 
+def read_regular(path, limit: int, noun: str = "input") -> bytes:
+    """The first ``limit + 1`` bytes of the regular file ``path`` (the caller refuses more).
+
+    Opened without blocking and checked with fstat on the open descriptor (no race
+    between the check and the read): a named pipe, a device or a socket is refused
+    (SpecError, exit 2) instead of blocking forever or reading without end. ``noun``
+    names what the file should be in the messages ("spec", "track export")."""
+    p = str(path)
+    try:
+        fd = os.open(p, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_NOCTTY", 0))
+    except FileNotFoundError:
+        raise SpecError("file not found", file=p) from None
+    except IsADirectoryError:
+        raise SpecError(f"is a folder, not a {noun} file", file=p) from None
+    except OSError as exc:
+        raise SpecError(f"cannot read: {exc.strerror or exc}", file=p) from None
+    try:
+        mode = os.fstat(fd).st_mode
+        if stat.S_ISDIR(mode):
+            raise SpecError(f"is a folder, not a {noun} file", file=p)
+        if not stat.S_ISREG(mode):
+            kind = ("a named pipe (FIFO)" if stat.S_ISFIFO(mode) else "a socket" if stat.S_ISSOCK(mode)
+                    else "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) else "not a regular file")
+            raise SpecError(f"is {kind}, not a regular file: give the {noun} as a file", file=p)
+        with os.fdopen(fd, "rb", closefd=False) as fh:
+            return fh.read(limit + 1)
+    except OSError as exc:
+        raise SpecError(f"cannot read: {exc.strerror or exc}", file=p) from None
+    finally:
+        os.close(fd)
+
+
 def write_atomic(path: str | os.PathLike, data: bytes | str) -> Path:
     """Write one file atomically."""
     with atomic_outputs() as out:

@@ -294,36 +294,11 @@ def load_spec(path: str | Path, need: tuple[str, ...] = (), command: str | None 
 
 
 def _read_spec_bytes(p: str) -> bytes:
-    """The first MAX_SPEC_BYTES + 1 bytes of the regular file ``p``.
+    """The first MAX_SPEC_BYTES + 1 bytes of the regular file ``p`` (a pipe, device or
+    socket refused: :func:`fabkit.io.read_regular`)."""
+    from .io import read_regular
 
-    Opened without blocking and checked with fstat on the open descriptor (no
-    race between the check and the read): a named pipe, a device or a socket is
-    refused instead of blocking forever or reading without end."""
-    import os
-    import stat
-
-    try:
-        fd = os.open(p, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_NOCTTY", 0))
-    except FileNotFoundError:
-        raise SpecError("file not found", file=p) from None
-    except IsADirectoryError:
-        raise SpecError("is a folder, not a spec file", file=p) from None
-    except OSError as exc:
-        raise SpecError(f"cannot read: {exc.strerror}", file=p) from None
-    try:
-        mode = os.fstat(fd).st_mode
-        if stat.S_ISDIR(mode):
-            raise SpecError("is a folder, not a spec file", file=p)
-        if not stat.S_ISREG(mode):
-            kind = ("a named pipe (FIFO)" if stat.S_ISFIFO(mode) else "a socket" if stat.S_ISSOCK(mode)
-                    else "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) else "not a regular file")
-            raise SpecError(f"is {kind}, not a regular file: give the spec as a file", file=p)
-        with os.fdopen(fd, "rb", closefd=False) as fh:
-            return fh.read(MAX_SPEC_BYTES + 1)
-    except OSError as exc:
-        raise SpecError(f"cannot read: {exc.strerror}", file=p) from None
-    finally:
-        os.close(fd)
+    return read_regular(p, MAX_SPEC_BYTES, "spec")
 
 
 # Plain scalars resolved as numbers the way people (and YAML 1.2) write them.

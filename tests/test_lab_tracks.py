@@ -92,3 +92,14 @@ def test_missing_file_and_bad_flags(cli, tmp_path):
     good.write_text("t,x,y\n" + "".join(f"{t},{x},{y}\n" for t, x, y in zip(T, X, Y)))
     code, _, err = cli("analyze", PAPER, good, "--scale", "-1")
     assert code == 2 and "--scale: must be > 0" in err
+
+
+def test_a_track_that_is_a_pipe_or_device_is_refused_not_read(cli, tmp_path):
+    """A named pipe would block the read forever and /dev/zero never ends: both refused at once."""
+    import os
+
+    fifo = tmp_path / "track.csv"
+    os.mkfifo(fifo)
+    for p, needle in ((fifo, "a named pipe"), (os.devnull, "a device")):
+        code, out, err = cli("analyze", PAPER, p)
+        assert code == 2 and out == "" and f"{p}: is {needle}" in err and err.count("\n") == 1, err

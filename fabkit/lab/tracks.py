@@ -84,15 +84,9 @@ def _bad(path, line: int | None, what: str) -> SpecError:
 
 
 def _read_text(path) -> str:
-    try:
-        with open(path, "rb") as fh:
-            data = fh.read(MAX_TRACK_BYTES + 1)
-    except FileNotFoundError:
-        raise SpecError("file not found", file=str(path)) from None
-    except IsADirectoryError:
-        raise SpecError("is a directory, not a track file", file=str(path)) from None
-    except OSError as exc:
-        raise SpecError(f"cannot read: {exc.strerror or exc}", file=str(path)) from None
+    from ..io import read_regular
+
+    data = read_regular(path, MAX_TRACK_BYTES, "track export")   # a pipe or device refused, not read
     if len(data) > MAX_TRACK_BYTES:
         raise SpecError(f"larger than {MAX_TRACK_BYTES // 2**20} MB: not a track export", file=str(path))
     if b"\0" in data[:4096]:
