@@ -153,3 +153,28 @@ def test_shipped_examples_pass_their_own_check(cli):
     with pytest.MonkeyPatch.context():
         code, out, err = cli("check", SPECS / "bowl.yaml", "--no-progress")
     assert code == 0, err + out
+
+
+def test_every_command_checks_its_outputs_before_any_work(cli, tmp_path, monkeypatch):
+    """phi4 and compare (no planning, no launch of the spec's simulator) and report refuse a
+    figure or page path under a file, a device, or the wrong format before their work starts."""
+    import fabkit.physics.check as check
+    import fabkit.waves.compare as cmp
+    import fabkit.waves.phi4 as phi4
+
+    def boom(*a, **k):
+        raise AssertionError("the work started before the output path was checked")
+
+    for mod, name in ((phi4, "collide"), (cmp, "pde_panel"), (check, "check")):
+        monkeypatch.setattr(mod, name, boom)
+    paper = write_spec(tmp_path, mutated({}), "paper.yaml")
+    (tmp_path / "afile").write_text("x")
+    for argv, needle in ((("phi4", "--v-in", "0.2", "--plot", "afile/x.png"), "not a folder"),
+                         (("phi4", "--v-in", "0.2", "0.3", "4", "--plot", os.devnull), "not a regular file"),
+                         (("compare", paper, "--plot", os.devnull), "not a regular file"),
+                         (("compare", paper, "--plot", paper), "is the input"),
+                         (("report", paper, "-o", "afile/r.html"), "not a folder"),
+                         (("report", paper, "-o", "r.pdf"), "HTML page")):
+        code, out, err = cli(*argv)
+        assert code == 2 and needle in err and "\n" not in err.strip() and out == "", (argv, err)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["afile", "paper.yaml"]

@@ -135,6 +135,9 @@ def test_cli_single_and_bad_input(cli, tmp_path):
                 ["--v-in", "0.99"]):      # the contracted kink (width 0.2) is under-resolved at dx 1/4
         code, out, err = cli("phi4", *bad)
         assert code == 2 and out == "" and len(err.strip().splitlines()) == 1, (bad, err)
+    # a step too small for the run names the option given and stays one short line
+    code, out, err = cli("phi4", "--v-in", "0.2", "--dt", "1e-300")
+    assert code == 2 and "--dt" in err and "8e+302 steps" in err and len(err) < 200, err
 
 
 def test_compare_bad_counts_and_figure(cli, tmp_path):

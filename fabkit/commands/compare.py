@@ -9,7 +9,7 @@ green, four red (fabkit/waves/compare.py).
 from __future__ import annotations
 
 from ..errors import SpecError
-from ._common import Timer, emit, plot_format, progress_bar
+from ._common import Timer, check_paths, emit, plot_format, progress_bar
 
 MAX_SAMPLES = 20_000
 
@@ -30,7 +30,8 @@ def run(args) -> int:
     timer = Timer()
     n_pde = _count(args.pde_samples, 400, "--pde-samples")
     n_ode = _count(args.ode_samples, 300, "--ode-samples")
-    fmt = plot_format(args.plot) if args.plot else None     # a bad extension fails before the work
+    check_paths(args, {"--plot": args.plot})                # a bad path or extension fails before the work
+    fmt = plot_format(args.plot) if args.plot else None
     spec = load_spec(args.spec, need=("surface", "simulation", "ball", "ramp"), command="compare")
     v_app = speeds(spec, None)
     quiet = getattr(args, "no_progress", False)

@@ -14,7 +14,7 @@ import math
 import numpy as np
 
 from ..errors import SpecError
-from ._common import Timer, emit, plot_format, progress_bar
+from ._common import Timer, check_paths, emit, plot_format, progress_bar
 
 # guards on the user's numbers: memory (N x grid) and run time
 MAX_SPEEDS = 20_000
@@ -38,7 +38,9 @@ def config_from_args(args):
             raise SpecError(f"must be {rng}, got {val:g}", key=flag)
         cfg = cfg.with_(**{attr: float(val)})
     if cfg.t_max / cfg.dt > MAX_STEPS:
-        raise SpecError(f"t_max / dt = {cfg.t_max / cfg.dt:.0f} steps exceeds the limit {MAX_STEPS}", key="--t-max")
+        key = "--dt" if getattr(args, "dt", None) is not None else "--t-max"
+        raise SpecError(f"t_max / dt = {cfg.t_max:g} / {cfg.dt:g} = {cfg.t_max / cfg.dt:.3g} steps exceeds the "
+                        f"limit {MAX_STEPS}: a larger --dt or a smaller --t-max", key=key)
     if cfg.n > MAX_GRID:
         raise SpecError(f"{cfg.n} grid intervals exceed the limit {MAX_GRID}", key="--dx")
     return cfg
@@ -66,7 +68,8 @@ def run(args) -> int:
 
     v, is_sweep = speeds(args.v_in)
     cfg = config_from_args(args)
-    fmt = plot_format(args.plot) if args.plot else None     # a bad extension fails before the work
+    check_paths(args, {"--plot": args.plot})                # a bad path or extension fails before the work
+    fmt = plot_format(args.plot) if args.plot else None
     reason = check_resolution(v, cfg.dx)
     if reason:
         raise SpecError(reason, key="--v-in")
@@ -92,7 +95,7 @@ def _one(args, v: float, cfg, fmt) -> int:
     lines = [f"phi4: v_in = {v:g} c, X0 = {cfg.x0:g}, dx = {cfg.dx:g}, dt = {cfg.dt:g}, t_max = {cfg.t_max:g}",
              f"outcome: {out}" + (f", v_out = {v_out:.6f} c" if out == "escaped" else f" (at t = {cfg.t_max:g})"),
              f"bounces: {nb}" + (f" at t = {', '.join(f'{t:.2f}' for t in bt[:8])}" if bt else "")
-             + (", ..." if len(bt) > 8 else ""),
+             + (f", ... (the first 8 of {len(bt)}; all in --json)" if len(bt) > 8 else ""),
              f"phi4: v_out error ~4e-5 c at these defaults, more inside narrow windows "
              f"(docs/numerics.md, phi^4), {seconds:.1f} s"]
     if args.plot:
