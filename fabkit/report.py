@@ -225,15 +225,20 @@ def render(results: dict) -> str:
         f"<section><h2>Pre-fabrication check</h2>{_verdict(chk, u)}"
         f"<p class=meta>{_e(chk.get('model'))} model, damping {_n(chk.get('damping'))} 1/s; "
         f"{len(chk.get('heights', []))} release heights launched; boundary to 1e-4 relative; "
-        f"v_critical {_n(vc, '.7g')} {u}/s (release height {_n(chk.get('critical_height'), '.5g')} {u}, "
-        f"to 1e-5 relative); {_n(chk.get('seconds'), '.3g')} s.</p>{_windows_table(chk, u)}</section>",
+        + (f"v_critical {_n(vc, '.7g')} {u}/s (release height {_n(chk.get('critical_height'), '.5g')} {u}, "
+           f"to 1e-5 relative)" if vc is not None
+           else f"no v_critical over the ramp's speeds ({_e(chk.get('v_critical_reason') or 'not found')})")
+        + f"; {_n(chk.get('seconds'), '.3g')} s.</p>{_windows_table(chk, u)}</section>",
         f"<section><h2>The surface</h2><p class=meta>z = h(x, y) clipped at the top face ({_n(surf['top'])} {u}); "
         f"{len(data['x'])} × {len(data['y'])} exact samples (the view interpolates between them). Drag to turn, "
         f"wheel to zoom; red: the launch line from x = {_n(surf['start'])}.</p>"
         f'<canvas id="surface3d" width="900" height="480"></canvas></section>',
         f"<section><h2>Sweep: v_out against v_in</h2>{_img(sw.get('png'), 'sweep figure')}"
-        f"<p class=meta>{_n(sw.get('launches'), 'd')} launches; v_critical {_n(sw.get('v_critical'), '.7g')} "
-        f"± {_n(vce, '.1e')} {u}/s; v_out error "
+        f"<p class=meta>{_n(sw.get('launches'), 'd')} launches; "
+        + (f"v_critical {_n(sw.get('v_critical'), '.7g')} ± {_n(vce, '.1e')} {u}/s"
+           if sw.get("v_critical") is not None
+           else f"no v_critical ({_e(sw.get('v_critical_reason') or 'not found')})")
+        + "; v_out error "
         + (f"< {_n(est.get('v_out_abs'), '.1e')} {u}/s (estimated at rtol {_n(est.get('rtol_ref'), 'g')})"
            if est.get("v_out_abs") is not None else "not estimated")
         + f"; {_n(sw.get('seconds'), '.3g')} s.</p></section>",

@@ -66,6 +66,19 @@ def test_self_contained():
     assert 'id="verdict" class="verdict safe">SAFE<' in page
 
 
+def test_no_v_critical_says_why():
+    """specs/bowl.yaml: every launch escapes after one bounce; the page says so instead of
+    printing an empty value with a unit."""
+    res = _results(True)
+    why = "every launch escapes after one bounce: v_critical is below the range (v_in from 118.362)"
+    res["check"].update(v_critical=None, critical_height=None, v_critical_reason=why)
+    res["sweep"].update(v_critical=None, v_critical_error=None, v_critical_reason=why)
+    page = render(res)
+    assert page.count(f"no v_critical over the ramp's speeds ({why})") == 1
+    assert page.count(f"no v_critical ({why})") == 1
+    assert "— cm/s" not in page and "± —" not in page
+
+
 @pytest.mark.skipif(CHROMIUM is None, reason="chromium is not installed")
 @pytest.mark.parametrize("safe", [True, False])
 def test_renders_in_headless_chromium(tmp_path, safe):

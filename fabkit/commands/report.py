@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import SpecError
 from ..spec import load_spec
 from ._common import Timer, check_paths, default_output, emit, prepare_simulator
 
@@ -63,6 +64,8 @@ def run(args) -> int:
     spec = load_spec(args.spec, need=NEEDS, command="report")
     path = default_output(spec, ".report.html", args.output)
     check_paths(args, {"--output": path})
+    if path.suffix.lower() not in ("", ".html", ".htm", ".xhtml"):
+        raise SpecError(f"the report is an HTML page: name it .html, not '{path.suffix}'", key="--output")
     surface = Surface.from_spec(spec)
     check_depth(spec, surface)
 
@@ -77,8 +80,10 @@ def run(args) -> int:
     problem = problem_from_spec(spec)
     v = np.unique(np.asarray(cal["v_in"], dtype=float))
     sw = sweep(problem, v, error_samples=24)
-    sw_png = sweep_figure(sw, f"{spec.name}: {problem.model} model, damping {problem.damping:g} 1/s")
+    sw_png = sweep_figure(sw, f"{spec.name}: {problem.model} model, damping {problem.damping:g} 1/s",
+                          units=spec.units)
     sweep_res = {"png": sw_png, "v_critical": sw["v_critical"], "v_critical_error": sw["v_critical_error"],
+                 "v_critical_reason": sw.get("v_critical_reason"),
                  "windows": sw["windows"], "error_estimate": sw["error_estimate"], "launches": sw["launches"],
                  "seconds": t.seconds}
 
