@@ -75,7 +75,8 @@ def run(args) -> int:
                      + (f", {s['mean_p_two_elsewhere']:.3f} elsewhere" if s["mean_p_two_elsewhere"] is not None
                         else ""))
     lines.append(f"robustness: standard error of each probability <= {s['max_standard_error']:.3f} "
-                 f"(binomial, {args.samples} samples); {res['seconds']:.1f} s"
+                 f"(binomial sqrt(p (1 - p) / {args.samples}) at the measured p; at most "
+                 f"{s['bound_standard_error']:.3f} = 0.5 / sqrt({args.samples}) whatever p); {res['seconds']:.1f} s"
                  + (f"; rows in {args.out}" if args.out else ""))
     payload = {kk: res[kk] for kk in ("v_in", "rows", "summary", "sigma_y", "sigma_vy", "samples", "seed", "y0",
                                       "vy0", "model", "damping", "launch_count", "engine", "seconds")}
