@@ -30,6 +30,7 @@ def test_top_level_help_lists_every_exit_code(cli):
     ("--v-in", ("units/s",)), ("--sigma-y", ("design units",)), ("--sigma-vy", ("units/s",)),
     ("--samples", ("per entry speed",)), ("--out", ("row per launch", ".csv")),
     ("--plot", ("extension", ".pdf")), ("--scheduler", ("Dask", "address")), ("--tolerance", ("mm",)),
+    ("--dt", ("time unit",)), ("--dx", ("kink length",)), ("--t-max", ("time unit",)), ("--fps", ("1/s",)),
 ])
 def test_every_option_says_what_it_is_and_its_unit(option, words):
     _, commands = _subparsers()
