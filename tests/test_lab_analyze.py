@@ -109,3 +109,18 @@ def test_trackpy_in_video_pixels(cli, tmp_path):
     r = json.loads(out)["tracks"][0]
     assert r["format"] == "trackpy"
     _check_launch(r, truth, 59.5)
+
+
+def test_flat_turn_shallow_dip_and_slow_exit(cli, tmp_path):
+    """Launches the first analysis got wrong (found over dampings 0.05-0.3 1/s and several
+    seeds): a flat turn (x'' -30 cm/s^2: 4 frames off on a 9-frame parabola), a turn whose
+    dip after it is 0.17 cm, under 8 sigma (missed), and a one-bounce exit that crawls out at
+    2.3 cm/s for 6 s (the exit leg's fit diverged: v_out 6-30 % off)."""
+    cases = ((0.05, 40.0, 301, 5), (0.1, 47.5, 103, 5), (0.05, 47.5, 303, 1))
+    truths = [L.run((L.START, 0.0, v, 0.0), mu, 15.0) for mu, v, _, _ in cases]
+    assert [len(t["bounce_times"]) for t in truths] == [c[3] for c in cases]
+    files = [_write(tmp_path, f"l{i}.csv", t, seed=c[2]) for i, (t, c) in enumerate(zip(truths, cases))]
+    code, out, err = cli("analyze", PAPER, *files, "--json")
+    assert code == 0, err
+    for r, truth, (mu, v, _, _) in zip(json.loads(out)["tracks"], truths, cases):
+        _check_launch(r, truth, v)

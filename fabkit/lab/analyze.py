@@ -15,10 +15,16 @@ Bounces: maxima of x, robust to noise
 Candidates are the maxima of x smoothed by a local cubic fit over 9 frames; one counts
 as a bounce only if its prominence (how far x falls on both sides before rising above
 it again) exceeds 8 sigma + 0.1 % of the track's x span, so noise wiggles (a few
-sigma) never count while a real turn on the wall (centimetres) always does. Each
-bounce time is then the vertex of a least-squares parabola through the raw x over
-the 9 frames around the candidate (re-centred once): sub-frame, error about
-sigma / (|x''| dt^2 sqrt(60)) frames.
+sigma) never count while a real turn on the wall (centimetres) always does. A slow,
+shallow turn (x falls a few sigma over tens of frames after it) is found on a second
+scale: the maxima of x smoothed over 25 frames whose prominence exceeds 8 times THAT
+smoothing's noise (sigma sqrt(w0), about 2.4 sigma) + 0.1 % of the span. Each bounce
+time is then the vertex of a least-squares polynomial through the raw x around the
+candidate (re-centred once): a parabola over 9 frames, or, where the turn is so flat
+that the parabola falls less than 6 sigma across them, a cubic over a window widened
+2 frames at a time (up to 33 frames, within half the way to the neighbouring
+bounces) until it does: sub-frame, error about sigma / (|x''| dt^2 sqrt(60)) frames
+on a 9-frame window (``bounce_time_errors``: from the fit's covariance).
 
 Entry and exit speeds
 ---------------------
@@ -28,7 +34,10 @@ releases' fitted damping when the same run has releases, else the spec's: a leg 
 second or more pins it well, so a wrong spec damping does not bias the speeds), then
 carried along the model to x = start: ``v_in`` = |xd| there (and y, yd there start the side-by-side simulation).
 Likewise the state at the last frame from the frames after the last bounce, carried
-forward to x = start: ``v_out``. Errors: one sigma of the fitted xd. A launch whose
+forward to x = start: ``v_out``. A long leg is fitted by continuation: over the 0.5 s
+nearest its anchor frame first, then over twice that, ..., each fit starting from the
+last (a slow exit crawling for seconds before the track ends is otherwise out of reach
+of a start taken from the last frames alone). Errors: one sigma of the fitted xd. A launch whose
 track ends moving toward -x, left of the well, after a bounce, and that the model
 carries back to x = start has ``escaped``; one with a point beyond top - margin or
 outside the footprint shrunk by the margin ``flew_off``; else ``captured``.
@@ -65,7 +74,11 @@ SG_WINDOW = 9          # frames of the local cubic fits (noise and smoothing)
 PROMINENCE_SIGMA = 8.0
 EDGE_SECONDS = 0.16    # window of the entry / exit fits
 PEAK_HALF = 4          # frames either side of a bounce in its parabola fit
+PEAK_HALF_MAX = 16     # ... widened up to this for a flat, slow turn
+VERTEX_DROP_SIGMA = 6.0
+WIDE_WINDOW = 25       # frames of the second, wider smoothing (shallow turns)
 FIT_RTOL = 1e-8
+LEG_START = 0.5        # s: first span of a leg's continuation fit (fit_leg)
 
 
 # ----------------------------------------------------------------------------
@@ -131,18 +144,38 @@ def _peaks(s: np.ndarray, prominence: float) -> np.ndarray:
     return np.asarray(keep, dtype=int)
 
 
+def _near(i: int, idx, gap: int) -> bool:
+    return any(abs(int(i) - int(j)) <= gap for j in idx)
+
+
 def extrema(t: np.ndarray, z: np.ndarray, sigma: float, sign: int = 1, min_prominence: float = 0.0):
     """Maxima (sign=+1) or minima (-1) of a noisy series: (times (K,), values (K,), frames (K,)).
 
-    Prominence above max(PROMINENCE_SIGMA sigma + 1e-3 span, min_prominence); times
-    and values from a parabola through the raw samples around each (module doc)."""
+    Two scales (module doc): peaks of the 9-frame smoothing with prominence above
+    max(PROMINENCE_SIGMA sigma + 1e-3 span, min_prominence), and peaks of the
+    WIDE_WINDOW-frame smoothing with prominence above PROMINENCE_SIGMA times that
+    smoothing's own noise (shallow, slow turns); times and values from a polynomial
+    through the raw samples around each (:func:`_vertex`)."""
+    z = np.asarray(z, dtype=float)
     s = sign * _smooth(z)
     span = float(np.ptp(z)) if len(z) else 0.0
     prom = max(PROMINENCE_SIGMA * sigma + 1e-3 * span, min_prominence, 1e-300)
-    idx = _peaks(s, prom)
+    idx = [int(i) for i in _peaks(s, prom)]
+    if len(z) >= 2 * WIDE_WINDOW:
+        sw, w0 = _savgol(z, WIDE_WINDOW)
+        prom_w = max(PROMINENCE_SIGMA * sigma * math.sqrt(w0) + 1e-3 * span, min_prominence, 1e-300)
+        for i in _peaks(sign * sw, prom_w):
+            if not _near(i, idx, WIDE_WINDOW // 2):
+                # the narrow smoothing's highest point near the wide one's peak
+                a, b = max(0, int(i) - WIDE_WINDOW // 2), min(len(z), int(i) + WIDE_WINDOW // 2 + 1)
+                idx.append(a + int(np.argmax(s[a:b])))
+    idx.sort()
     times, vals, frames = [], [], []
-    for i in idx:
-        tv = _vertex(t, sign * z, int(i))
+    for k, i in enumerate(idx):
+        # the fit window stays within half the way to the neighbouring peaks
+        room = min([i - idx[k - 1] if k else PEAK_HALF_MAX * 2, idx[k + 1] - i if k + 1 < len(idx)
+                    else PEAK_HALF_MAX * 2]) // 2
+        tv = _vertex(t, sign * z, int(i), sigma, max(PEAK_HALF, min(PEAK_HALF_MAX, room)))
         if tv is None:
             continue
         times.append(tv[0])
@@ -151,18 +184,51 @@ def extrema(t: np.ndarray, z: np.ndarray, sigma: float, sign: int = 1, min_promi
     return np.array(times), np.array(vals), np.array(frames, dtype=int)
 
 
-def _vertex(t, z, i, half=PEAK_HALF):
-    """Vertex of the least-squares parabola through z around frame i (re-centred once)."""
+def _fit_half(t, z, i, sigma, half_max):
+    """Half-width (frames) of a bounce's vertex fit: PEAK_HALF, widened by 2 frames at a
+    time (up to ``half_max``) until the local parabola falls VERTEX_DROP_SIGMA sigma at the
+    window's edges, so a flat, slow turn is fitted over enough frames to resolve it."""
+    n = len(t)
+    h = PEAK_HALF
+    while h < half_max:
+        a, b = max(0, i - h), min(n, i + h + 1)
+        if b - a < 5:
+            break
+        c2 = np.polyfit(t[a:b] - t[i], z[a:b], 2)[0]
+        if -c2 * (h * (t[1] - t[0])) ** 2 >= VERTEX_DROP_SIGMA * sigma:
+            break
+        h += 2
+    return min(h, half_max)
+
+
+def _vertex(t, z, i, sigma: float = 0.0, half_max: int = PEAK_HALF):
+    """Vertex of the least-squares polynomial through z around frame i (re-centred on it
+    once): a parabola over 2 PEAK_HALF + 1 frames, a cubic over a window widened for a
+    flat turn (:func:`_fit_half`; the cubic keeps an asymmetric turn unbiased)."""
     n = len(t)
     for _ in range(2):
-        a, b = max(0, i - half), min(n, i + half + 1)
+        h = _fit_half(t, z, i, sigma, half_max) if sigma > 0 else PEAK_HALF
+        a, b = max(0, i - h), min(n, i + h + 1)
         if b - a < 5:
             return None
         tc = t[i]
-        c2, c1, c0 = np.polyfit(t[a:b] - tc, z[a:b], 2)
+        dt = t[a:b] - tc
+        c2, c1, c0 = np.polyfit(dt, z[a:b], 2)
         if not c2 < 0:
             return float(t[i]), float(z[i])
         tv = -c1 / (2 * c2)
+        if h > PEAK_HALF and b - a >= 9:
+            d3, d2, d1, d0 = np.polyfit(dt, z[a:b], 3)
+            roots = np.roots([3 * d3, 2 * d2, d1]) if d3 != 0 else np.array([-d1 / (2 * d2)])
+            roots = [float(r.real) for r in np.atleast_1d(roots) if abs(r.imag) < 1e-12
+                     and 2 * d2 + 6 * d3 * r.real < 0 and dt[0] <= r.real <= dt[-1]]
+            if roots:
+                tv = min(roots, key=abs)
+                val = d0 + d1 * tv + d2 * tv * tv + d3 * tv ** 3
+            else:
+                val = None
+        else:
+            val = None
         j = int(np.clip(np.searchsorted(t, tc + tv), a, b - 1))
         if abs(tc + tv - t[j]) > abs(tc + tv - t[max(j - 1, 0)]):
             j = max(j - 1, 0)
@@ -170,16 +236,20 @@ def _vertex(t, z, i, half=PEAK_HALF):
             break
         i = j
     tv = float(np.clip(tv, t[a] - tc, t[b - 1] - tc))
-    return tc + tv, float(c0 + c1 * tv + c2 * tv * tv)
+    if val is None:
+        val = c0 + c1 * tv + c2 * tv * tv
+    return tc + tv, float(val)
 
 
 def _vertex_errors(t, z, times, sigma, half=PEAK_HALF):
     """One-sigma errors (s) of parabola-vertex times: sigma_c1 / (2 |c2|), c1 and c2 the
-    slope and half-curvature of the local fit (the slope vanishes at the vertex)."""
+    slope and half-curvature of the local fit (the slope vanishes at the vertex), over
+    the window the vertex was fitted on."""
     out = []
     for tb in times:
         i = int(np.clip(np.searchsorted(t, tb), 0, len(t) - 1))
-        a, b = max(0, i - half), min(len(t), i + half + 1)
+        h = _fit_half(t, z, i, sigma, PEAK_HALF_MAX)
+        a, b = max(0, i - h), min(len(t), i + h + 1)
         dt = t[a:b] - tb
         c2 = np.polyfit(dt, z[a:b], 2)[0]
         A = np.column_stack([dt * dt, dt, np.ones_like(dt)])
@@ -215,18 +285,31 @@ def fit_leg(problem, track, sel: np.ndarray, end: bool, mu: float) -> dict:
     by least squares to the frames ``sel`` (a leg of a launch: before its first bounce, or
     after its last); ``mu`` is the damping's starting value. Returns {"t", "state" (4,),
     "error" (4,) one sigma, "damping", "damping_error", "rms"}."""
-    from scipy.optimize import least_squares
-
     t = track.t
     anchor = len(t) - 1 if end else 0
     idx = np.unique(np.concatenate([[anchor], sel]))
     if end:
         idx = idx[::-1]
-    te = t[idx]
-    data = np.concatenate([track.x[idx], track.y[idx]])
     st = edge_state(track, end=end)
-    p0 = np.array([*st[1:5], max(float(mu), 1e-3)])
+    p = np.array([*st[1:5], max(float(mu), 1e-3)])
     t0 = float(t[anchor])
+    # continuation: a long leg is fitted over LEG_START s from the anchor first, then over
+    # twice that, ... each from the last fit, so the start (the edge state, a few percent
+    # off) never meets seconds of model motion at once (a slow, long exit leg)
+    reach = np.abs(t[idx] - t0)
+    span = LEG_START
+    while span < reach[-1]:
+        p = _fit_leg_once(problem, track, idx[reach <= span], t0, p)["p"]
+        span *= 2.0
+    return _fit_leg_once(problem, track, idx, t0, p)
+
+
+def _fit_leg_once(problem, track, idx, t0: float, p0) -> dict:
+    """One least-squares fit of (state at t0, mu) to the frames ``idx`` (:func:`fit_leg`)."""
+    from scipy.optimize import least_squares
+
+    te = track.t[idx]
+    data = np.concatenate([track.x[idx], track.y[idx]])
 
     def run(P):
         Y, _ = model_solve(problem, P[:, :4].T.copy(), P[:, 4], t0, te, rtol=FIT_RTOL)
@@ -251,7 +334,7 @@ def fit_leg(problem, track, sel: np.ndarray, end: bool, mu: float) -> dict:
     except np.linalg.LinAlgError:
         err = np.full(5, np.nan)
     return {"t": t0, "state": res.x[:4], "error": err[:4], "damping": float(res.x[4]),
-            "damping_error": float(err[4]), "rms": float(math.sqrt(float(r @ r) / r.size))}
+            "damping_error": float(err[4]), "rms": float(math.sqrt(float(r @ r) / r.size)), "p": res.x}
 
 
 def model_to_start(problem, t0: float, state, mu: float, t_limit: float = 30.0):
