@@ -43,7 +43,9 @@ def _lines(res, units):
         bt = ", ".join(f"{t:.4f}" for t in r["bounce_times"])
         out.append(f"{r['file']}: {r['kind']}, {r['frames']} frames at {r['fps']:.4g}/s, noise {r['noise_sigma']:.2g} {u}"
                    + (f"; {'; '.join(r['notes'])}" if r["notes"] else ""))
-        out.append(f"  bounces {r['bounces']}" + (f" at t = {bt} s" if bt else "") + f", outcome {r['outcome']}")
+        out.append(f"  bounces {r['bounces']}" + (f" at t = {bt} s" if bt else "") + f", outcome {r['outcome']}"
+                   + (f" (turns of x that fall back less than {r['bounce_min_dip']:.2g} {u} are below the noise "
+                      f"and not counted)" if r["outcome"] == "captured" and r["kind"] == "launch" else ""))
         if r["kind"] == "release":
             out.append(f"  damping {r['damping']:.5g} ± {r['damping_error']:.2g} 1/s (model fit, residual rms "
                        f"{r['residual_rms']:.2g} {u}), omega {r['omega']:.5g} rad/s")

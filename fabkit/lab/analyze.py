@@ -144,6 +144,16 @@ def _peaks(s: np.ndarray, prominence: float) -> np.ndarray:
     return np.asarray(keep, dtype=int)
 
 
+def bounce_min_dip(x: np.ndarray, sigma: float) -> float:
+    """The smallest dip of x after a turn that :func:`extrema` can count (design units): a
+    turn whose x falls back by less cannot be told from the tracking noise and is not
+    counted (a captured ball's last, dying turns)."""
+    x = np.asarray(x, dtype=float)
+    span = float(np.ptp(x)) if len(x) else 0.0
+    w0 = _savgol(x, WIDE_WINDOW)[1] if len(x) >= 2 * WIDE_WINDOW else 1.0
+    return PROMINENCE_SIGMA * sigma * math.sqrt(w0) + 1e-3 * span
+
+
 def _near(i: int, idx, gap: int) -> bool:
     return any(abs(int(i) - int(j)) <= gap for j in idx)
 
@@ -611,6 +621,7 @@ def analyze_track(problem, track, mu_launch: float | None = None) -> dict:
     bt, bx, _ = extrema(track.t, track.x, sigma, +1)
     out = {"file": track.file, "kind": kind, "format": track.format, "frames": len(track),
            "fps": 1.0 / track.dt, "noise_sigma": sigma, "bounces": int(bt.size),
+           "bounce_min_dip": bounce_min_dip(track.x, sigma),
            "bounce_times": [float(b) for b in bt],
            "bounce_time_errors": [float(e) for e in _vertex_errors(track.t, track.x, bt, sigma)],
            "notes": list(track.notes)}
