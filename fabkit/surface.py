@@ -195,9 +195,24 @@ def check_depth(spec, surface: Surface) -> float:
         if depth > limit:
             low = surface.lowest()
             raise SpecError(
-                f"the surface is {depth:.3f} mm deep (lowest at x={low.x:.4g}, y={low.y:.4g}), "
+                f"the surface is {depth:.3f} mm deep (lowest at x={low.x:.4g}, y={low.y:.4g}; "
+                f"deeper than the limit over {_deep_region(surface, limit)}), "
                 f"{depth - limit:.3f} mm more than the limit {limit:g} mm", file=spec.path, key=key)
     return depth
+
+
+def _deep_region(surface: Surface, limit_mm: float) -> str:
+    """'x a to b, y c to d' (design units): the range of the footprint where the
+    surface is deeper than ``limit_mm`` (a 401 x 401 grid, the lowest point included)."""
+    X, Y = surface.grid(401)
+    deep = (surface.top - surface.height(X, Y)) * surface.scale > limit_mm
+    low = surface.lowest()
+    xs, ys = np.r_[X[deep], low.x], np.r_[Y[deep], low.y]
+
+    def rng(v):
+        lo, hi = float(v.min()), float(v.max())
+        return f"{lo:.4g}" if hi - lo <= 1e-9 * max(1.0, abs(hi)) else f"{lo:.4g} to {hi:.4g}"
+    return f"x {rng(xs)}, y {rng(ys)}"
 
 
 def principal_curvatures(hx, hy, hxx, hxy, hyy):

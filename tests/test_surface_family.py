@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import shutil
 
 import numpy as np
@@ -109,3 +110,51 @@ def test_family_verified_and_independent_rs274_cut(cli, tmp_path, name, height, 
         assert np.all(cut[~reach] <= lowest + SCALLOP + TOL)
     # the brute cut is a subset of the sweep (balls every 0.01 mm): up to 2e-4 high
     assert np.max((cut - design)[reach]) <= SCALLOP + TOL + 2e-4
+
+
+# slope 8 falling to the edge x = -0.55 (29.4 mm deep; tool.reach 30): the ball finishing
+# that edge touches it along the surface normal, its centre R * 8 / sqrt(65) beyond the
+# stock and its tip R (1 - 1 / sqrt(65)) below the edge: 30.7906 mm deep
+EDGE_TIP = 29.4 + R * (1 - 1 / math.sqrt(65))
+
+
+@pytest.mark.parametrize("direction", ["x", "y"])
+def test_edge_finished_only_below_the_depth_limit_is_refused_naming_where(cli, tmp_path, direction):
+    spec = write_spec(tmp_path, _raw("8*x - 25", (-0.55, 4), (0, 6), direction))
+    code, out, err = cli("gcode", spec, "-o", tmp_path / "p.ngc")
+    assert code == 2 and out == ""
+    line = err.strip()
+    assert "\n" not in line and "Traceback" not in line and "RuntimeWarning" not in line
+    assert f"{spec}: tool.reach: " in line
+    assert "the stock edge at X 0.00, Y 0.00 to 6.00 mm" in line            # where: the whole x = 0 edge
+    need = float(re.search(r"tool tip ([\d.]+) mm deep", line).group(1))
+    assert 30.0 < need <= EDGE_TIP + 1e-3           # reaches to within the scallop: at most the exact
+    assert list(tmp_path.glob("p*")) == []                                 # nothing written
+
+
+def test_edge_depth_needed_closed_form():
+    from fabkit.expr import compile_surface
+    from fabkit.surface import Surface
+    from fabkit.toolpath.compensate import WorkSurface
+    from fabkit.toolpath.raster import edge_depth_needed
+
+    ws = WorkSurface(Surface(compile_surface("8*x - 25", {}), (-0.55, 4.0), (0.0, 6.0), 0.0))
+    X, Y, need = edge_depth_needed(ws, R, 30.0, 1e-7)
+    assert X.size and np.all(X == 0.0)                  # the x = 0 edge only, all along it
+    assert np.ptp(Y) == pytest.approx(6.0)
+    np.testing.assert_allclose(need, EDGE_TIP, atol=1e-6)   # the normal ball, exact drop
+    assert edge_depth_needed(ws, R, EDGE_TIP + 1e-3, 1e-7)[0].size == 0
+    # the flat floor at the limit: the ball above the edge finishes it, nothing flagged
+    flat = WorkSurface(Surface(compile_surface("0*x - 29.9", {}), (0.0, 4.0), (0.0, 6.0), 0.0))
+    assert edge_depth_needed(flat, R, 30.0, 1e-7)[0].size == 0
+
+
+def test_surface_below_the_depth_limit_is_refused_naming_the_region(cli, tmp_path):
+    raw = _raw("x - 31", (0, 5), (0, 6))
+    spec = write_spec(tmp_path, raw)
+    code, out, err = cli("gcode", spec, "-o", tmp_path / "p.ngc")
+    assert code == 2 and list(tmp_path.glob("p*")) == []
+    assert f"{spec}: tool.reach: the surface is 31.000 mm deep" in err
+    # deeper than 30 mm where x < 1: the region's range on the 401-point grid (step 0.0125)
+    m = re.search(r"deeper than the limit over x 0 to ([\d.]+), y 0 to 6\)", err)
+    assert m and 1 - 0.0125 <= float(m.group(1)) < 1

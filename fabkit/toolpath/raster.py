@@ -78,21 +78,116 @@ def order_runs(fr, m, V, runs, passes_cut):
     return out
 
 
+def _depth_key(spec):
+    """(limit mm, key): the binding one of ``stock.depth_limit`` and ``tool.reach``."""
+    dl, rc = float(spec.stock.depth_limit), float(spec.tool.reach)
+    return (dl, "stock.depth_limit") if dl <= rc else (rc, "tool.reach")
+
+
+def _where(X, Y) -> str:
+    """'X a to b, Y c to d mm' (one value where the range is a point to 0.01 mm)."""
+    def rng(v):
+        lo, hi = float(np.min(v)), float(np.max(v))
+        return f"{lo:.2f}" if hi - lo < 0.005 else f"{lo:.2f} to {hi:.2f}"
+    return f"X {rng(X)}, Y {rng(Y)}"
+
+
+#: ball centres tried around each edge point (x R from it, 16 directions each), and
+#: the centre along the surface normal (the exact contact on smooth ground)
+EDGE_RING = (0.0, 0.25, 0.5, 0.75, 0.875, 0.95, 0.99)
+
+
+def edge_depth_needed(ws, R: float, lim: float, allowed: float, step: float | None = None):
+    """Where the stock edges can be finished only with the tip deeper than ``lim``.
+
+    A ball finishing the edge point e (footprint boundary, design height H(e)) must
+    reach down to H(e) + ``allowed`` there. Every ball touching e has its tip within R
+    below H(e), so only edge points with H(e) - R < -lim are examined: for each, ball
+    centres on rings around e (:data:`EDGE_RING`) and along the surface normal, at
+    their exact drop-cutter tip heights (:func:`compensate`). An edge point is
+    flagged when some of these balls reach it but none of them with its tip at or
+    above -lim does (material beyond the ball's reach at any depth, a crease at the
+    edge, is not a depth matter: the verification reports it). Returns (X, Y, need):
+    the flagged edge points (work mm) and the tip depth (mm, > lim) the best of the
+    tried balls needs there; the depth is that of a tried centre, an upper bound
+    within a few hundredths of a mm of the exact one on smooth ground.
+    """
+    from .compensate import compensate
+
+    L, W = ws.L, ws.W
+    step = step or R / 4
+    nx, ny = max(2, int(math.ceil(L / step)) + 1), max(2, int(math.ceil(W / step)) + 1)
+    tx, ty = np.linspace(0.0, L, nx), np.linspace(0.0, W, ny)
+    ex = np.r_[tx, tx, np.zeros(ny), np.full(ny, L)]
+    ey = np.r_[np.zeros(nx), np.full(nx, W), ty, ty]
+    H, hx, hy = ws.all(ex, ey)[:3]
+    near = np.isfinite(H) & (H - R < -lim)
+    empty = np.zeros(0)
+    if not near.any():
+        return empty, empty, empty
+    ex, ey, H, hx, hy = ex[near], ey[near], H[near], hx[near], hy[near]
+    ang = 2 * np.pi * np.arange(16) / 16
+    ox = np.r_[[f * R * np.cos(a) for f in EDGE_RING[1:] for a in ang]]
+    oy = np.r_[[f * R * np.sin(a) for f in EDGE_RING[1:] for a in ang]]
+    with np.errstate(all="ignore"):
+        w = np.sqrt(1.0 + hx * hx + hy * hy)
+    OX = np.column_stack([np.zeros_like(ex), -R * hx / w, np.broadcast_to(ox, (ex.size, ox.size))])
+    OY = np.column_stack([np.zeros_like(ex), -R * hy / w, np.broadcast_to(oy, (ex.size, oy.size))])
+    OX, OY = np.nan_to_num(OX), np.nan_to_num(OY)
+    Z = compensate(ws, ex[:, None] + OX, ey[:, None] + OY, R)
+    d2 = np.minimum(OX * OX + OY * OY, R * R)
+    with np.errstate(invalid="ignore"):
+        low = np.where(np.isfinite(Z), Z + R - np.sqrt(R * R - d2), np.inf)
+    hits = low <= (H + allowed)[:, None]
+    within = hits & (Z >= -lim - 1e-9)
+    bad = hits.any(axis=1) & ~within.any(axis=1)
+    need = np.where(hits, -Z, np.inf).min(axis=1)
+    return ex[bad], ey[bad], need[bad]
+
+
+def check_edge_depth(spec, ws, R: float, scallop: float) -> None:
+    """Stage 1b, before any pass is planned: refuse (SpecError, exit 2, naming the
+    binding key of ``stock.depth_limit`` / ``tool.reach``, the depth needed and the
+    X, Y range of the stock edge concerned) a design whose stock edges the ball can
+    finish to the scallop only with its tip below the limit (steep ground falling
+    towards an edge: the ball finishing the edge overhangs it, its tip lower than
+    the surface there). The surface itself deeper than the limits is refused
+    earlier (:func:`fabkit.surface.check_depth`)."""
+    lim, key = _depth_key(spec)
+    X, Y, need = edge_depth_needed(ws, R, lim, scallop)
+    if not X.size:
+        return
+    parts, left = [], np.ones(X.size, bool)
+    for sel in (np.isclose(X, 0.0), np.isclose(X, ws.L), np.isclose(Y, 0.0), np.isclose(Y, ws.W)):
+        sel &= left
+        if sel.any():
+            parts.append(_where(X[sel], Y[sel]))
+            left &= ~sel
+    deepest = float(need.max())
+    raise SpecError(f"finishing the stock edge at {'; '.join(parts)} mm (work coordinates) needs the "
+                    f"tool tip {deepest:.3f} mm deep, {deepest - lim:.3f} mm below the limit {lim:g} mm "
+                    "(steep ground falls towards that edge: the ball finishing it overhangs the edge, "
+                    "its tip below the surface); raise the limit or keep the design shallower there",
+                    file=spec.path, key=key)
+
+
 def check_depth_limits(spec, points) -> float:
     """Stage 7a: refuse a tip deeper than ``stock.depth_limit`` / ``tool.reach``,
-    naming where. Returns the deepest tip z (mm, <= 0)."""
+    naming where (the X, Y range of the tips below the limit). Returns the deepest
+    tip z (mm, <= 0)."""
     if not len(points):
         return 0.0
     if not np.isfinite(points).all():
         raise ValueError("non-finite program point")       # a planner defect, never input
     i = int(np.argmin(points[:, 2]))
     zmin = float(points[i, 2])
-    for key, lim in (("stock.depth_limit", float(spec.stock.depth_limit)),
-                     ("tool.reach", float(spec.tool.reach))):
-        if -zmin > lim + 1e-9:
-            raise SpecError(f"the tool tip goes {-zmin:.3f} mm deep at X={points[i, 0]:.2f}, "
-                            f"Y={points[i, 1]:.2f} mm, {-zmin - lim:.3f} mm more than the limit "
-                            f"{lim:g} mm", file=spec.path, key=key)
+    lim, key = _depth_key(spec)
+    if -zmin > lim + 1e-9:
+        deep = points[:, 2] < -lim - 1e-9
+        raise SpecError(f"the tool tip goes {-zmin:.3f} mm deep at X={points[i, 0]:.2f}, "
+                        f"Y={points[i, 1]:.2f} mm, {-zmin - lim:.3f} mm more than the limit "
+                        f"{lim:g} mm (below it over {_where(points[deep, 0], points[deep, 1])}, "
+                        "work mm)", file=spec.path, key=key)
     return zmin
 
 
@@ -114,6 +209,7 @@ def plan_toolpath(spec, surface, tol: Tolerances = DEFAULT) -> Toolpath:
     depth_lim = min(float(spec.stock.depth_limit), float(spec.tool.reach))
 
     est = plan_estimate(spec, surface, tol)
+    check_edge_depth(spec, ws, R, scallop)
     plan = place_passes(ws, fr, R, scallop, depth_lim, tol.max_passes, spec.path,
                         chord=CHORD_SAFETY * tolerance)
     passes = plan.passes
