@@ -176,3 +176,22 @@ def test_top_samples_order_as_a_stable_sort():
     G = rng.normal(size=(400, 49))
     for A in (F, np.where(rng.random(G.shape) < 0.3, -np.inf, G)):
         assert np.array_equal(_top(A, 3), np.argsort(-A, axis=1, kind="stable")[:, :3])
+
+
+def test_ridge_convex_kink_closed_form():
+    """A ridge H = -3|x| - 6 (no Newton converges on the kink): within 3r/sqrt(10) of it
+    the ball rests on the kink, Z = -6 + sqrt(r^2 - x^2) - r; farther out on a flank,
+    Z = H + r (sqrt(10) - 1). Centres beyond the stock edge y = W by e rest on the
+    kink's end: Z = -6 + sqrt(r^2 - x^2 - e^2) - r (small |x|: the kink point is the
+    maximum along the edge)."""
+    r = 1.5875
+    surf = _surface("-3*abs(x) - 6", x=(-4, 4), y=(0, 8))
+    x = np.linspace(-2.5, 2.5, 81)
+    Z = compensate(surf, x + 4.0, np.full(x.size, 3.0), r)
+    near = np.abs(x) < 3 * r / math.sqrt(10)
+    exact = np.where(near, -6 + np.sqrt(np.maximum(r * r - x * x, 0)) - r,
+                     -3 * np.abs(x) - 6 + r * (math.sqrt(10) - 1))
+    np.testing.assert_allclose(Z, exact, atol=1e-6)
+    xe, e = np.array([-0.3, -0.1, 0.0, 0.2]), 0.5
+    Ze = compensate(surf, xe + 4.0, np.full(xe.size, 8.0 + e), r)
+    np.testing.assert_allclose(Ze, -6 + np.sqrt(r * r - xe * xe - e * e) - r, atol=1e-6)

@@ -20,7 +20,13 @@ largest is the maximum once the true maximiser is among them):
       (Lagrange conditions p - c = lambda grad H, H = 0, solved by Newton);
 (iii) the footprint edges where the tool overhangs the stock: 1-D stationary points
       of the smooth part, the flat part and the crease crossings on each edge;
-(iv)  the footprint corners.
+(iv)  the footprint corners;
+(v)   a ridge, where the formula has a convex kink (``-abs``, ``min``): no Newton
+      converges there (the maximum sits on the kink, where grad H jumps); where no
+      start converged, the kink's direction is read from F on a small circle around
+      the best point (F peaks where the circle crosses the ridge) and F is maximised
+      over a rectangle along the ridge by nested golden sections (across the ridge
+      F is unimodal with its peak on the kink; along it, smooth).
 
 Newton converges quadratically; results are exact to ~1e-9 mm (far below any
 machining tolerance). Every step is vectorized over all positions.
@@ -36,7 +42,7 @@ import math
 import numpy as np
 
 # contact kinds reported in CompensationInfo.kind
-NONE, SAMPLE, INTERIOR, TOP, CREASE, EDGE = -1, 0, 1, 2, 3, 4
+NONE, SAMPLE, INTERIOR, TOP, CREASE, EDGE, RIDGE = -1, 0, 1, 2, 3, 4, 5
 # Newton stops when its steps are below this (mm). At a stationary point the value
 # error is second order in the point error (~1e-20 mm); on the crease and edges
 # it is first order with a slope <= 1 near the maximum: well below 1e-9 mm.
@@ -48,7 +54,7 @@ class CompensationInfo:
     """Where the maximum was attained, per position (shapes as the input X).
 
     contact_x, contact_y: work mm, the contact point (nan where the tool touches no material)
-    kind:    int8, NONE | SAMPLE | INTERIOR | TOP | CREASE | EDGE
+    kind:    int8, NONE | SAMPLE | INTERIOR | TOP | CREASE | EDGE | RIDGE
     bridged: bool, the ball spans a concave region tighter than itself (two or
              more distinct local maxima of the contact problem)
     """
@@ -308,6 +314,93 @@ def _newton_interior(ws, cx, cy, R, px, py, iters):
     return x, y, conv
 
 
+def _rises_inward(ws, cx, cy, R, px, py, val):
+    """Whether F rises from the edge point (px, py) into the footprint or along the
+    edge (7 directions from the inward normal to the edge's tangents, R/64, R/1024 and
+    R/16384 away): an
+    interior maximum or a ridge crossing the edge, where neither the Newton starts nor
+    the edge's 1-D Newton converge, lies beyond the edge candidate."""
+    tiny = 1e-9 * max(ws.L, ws.W, 1.0)
+    nx = (px <= tiny).astype(float) - (px >= ws.L - tiny)
+    ny = (py <= tiny).astype(float) - (py >= ws.W - tiny)
+    nn = np.hypot(nx, ny)
+    nx, ny = np.where(nn > 0, nx / np.where(nn > 0, nn, 1), 0.0), np.where(nn > 0, ny / np.where(nn > 0, nn, 1), 0.0)
+    a = np.radians([-90.0, -60.0, -30.0, 0.0, 30.0, 60.0, 90.0])
+    dx = nx[:, None] * np.cos(a) - ny[:, None] * np.sin(a)
+    dy = nx[:, None] * np.sin(a) + ny[:, None] * np.cos(a)
+    d = R * np.repeat([1 / 64, 1 / 1024, 1 / 16384], a.size)     # a kink may be nearer than R/64
+    dx, dy = np.tile(dx, 3) * d, np.tile(dy, 3) * d
+    F = _value(ws, cx[:, None], cy[:, None], R, px[:, None] + dx, py[:, None] + dy)
+    return (nn > 0) & (F.max(axis=1) > val + 1e-12 * R)
+
+
+GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
+RIDGE_ITERS = 34       # golden-section steps: the bracket shrinks to 0.618^34 = 8e-8 of itself
+
+
+def _golden_max(fun, lo, hi, iters):
+    """Vectorized golden-section search for the maximum of ``fun`` on [lo, hi] (arrays
+    (m,)): returns (t, f) of the best point evaluated (f may be -inf)."""
+    a, b = lo.copy(), hi.copy()
+    c, d = b - GOLDEN * (b - a), a + GOLDEN * (b - a)
+    fc, fd = fun(c), fun(d)
+    bt, bf = np.where(fc >= fd, c, d), np.maximum(fc, fd)
+    for _ in range(iters):
+        left = fc >= fd                       # the maximum is in [a, d], else in [c, b]
+        a, b = np.where(left, a, c), np.where(left, d, b)
+        x = np.where(left, b - GOLDEN * (b - a), a + GOLDEN * (b - a))
+        fx = fun(x)
+        c, d, fc, fd = (np.where(left, x, d), np.where(left, c, x),
+                        np.where(left, fx, fd), np.where(left, fc, fx))
+        up = fx > bf
+        bt, bf = np.where(up, x, bt), np.where(up, fx, bf)
+    return bt, bf
+
+
+def _ridge(ws, cx, cy, R, px, py):
+    """(v) The maximum of F near a convex kink through (or near) the best point
+    (px, py) of each position: returns (value, x, y) of the best point found
+    (feasible points only; -inf where none)."""
+    m = cx.size
+    rho = R / 8.0
+    ang = 2 * np.pi * np.arange(32) / 32
+    qx, qy = px[:, None] + rho * np.cos(ang), py[:, None] + rho * np.sin(ang)
+    Fq = _value(ws, cx[:, None], cy[:, None], R, qx, qy)
+    i1 = np.argmax(Fq, axis=1)
+    far = np.abs((np.arange(32)[None, :] - i1[:, None] + 16) % 32 - 16) >= 8
+    i2 = np.argmax(np.where(far, Fq, -np.inf), axis=1)
+    r = np.arange(m)
+    tx, ty = qx[r, i1] - qx[r, i2], qy[r, i1] - qy[r, i2]
+    tn = np.hypot(tx, ty)
+    tx, ty = np.where(tn > 0, tx / np.where(tn > 0, tn, 1), 1.0), np.where(tn > 0, ty / np.where(tn > 0, tn, 1), 0.0)
+    nx, ny = -ty, tx
+    S, T = 0.5 * R, 0.25 * R
+    zero = np.zeros(m)
+    found = {}
+
+    def across(s):
+        bx, by = px + s * tx, py + s * ty
+
+        def f(t):
+            return _value(ws, cx, cy, R, bx + t * nx, by + t * ny)
+        t, v = _golden_max(f, zero - T, zero + T, RIDGE_ITERS)
+        found[id(s)] = (bx + t * nx, by + t * ny)
+        return v
+
+    best = [np.full(m, -np.inf), px.copy(), py.copy()]
+
+    def outer(s):
+        v = across(s)
+        x, y = found.pop(id(s))
+        up = v > best[0]
+        best[0] = np.where(up, v, best[0])
+        best[1], best[2] = np.where(up, x, best[1]), np.where(up, y, best[2])
+        return v
+
+    _golden_max(outer, zero - S, zero + S, RIDGE_ITERS)
+    return best[0], best[1], best[2]
+
+
 def _newton_crease(ws, cx, cy, px, py, iters):
     """Nearest point of the crease H = 0 to c: Newton on the Lagrange conditions
     p - c - lambda grad H = 0, H = 0, after a projection onto H = 0."""
@@ -545,6 +638,9 @@ def _compensate(surface, X, Y, R, return_info, rings, angles, starts, iters):
         px, py, conv = (np.concatenate(c) for c in zip(*parts)) if len(parts) > 1 else parts[0]
         v, Hp = _value(ws, ax, ay, R, px, py, with_H=True)
         best.offer(todo, v.reshape(-1, k), px.reshape(-1, k), py.reshape(-1, k), INTERIOR)
+        converged = np.zeros(n, dtype=bool)
+        # (a stationary point outside the footprint, on the surface's continuation, is no candidate)
+        converged[todo] = (conv & np.isfinite(v)).reshape(-1, k).any(axis=1)
         # bridged: two converged local maxima in the smooth part, distinct points
         lm = conv & np.isfinite(v) & (Hp < 0)
         if lm.any():
@@ -584,6 +680,22 @@ def _compensate(surface, X, Y, R, return_info, rings, angles, starts, iters):
     ei = np.nonzero(edge)[0]
     if ei.size:
         _edges(ws, cx[ei], cy[ei], R, best, ei, nsamp=17, iters=iters)
+
+    # (v) a ridge: where no start converged to a strict maximum and the best point is
+    # neither on the crease nor the top (the crease is a convex kink too, with its own
+    # exact candidate), nor on an edge the tool overhangs with F falling inwards from it
+    # (there Newton leaves the footprint and the edge candidates are exact)
+    if todo.size:
+        kt = best.kind[todo]
+        stuck = ~converged[todo] & np.isin(kt, (SAMPLE, INTERIOR))
+        ek = np.nonzero(~converged[todo] & (kt == EDGE))[0]
+        if ek.size:
+            stuck[ek] = _rises_inward(ws, cx[todo[ek]], cy[todo[ek]], R, best.px[todo[ek]],
+                                      best.py[todo[ek]], best.val[todo[ek]])
+        if stuck.any():
+            g = todo[stuck]
+            v, qx, qy = _ridge(ws, cx[g], cy[g], R, best.px[g], best.py[g])
+            best.offer(g, v, qx, qy, RIDGE)
 
     Z = (best.val - R).reshape(shape)
     if not return_info:
