@@ -25,8 +25,8 @@ largest is the maximum once the true maximiser is among them):
       converges there (the maximum sits on the kink, where grad H jumps); where no
       start converged, the kink's direction is read from F on a small circle around
       the best point (F peaks where the circle crosses the ridge) and F is maximised
-      over a rectangle along the ridge by nested golden sections (across the ridge
-      F is unimodal with its peak on the kink; along it, smooth).
+      over a rectangle along the ridge: a golden section along it (F smooth there) of
+      the maxima across it (a corner on the kink: the tangents of both sides meet there).
 
 Newton converges quadratically; results are exact to ~1e-9 mm (far below any
 machining tolerance). Every step is vectorized over all positions.
@@ -357,6 +357,50 @@ def _golden_max(fun, lo, hi, iters):
     return bt, bf
 
 
+KINK_ITERS = 24
+
+
+def _kink_max(ws, cx, cy, R, bx, by, nx, ny, T):
+    """Maximum of F on the segments b + t n, t in [-T, T] (arrays (m,)): F(t) rises to
+    a corner (the ridge) and falls, smooth on each side. The bracket [a, b] keeps
+    F'(a) > 0 > F'(b); the next point is where the tangents at a and b meet (exact on
+    a corner of two straight pieces, superlinear on curved ones), the midpoint every
+    third step and where the tangents do not meet inside. Returns (t, value) of the
+    best point evaluated, the segment's ends included (F monotone: the end)."""
+    def fd(t):
+        x, y = bx + t * nx, by + t * ny
+        H, hx, hy = ws.all(x, y)[:3]
+        d2 = (x - cx) ** 2 + (y - cy) ** 2
+        ok = ws.inside(x, y) & (d2 <= R * R)
+        q = np.sqrt(np.maximum(R * R - d2, 0.0))
+        top = H >= 0
+        v = np.where(top, 0.0, H) + q
+        g = np.where(top, 0.0, hx * nx + hy * ny) - ((x - cx) * nx + (y - cy) * ny) / np.maximum(q, 1e-300)
+        v = np.where(ok & np.isfinite(v), v, -np.inf)
+        return v, np.where(np.isfinite(g), g, 0.0)
+
+    a, b = np.full(bx.size, -T), np.full(bx.size, T)
+    fa, ga = fd(a)
+    fb, gb = fd(b)
+    bt, bf = np.where(fa >= fb, a, b), np.maximum(fa, fb)
+    for i in range(KINK_ITERS):
+        with np.errstate(all="ignore"):
+            tm = (fb - fa + ga * a - gb * b) / (ga - gb)
+        mid = 0.5 * (a + b)
+        bad = ~np.isfinite(tm) | (tm <= a) | (tm >= b) | ~np.isfinite(fa) | ~np.isfinite(fb) \
+            | (ga <= 0) | (gb >= 0) | (i % 3 == 2)
+        t = np.where(bad, mid, tm)
+        ft, gt = fd(t)
+        up = ft > bf
+        bt, bf = np.where(up, t, bt), np.where(up, ft, bf)
+        right = (gt > 0) & np.isfinite(ft)                  # the peak lies beyond t
+        if not np.isfinite(ft).all():                       # outside: towards the better end
+            right |= ~np.isfinite(ft) & (fb > fa)
+        a, fa, ga = np.where(right, t, a), np.where(right, ft, fa), np.where(right, gt, ga)
+        b, fb, gb = np.where(right, b, t), np.where(right, fb, ft), np.where(right, gb, gt)
+    return bt, bf
+
+
 def _ridge(ws, cx, cy, R, px, py):
     """(v) The maximum of F near a convex kink through (or near) the best point
     (px, py) of each position: returns (value, x, y) of the best point found
@@ -381,9 +425,7 @@ def _ridge(ws, cx, cy, R, px, py):
     def across(s):
         bx, by = px + s * tx, py + s * ty
 
-        def f(t):
-            return _value(ws, cx, cy, R, bx + t * nx, by + t * ny)
-        t, v = _golden_max(f, zero - T, zero + T, RIDGE_ITERS)
+        t, v = _kink_max(ws, cx, cy, R, bx, by, nx, ny, T)
         found[id(s)] = (bx + t * nx, by + t * ny)
         return v
 
