@@ -314,6 +314,27 @@ def _newton_interior(ws, cx, cy, R, px, py, iters):
     return x, y, conv
 
 
+def _kinked(ws, cx, cy, R, px, py):
+    """Whether F has a corner (a ridge) within R/25 of (px, py): its second difference
+    along some of 8 directions is negative and does not shrink quadratically with the
+    step (R/25, R/100, R/400, R/1600: smooth, ratio 16 from one to the next; a corner within
+    the smaller step: about 4; between the two: far more than 16)."""
+    a = np.pi * np.arange(8) / 8
+    ux, uy = np.cos(a), np.sin(a)
+    f0 = _value(ws, cx, cy, R, px, py)[:, None]
+    d2 = []
+    for d in (R / 25, R / 100, R / 400, R / 1600):
+        fp = _value(ws, cx[:, None], cy[:, None], R, px[:, None] + d * ux, py[:, None] + d * uy)
+        fm = _value(ws, cx[:, None], cy[:, None], R, px[:, None] - d * ux, py[:, None] - d * uy)
+        with np.errstate(invalid="ignore"):
+            d2.append(np.where(np.isfinite(fp) & np.isfinite(fm), fp + fm - 2 * f0, 0.0))
+    corner = np.zeros(d2[0].shape, dtype=bool)
+    with np.errstate(all="ignore"):
+        for big, small in zip(d2[:-1], d2[1:]):
+            corner |= (d2[0] < -1e-3 * R / 25) & ((big > 10.0 * small) | (big < 26.0 * small))
+    return corner.any(axis=1)
+
+
 def _rises_inward(ws, cx, cy, R, px, py, val):
     """Whether F rises from the edge point (px, py) into the footprint or along the
     edge (7 directions from the inward normal to the edge's tangents, R/64, R/1024 and
@@ -730,6 +751,10 @@ def _compensate(surface, X, Y, R, return_info, rings, angles, starts, iters):
     if todo.size:
         kt = best.kind[todo]
         stuck = ~converged[todo] & np.isin(kt, (SAMPLE, INTERIOR))
+        si = np.nonzero(stuck)[0]
+        if si.size:
+            stuck[si] = _kinked(ws, cx[todo[si]], cy[todo[si]], R, best.px[todo[si]],
+                                best.py[todo[si]])
         ek = np.nonzero(~converged[todo] & (kt == EDGE))[0]
         if ek.size:
             stuck[ek] = _rises_inward(ws, cx[todo[ek]], cy[todo[ek]], R, best.px[todo[ek]],

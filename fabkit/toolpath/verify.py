@@ -448,10 +448,14 @@ def verify_cut(surface, program: Program, R: float, points: int = 40000, *, seed
 
 REACH_RINGS = (0.15, 0.3, 0.45, 0.6, 0.75, 0.9)    # x R: the coarse centres around a point
 REACH_ANGLES = 12
+#: ball centres farther beyond the footprint than this (x R) do not count as reaching: the
+#: planner's passes end 7/8 R beyond the edges (docs/toolpath.md), and a ball farther out
+#: touches the stock only with a cap under half its radius across, at the very edge
+OVERHANG = 0.875
 REACH_SEARCH = 24                                   # compass steps from the best coarse centre
 
 
-def reachable_height(ws, px, py, R: float, chunk: int = 20000):
+def reachable_height(ws, px, py, R: float, chunk: int = 20000, overhang: float | None = None):
     """Lowest height a ball of radius R can cut at the points (X, Y) (work mm): the
     design where a ball touching the design there (centre R along its normal) is free
     of the surface; elsewhere (a valley tighter than the ball, a V crease) the lowest
@@ -462,8 +466,14 @@ def reachable_height(ws, px, py, R: float, chunk: int = 20000):
     improves) from the best. Every centre tried is a real ball position, so the
     height is an upper bound of the lowest one (the material it calls unreachable is
     never less than there is); on a parabolic valley tighter than the ball it is within
-    3e-4 mm of the centred ball's closed form (tested). Returns (height, reachable)."""
+    3e-4 mm of the centred ball's closed form (tested). Centres farther than
+    ``overhang`` (default :data:`OVERHANG` x R) beyond the footprint are not tried: at a
+    valley's or crease's open end on the stock edge such balls reach deeper, but only
+    in a sliver at the edge line (0.5 mm deeper on the edge of ``3*abs(x)``, 0.02 mm
+    at 0.03 mm in). Returns (height, reachable)."""
     from .compensate import compensate
+
+    overhang = OVERHANG * R if overhang is None else overhang
 
     def drop(qx, qy):
         shape = qx.shape
@@ -489,11 +499,15 @@ def reachable_height(ws, px, py, R: float, chunk: int = 20000):
 
         def surface_at(ox, oy):
             """g at the points for centre offsets (ox, oy) (arrays (m, k)); +inf where
-            the ball misses the point or touches nothing."""
-            zq = drop(bx[:, None] + ox, by[:, None] + oy)
+            the ball misses the point, touches nothing, or stands farther beyond the
+            footprint than ``overhang``."""
+            qx, qy = bx[:, None] + ox, by[:, None] + oy
+            zq = drop(qx, qy)
             with np.errstate(invalid="ignore"):
                 low = zq + R - np.sqrt(R * R - ox * ox - oy * oy)
-            return np.where(np.isfinite(low) & (ox * ox + oy * oy <= R * R), low, np.inf)
+            over = (np.maximum(np.maximum(-qx, qx - ws.L), 0.0) ** 2
+                    + np.maximum(np.maximum(-qy, qy - ws.W), 0.0) ** 2) > overhang ** 2
+            return np.where(np.isfinite(low) & (ox * ox + oy * oy <= R * R) & ~over, low, np.inf)
 
         ang = 2 * np.pi * np.arange(REACH_ANGLES) / REACH_ANGLES
         ox = np.r_[0.0, [f * R * np.cos(a) for f in REACH_RINGS for a in ang]]
