@@ -48,6 +48,9 @@ CASES = [
     ("vcrease", "3*abs(x) - 12", (-8, 8), (0, 6), "y", "mm",
      (R * math.sin(THETA_V), R * (1 / math.cos(THETA_V) - 1))),
     ("expwall", "exp(0.4*x) - 12", (-6, 10), (0, 6), "x", "mm", None),
+    # a ridge (convex kink): the ball rests on the kink; the drop cutter was 0.085 mm low
+    # there (no Newton converges), a 0.2 mm gouge along the ridge
+    ("ridge", "-3*abs(x) - 6", (-4, 4), (0, 5), "x", "mm", None),
     # slope 10 across the passes where they leave the stock; mm: rs274 prints inch moves to
     # 1e-4 in (2.5 um), which on slope 10 alone is up to 0.013 mm of apparent gouge
     ("step", "5*tanh(2*(x-5)) - 10", (0, 10), (0, 6), "y", "mm", "any"),
@@ -158,3 +161,29 @@ def test_surface_below_the_depth_limit_is_refused_naming_the_region(cli, tmp_pat
     # deeper than 30 mm where x < 1: the region's range on the 401-point grid (step 0.0125)
     m = re.search(r"deeper than the limit over x 0 to ([\d.]+), y 0 to 6\)", err)
     assert m and 1 - 0.0125 <= float(m.group(1)) < 1
+
+
+def test_reachable_height_in_a_valley_tighter_than_the_ball_closed_form():
+    """Parabolic valley h = 2 x^2 (radius 0.25 mm at the bottom, ball 1.5875 mm): the
+    centred ball rests on both walls at x = +-sqrt(R^2 - 1/16), its tip
+    2 (R^2 - 1/16) + 1/4 - R above the bottom, and its surface above a point x is
+    that + R - sqrt(R^2 - x^2). The reachable height is an upper bound of the lowest
+    ball surface: never below the design, at most 3e-4 mm above the centred ball's;
+    the normal ball reaches the walls beyond the contact."""
+    from fabkit.expr import compile_surface
+    from fabkit.surface import Surface
+    from fabkit.toolpath.compensate import WorkSurface
+    from fabkit.toolpath.verify import reachable_height
+
+    ws = WorkSurface(Surface(compile_surface("2*x**2 - 12", {}), (-2.4, 2.4), (0.0, 6.0), 0.0))
+    x = np.linspace(-1.4, 0.0, 15)
+    z, ok = reachable_height(ws, x + 2.4, np.full(x.size, 3.0), R)
+    tip = -12 + 2 * (R * R - 1 / 16) + 0.25 - R
+    centred = tip + R - np.sqrt(R * R - x * x)
+    assert not ok.any()
+    assert np.all(z >= 2 * x * x - 12 - 1e-12)
+    assert np.all(z <= centred + 3e-4)
+    assert z[-1] == pytest.approx(tip, abs=1e-6)              # the bottom: the centred ball
+    xw = np.array([-1.9, 1.8])                               # beyond the contacts: reachable
+    zw, okw = reachable_height(ws, xw + 2.4, np.full(2, 3.0), R)
+    assert okw.all() and np.allclose(zw, 2 * xw * xw - 12)
