@@ -448,10 +448,14 @@ def verify_cut(surface, program: Program, R: float, points: int = 40000, *, seed
 
 REACH_RINGS = (0.15, 0.3, 0.45, 0.6, 0.75, 0.9)    # x R: the coarse centres around a point
 REACH_ANGLES = 12
-#: ball centres farther beyond the footprint than this (x R) do not count as reaching: the
-#: planner's passes end 7/8 R beyond the edges (docs/toolpath.md), and a ball farther out
-#: touches the stock only with a cap under half its radius across, at the very edge
-OVERHANG = 0.875
+#: where the ball cannot reach the design (a valley, a crease or a wall's foot tighter than
+#: it), the floor counts balls centred over the stock (OVERHANG x R beyond it at most): at
+#: such a region's open end on the stock edge a ball hanging off the edge reaches deeper, but
+#: only in a sliver at the edge line (on the edge of 3*abs(x): 0.5 mm deeper on the line,
+#: 0.02 mm at 0.03 mm in); the fillet the operator sees runs on to the edge unchanged.
+#: Where the ball reaches the design (its normal position is free, overhanging or not) the
+#: design itself is the floor, edges included.
+OVERHANG = 0.0
 REACH_SEARCH = 24                                   # compass steps from the best coarse centre
 
 
@@ -467,10 +471,8 @@ def reachable_height(ws, px, py, R: float, chunk: int = 20000, overhang: float |
     height is an upper bound of the lowest one (the material it calls unreachable is
     never less than there is); on a parabolic valley tighter than the ball it is within
     3e-4 mm of the centred ball's closed form (tested). Centres farther than
-    ``overhang`` (default :data:`OVERHANG` x R) beyond the footprint are not tried: at a
-    valley's or crease's open end on the stock edge such balls reach deeper, but only
-    in a sliver at the edge line (0.5 mm deeper on the edge of ``3*abs(x)``, 0.02 mm
-    at 0.03 mm in). Returns (height, reachable)."""
+    ``overhang`` (default :data:`OVERHANG` x R) beyond the footprint are not tried (see
+    :data:`OVERHANG`). Returns (height, reachable)."""
     from .compensate import compensate
 
     overhang = OVERHANG * R if overhang is None else overhang
