@@ -93,12 +93,7 @@ class _Pass:
         # the contact curve where it crosses each cross-section u (contacts lie up to
         # R along the pass from their ball's centre on steep ground)
         cv = ci.contact_y if fr.direction == "x" else ci.contact_x
-        ok = np.isfinite(pu) & np.isfinite(cv)
-        if ok.any():
-            o = np.argsort(pu[ok], kind="stable")
-            self.cv = np.interp(ug, pu[ok][o], cv[ok][o])
-        else:
-            self.cv = np.full_like(ug, v)
+        self.cv = contact_curve(ug, pu, cv, v)
         self.keep = _trim_outside(ug, Z, fr.Lu, depth_lim, contact_top)
         k = np.nonzero(self.keep)[0]
         f = _hermite(ug, Z, dZ, uf)
@@ -118,6 +113,28 @@ class _Pass:
         fine profile is (not machined, or more than 7/8 R beyond the edges)."""
         z = _hermite(self._ug, self.Z, self.dZ, u)
         return np.where((u >= self._lo) & (u <= self._hi), z, np.inf)
+
+
+def contact_curve(ug, pu, cv, v):
+    """The pass's contact curve: v across where it crosses each cross-section ug.
+
+    Contacts (pu along, cv across) of the balls at ug, interpolated in pu. Where
+    several balls touch the same cross-section (the stock edge across the pass: every
+    ball beyond it touches the edge line, from the ball at the edge, a full radius in
+    the cross-section, to the ball a radius out, touching with its equator, at its own
+    v), the contact of the ball nearest that cross-section is the pass's: the curves of
+    successive passes then bound, per cross-section, the cusp between two full-radius
+    balls (the balls beyond the edge, ever smaller in the cross-section, are not the ones
+    the stepover is spaced for). Any curve increasing with v from pass to pass tiles
+    the cross-section, so the material bounds between consecutive curves cover it."""
+    ok = np.isfinite(pu) & np.isfinite(cv)
+    if not ok.any():
+        return np.full_like(ug, v)
+    p, c, d = pu[ok], cv[ok], np.abs(ug[ok] - pu[ok])
+    o = np.lexsort((d, p))
+    p, c = p[o], c[o]
+    first = np.r_[True, np.diff(p) > 1e-9]
+    return np.interp(ug, p[first], c[first])
 
 
 def compensate_passes(ws, fr, R, ug, uf, vlist, depth_lim):
