@@ -36,6 +36,7 @@ from .compensate import compensate
 AIR_EPS = 1e-7          # mm: a tip this close below the top face touches nothing worth a move
 SCALLOP_SAFETY = 0.95   # stepover keeps the cross-section bound below this fraction of the scallop
 FLOOR_SHARE = 0.25      # material the dense passes leave above this share of the target: unreachable
+FLOOR_EXCESS = 0.5      # above unreachable material, the bound allows this share of the target
 MIN_STEP_SHARE = 0.02   # smallest stepover tried, share of the flat-ground stepover
 STEEP_ALONG = 1.5       # the material bound's stage 3 runs where the slope along the pass exceeds this
 EDGE_NODES = (0.95, 0.99)   # extra nodes along the passes beyond the edges, x R out
@@ -67,9 +68,16 @@ class Frame:
         return (u, v) if self.direction == "x" else (v, u)
 
 
-def _hermite(ug, Z, dZ, uf):
+def _hermite(ug, Z, dZ, uf, kink=None):
     """Cubic Hermite interpolation of the pass profile (exact values and slopes at
-    the nodes ug) at uf; +inf outside the finite nodes."""
+    the nodes ug) at uf; +inf outside the finite nodes.
+
+    ``kink`` (bool per node): the tip path has a kink there (the ball bridges a V
+    crease or a valley tighter than itself: two contacts, the slope of either one
+    side's); on the segments beside such a node the profile is not below the chord
+    (the Hermite cubic with the other side's slope dips below the true path, by
+    ~ h |dZ_left - dZ_right| / 7: 0.5 mm on a V crease of slope 3, and the material
+    bounds would take the balls for lower than they are)."""
     i = np.clip(np.searchsorted(ug, uf, side="right") - 1, 0, len(ug) - 2)
     h = ug[i + 1] - ug[i]
     t = (uf - ug[i]) / h
@@ -77,6 +85,9 @@ def _hermite(ug, Z, dZ, uf):
     with np.errstate(invalid="ignore"):
         z = ((2 * t3 - 3 * t2 + 1) * Z[i] + (t3 - 2 * t2 + t) * h * dZ[i]
              + (-2 * t3 + 3 * t2) * Z[i + 1] + (t3 - t2) * h * dZ[i + 1])
+        if kink is not None:
+            k = kink[i] | kink[i + 1]
+            z = np.where(k, np.fmax(z, Z[i] + t * (Z[i + 1] - Z[i])), z)
     return np.where(np.isfinite(z), z, np.inf)
 
 
@@ -96,7 +107,7 @@ class _Pass:
         self.cv = contact_curve(ug, pu, cv, v)
         self.keep = _trim_outside(ug, Z, fr.Lu, depth_lim, contact_top)
         k = np.nonzero(self.keep)[0]
-        f = _hermite(ug, Z, dZ, uf)
+        f = _hermite(ug, Z, dZ, uf, self.bridged)
         # the material bounds count the balls at most 7/8 R beyond the edges, and further
         # out only those at the nodes (exact heights): there the tip height rises too
         # steeply for the Hermite profile (fewer balls: a higher, still valid bound)
@@ -111,7 +122,7 @@ class _Pass:
     def profile(self, u):
         """Tip height (Hermite) at any positions u along the pass; +inf where the
         fine profile is (not machined, or more than 7/8 R beyond the edges)."""
-        z = _hermite(self._ug, self.Z, self.dZ, u)
+        z = _hermite(self._ug, self.Z, self.dZ, u, self.bridged)
         return np.where((u >= self._lo) & (u <= self._hi), z, np.inf)
 
 
@@ -350,12 +361,22 @@ def place_passes(ws, fr, R: float, scallop: float, depth_lim: float, max_passes:
 
     def check(pa, pb, older, allowed):
         """Largest ratio, per position along u, of the material between pa and pb
-        (and beyond pb to the edge when pb is on or past it) to ``allowed``."""
+        (and beyond pb to the edge when pb is on or past it) to ``allowed`` = (base,
+        limit): (material - base) / (limit - base), base the unreachable material
+        (0 where there is none). <= 1: within the bound; a cusp's share of what is
+        allowed above the base, ~ s^2 (the next stepover is predicted from it)."""
+        base, lim = allowed
         vs = _between(pa.cv[inside_u], pb.cv[inside_u], Lv)
         ml = left(vs, [pb, pa] + older).max(axis=0)
         if pb.v >= Lv:
             ml = np.maximum(ml, edge_left(pb, [pa] + older, Lv).max(axis=0))
-        return float((ml / allowed).max(initial=0.0))
+        return float(((ml - base) / (lim - base)).max(initial=0.0))
+
+    def above_floor(fl):
+        """(base, limit): FLOOR_EXCESS x target above the unreachable material fl
+        where that exceeds the target, else the target."""
+        lim = np.maximum(target, fl + FLOOR_EXCESS * target)
+        return np.where(lim > target, fl, 0.0), lim
 
     def floor_of(pa, older):
         """Per u, the material a pass right beside pa leaves too: beyond the ball's
@@ -405,7 +426,7 @@ def place_passes(ws, fr, R: float, scallop: float, depth_lim: float, max_passes:
         floor_last, floor_used[0] = floor_used[0], False
         floor_ahead.clear()
         s = max(min(s_next, s_flat), s_min)
-        allowed = np.full(uq.shape, target)
+        allowed = (np.zeros(uq.shape), np.full(uq.shape, target))
         if pa.v + s >= Lv:
             # the last pass: on or beyond the edge v = Lv, milling it
             pb, ml = edge_pass(Lv, 1.0, [pa] + older)
@@ -413,7 +434,7 @@ def place_passes(ws, fr, R: float, scallop: float, depth_lim: float, max_passes:
                 pb, ml = make([Lv])[0], math.inf
             r = check(pa, pb, older, allowed)
             if r > 1.0:
-                allowed = np.maximum(target, floor_of(pa, older) + 0.1 * target)
+                allowed = above_floor(floor_of(pa, older))
                 r = check(pa, pb, older, allowed)
             if r <= 1.0 or Lv - pa.v <= 2 * s_min:
                 if r > 1.0 and (relaxed is None or r * target > relaxed[0]):
@@ -449,7 +470,7 @@ def place_passes(ws, fr, R: float, scallop: float, depth_lim: float, max_passes:
                 floor_done = True
                 fl = floor_of(pa, older)
                 if (fl > target).any():
-                    allowed = np.maximum(target, fl + 0.1 * target)
+                    allowed = above_floor(fl)
                     ratio = check(pa, cand, older, allowed)
                     tried.append((ratio, cand))
                     if ratio <= 1.0:
