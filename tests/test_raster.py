@@ -226,3 +226,64 @@ def test_open_edges_do_not_gouge_at_a_fine_tolerance():
     # a steep foot at the edge is reached only from there)
     cut = tp.points[tp.kinds == CUT]
     assert cut[:, 0].min() >= -R * 0.99 - 1e-9
+
+
+BOWL = "0.1*x + 0.004*y**2 - 18*exp(-(x**2 + y**2)/(2*25**2))"
+
+
+def test_estimated_passes_match_the_closed_form_on_flat_ground_and_the_planner():
+    """Flat ground: the estimate is Lv / flat stepover (+2 for the edge passes), and the
+    planner places about as many. On a plane of slope 4 along the passes and on a V
+    crease the passes cross, the estimate is within x2 of the planner's count."""
+    from fabkit.toolpath.raster import plan_estimate
+    spec, surf = _spec("-2 + 0*x", machining={"direction": "x"}, x=(0, 12), y=(0, 9))
+    s = flat_stepover(R, 0.95 * 0.05)
+    est = plan_estimate(spec, surf)
+    assert est["passes"] == pytest.approx(9.0 / s + 2.0, rel=1e-9)
+    tp = plan_toolpath(spec, surf)
+    assert 0.5 <= est["passes"] / tp.passes <= 2.0
+    for height, x in (("4*x - 12", (0, 4)), ("3*abs(x) - 9", (-4, 4))):
+        spec, surf = _spec(height, machining={"direction": "x"}, tool={"diameter": 3.175},
+                           x=x, y=(0, 6))
+        tp = plan_toolpath(spec, surf)
+        assert 0.5 <= tp.info["estimate"]["passes"] / tp.passes <= 2.0, height
+
+
+def test_near_flat_bowl_plans_close_to_the_flat_pass_count():
+    """A near-flat bowl rising toward the stock edge the passes run off (y = 10): every
+    ball beyond that edge touches it, and the contact curve once took the ball a radius
+    out (its equator) for the pass's, so the material bound sampled the edge column
+    ahead of the next pass (~0.01 mm whatever the stepover): 334 passes at the smallest
+    stepover instead of ~40."""
+    spec, surf = _spec(BOWL, machining={"scallop": 0.005, "direction": "y"},
+                       tool={"diameter": 3.175}, x=(-30, -22), y=(4, 10))
+    tp = plan_toolpath(spec, surf)
+    flat = 8.0 / flat_stepover(1.5875, 0.95 * 0.005)
+    assert tp.passes <= 1.5 * flat
+    assert tp.info["stepover_min"] >= 0.5 * tp.info["stepover_flat"]
+    assert tp.info.get("unreachable_bound_mm", 0.0) < 0.25 * 0.005
+
+
+def test_tiny_scallop_refused_by_the_cli_before_planning(cli, tmp_path, monkeypatch):
+    """A scallop of 0.5 um on a 160 x 100 mm bowl (~2200 passes, minutes of planning) is
+    refused from the estimate: exit 2, one line naming machining.scallop and the
+    estimate, nothing planned, nothing written."""
+    from conftest import write_spec
+    from fabkit.toolpath import passes, raster
+
+    def never(*a, **k):
+        raise AssertionError("planning started before the guards refused")
+
+    monkeypatch.setattr(raster, "place_passes", never)
+    monkeypatch.setattr(passes, "compensate", never)
+    raw = {"name": "b", "units": "mm",
+           "surface": {"height": BOWL, "x": [-80, 80], "y": [-50, 50], "top": 0.0},
+           "stock": {"thickness": 50, "depth_limit": 40},
+           "tool": {"shape": "ball", "diameter": 3.175, "reach": 30},
+           "machining": {"scallop": 0.0005, "tolerance": 0.01, "direction": "y"}}
+    spec = write_spec(tmp_path, raw)
+    code, out, err = cli("gcode", spec, "-o", tmp_path / "p.ngc")
+    assert code == 2
+    assert "machining.scallop" in err and "passes" in err and "Traceback" not in err
+    assert len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "p.ngc").exists()

@@ -58,7 +58,7 @@ def failures(check: dict, spec) -> list[str]:
 
 def run(args) -> int:
     from ..toolpath.gcode import profile_from_spec, write_program
-    from ..toolpath.raster import plan_toolpath
+    from ..toolpath.raster import plan_estimate, plan_toolpath
     from ..toolpath.setup import sheet_paths
 
     total = Timer()
@@ -68,6 +68,7 @@ def run(args) -> int:
     # refuse now, not after minutes of planning
     check_paths(args, {"--output": out, **{f"--output (setup sheet .{k})": p for k, p in paths.items()}})
     surface = Surface.from_spec(spec)
+    plan_estimate(spec, surface)        # the guards first: a refusal costs about a second
     check_depth(spec, surface)
     R = spec.tool.diameter / 2.0
     conc = surface.min_concave_radius()

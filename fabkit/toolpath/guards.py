@@ -3,12 +3,13 @@ anything is allocated or planned, and the guards that refuse what would exceed
 the limits in :class:`fabkit.tolerances.Tolerances`.
 
 The estimates come from the surface's exact slopes and curvatures on a grid (no
-drop cutter): passes from the stepover the steepest slope across each strip
-needs (closed form of the tilted-plane cusp), program points from the chord
+drop cutter): passes from the stepover the worst point of each strip across
+needs (slopes along and across the passes and convex curvature across: closed
+form of the cusp between two passes' swept cylinders), program points from the chord
 spacing the curvature along the passes needs, roughing levels from the depth and
 ``machining.stepdown``, and the planning time from those counts with per-unit
-costs measured on the 2-core reference machine (a conservative model, not a
-measurement: about x2 either way).
+costs measured on the 2-core reference machine (a model, not a measurement: within
+about x2 of the planner on the surfaces it was fitted to, see the constants).
 """
 
 from __future__ import annotations
@@ -19,44 +20,80 @@ import numpy as np
 
 from ..errors import SpecError
 
-# measured per-unit costs of the planner on the 2-core reference machine, seconds
-SEC_PER_PASS_NODE = 1.2e-4     # pass placement: exact tip heights and material bounds, per node
-SEC_PER_POINT = 2.0e-4         # point spacing, links and roughing, per program point
+# per-unit costs of the planner on the 2-core reference machine, seconds, fitted to
+# the stage times of place_passes and space_points on a near-flat bowl (three sizes,
+# scallops 0.002-0.05 mm), planes of slope 4 and 8 in both raster directions, a V crease
+# in both directions, an exponential wall, a valley and the paper's surface (the
+# estimates in seconds are within about x2 of the measured ones there)
+SEC_PER_PASS = 8e-3            # pass placement, per pass: fixed cost (two bounds, a few calls)
+SEC_PER_PASS_NODE = 2e-5       # per node along a pass: exact tip heights (incl. trial passes)
+SEC_PER_BALL = 1.5e-6          # per column and fine ball position within R along the pass
+SEC_STEEP_PASS = 3e-2          # passes over ground steep along the pass: the bound's stage 3
+SEC_STEEP_COLUMN = 1e-4        # and per steep column
+SEC_PER_POINT = 6e-5           # point spacing, links and roughing, per program point
 SEC_FIXED = 1.0
+STEEP_ALONG = 1.5              # as fabkit.toolpath.passes.STEEP_ALONG
+# memory (peak resident, bytes): the process, what the planner holds per pass (fine
+# profile and nodes) and per program point (~6 evaluated samples per point, each ~0.8 kB
+# at the peak of the point spacing's batched drop cutter; measured 120-500 MB on the
+# surfaces above)
+BYTES_BASE = 100e6
+BYTES_PER_POINT = 6000.0
+MAX_BYTES = 1.5e9              # refused beyond this (the process stays under 2 GB)
+MAX_SLOPE = 20.0               # slopes beyond this count as this (the wall is cut by the rim)
 
 
-def stepover_on_slope(R: float, target: float, slope) -> np.ndarray:
-    """Largest stepover (horizontal, mm) whose vertical cusp on a plane of the given
-    slope across the passes is ``target`` (inverse of the tilted-plane cusp)."""
-    c = 1.0 / np.sqrt(1.0 + np.asarray(slope, float) ** 2)
-    t = np.minimum(target * c, R)
-    return 2.0 * c * np.sqrt(np.maximum(2.0 * R * t - t * t, 0.0))
+def stepover_on_slope(R: float, target: float, slope, slope_along=0.0, curvature=0.0) -> np.ndarray:
+    """Largest stepover (horizontal, mm) whose vertical cusp between two passes is
+    ``target`` on a plane of the given slope across the passes and ``slope_along`` along
+    them, with a convex ``curvature`` across (1/mm, >= 0): the passes' swept cylinders
+    (axes along the plane's slope along the pass) are d = s sqrt(G / (1 + a^2)) apart
+    (G = 1 + a^2 + b^2, a along, b across), their cusp normal to the plane is
+    R' - sqrt(R'^2 - d^2 / 4) (1/R' = 1/R + curvature), and vertically sqrt(G) times that.
+    Closed form; a = 0, no curvature: the tilted-plane cusp across."""
+    a = np.minimum(np.abs(np.asarray(slope_along, float)), MAX_SLOPE)
+    b = np.minimum(np.abs(np.asarray(slope, float)), MAX_SLOPE)
+    G = 1.0 + a * a + b * b
+    Re = 1.0 / (1.0 / R + np.maximum(np.asarray(curvature, float), 0.0))
+    hn = np.minimum(target / np.sqrt(G), Re)
+    d = 2.0 * np.sqrt(np.maximum(2.0 * Re * hn - hn * hn, 0.0))
+    return d * np.sqrt((1.0 + a * a) / G)
 
 
 def estimate(spec, ws, fr, R: float, target: float, tolerance: float, depth_mm: float,
-             n_nodes: int, n_grid: int = 201) -> dict:
-    """Passes, program points, roughing levels and points, and planning seconds."""
+             n_nodes: int, n_grid: int = 201, n_fine: int | None = None,
+             fine_step: float | None = None) -> dict:
+    """Passes, program points, roughing levels and points, planning seconds and memory
+    (bytes), from the surface's exact slopes and curvatures on an n_grid^2 grid.
+
+    n_nodes: nodes along a pass (:func:`fabkit.toolpath.passes.u_grid`); n_fine and
+    fine_step: the material bounds' fine grid along a pass (size, step mm)."""
     Lu, Lv = fr.Lu, fr.Lv
     u = np.linspace(0.0, Lu, n_grid)
     v = np.linspace(0.0, Lv, n_grid)
     UU, VV = np.meshgrid(u, v)                         # rows: v (across), columns: u (along)
     X, Y = fr.xy(UU, VV)
     H, hx, hy, hxx, hxy, hyy = ws.all(X, Y)
-    Hu, Hv, Huu = (hx, hy, hxx) if fr.direction == "x" else (hy, hx, hyy)
+    Hu, Hv, Huu, Hvv = (hx, hy, hxx, hyy) if fr.direction == "x" else (hy, hx, hyy, hxx)
     cut = np.isfinite(H) & (H < 0)
     fin = lambda a: np.where(np.isfinite(a), a, 0.0)   # noqa: E731
-    # passes: per strip across, the stepover its steepest cut slope across allows
-    slope_v = np.where(cut, np.abs(fin(Hv)), 0.0).max(axis=1)
+    # passes: per strip across, the stepover its worst cut point allows (slopes along
+    # and across, convex curvature across up to 1/R)
+    kv = np.minimum(np.maximum(-fin(Hvv), 0.0) / (1.0 + fin(Hv) ** 2) ** 1.5, 1.0 / R)
+    s_pt = stepover_on_slope(R, target, fin(Hv), fin(Hu), kv)
     s_flat = float(stepover_on_slope(R, target, 0.0))
-    s_row = np.maximum(stepover_on_slope(R, target, slope_v), 1e-3 * s_flat)
+    s_row = np.where(cut, s_pt, s_flat).min(axis=1)
+    s_row = np.maximum(s_row, 0.02 * s_flat)
     passes = float(np.trapezoid(1.0 / s_row, v)) + 2.0
     # points per pass: chord spacing sqrt(8 e / k) along the arc, k the curvature along
-    # the pass (at most 1/R: the tip path is an offset of the surface by R)
+    # the pass (at most 1/R: the tip path is an offset of the surface by R), x1.6 for the
+    # simplification's leftovers, and ~20 for the ends (the ball leaving the stock over
+    # its edges), the links and the crease with the top face
     e = 0.5 * tolerance
     w = np.sqrt(1.0 + fin(Hu) ** 2)
     k = np.minimum(np.abs(fin(Huu)) / w ** 3, 1.0 / R)
     dens = np.where(cut, np.sqrt(k / (8.0 * e)) * w, 0.0)
-    per_pass = float(np.trapezoid(dens, u, axis=1).mean()) + 8.0
+    per_pass = 1.6 * float(np.trapezoid(dens, u, axis=1).mean()) + 20.0
     points = passes * per_pass
     out = {"passes": passes, "points": points, "nodes": passes * n_nodes,
            "roughing_levels": 0, "roughing_points": 0.0}
@@ -69,8 +106,21 @@ def estimate(spec, ws, fr, R: float, target: float, tolerance: float, depth_mm: 
         out["roughing_levels"] = levels
         out["roughing_points"] = rough_passes * per_pass * (mean_depth / float(step) + 1.0) \
             if levels else 0.0
-    out["seconds"] = SEC_FIXED + SEC_PER_PASS_NODE * out["nodes"] + \
+    # planning time: per pass, the exact tip heights (nodes), the material bounds (the
+    # balls within R along the pass at each column, and the rim search where the ground
+    # is steep along the pass), then per program point
+    n_fine = n_fine or 4 * n_nodes
+    fine_step = fine_step or Lu / max(n_fine - 1, 1)
+    cols = n_nodes * Lu / (Lu + 2.0 * R)
+    balls = 2.0 * (math.ceil(R / fine_step) + 3) + 1.0
+    steep_cols = float(((np.abs(fin(Hu)) * cut).max(axis=0) > STEEP_ALONG).mean()) * cols
+    per_pass_s = SEC_PER_PASS + SEC_PER_PASS_NODE * n_nodes + SEC_PER_BALL * cols * balls + \
+        ((SEC_STEEP_PASS + SEC_STEEP_COLUMN * steep_cols) if steep_cols else 0.0)
+    out["place_seconds"] = passes * per_pass_s
+    out["seconds"] = SEC_FIXED + out["place_seconds"] + \
         SEC_PER_POINT * (points + out["roughing_points"])
+    out["bytes"] = BYTES_BASE + passes * (16.0 * n_fine + 80.0 * n_nodes) + \
+        BYTES_PER_POINT * (points + out["roughing_points"])
     return out
 
 
@@ -98,8 +148,15 @@ def guard(est: dict, tol, spec_path=None, scallop=None, tolerance=None) -> None:
         raise SpecError(f"roughing needs about {est['roughing_points']:.3g} program points "
                         f"(limit {tol.max_program_points} in all); raise the stepdown",
                         file=spec_path, key="machining.stepdown")
+    if est.get("bytes", 0.0) > MAX_BYTES:
+        key = "machining.stepdown" if est["roughing_points"] > est["points"] else \
+            ("machining.scallop" if est["points"] < 40.0 * est["passes"] else "machining.tolerance")
+        raise SpecError(f"planning would need about {est['bytes'] / 1e9:.2g} GB of memory "
+                        f"({est['passes']:.3g} passes, {est['points'] + est['roughing_points']:.3g} "
+                        f"program points; limit {MAX_BYTES / 1e9:g} GB); raise {key.split('.')[1]}",
+                        file=spec_path, key=key)
     if est["seconds"] > tol.max_plan_seconds:
-        key = "machining.scallop" if SEC_PER_PASS_NODE * est["nodes"] >= \
+        key = "machining.scallop" if est["place_seconds"] >= \
             SEC_PER_POINT * (est["points"] + est["roughing_points"]) else \
             ("machining.stepdown" if est["roughing_points"] > est["points"] else "machining.tolerance")
         raise SpecError(f"planning would take about {est['seconds']:.0f} s ({est['passes']:.3g} "

@@ -267,6 +267,15 @@ def u_grid(fr, R):
     return np.concatenate([-side[:0:-1], np.linspace(0.0, fr.Lu, n_in), fr.Lu + side[1:]])
 
 
+def fine_grid_size(ug, R, target):
+    """(size, step mm) of :func:`fine_grid` without building it (the guards' estimate:
+    the grid of a tiny scallop is refused before it is allocated)."""
+    du = float(np.diff(ug).max())
+    sub = max(4, int(math.ceil(du / math.sqrt(0.8 * R * target)))) if target > 0 else 4
+    n = sub * (len(ug) - 1 - 2 * len(EDGE_NODES)) + 1
+    return n, float(ug[-1] - ug[0]) / max(n - 1, 1)
+
+
 def fine_grid(ug, R=None, target=None):
     """The material bounds' grid along u: four steps per even node step (more where
     the target is small: the balls df apart along a pass leave up to df^2 / (8 R) between
@@ -359,16 +368,16 @@ def place_passes(ws, fr, R: float, scallop: float, depth_lim: float, max_passes:
             i, j = np.unravel_index(int(np.argmax(fl)), fl.shape)
             unreach[:] = [float(fl[i, j]), float(uq[j]), float(vs[i, j])]
 
-    def check(pa, pb, older, allowed):
+    def check(pa, pb, older, allowed, last=False):
         """Largest ratio, per position along u, of the material between pa and pb
-        (and beyond pb to the edge when pb is on or past it) to ``allowed`` = (base,
+        (and beyond pb to the edge when pb is the ``last`` pass) to ``allowed`` = (base,
         limit): (material - base) / (limit - base), base the unreachable material
         (0 where there is none). <= 1: within the bound; a cusp's share of what is
         allowed above the base, ~ s^2 (the next stepover is predicted from it)."""
         base, lim = allowed
         vs = _between(pa.cv[inside_u], pb.cv[inside_u], Lv)
         ml = left(vs, [pb, pa] + older).max(axis=0)
-        if pb.v >= Lv:
+        if last:
             ml = np.maximum(ml, edge_left(pb, [pa] + older, Lv).max(axis=0))
         return float(((ml - base) / (lim - base)).max(initial=0.0))
 
@@ -421,8 +430,6 @@ def place_passes(ws, fr, R: float, scallop: float, depth_lim: float, max_passes:
     while True:
         pa = passes[-1]
         older = passes[-2:-1]
-        if pa.v >= Lv:
-            break
         floor_last, floor_used[0] = floor_used[0], False
         floor_ahead.clear()
         s = max(min(s_next, s_flat), s_min)
@@ -432,18 +439,22 @@ def place_passes(ws, fr, R: float, scallop: float, depth_lim: float, max_passes:
             pb, ml = edge_pass(Lv, 1.0, [pa] + older)
             if pb is None:
                 pb, ml = make([Lv])[0], math.inf
-            r = check(pa, pb, older, allowed)
+            r = check(pa, pb, older, allowed, last=True)
             if r > 1.0:
                 allowed = above_floor(floor_of(pa, older))
-                r = check(pa, pb, older, allowed)
-            if r <= 1.0 or Lv - pa.v <= 2 * s_min:
+                r = check(pa, pb, older, allowed, last=True)
+            if r <= 1.0 or max(pb.v, Lv) - pa.v <= 2 * s_min:
                 if r > 1.0 and (relaxed is None or r * target > relaxed[0]):
                     relaxed = (r * target, float(uq[-1]) if uq.size else 0.0, Lv)
                 if target < ml < math.inf and ml > unreach[0]:
                     unreach[:] = [ml, float(uq[-1]) if uq.size else 0.0, Lv]
                 passes.append(pb)
                 break
-            s = min(s, 0.6 * (Lv - pa.v))
+            # a pass between pa and the edge pass, beyond the edge if need be (where the
+            # ground falls toward the edge the edge pass lies up to R out, its contact
+            # inside; passes short of the edge alone never come close enough to it);
+            # check() bounds the material from a pass beyond the edge to the edge too
+            s = min(s, 0.6 * (max(pb.v, Lv) - pa.v))
             ahead = []
         cand = ahead.pop(0) if ahead and abs(ahead[0].v - (pa.v + s)) < 1e-12 else None
         if cand is None:
@@ -451,7 +462,7 @@ def place_passes(ws, fr, R: float, scallop: float, depth_lim: float, max_passes:
             # computed with this one (one call); elsewhere the next stepover depends on
             # this pass's margin, and speculative passes would be wasted
             look = (1, 2, 3) if s >= s_flat else (1,)
-            vl = [pa.v + k * s for k in look if pa.v + k * s < Lv]
+            vl = [pa.v + k * s for k in look if k == 1 or pa.v + k * s < Lv]
             vf = min(pa.v + MIN_STEP_SHARE * s_flat, Lv)
             cands = make(vl + [vf] if floor_last else vl)
             if floor_last:

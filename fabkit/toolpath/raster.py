@@ -43,19 +43,19 @@ __all__ = ["plan_toolpath", "plan_estimate", "order_runs", "check_depth_limits",
 def plan_estimate(spec, surface, tol: Tolerances = DEFAULT) -> dict:
     """Stage 1: the estimates (passes, points, roughing levels/points, seconds), and
     SpecError (exit 2, naming the key and the estimate) beyond the guards."""
-    from .passes import u_grid
+    from .passes import fine_grid_size, u_grid
 
     R = 0.5 * float(spec.tool.diameter)
     ws = surface if isinstance(surface, WorkSurface) else WorkSurface(surface)
     fr = Frame(spec.machining.direction, ws.L, ws.W)
-    depth = max(0.0, -float(np.min(ws.H(*np.meshgrid(np.linspace(0, ws.L, 101),
-                                                      np.linspace(0, ws.W, 101))))))
-    if getattr(spec.machining, "stepdown", None):
-        from ..surface import Surface
-        if isinstance(surface, Surface):
-            depth = surface.depth_mm()
-    est = estimate(spec, ws, fr, R, SCALLOP_SAFETY * float(spec.machining.scallop),
-                   float(spec.machining.tolerance), depth, len(u_grid(fr, R)))
+    # the depth on a grid (an estimate: the exact lowest point needs an optimizer)
+    depth = max(0.0, -float(np.nan_to_num(np.min(ws.H(*np.meshgrid(
+        np.linspace(0, ws.L, 201), np.linspace(0, ws.W, 201)))))))
+    target = SCALLOP_SAFETY * float(spec.machining.scallop)
+    ug = u_grid(fr, R)
+    uf_n, uf_step = fine_grid_size(ug, R, target)
+    est = estimate(spec, ws, fr, R, target, float(spec.machining.tolerance), depth, len(ug),
+                   n_fine=uf_n, fine_step=uf_step)
     guard(est, tol, spec.path, float(spec.machining.scallop), float(spec.machining.tolerance))
     return est
 
