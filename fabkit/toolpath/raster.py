@@ -49,8 +49,9 @@ def plan_estimate(spec, surface, tol: Tolerances = DEFAULT) -> dict:
     ws = surface if isinstance(surface, WorkSurface) else WorkSurface(surface)
     fr = Frame(spec.machining.direction, ws.L, ws.W)
     # the depth on a grid (an estimate: the exact lowest point needs an optimizer)
-    depth = max(0.0, -float(np.nan_to_num(np.min(ws.H(*np.meshgrid(
-        np.linspace(0, ws.L, 201), np.linspace(0, ws.W, 201)))))))
+    Hg = ws.H(*np.meshgrid(np.linspace(0, ws.L, 201), np.linspace(0, ws.W, 201)))
+    Hg = Hg[np.isfinite(Hg)]
+    depth = max(0.0, -float(Hg.min())) if Hg.size else 0.0
     target = SCALLOP_SAFETY * float(spec.machining.scallop)
     ug = u_grid(fr, R)
     uf_n, uf_step = fine_grid_size(ug, R, target)
