@@ -68,7 +68,7 @@ class Frame:
         return (u, v) if self.direction == "x" else (v, u)
 
 
-def _hermite(ug, Z, dZ, uf, kink=None):
+def _hermite(ug, Z, dZ, uf, kink=None, rows=None):
     """Cubic Hermite interpolation of the pass profile (exact values and slopes at
     the nodes ug) at uf; +inf outside the finite nodes.
 
@@ -77,17 +77,21 @@ def _hermite(ug, Z, dZ, uf, kink=None):
     side's); on the segments beside such a node the profile is not below the chord
     (the Hermite cubic with the other side's slope dips below the true path, by
     ~ h |dZ_left - dZ_right| / 7: 0.5 mm on a V crease of slope 3, and the material
-    bounds would take the balls for lower than they are)."""
+    bounds would take the balls for lower than they are).
+
+    ``rows``: Z, dZ, kink are stacked profiles (P, n) and ``rows`` (broadcastable to
+    uf) picks each position's profile: several passes in one call."""
     i = np.clip(np.searchsorted(ug, uf, side="right") - 1, 0, len(ug) - 2)
     h = ug[i + 1] - ug[i]
     t = (uf - ug[i]) / h
     t2, t3 = t * t, t * t * t
+    ix, ix1 = (i, i + 1) if rows is None else ((rows, i), (rows, i + 1))
     with np.errstate(invalid="ignore"):
-        z = ((2 * t3 - 3 * t2 + 1) * Z[i] + (t3 - 2 * t2 + t) * h * dZ[i]
-             + (-2 * t3 + 3 * t2) * Z[i + 1] + (t3 - t2) * h * dZ[i + 1])
+        z = ((2 * t3 - 3 * t2 + 1) * Z[ix] + (t3 - 2 * t2 + t) * h * dZ[ix]
+             + (-2 * t3 + 3 * t2) * Z[ix1] + (t3 - t2) * h * dZ[ix1])
         if kink is not None:
-            k = kink[i] | kink[i + 1]
-            z = np.where(k, np.fmax(z, Z[i] + t * (Z[i + 1] - Z[i])), z)
+            k = kink[ix] | kink[ix1]
+            z = np.where(k, np.fmax(z, Z[ix] + t * (Z[ix1] - Z[ix])), z)
     return np.where(np.isfinite(z), z, np.inf)
 
 
@@ -124,6 +128,13 @@ class _Pass:
         fine profile is (not machined, or more than 7/8 R beyond the edges)."""
         z = _hermite(self._ug, self.Z, self.dZ, u, self.bridged)
         return np.where((u >= self._lo) & (u <= self._hi), z, np.inf)
+
+
+def _stack(cutters):
+    """(Z, dZ, lo, hi, kink) of several passes stacked along a leading axis."""
+    return (np.vstack([p.Z for p in cutters]), np.vstack([p.dZ for p in cutters]),
+            np.array([p._lo for p in cutters]), np.array([p._hi for p in cutters]),
+            np.vstack([p.bridged for p in cutters]))
 
 
 def contact_curve(ug, pu, cv, v):
@@ -252,33 +263,39 @@ def sweep_material(ws, fr, R, uq, vs, cutters, uf, threshold=0.0, chord=0.0):
     if hot.size:
         v = vs[:, hot][:, :, None]
         u0 = uq[hot][None, :, None]
+        uf_nodes = cutters[0]._ug
         o = np.linspace(-R, R, 65)
         h = o[1] - o[0]
-        cut = np.full(v.shape[:2], np.inf)
-        for p in cutters:
-            dv2 = (v - p.v) ** 2
+        # all cutters at once (leading axis): the same search per cutter, one array call
+        Zs, dZs, lo, hi, kink = _stack(cutters)
+        cv = np.array([p.v for p in cutters])[:, None, None, None]
+        dv2 = (v[None] - cv) ** 2
+        pi = np.arange(len(cutters))[:, None, None, None]
 
-            def ball(oo):
-                r2 = R * R - oo * oo - dv2
-                with np.errstate(invalid="ignore"):
-                    b = p.profile(u0 + oo) + R - np.sqrt(r2)
-                return np.where(r2 >= 0, b, np.inf)
+        def ball(oo):
+            r2 = R * R - oo * oo - dv2
+            u = u0 + oo
+            with np.errstate(invalid="ignore"):
+                z = _hermite(uf_nodes, Zs, dZs, u, kink, rows=pi)
+                z = np.where((u >= lo[pi]) & (u <= hi[pi]), z, np.inf)
+                b = z + R - np.sqrt(r2)
+            return np.where(r2 >= 0, b, np.inf)
 
-            g = ball(o[None, None, :] + 0 * v)
-            j = np.argmin(g, axis=2)[..., None]
-            a = np.take_along_axis(np.broadcast_to(o, g.shape), j, axis=2) - h
-            b = a + 2 * h
-            gr = 0.5 * (math.sqrt(5.0) - 1.0)
-            c, d = b - gr * (b - a), a + gr * (b - a)
-            gc, gd = ball(c), ball(d)
-            for _ in range(24):
-                lt = gc <= gd
-                a, b = np.where(lt, a, c), np.where(lt, d, b)
-                c, d = np.where(lt, b - gr * (b - a), d), np.where(lt, c, a + gr * (b - a))
-                gn = ball(np.where(lt, c, d))
-                gc, gd = np.where(lt, gn, gd), np.where(lt, gc, gn)
-            best = np.minimum(np.min(g, axis=2), np.minimum(gc, gd)[..., 0])
-            cut = np.minimum(cut, best)
+        g = ball(o + 0 * dv2)
+        j = np.argmin(g, axis=3)[..., None]
+        a = np.take_along_axis(np.broadcast_to(o, g.shape), j, axis=3) - h
+        b = a + 2 * h
+        gr = 0.5 * (math.sqrt(5.0) - 1.0)
+        c, d = b - gr * (b - a), a + gr * (b - a)
+        gc, gd = ball(c), ball(d)
+        for _ in range(24):
+            lt = gc <= gd
+            a, b = np.where(lt, a, c), np.where(lt, d, b)
+            c, d = np.where(lt, b - gr * (b - a), d), np.where(lt, c, a + gr * (b - a))
+            gn = ball(np.where(lt, c, d))
+            gc, gd = np.where(lt, gn, gd), np.where(lt, gc, gn)
+        best = np.minimum(np.min(g, axis=3), np.minimum(gc, gd)[..., 0])
+        cut = best.min(axis=0)
         ml[:, hot] = np.minimum(ml[:, hot], np.minimum(cut, 0.0) - design[:, hot] + chord)
     return ml
 
