@@ -12,7 +12,8 @@ from fabkit.spec import load_spec, validate
 from fabkit.surface import Surface
 from fabkit.toolpath.compensate import compensate
 from fabkit.toolpath.path import CUT, PLUNGE, RAPID
-from fabkit.toolpath.raster import flat_stepover, plan_toolpath, tilted_plane_cusp
+from fabkit.toolpath.raster import (LINK_CLEARANCE, flat_stepover, plan_toolpath,
+                                    tilted_plane_cusp)
 
 from conftest import PAPER, mutated
 
@@ -105,7 +106,9 @@ def test_no_air_segments_and_safe_rapids(dimple):
         if K[i] == RAPID:
             moved = np.hypot(*(b - a)[:2]) > 1e-9
             if moved:
-                assert a[2] >= tp.safe_z - 1e-9 and b[2] >= tp.safe_z - 1e-9
+                # across at the safe height, or a short lift over the top face (at least
+                # the link clearance above it: no material above the top face)
+                assert min(a[2], b[2]) >= min(tp.safe_z, LINK_CLEARANCE) - 1e-9
             elif b[2] < a[2]:
                 assert b[2] > 0                       # rapids down stop above the top face
         if K[i] == PLUNGE:
@@ -287,3 +290,35 @@ def test_tiny_scallop_refused_by_the_cli_before_planning(cli, tmp_path, monkeypa
     assert "machining.scallop" in err and "passes" in err and "Traceback" not in err
     assert len(err.strip().splitlines()) == 1
     assert not (tmp_path / "p.ngc").exists()
+
+
+def test_dome_above_the_top_face_cuts_no_air():
+    """A dome rising 4 mm above the top face (x^2 + y^2 < 8 clipped away): the ball
+    touches nothing over it, so no feed move with any XY travel lies at or above the
+    top face, every cut run is entered by exactly one plunge, links over the dome are
+    rapids, and each pass that crosses the dome is two runs."""
+    spec, surf = _spec("4 - (x**2 + y**2)/2", x=(-4, 4), y=(-4, 4),
+                       machining={"scallop": 0.2, "tolerance": 0.03, "direction": "y"})
+    tp = plan_toolpath(spec, surf)
+    P, K = tp.points, tp.kinds
+    a, b = P[:-1], P[1:]
+    feed = K[1:] != RAPID
+    xy = np.hypot(*(b - a)[:, :2].T)
+    in_air = feed & (a[:, 2] >= 0) & (b[:, 2] >= 0) & (xy > 1e-9)
+    assert not in_air.any()
+    runs = _cut_runs(tp)
+    assert int((K == PLUNGE).sum()) == len(runs)
+    # a pass (fixed x) whose ball clears the dome's rim circle r = sqrt(8) cuts one
+    # run; one whose ball centre crosses the disc is split in two by the dome
+    xs = np.array(tp.info["pass_positions"]) - 4.0
+    split = np.abs(xs) < math.sqrt(8.0)
+    per_pass = {}
+    for r in runs:
+        k = int(np.argmin(np.abs(np.array(tp.info["pass_positions"]) - r[0, 0])))
+        per_pass[k] = per_pass.get(k, 0) + 1
+    # (tips shallower than the air depth tolerance/20 cut air: within sqrt(2 R eps) of
+    # the rim either count is right, so those passes are not asserted)
+    band = math.sqrt(2 * R * 0.05 * 0.03)
+    for k, n in per_pass.items():
+        if not math.sqrt(8.0) <= abs(xs[k]) <= math.sqrt(8.0) + band:
+            assert n == (2 if split[k] else 1), (xs[k], n)

@@ -1,11 +1,18 @@
 """Linking the cut runs into one program: short feed links over the material,
 retracts and rapids otherwise.
 
-Runs less than max(4 R, 4 stepover) apart are linked by feed moves up to
-``clearance`` above the highest material along the straight link (drop cutter every
-R/4), across, and a plunge; others retract to safe_z, rapid across, rapid down to
-the clearance above the top face and plunge. Rapids move only straight up out of
-the cut, at the safe height, or down to above the top face.
+Runs less than max(4 R, 4 stepover) apart are linked locally at ``clearance``
+above the highest material along the straight link (drop cutter every R/4): up,
+across, and a plunge. Below the top face the link may meet stock not cut yet, so
+it is fed (G1); at or above it (over ground that rises above the top face, where
+the ball touches nothing) it is a short lift: rapid straight up out of the cut to
+``clearance`` above the top face (or the link height, if higher), rapid across,
+rapid down to ``clearance`` above the top face and plunge. Other runs retract to
+safe_z, rapid across, rapid down to the clearance above the top face and plunge.
+Rapids move only straight up out of the cut, across at the safe height or at
+least ``clearance`` above the top face, or down to above the top face; every
+rapid below the top face is checked against the material present by
+:func:`fabkit.toolpath.verify.verify_cut`.
 """
 
 from __future__ import annotations
@@ -52,9 +59,15 @@ def link_runs(ws, R, all_runs, link_max, one_way, safe_z, clr):
         else:
             a, b = prev[1], r[0]
             zl = zlink[i]
-            if zl is not None:
+            if zl is not None and zl < 0.0:
                 pts += [(a[0], a[1], zl), (b[0], b[1], zl), tuple(b)]
                 kinds += [CUT, CUT, PLUNGE]
+            elif zl is not None:
+                # over the top face: nothing to cut, so no feed move in the air
+                zl = max(zl, clr)
+                pts += [(a[0], a[1], zl)]
+                kinds += [RAPID]
+                _approach(pts, kinds, b, zl, clr)
             else:
                 pts += [(a[0], a[1], safe_z)]
                 kinds += [RAPID]
@@ -72,7 +85,7 @@ def link_runs(ws, R, all_runs, link_max, one_way, safe_z, clr):
 
 
 def _approach(pts, kinds, b, safe_z, clr, first=False):
-    """Rapid above b at safe_z, rapid down to clr above the top face, plunge to b."""
+    """Rapid above b at safe_z (or a lower link height), rapid down to clr above the top face, plunge to b."""
     pts += [(b[0], b[1], safe_z), (b[0], b[1], max(clr, b[2]))]
     kinds += [RAPID, RAPID]
     if b[2] < max(clr, b[2]):

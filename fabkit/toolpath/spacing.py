@@ -17,6 +17,11 @@ from .compensate import compensate
 from .passes import AIR_EPS
 
 CHORD_SAFETY = 0.5      # evaluated chord errors kept below this fraction of the tolerance
+#: a tip less than this fraction of the tolerance below the top face cuts air: the
+#: program's coordinates are rounded to tolerance/20 at most (gcode.MachineProfile.decimals),
+#: so such a tip is written at or above Z0; leaving those positions out leaves at most
+#: tolerance/20 of material there
+AIR_CUT_FRACTION = 0.05
 
 
 def space_points(ws, fr, R, V, ug, Z, dZ, keep, tolerance, max_points, spec_path=None):
@@ -139,12 +144,15 @@ def _chord_err(u, z, ua, za, ub, zb):
     return np.abs(z - (za + t * (zb - za)))
 
 
-def _runs(sp, su, sz, nodes):
-    """Per pass, the runs of consecutive cut segments as (k, 2) arrays of [u, z]."""
+def _runs(sp, su, sz, nodes, air_depth=AIR_EPS):
+    """Per pass, the runs of consecutive cut segments as (k, 2) arrays of [u, z]. A
+    sample whose tip is less than ``air_depth`` mm below the top face (or -inf: the
+    ball misses the stock) cuts air; a run starts at the node before the material
+    and ends at the node after it."""
     P = int(sp.max()) + 1 if sp.size else 0
     out = [[] for _ in range(P)]
     ni = np.nonzero(nodes)[0]
-    air = sz >= -AIR_EPS
+    air = ~(sz < -air_depth) | ~np.isfinite(sz)
     # a segment (node j .. j+1, same pass) cuts if any sample in [j, j+1] is below the top
     seg_of = np.clip(np.searchsorted(ni, np.arange(len(su)), side="right") - 1, 0, max(ni.size - 1, 0))
     cuts = np.zeros(ni.size, bool)
