@@ -38,6 +38,7 @@ SCALLOP_SAFETY = 0.95   # stepover keeps the cross-section bound below this frac
 FLOOR_SHARE = 0.25      # material the dense passes leave above this share of the target: unreachable
 FLOOR_EXCESS = 0.5      # above unreachable material, the bound allows this share of the target
 MIN_STEP_SHARE = 0.02   # smallest stepover tried, share of the flat-ground stepover
+GROWTH = 1.5            # the next stepover grows at most by this factor (cusp ~ s^2 predicts it)
 STEEP_ALONG = 1.5       # the material bound's stage 3 runs where the slope along the pass exceeds this
 EDGE_NODES = (0.95, 0.99)   # extra nodes along the passes beyond the edges, x R out
 EDGE_OUT = (0.0, 0.125, 0.25, 0.375, 0.5, 0.625, 0.75, 0.875, 0.95, 0.99, 0.999)  # edge passes, x R out
@@ -562,5 +563,5 @@ def place_passes(ws, fr, R: float, scallop: float, depth_lim: float, max_passes:
             raise SpecError(f"needs more than {max_passes} passes; raise the scallop",
                             file=spec_path, key="machining.scallop")
         # predict the next stepover from this one's margin (cusp ~ s^2)
-        s_next = max(pb.v - pa.v, s_min) * min(1.15, 0.97 / math.sqrt(max(ratio, 1e-12)))
+        s_next = max(pb.v - pa.v, s_min) * min(GROWTH, 0.97 / math.sqrt(max(ratio, 1e-12)))
     return PassPlan(passes, ug, uf, s_flat, tuple(unreach), relaxed)
