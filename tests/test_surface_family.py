@@ -54,6 +54,9 @@ CASES = [
     # slope 10 across the passes where they leave the stock; mm: rs274 prints inch moves to
     # 1e-4 in (2.5 um), which on slope 10 alone is up to 0.013 mm of apparent gouge
     ("step", "5*tanh(2*(x-5)) - 10", (0, 10), (0, 6), "y", "mm", "any"),
+    # a dome above the top face, its flanks falling to the edges (slope 4): the flank below
+    # the top-face ridge is reached only by balls centred beyond the edge (0.24 mm was left)
+    ("dome", "4 - (x**2 + y**2)/2", (-4, 4), (-4, 4), "y", "mm", None),
 ]
 
 

@@ -301,6 +301,14 @@ def sweep_material(ws, fr, R, uq, vs, cutters, uf, threshold=0.0, chord=0.0):
     return ml
 
 
+def _beside(v, step, Lv):
+    """The pass right beside the pass at v (``step`` further across): short of the edge
+    it stops at the edge; beyond it (the edge passes lie up to R out) it lies further
+    out still, never behind v (a pass behind it bounds the material between the two as
+    unreachable: on a dome falling to the edge, 0.24 mm was left that way)."""
+    return v + step if v >= Lv else min(v + step, Lv)
+
+
 def _between(lo, hi, Lv, n=9):
     """(n, nq) sample points across from lo to hi per position, clipped to [0, Lv]."""
     a, b = np.minimum(lo, hi), np.maximum(lo, hi)
@@ -443,7 +451,7 @@ def place_passes(ws, fr, R: float, scallop: float, depth_lim: float, max_passes:
         """Per u, the material a pass right beside pa leaves too: beyond the ball's
         reach (a valley tighter than the tool, a V crease); no stepover removes it."""
         floor_used[0] = True
-        vf = min(pa.v + MIN_STEP_SHARE * s_flat, Lv)
+        vf = _beside(pa.v, MIN_STEP_SHARE * s_flat, Lv)
         pt = floor_ahead.pop(vf, None) or make([vf])[0]
         vs = _between(pa.cv[inside_u], pt.cv[inside_u], Lv)
         fl = left(vs, [pt, pa] + older)
@@ -515,7 +523,7 @@ def place_passes(ws, fr, R: float, scallop: float, depth_lim: float, max_passes:
             # this pass's margin, and speculative passes would be wasted
             look = (1, 2, 3) if s >= s_flat else (1,)
             vl = [pa.v + k * s for k in look if k == 1 or pa.v + k * s < Lv]
-            vf = min(pa.v + MIN_STEP_SHARE * s_flat, Lv)
+            vf = _beside(pa.v, MIN_STEP_SHARE * s_flat, Lv)
             cands = make(vl + [vf] if floor_last else vl)
             if floor_last:
                 floor_ahead[vf] = cands.pop()
