@@ -124,11 +124,6 @@ class _Pass:
         self._lo = max(ug[k[0]], -0.875 * R) if k.size else math.inf
         self._hi = min(ug[k[-1]], fr.Lu + 0.875 * R) if k.size else -math.inf
 
-    def profile(self, u):
-        """Tip height (Hermite) at any positions u along the pass; +inf where the
-        fine profile is (not machined, or more than 7/8 R beyond the edges)."""
-        z = _hermite(self._ug, self.Z, self.dZ, u, self.bridged)
-        return np.where((u >= self._lo) & (u <= self._hi), z, np.inf)
 
 
 def _stack(cutters):
@@ -274,6 +269,8 @@ def sweep_material(ws, fr, R, uq, vs, cutters, uf, threshold=0.0, chord=0.0):
         pi = np.arange(len(cutters))[:, None, None, None]
 
         def ball(oo):
+            """Lowest point above u0 of each cutter's ball at u0 + oo: the pass's tip
+            profile (Hermite), +inf where it is not machined or beyond 7/8 R out."""
             r2 = R * R - oo * oo - dv2
             u = u0 + oo
             with np.errstate(invalid="ignore"):
@@ -341,11 +338,7 @@ def fine_grid(ug, R=None, target=None):
     the target is small: the balls df apart along a pass leave up to df^2 / (8 R) between
     them, kept below a tenth of the target; else the bound never meets a small scallop
     and the stepover collapses), and the nodes beyond the edges."""
-    sub = 4
-    if R is not None and target:
-        du = float(np.diff(ug).max())
-        sub = max(4, int(math.ceil(du / math.sqrt(0.8 * R * target))))
-    n = sub * (len(ug) - 1 - 2 * len(EDGE_NODES)) + 1
+    n = fine_grid_size(ug, R, target if R is not None and target else 0.0)[0]
     lu = ug[-1] + ug[0]
     out = np.maximum(-ug, ug - lu) / -ug[0]
     return np.unique(np.r_[np.linspace(ug[0], ug[-1], n), ug[(out > 0.9) & (out < 1.0)]])
