@@ -343,7 +343,7 @@ def toolpath_study(spec, tolerances) -> list[dict]:
     """One row per ``machining.tolerance`` (mm): the verified cut and the cost."""
     from .surface import Surface
     from .toolpath.gcode import profile_from_spec, write_program
-    from .toolpath.raster import plan_toolpath
+    from .toolpath.raster import plan_toolpath, scallop_normal
     from .toolpath.verify import read_program, verify_cut
 
     rows = []
@@ -356,7 +356,8 @@ def toolpath_study(spec, tolerances) -> list[dict]:
         t_make = time.perf_counter() - t0
         t0 = time.perf_counter()
         check = verify_cut(surface, read_program(text), s.tool.diameter / 2.0, s.machining.verify_points,
-                           depth_limit=s.stock.depth_limit, reach=s.tool.reach)
+                           depth_limit=s.stock.depth_limit, reach=s.tool.reach,
+                           normal=scallop_normal(s))
         t_verify = time.perf_counter() - t0
         rows.append({"tolerance": float(tol_mm), "max_deviation": float(check["max_gouge"]),
                      "material_left": float(check["max_material_left"]), "scallop": float(s.machining.scallop),

@@ -123,6 +123,9 @@ SCHEMA: dict[str, dict[str, Any]] = {
     },
     "machining": {
         "scallop": Num(default=0.05, gt=0, le=100, length="mm"),
+        "scallop_measure": Choice(("normal", "vertical"), default="normal",
+                                  doc="how material left is measured: normal to the surface (the "
+                                      "usual scallop height) or vertically (stricter on steep ground)"),
         "tolerance": Num(default=0.01, gt=0, le=100, length="mm"),
         "direction": Choice(("x", "y"), default="x"),
         "pattern": Choice(("zigzag", "climb", "conventional"), default="zigzag"),

@@ -106,6 +106,36 @@ def test_flat_raster_scallop_closed_form(units):
     assert res["first_move_ok"] and res["depth_ok"]
 
 
+def test_tilted_plane_scallop_closed_form_both_measures():
+    """Passes along x on the plane z = m y - 20 (slope m across them), each at the exact
+    offset height: the cusp between two passes s apart is R - sqrt(R^2 - (s / 2c)^2)
+    along the plane's normal (c = cos atan m) and 1 / c times that vertically."""
+    R, s, m = 3.0, 0.6, 2.0
+    c = 1.0 / np.sqrt(1.0 + m * m)
+    surf = Surface(compile_surface(f"{m}*y - 90", {}), (0, 60), (0, 40), top=0.0, scale=1.0)
+    ys = np.arange(-4.0, 42.0, s)             # contacts R m c = 2.7 mm uphill of each pass
+    pts, kinds = [(-R - 1, ys[0], 5.0)], [RAPID]
+    for i, y in enumerate(ys):
+        z = m * y - 90 + R / c - R              # the tip of a ball touching the plane
+        xs = (-R - 1, 60 + R + 1) if i % 2 == 0 else (60 + R + 1, -R - 1)
+        pts += [(xs[0], y, z), (xs[1], y, z)]
+        kinds += [PLUNGE if i == 0 else CUT, CUT]
+    pts.append((pts[-1][0], pts[-1][1], 5.0))
+    kinds.append(RAPID)
+    tp = Toolpath(np.array(pts), np.array(kinds), tool_radius=R, safe_z=5.0)
+    prog = read_program(write_program(tp, MachineProfile(tolerance=0.001)))
+    normal = R - np.sqrt(R * R - (s / (2 * c)) ** 2)
+    res = verify_cut(surf, prog, R, points=20000)
+    assert res["material_left_measure"] == "normal"
+    assert res["max_material_left"] == res["max_material_left_normal"]
+    assert res["max_material_left_normal"] == pytest.approx(normal, rel=0.02)
+    assert res["max_material_left_normal"] <= normal + 1e-4
+    assert res["max_material_left_vertical"] == pytest.approx(normal / c, rel=0.02)
+    vert = verify_cut(surf, prog, R, points=20000, normal=False)
+    assert vert["max_material_left"] == vert["max_material_left_vertical"]
+    assert vert["material_left_measure"] == "vertical"
+
+
 def test_program_cut_too_deep_reports_the_gouge():
     R, s, depth = 3.0, 0.5, 2.0
     tp, ys = raster(-depth - 0.1, s, R)
@@ -212,7 +242,7 @@ def test_verification_agrees_with_independent_sweep_of_rs274_moves(tmp_path):
     prog_path = tmp_path / "p.ngc"
     prog_path.write_text(text)
     pts, feed = rs274_moves(prog_path)
-    res = verify_cut(surface, read_program(text), R, points=3000, detail=True)
+    res = verify_cut(surface, read_program(text), R, points=3000, detail=True, normal=False)
     # an independent subset of points plus the two reported extremes
     rng = np.random.default_rng(7)
     pick = rng.choice(len(res["X"]), 400, replace=False)

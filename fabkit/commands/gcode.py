@@ -96,6 +96,7 @@ def run(args) -> int:
 def _finish(args, spec, surface, toolpath, profile, text, out, paths, R, t_plan, t_write, total, step) -> int:
     """Read the program back, verify it, write the program and its setup sheet, report."""
     from ..toolpath.setup import preview_png, setup_sheet, sheet_json, sheet_markdown
+    from ..toolpath.raster import scallop_normal
     from ..toolpath.verify import estimate_time, read_program, verify_cut
 
     t = Timer()
@@ -106,7 +107,7 @@ def _finish(args, spec, surface, toolpath, profile, text, out, paths, R, t_plan,
         step("verifying the cut")
         check = verify_cut(surface, program, R, spec.machining.verify_points,
                            depth_limit=spec.stock.depth_limit, reach=spec.tool.reach,
-                           unreachable_min=spec.machining.tolerance)
+                           unreachable_min=spec.machining.tolerance, normal=scallop_normal(spec))
     t_verify = t.seconds
 
     step("setup sheet")

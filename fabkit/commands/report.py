@@ -20,7 +20,7 @@ SURFACE_SAMPLES = (90, 46)   # the 3-D view's grid (x, y)
 
 def _toolpath(spec, surface):
     from ..toolpath.gcode import profile_from_spec, write_program
-    from ..toolpath.raster import plan_toolpath
+    from ..toolpath.raster import plan_toolpath, scallop_normal
     from ..toolpath.setup import preview_png, setup_sheet
     from ..toolpath.verify import estimate_time, read_program, verify_cut
     from .gcode import _generated_at
@@ -36,7 +36,8 @@ def _toolpath(spec, surface):
     t_write = t.seconds
     t = Timer()
     ver = verify_cut(surface, program, spec.tool.diameter / 2.0, spec.machining.verify_points,
-                     depth_limit=spec.stock.depth_limit, reach=spec.tool.reach)
+                     depth_limit=spec.stock.depth_limit, reach=spec.tool.reach,
+                     normal=scallop_normal(spec))
     t_verify = t.seconds
     timings = {"plan": t_plan, "write": t_write, "verify": t_verify}
     sheet = setup_sheet(spec, surface, tp, prof, f"{spec.name}.ngc", ver, est, text.count("\n"),

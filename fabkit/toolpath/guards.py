@@ -44,26 +44,28 @@ MAX_BYTES = 1.8e9              # refused beyond this (the process stays under 2 
 MAX_SLOPE = 20.0               # slopes beyond this count as this (the wall is cut by the rim)
 
 
-def stepover_on_slope(R: float, target: float, slope, slope_along=0.0, curvature=0.0) -> np.ndarray:
-    """Largest stepover (horizontal, mm) whose vertical cusp between two passes is
-    ``target`` on a plane of the given slope across the passes and ``slope_along`` along
-    them, with a convex ``curvature`` across (1/mm, >= 0): the passes' swept cylinders
-    (axes along the plane's slope along the pass) are d = s sqrt(G / (1 + a^2)) apart
-    (G = 1 + a^2 + b^2, a along, b across), their cusp normal to the plane is
-    R' - sqrt(R'^2 - d^2 / 4) (1/R' = 1/R + curvature), and vertically sqrt(G) times that.
-    Closed form; a = 0, no curvature: the tilted-plane cusp across."""
+def stepover_on_slope(R: float, target: float, slope, slope_along=0.0, curvature=0.0,
+                      normal: bool = False) -> np.ndarray:
+    """Largest stepover (horizontal, mm) whose cusp between two passes is ``target``
+    (along the plane's normal with ``normal``, else vertically) on a plane of the given
+    slope across the passes and ``slope_along`` along them, with a convex ``curvature``
+    across (1/mm, >= 0): the passes' swept cylinders (axes along the plane's slope along
+    the pass) are d = s sqrt(G / (1 + a^2)) apart (G = 1 + a^2 + b^2, a along, b across),
+    their cusp normal to the plane is R' - sqrt(R'^2 - d^2 / 4) (1/R' = 1/R + curvature),
+    and vertically sqrt(G) times that. Closed form; a = 0, no curvature: the tilted-plane
+    cusp across."""
     a = np.minimum(np.abs(np.asarray(slope_along, float)), MAX_SLOPE)
     b = np.minimum(np.abs(np.asarray(slope, float)), MAX_SLOPE)
     G = 1.0 + a * a + b * b
     Re = 1.0 / (1.0 / R + np.maximum(np.asarray(curvature, float), 0.0))
-    hn = np.minimum(target / np.sqrt(G), Re)
+    hn = np.minimum(target if normal else target / np.sqrt(G), Re)
     d = 2.0 * np.sqrt(np.maximum(2.0 * Re * hn - hn * hn, 0.0))
     return d * np.sqrt((1.0 + a * a) / G)
 
 
 def estimate(spec, ws, fr, R: float, target: float, tolerance: float, depth_mm: float,
              n_nodes: int, n_grid: int = 201, n_fine: int | None = None,
-             fine_step: float | None = None) -> dict:
+             fine_step: float | None = None, normal: bool = False) -> dict:
     """Passes, program points, roughing levels and points, planning seconds and memory
     (bytes), from the surface's exact slopes and curvatures on an n_grid^2 grid.
 
@@ -81,7 +83,7 @@ def estimate(spec, ws, fr, R: float, target: float, tolerance: float, depth_mm: 
     # passes: per strip across, the stepover its worst cut point allows (slopes along
     # and across, convex curvature across up to 1/R)
     kv = np.minimum(np.maximum(-fin(Hvv), 0.0) / (1.0 + fin(Hv) ** 2) ** 1.5, 1.0 / R)
-    s_pt = stepover_on_slope(R, target, fin(Hv), fin(Hu), kv)
+    s_pt = stepover_on_slope(R, target, fin(Hv), fin(Hu), kv, normal)
     s_flat = float(stepover_on_slope(R, target, 0.0))
     s_row = np.where(cut, s_pt, s_flat).min(axis=1)
     s_row = np.maximum(s_row, 0.02 * s_flat)

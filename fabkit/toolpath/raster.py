@@ -56,9 +56,26 @@ def plan_estimate(spec, surface, tol: Tolerances = DEFAULT) -> dict:
     ug = u_grid(fr, R)
     uf_n, uf_step = fine_grid_size(ug, R, target)
     est = estimate(spec, ws, fr, R, target, float(spec.machining.tolerance), depth, len(ug),
-                   n_fine=uf_n, fine_step=uf_step)
+                   n_fine=uf_n, fine_step=uf_step, normal=scallop_normal(spec))
     guard(est, tol, spec.path, float(spec.machining.scallop), float(spec.machining.tolerance))
     return est
+
+
+def scallop_normal(spec) -> bool:
+    """True where ``machining.scallop_measure`` is ``normal`` (the default)."""
+    return getattr(spec.machining, "scallop_measure", "normal") != "vertical"
+
+
+def _on_readback_grid(spec, ws, R, points, kinds):
+    """Stage 6b: feed moves on the grid the controller reads back (:mod:`.snap`) where
+    the program's decimals are finer than it (inch programs)."""
+    from .gcode import UNITS, MachineProfile
+    from .snap import readback_step, snap_points
+
+    m = spec.machining
+    k = UNITS[m.units].mm_per_unit
+    step = readback_step(k, MachineProfile(units=m.units, tolerance=float(m.tolerance)).decimals)
+    return points if step is None else snap_points(ws, R, points, kinds, step, k)
 
 
 def order_runs(fr, m, V, runs, passes_cut):
@@ -212,7 +229,8 @@ def plan_toolpath(spec, surface, tol: Tolerances = DEFAULT) -> Toolpath:
     est = plan_estimate(spec, surface, tol)
     check_edge_depth(spec, ws, R, scallop)
     plan = place_passes(ws, fr, R, scallop, depth_lim, tol.max_passes, spec.path,
-                        chord=CHORD_SAFETY * tolerance)
+                        chord=0.0 if scallop_normal(spec) else CHORD_SAFETY * tolerance,
+                        normal=scallop_normal(spec))
     passes = plan.passes
     V = np.array([p.v for p in passes])
     Z = np.vstack([p.Z for p in passes])
@@ -228,6 +246,7 @@ def plan_toolpath(spec, surface, tol: Tolerances = DEFAULT) -> Toolpath:
     all_runs = rough + [(("f", p), r) for p, r in finish]
     points, kinds = link_runs(ws, R, all_runs, max(4 * R, 4 * plan.s_flat), m.pattern != "zigzag",
                               safe_z, min(LINK_CLEARANCE, safe_z))
+    points = _on_readback_grid(spec, ws, R, points, kinds)
     if len(points) > tol.max_program_points:
         raise SpecError(f"{len(points)} program points (limit {tol.max_program_points}); raise "
                         "the tolerance", file=spec.path, key="machining.tolerance")

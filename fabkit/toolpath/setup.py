@@ -113,6 +113,7 @@ def setup_sheet(spec, surface, toolpath, profile, program_path, check: dict | No
         "stepover_min": _r(toolpath.stepover_min * k),
         "direction": m.direction,
         "scallop": _r(m.scallop * k),
+        "scallop_measure": getattr(m, "scallop_measure", "normal"),
         "tolerance": _r(m.tolerance * k),
         "feed": _r(profile.feed * k),
         "plunge": _r(profile.plunge * k),
@@ -131,6 +132,9 @@ def setup_sheet(spec, surface, toolpath, profile, program_path, check: dict | No
     if check:
         sheet["gouge_at"] = [_r(v * k) for v in check["gouge_at"]]
         sheet["material_left_at"] = [_r(v * k) for v in check["material_at"]]
+        for meas in ("normal", "vertical"):
+            if f"max_material_left_{meas}" in check:
+                sheet[f"max_material_left_{meas}"] = _r(check[f"max_material_left_{meas}"] * k)
         sheet["rapid_clearance"] = _r(check["rapid_clearance"] * k)
         if "max_material_above_design" in check:
             sheet["max_material_above_design"] = _r(check["max_material_above_design"] * k)
@@ -242,7 +246,8 @@ def sheet_markdown(sheet: dict, png_name: str | None) -> str:
         "",
         f"- {sheet['passes']} raster passes along {sheet['direction']}, stepover "
         f"{sheet['stepover_min']:g} to {sheet['stepover']:g} {u}",
-        f"- Scallop {sheet['scallop']:g} {u}, tolerance {sheet['tolerance']:g} {u}",
+        f"- Scallop {sheet['scallop']:g} {u} (measured {_MEASURE[sheet.get('scallop_measure', 'normal')]}), "
+        f"tolerance {sheet['tolerance']:g} {u}",
         f"- {sheet['lines']} program lines; estimated run time {_hms(sheet['estimated_time_s'])} "
         f"(rapids at {sheet['rapid_rate_assumed']:g} {u}/min, acceleration ignored)",
         "",
@@ -252,7 +257,11 @@ def sheet_markdown(sheet: dict, png_name: str | None) -> str:
     if sheet["verified"]:
         lines += [f"- Largest gouge {sheet['max_gouge']:.4g} {u} (allowed {sheet['tolerance']:g})",
                   f"- Largest material left {sheet['max_material_left']:.4g} {u} "
-                  f"(allowed {sheet['scallop'] + sheet['tolerance']:.4g})",
+                  f"{_MEASURE[sheet.get('scallop_measure', 'normal')]} "
+                  f"(allowed {sheet['scallop'] + sheet['tolerance']:.4g})"
+                  + (f"; {sheet['max_material_left_vertical']:.4g} {u} measured vertically"
+                     if sheet.get("scallop_measure", "normal") == "normal"
+                     and "max_material_left_vertical" in sheet else ""),
                   *([f"- Material the ball cannot reach (a valley tighter than the tool, a crease): up to "
                      f"{sheet['material_left_unreachable']['height']:.4g} {u} above the design at "
                      f"X{sheet['material_left_unreachable']['at'][0]:g} Y{sheet['material_left_unreachable']['at'][1]:g}, "
@@ -265,6 +274,9 @@ def sheet_markdown(sheet: dict, png_name: str | None) -> str:
     if png_name:
         lines += ["", "## Preview", "", f"![toolpath preview]({png_name})"]
     return "\n".join(lines) + "\n"
+
+
+_MEASURE = {"normal": "normal to the surface", "vertical": "vertically"}
 
 
 def preview_png(program, L: float, W: float, units: str = "mm", max_segments: int = 400_000) -> bytes:

@@ -328,7 +328,7 @@ def _crease_points(ws, gx, gy):
 
 def verify_cut(surface, program: Program, R: float, points: int = 40000, *, seed: int = 0,
                depth_limit: float = np.inf, reach: float = np.inf, tol: Tolerances = DEFAULT,
-               detail: bool = False, unreachable_min: float = 1e-3) -> dict:
+               detail: bool = False, unreachable_min: float = 1e-3, normal: bool = True) -> dict:
     """Sweep a ball-end tool of radius ``R`` mm along every move of ``program`` and
     compare the cut with the design (``surface``: a Surface or WorkSurface).
 
@@ -336,7 +336,11 @@ def verify_cut(surface, program: Program, R: float, points: int = 40000, *, seed
       max_gouge          largest (design - cut) over the sample points (>0: cut below design)
       max_material_left  largest (cut - what the ball can reach): material above the
                          design where the ball reaches it, above the lowest ball surface
-                         where it cannot (see :func:`reachable_height`)
+                         where it cannot (see :func:`reachable_height`); measured along
+                         the design's normal (``normal``, the scallop's usual measure:
+                         the vertical height times 1 / sqrt(1 + |grad H|^2)) or vertically
+      max_material_left_normal, max_material_left_vertical  the same in both measures
+      material_left_measure  'normal' | 'vertical': the measure of max_material_left
       max_material_above_design  largest (cut - design), unreachable material included
       unreachable        None, or {height, at, area (mm^2), points}: material above the
                          design no ball position removes (more than ``unreachable_min``)
@@ -382,11 +386,14 @@ def verify_cut(surface, program: Program, R: float, points: int = 40000, *, seed
     gouge = design - cut
     # material the ball cannot reach (a valley tighter than it, a V crease) is
     # separated from the material the program leaves where the ball can reach
-    reach_z, _ = reachable_height(ws, px, py, R)
+    reach_z, _, scale = reachable_height(ws, px, py, R, return_scale=True)
     unreach = reach_z - design
     above = cut - design
-    left = cut - np.maximum(design, reach_z)
+    left_v = cut - np.maximum(design, reach_z)
+    left_n = left_v * scale
+    left = left_n if normal else left_v
     ig, il = int(np.argmax(gouge)), int(np.argmax(left))
+    ilv, iln = int(np.argmax(left_v)), int(np.argmax(left_n))
     ia = int(np.argmax(above))
     un = unreach > unreachable_min
     n_uniform = _uniform_count(ws, int(points))
@@ -427,6 +434,11 @@ def verify_cut(surface, program: Program, R: float, points: int = 40000, *, seed
         "gouge_at": (float(px[ig]), float(py[ig])),
         "max_material_left": float(left[il]),
         "material_at": (float(px[il]), float(py[il])),
+        "material_left_measure": "normal" if normal else "vertical",
+        "max_material_left_normal": float(left_n[iln]),
+        "material_left_normal_at": (float(px[iln]), float(py[iln])),
+        "max_material_left_vertical": float(left_v[ilv]),
+        "material_left_vertical_at": (float(px[ilv]), float(py[ilv])),
         "checked_points": int(len(px)),
         "max_material_above_design": float(above[ia]),
         "material_above_design_at": (float(px[ia]), float(py[ia])),
@@ -459,7 +471,8 @@ OVERHANG = 0.0
 REACH_SEARCH = 24                                   # compass steps from the best coarse centre
 
 
-def reachable_height(ws, px, py, R: float, chunk: int = 20000, overhang: float | None = None):
+def reachable_height(ws, px, py, R: float, chunk: int = 20000, overhang: float | None = None,
+                     return_scale: bool = False):
     """Lowest height a ball of radius R can cut at the points (X, Y) (work mm): the
     design where a ball touching the design there (centre R along its normal) is free
     of the surface; elsewhere (a valley tighter than the ball, a V crease) the lowest
@@ -472,7 +485,11 @@ def reachable_height(ws, px, py, R: float, chunk: int = 20000, overhang: float |
     never less than there is); on a parabolic valley tighter than the ball it is within
     3e-4 mm of the centred ball's closed form (tested). Centres farther than
     ``overhang`` (default :data:`OVERHANG` x R) beyond the footprint are not tried (see
-    :data:`OVERHANG`). Returns (height, reachable)."""
+    :data:`OVERHANG`). Returns (height, reachable), and with ``return_scale`` the
+    normal scale of the reachable surface: 1 / sqrt(1 + slope^2) of the design where the
+    ball reaches it, and where it cannot, of the lowest ball's surface above the point
+    (the surface the ball leaves there is that ball's: d from its centre, the scale is
+    sqrt(R^2 - d^2) / R; never below the design's)."""
     from .compensate import compensate
 
     overhang = OVERHANG * R if overhang is None else overhang
@@ -490,6 +507,7 @@ def reachable_height(ws, px, py, R: float, chunk: int = 20000, overhang: float |
         w = np.sqrt(1.0 + hx * hx + hy * hy)
         top = H >= 0
         nx, ny, nz = np.where(top, 0.0, -hx / w), np.where(top, 0.0, -hy / w), np.where(top, 1.0, 1.0 / w)
+    scale = np.where(top, 1.0, np.nan_to_num(1.0 / w, nan=1.0))
     cx, cy = px + R * nx, py + R * ny
     tip = design + R * nz - R
     Z = drop(cx, cy)
@@ -533,7 +551,10 @@ def reachable_height(ws, px, py, R: float, chunk: int = 20000, overhang: float |
             bo_x, bo_y = np.where(up, tx[r, j], bo_x), np.where(up, ty[r, j], bo_y)
             step = np.where(up, step, 0.5 * step)
         out[bad] = np.maximum(design[bad], np.minimum(best, 0.0))
-    return out, ok
+        d2 = np.minimum(bo_x * bo_x + bo_y * bo_y, R * R)
+        fillet = np.where(np.isfinite(best) & (best < 0.0), np.sqrt(R * R - d2) / R, 1.0)
+        scale[bad] = np.maximum(scale[bad], fillet)
+    return (out, ok, scale) if return_scale else (out, ok)
 
 
 def _dist_to_segment(px, py, a, b):
