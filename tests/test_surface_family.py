@@ -72,6 +72,11 @@ CASES = [
     # a dome above the top face, its flanks falling to the edges (slope 4): the flank below
     # the top-face ridge is reached only by balls centred beyond the edge (0.24 mm was left)
     ("dome", "4 - (x**2 + y**2)/2", (-4, 4), (-4, 4), "y", "mm", None),
+    # two V creases crossing: the drop cutter missed the top face's crease on the branch
+    # its one seed was not on (0.18 mm low, a 0.12-0.18 mm gouge beside the top face), and
+    # the bound missed the cusps where the 3*abs(x) crease, its floor sloping across the
+    # passes, meets the stock edge (0.12 mm left; passes added after the verification)
+    ("crossv", "3*abs(x) + 2*abs(y) - 20", (-8, 8), (-6, 6), "x", "mm", "any"),
 ]
 
 

@@ -20,6 +20,7 @@ from ..surface import Surface, check_depth
 from ._common import Timer, check_paths, default_output, emit, stage_bar, warn
 
 NEEDS = ("surface", "stock", "tool", "machining")
+REPAIR_ROUNDS = 2      # verify, add passes where material is left, verify again (at most twice)
 
 
 def _generated_at() -> str:
@@ -96,7 +97,8 @@ def run(args) -> int:
 def _finish(args, spec, surface, toolpath, profile, text, out, paths, R, t_plan, t_write, total, step) -> int:
     """Read the program back, verify it, write the program and its setup sheet, report."""
     from ..toolpath.setup import preview_png, setup_sheet, sheet_json, sheet_markdown
-    from ..toolpath.raster import scallop_normal
+    from ..toolpath.gcode import write_program
+    from ..toolpath.raster import add_passes, scallop_normal
     from ..toolpath.verify import estimate_time, read_program, verify_cut
 
     t = Timer()
@@ -105,9 +107,33 @@ def _finish(args, spec, surface, toolpath, profile, text, out, paths, R, t_plan,
     check = None
     if not args.no_verify:
         step("verifying the cut")
-        check = verify_cut(surface, program, R, spec.machining.verify_points,
-                           depth_limit=spec.stock.depth_limit, reach=spec.tool.reach,
-                           unreachable_min=spec.machining.tolerance, normal=scallop_normal(spec))
+        m = spec.machining
+        limit = m.scallop + m.tolerance
+        cache = {}
+
+        def verify(program):
+            return verify_cut(surface, program, R, m.verify_points, depth_limit=spec.stock.depth_limit,
+                              reach=spec.tool.reach, unreachable_min=m.tolerance,
+                              normal=scallop_normal(spec), over=limit, cache=cache)
+
+        check = verify(program)
+        # material the planner's bound missed: passes added where it is, verified again
+        for _ in range(REPAIR_ROUNDS):
+            bad = failures(check, spec)
+            if not bad or not all(b.startswith("material left") for b in bad):
+                break
+            over = check["over_at"]
+            tp2 = add_passes(spec, surface, toolpath, over[:, 1] if m.direction == "x" else over[:, 0])
+            if tp2 is None:
+                break
+            text2 = write_program(tp2, profile)
+            program2 = read_program(text2)
+            check2 = verify(program2)
+            if check2["max_material_left"] >= check["max_material_left"] or \
+                    check2["max_gouge"] > max(check["max_gouge"], m.tolerance):
+                break
+            toolpath, text, program, check = tp2, text2, program2, check2
+            est = estimate_time(program, profile.rapid)
     t_verify = t.seconds
 
     step("setup sheet")

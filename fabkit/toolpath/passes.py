@@ -35,7 +35,7 @@ import math
 import numpy as np
 
 from ..errors import SpecError
-from .compensate import TOP, compensate
+from .compensate import INTERIOR, TOP, compensate
 
 AIR_EPS = 1e-7          # mm: a tip this close below the top face touches nothing worth a move
 SCALLOP_SAFETY = 0.95   # stepover keeps the cross-section bound below this fraction of the scallop
@@ -117,7 +117,7 @@ class _Pass:
         # the contact curve where it crosses each cross-section u (contacts lie up to
         # R along the pass from their ball's centre on steep ground)
         cv = ci.contact_y if fr.direction == "x" else ci.contact_x
-        self.cv = contact_curve(ug, pu, cv, v)
+        self.cv = contact_curve(ug, pu, cv, v, R, np.where(ci.kind == INTERIOR, ug - pu, np.nan))
         self.keep = _trim_outside(ug, Z, fr.Lu, depth_lim, contact_top)
         k = np.nonzero(self.keep)[0]
         f = _hermite(ug, Z, dZ, uf, self.bridged)
@@ -141,7 +141,7 @@ def _stack(cutters):
             np.vstack([p.bridged for p in cutters]))
 
 
-def contact_curve(ug, pu, cv, v):
+def contact_curve(ug, pu, cv, v, R=None, du=None):
     """The pass's contact curve: v across where it crosses each cross-section ug.
 
     Contacts (pu along, cv across) of the balls at ug, interpolated in pu. Where
@@ -160,7 +160,24 @@ def contact_curve(ug, pu, cv, v):
     o = np.lexsort((d, p))
     p, c = p[o], c[o]
     first = np.r_[True, np.diff(p) > 1e-9]
-    return np.interp(ug, p[first], c[first])
+    out = np.interp(ug, p[first], c[first])
+    if R is None:
+        return out
+    # cross-sections no contact lies near (more than R/4 from every contact along the
+    # pass): a valley or V crease tighter than the ball, where the balls touch the
+    # design only on its flanks. There the ball centred in the cross-section cuts it
+    # with its bottom, at the envelope's touch across, v + R dv / sqrt(R^2 - du^2)
+    # (dv, du: its contact's offsets across and along, ``du`` nan where the contact is
+    # not on the design's smooth part: an edge, the top face; the contact where du = 0);
+    # interpolated from the flanks' contacts instead, the curve missed the cusps in a V
+    # crease whose floor slopes across the passes (3*abs(x) + 2*abs(y): 0.18 mm left)
+    j = np.clip(np.searchsorted(p[first], ug), 1, max(int(first.sum()) - 1, 1))
+    pf = p[first]
+    gap = np.minimum(np.abs(ug - pf[np.minimum(j, pf.size - 1)]), np.abs(ug - pf[j - 1]))
+    with np.errstate(all="ignore"):
+        touch = v + R * (cv - v) / np.sqrt(R * R - du * du)
+    band = (gap > 0.25 * R) & np.isfinite(touch) & ok
+    return np.where(band, touch, out)
 
 
 def compensate_passes(ws, fr, R, ug, uf, vlist, depth_lim, target=0.0):

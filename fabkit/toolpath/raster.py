@@ -28,15 +28,15 @@ from ..tolerances import DEFAULT, Tolerances
 from .compensate import WorkSurface
 from .guards import estimate, guard
 from .links import link_runs
-from .passes import (SCALLOP_SAFETY, Frame, flat_stepover, place_passes, sweep_material,
-                     tilted_plane_cusp)
+from .passes import (SCALLOP_SAFETY, Frame, PassPlan, compensate_passes, flat_stepover,
+                     place_passes, sweep_material, tilted_plane_cusp)
 from .path import RAPID, Toolpath
 from .rough import rough_runs
 from .spacing import AIR_CUT_FRACTION, CHORD_SAFETY, _runs, space_points
 
 LINK_CLEARANCE = 1.0    # mm above material for short links and approaches (<= safe_height)
 
-__all__ = ["plan_toolpath", "plan_estimate", "order_runs", "check_depth_limits", "summarize",
+__all__ = ["plan_toolpath", "add_passes", "plan_estimate", "order_runs", "check_depth_limits", "summarize",
            "flat_stepover", "tilted_plane_cusp", "sweep_material"]
 
 
@@ -231,6 +231,54 @@ def plan_toolpath(spec, surface, tol: Tolerances = DEFAULT) -> Toolpath:
     plan = place_passes(ws, fr, R, scallop, depth_lim, tol.max_passes, spec.path,
                         chord=0.0 if scallop_normal(spec) else CHORD_SAFETY * tolerance,
                         normal=scallop_normal(spec))
+    return _program(spec, ws, fr, plan, est, tol)
+
+
+def add_passes(spec, surface, toolpath: Toolpath, v_over, tol: Tolerances = DEFAULT):
+    """Stage 8, after the verification: passes added where the verified cut left more
+    than ``scallop + tolerance`` (``v_over``: the across coordinates, work mm, of the
+    points that did). Each gap between consecutive passes within R of such a point gets
+    a pass in its middle (a cusp lies up to R from the passes that cut it: in a valley
+    tighter than the ball whose floor slopes across the passes, the balls cut with their
+    flanks). The material bound of :func:`place_passes` samples each cross-section at a
+    few points between the passes' contact curves; where those curves are not where the
+    balls cut (the foot of such a valley at a stock edge), this puts back what it missed.
+    Returns the new Toolpath, or None when there is nothing to add."""
+    plan = getattr(toolpath, "plan", None)
+    if plan is None or not len(v_over):
+        return None
+    m = spec.machining
+    R = 0.5 * float(spec.tool.diameter)
+    ws = WorkSurface(surface)
+    fr = Frame(m.direction, ws.L, ws.W)
+    V = np.array([p.v for p in plan.passes])
+    mid = 0.5 * (V[1:] + V[:-1])
+    vo = np.asarray(v_over, float)
+    near = (np.abs(mid[:, None] - vo[None, :]) <= R + 0.5 * np.diff(V)[:, None]).any(axis=1)
+    near &= np.diff(V) > 1e-3                     # gaps wider than 1 um
+    new_v = mid[near]
+    if not new_v.size:
+        return None
+    depth_lim = min(float(spec.stock.depth_limit), float(spec.tool.reach))
+    target = SCALLOP_SAFETY * float(m.scallop)
+    added = compensate_passes(ws, fr, R, plan.ug, plan.uf, list(new_v), depth_lim, target)
+    passes = sorted(plan.passes + added, key=lambda p: p.v)
+    if len(passes) > tol.max_passes:
+        return None
+    plan2 = PassPlan(passes, plan.ug, plan.uf, plan.s_flat, plan.unreachable, plan.relaxed)
+    tp = _program(spec, ws, fr, plan2, toolpath.info.get("estimate"), tol)
+    tp.info["passes_added_after_verification"] = \
+        toolpath.info.get("passes_added_after_verification", 0) + int(new_v.size)
+    return tp
+
+
+def _program(spec, ws, fr, plan, est, tol):
+    """Stages 3-7: the program from the placed passes."""
+    m = spec.machining
+    R = 0.5 * float(spec.tool.diameter)
+    scallop, tolerance = float(m.scallop), float(m.tolerance)
+    safe_z = float(m.safe_height)
+    depth_lim = min(float(spec.stock.depth_limit), float(spec.tool.reach))
     passes = plan.passes
     V = np.array([p.v for p in passes])
     Z = np.vstack([p.Z for p in passes])
@@ -254,8 +302,10 @@ def plan_toolpath(spec, surface, tol: Tolerances = DEFAULT) -> Toolpath:
     bridged = np.vstack([p.bridged for p in passes])
     info = summarize(fr, plan, V, passes_cut, points, kinds, zmin, len(rough), bridged, keep,
                      scallop, est)
-    return Toolpath(points, kinds, tool_radius=R, safe_z=safe_z, passes=len(passes_cut),
-                    stepover=info["stepover_max"], stepover_min=info["stepover_min"], info=info)
+    tp = Toolpath(points, kinds, tool_radius=R, safe_z=safe_z, passes=len(passes_cut),
+                  stepover=info["stepover_max"], stepover_min=info["stepover_min"], info=info)
+    tp.plan = plan                    # the placed passes (for add_passes), not an output
+    return tp
 
 
 def summarize(fr, plan, V, passes_cut, points, kinds, zmin, n_rough, bridged, keep, scallop,

@@ -109,6 +109,7 @@ def setup_sheet(spec, surface, toolpath, profile, program_path, check: dict | No
         "design_to_work": {"design_units": spec.units, "scale": [_r(s, 12)] * 3,
                            "offset": [_r(-x0 * s, 12), _r(-y0 * s, 12), _r(-top * s, 12)]},
         "passes": int(toolpath.passes),
+        "passes_added_after_verification": int(toolpath.info.get("passes_added_after_verification", 0)),
         "stepover": _r(toolpath.stepover * k),
         "stepover_min": _r(toolpath.stepover_min * k),
         "direction": m.direction,
@@ -245,7 +246,9 @@ def sheet_markdown(sheet: dict, png_name: str | None) -> str:
         "## Passes",
         "",
         f"- {sheet['passes']} raster passes along {sheet['direction']}, stepover "
-        f"{sheet['stepover_min']:g} to {sheet['stepover']:g} {u}",
+        f"{sheet['stepover_min']:g} to {sheet['stepover']:g} {u}"
+        + (f" ({sheet['passes_added_after_verification']} of them added where the first verified "
+           "cut left more than scallop + tolerance)" if sheet.get("passes_added_after_verification") else ""),
         f"- Scallop {sheet['scallop']:g} {u} (measured {_MEASURE[sheet.get('scallop_measure', 'normal')]}), "
         f"tolerance {sheet['tolerance']:g} {u}",
         f"- {sheet['lines']} program lines; estimated run time {_hms(sheet['estimated_time_s'])} "
