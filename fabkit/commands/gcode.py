@@ -164,7 +164,8 @@ def _finish(args, spec, surface, toolpath, profile, text, out, paths, R, t_plan,
           else f"{toolpath.stepover:.2f}")
     head = f"gcode: {out}, {toolpath.passes} passes, stepover {so} mm, {lines} lines; "
     if check:
-        head += (f"largest gouge {check['max_gouge']:.4f} mm, material left {check['max_material_left']:.4f} mm "
+        meas = "normal to the surface" if check.get("material_left_measure", "normal") == "normal" else "vertically"
+        head += (f"largest gouge {check['max_gouge']:.4f} mm, material left {check['max_material_left']:.4f} mm {meas} "
                  f"(checked at {check['checked_points']} points); ")
     else:
         head += "not verified (--no-verify); "
