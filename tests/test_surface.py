@@ -88,3 +88,25 @@ def test_non_finite_surface_is_refused(tmp_path):
     spec = load_spec(write_spec(tmp_path, mutated({"surface.height": "log(x)"})))
     with pytest.raises(SpecError, match="not finite"):
         Surface.from_spec(spec)
+
+
+@pytest.mark.parametrize("height, ok", [
+    ("3*sqrt((x - 10)**2 + y**2)", True),     # a cone's apex on the check grid: slope 3 all round
+    ("sqrt((x - 10)**2)", True),              # abs written as a square root: a crease
+    ("sqrt(sqrt((x - 10)**2 + y**2))", False),  # a vertical tangent at the apex
+    ("abs(x - 10)**0.5", False),              # a vertical tangent along a line
+])
+def test_undefined_derivative_at_a_kink_is_accepted_a_vertical_tangent_refused(tmp_path, height, ok):
+    """At a kink of the formula a derivative is 0/0 (nan) while h is finite: a cone's apex
+    is millable like abs's crease. Where the slope beside the point grows without bound
+    the surface has a vertical tangent there: refused naming surface.height."""
+    raw = mutated({"surface.height": height, "surface.x": [0, 20], "surface.y": [-5, 5],
+                   "simulation.start": 5})
+    spec = load_spec(write_spec(tmp_path, raw))
+    if ok:
+        s = Surface.from_spec(spec)
+        assert s.height(10.0, 0.0) == 0.0
+    else:
+        with pytest.raises(SpecError, match="not finite") as info:
+            Surface.from_spec(spec)
+        assert info.value.key == "surface.height"
