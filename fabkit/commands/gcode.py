@@ -94,12 +94,47 @@ def run(args) -> int:
         close()
 
 
+def verified_cut(spec, surface, toolpath, profile, text, program):
+    """Verify the program read back from ``text``; where the cut leaves more than
+    scallop + tolerance (and nothing else is wrong), add passes there and verify again
+    (at most REPAIR_ROUNDS times, kept only if it leaves less). Returns (toolpath, text,
+    program, check) of the program to write."""
+    from ..toolpath.gcode import write_program
+    from ..toolpath.raster import add_passes, scallop_normal
+    from ..toolpath.verify import read_program, verify_cut
+
+    m = spec.machining
+    cache = {}
+
+    def verify(program):
+        return verify_cut(surface, program, spec.tool.diameter / 2.0, m.verify_points,
+                          depth_limit=spec.stock.depth_limit, reach=spec.tool.reach,
+                          unreachable_min=m.tolerance, normal=scallop_normal(spec),
+                          over=m.scallop + m.tolerance, cache=cache)
+
+    check = verify(program)
+    for _ in range(REPAIR_ROUNDS):
+        bad = failures(check, spec)
+        if not bad or not all(b.startswith("material left") for b in bad):
+            break
+        over = check["over_at"]
+        tp2 = add_passes(spec, surface, toolpath, over[:, 1] if m.direction == "x" else over[:, 0])
+        if tp2 is None:
+            break
+        text2 = write_program(tp2, profile)
+        program2 = read_program(text2)
+        check2 = verify(program2)
+        if check2["max_material_left"] >= check["max_material_left"] or \
+                check2["max_gouge"] > max(check["max_gouge"], m.tolerance):
+            break
+        toolpath, text, program, check = tp2, text2, program2, check2
+    return toolpath, text, program, check
+
+
 def _finish(args, spec, surface, toolpath, profile, text, out, paths, R, t_plan, t_write, total, step) -> int:
     """Read the program back, verify it, write the program and its setup sheet, report."""
     from ..toolpath.setup import preview_png, setup_sheet, sheet_json, sheet_markdown
-    from ..toolpath.gcode import write_program
-    from ..toolpath.raster import add_passes, scallop_normal
-    from ..toolpath.verify import estimate_time, read_program, verify_cut
+    from ..toolpath.verify import estimate_time, read_program
 
     t = Timer()
     program = read_program(text)
@@ -107,33 +142,8 @@ def _finish(args, spec, surface, toolpath, profile, text, out, paths, R, t_plan,
     check = None
     if not args.no_verify:
         step("verifying the cut")
-        m = spec.machining
-        limit = m.scallop + m.tolerance
-        cache = {}
-
-        def verify(program):
-            return verify_cut(surface, program, R, m.verify_points, depth_limit=spec.stock.depth_limit,
-                              reach=spec.tool.reach, unreachable_min=m.tolerance,
-                              normal=scallop_normal(spec), over=limit, cache=cache)
-
-        check = verify(program)
-        # material the planner's bound missed: passes added where it is, verified again
-        for _ in range(REPAIR_ROUNDS):
-            bad = failures(check, spec)
-            if not bad or not all(b.startswith("material left") for b in bad):
-                break
-            over = check["over_at"]
-            tp2 = add_passes(spec, surface, toolpath, over[:, 1] if m.direction == "x" else over[:, 0])
-            if tp2 is None:
-                break
-            text2 = write_program(tp2, profile)
-            program2 = read_program(text2)
-            check2 = verify(program2)
-            if check2["max_material_left"] >= check["max_material_left"] or \
-                    check2["max_gouge"] > max(check["max_gouge"], m.tolerance):
-                break
-            toolpath, text, program, check = tp2, text2, program2, check2
-            est = estimate_time(program, profile.rapid)
+        toolpath, text, program, check = verified_cut(spec, surface, toolpath, profile, text, program)
+        est = estimate_time(program, profile.rapid)
     t_verify = t.seconds
 
     step("setup sheet")

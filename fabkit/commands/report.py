@@ -20,10 +20,10 @@ SURFACE_SAMPLES = (90, 46)   # the 3-D view's grid (x, y)
 
 def _toolpath(spec, surface):
     from ..toolpath.gcode import profile_from_spec, write_program
-    from ..toolpath.raster import plan_toolpath, scallop_normal
+    from ..toolpath.raster import plan_toolpath
     from ..toolpath.setup import preview_png, setup_sheet
-    from ..toolpath.verify import estimate_time, read_program, verify_cut
-    from .gcode import _generated_at
+    from ..toolpath.verify import estimate_time, read_program
+    from .gcode import _generated_at, verified_cut
 
     t = Timer()
     tp = plan_toolpath(spec, surface)
@@ -35,9 +35,8 @@ def _toolpath(spec, surface):
     est = estimate_time(program, prof.rapid)
     t_write = t.seconds
     t = Timer()
-    ver = verify_cut(surface, program, spec.tool.diameter / 2.0, spec.machining.verify_points,
-                     depth_limit=spec.stock.depth_limit, reach=spec.tool.reach,
-                     normal=scallop_normal(spec))
+    tp, text, program, ver = verified_cut(spec, surface, tp, prof, text, program)   # as gcode's
+    est = estimate_time(program, prof.rapid)
     t_verify = t.seconds
     timings = {"plan": t_plan, "write": t_write, "verify": t_verify}
     sheet = setup_sheet(spec, surface, tp, prof, f"{spec.name}.ngc", ver, est, text.count("\n"),
