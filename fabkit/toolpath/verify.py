@@ -21,6 +21,7 @@ point, ~1e-9 mm); between samples the cut is not checked, so the sample count
 
 from __future__ import annotations
 
+import math
 import re
 from dataclasses import dataclass
 
@@ -474,8 +475,6 @@ def verify_cut(surface, program: Program, R: float, points: int = 40000, *, seed
     return out
 
 
-REACH_RINGS = (0.15, 0.3, 0.45, 0.6, 0.75, 0.9)    # x R: the coarse centres around a point
-REACH_ANGLES = 12
 #: where the ball cannot reach the design (a valley, a crease or a wall's foot tighter than
 #: it), the floor counts balls centred over the stock (OVERHANG x R beyond it at most): at
 #: such a region's open end on the stock edge a ball hanging off the edge reaches deeper, but
@@ -484,6 +483,7 @@ REACH_ANGLES = 12
 #: Where the ball reaches the design (its normal position is free, overhanging or not) the
 #: design itself is the floor, edges included.
 OVERHANG = 0.0
+REACH_GRID = 1.0 / 8.0                              # x R: the grid of start centres
 REACH_SEARCH = 24                                   # compass steps from the best coarse centre
 REACH_DIRS = 8                                      # compass directions (4 was up to 0.045 mm higher on 2*sin(x) + 2*sin(y))
 REACH_STEP_MIN = 1e-5                               # x R: a point's search stops below this step
@@ -496,9 +496,9 @@ def reachable_height(ws, px, py, R: float, chunk: int = 20000, overhang: float |
     of the surface; elsewhere (a valley tighter than the ball, a V crease) the lowest
     surface, above the point, of the balls resting on the design (exact drop-cutter
     heights) centred within R of it: g(c) = Z(c) + R - sqrt(R^2 - |c - p|^2), minimised
-    over the centre above the point, the normal-offset centre and rings at
-    :data:`REACH_RINGS` x R, then by a compass search (8 directions, 24 steps from R/10, halved when none
-    improves) from the best. Every centre tried is a real ball position, so the
+    over the centre above the point, the normal-offset centre and a grid of centres
+    (:data:`REACH_GRID` x R) over the stock, then by a compass search (8 directions, 24
+    steps from half the grid step, halved when none improves) from the best. Every centre tried is a real ball position, so the
     height is an upper bound of the lowest one (the material it calls unreachable is
     never less than there is); on a parabolic valley tighter than the ball it is within
     3e-4 mm of the centred ball's closed form (tested). Centres farther than
@@ -547,18 +547,20 @@ def reachable_height(ws, px, py, R: float, chunk: int = 20000, overhang: float |
                     + np.maximum(np.maximum(-qy, qy - ws.W), 0.0) ** 2) > overhang ** 2
             return np.where(np.isfinite(low) & (ox * ox + oy * oy <= R * R) & ~over, low, np.inf)
 
-        ang = 2 * np.pi * np.arange(REACH_ANGLES) / REACH_ANGLES
-        ox = np.r_[0.0, [f * R * np.cos(a) for f in REACH_RINGS for a in ang]]
-        oy = np.r_[0.0, [f * R * np.sin(a) for f in REACH_RINGS for a in ang]]
-        OX = np.column_stack([(cx - px)[bad], np.broadcast_to(ox, (bad.size, ox.size))])
-        OY = np.column_stack([(cy - py)[bad], np.broadcast_to(oy, (bad.size, oy.size))])
+        # starts: the centre above the point, the normal-offset centre, and the lowest of
+        # the balls centred on a grid (REACH_GRID x R) over the stock within R of the point
+        OX = np.column_stack([(cx - px)[bad], np.zeros(bad.size)])
+        OY = np.column_stack([(cy - py)[bad], np.zeros(bad.size)])
         G = surface_at(OX, OY)
         j = np.argmin(G, axis=1)
         r = np.arange(bad.size)
         best, bo_x, bo_y = G[r, j], OX[r, j], OY[r, j]
+        gb, gx_, gy_ = _grid_starts(ws, bx, by, R, drop)
+        lower = gb < best
+        best, bo_x, bo_y = np.where(lower, gb, best), np.where(lower, gx_, bo_x), np.where(lower, gy_, bo_y)
         dirs = 2 * np.pi * np.arange(REACH_DIRS) / REACH_DIRS
         dx, dy = np.cos(dirs), np.sin(dirs)
-        step = np.full(bad.size, 0.1 * R)
+        step = np.full(bad.size, 0.5 * REACH_GRID * R)
         act = r
         for _ in range(REACH_SEARCH):
             if not act.size:
@@ -581,6 +583,48 @@ def reachable_height(ws, px, py, R: float, chunk: int = 20000, overhang: float |
         fillet = np.where(np.isfinite(best) & (best < 0.0), np.sqrt(R * R - d2) / R, 1.0)
         scale[bad] = np.maximum(scale[bad], fillet)
     return (out, ok, scale) if return_scale else (out, ok)
+
+
+def _grid_starts(ws, bx, by, R, drop):
+    """Per point (bx, by), the lowest surface above it of the balls centred on a grid of
+    spacing REACH_GRID x R over the stock (exact drop-cutter heights; only the nodes
+    within R of some point are dropped): (g, centre offset x, y), +inf where none."""
+    from scipy.ndimage import binary_dilation
+
+    h = REACH_GRID * R
+    nx, ny = int(math.ceil(ws.L / h)) + 1, int(math.ceil(ws.W / h)) + 1
+    xs, ys = np.linspace(0.0, ws.L, nx), np.linspace(0.0, ws.W, ny)
+    hx, hy = xs[1] - xs[0] if nx > 1 else h, ys[1] - ys[0] if ny > 1 else h
+    ix = np.clip(np.rint(bx / hx).astype(int), 0, nx - 1)
+    iy = np.clip(np.rint(by / hy).astype(int), 0, ny - 1)
+    rx, ry = int(math.ceil(R / hx)) + 1, int(math.ceil(R / hy)) + 1
+    near = np.zeros((nx, ny), bool)
+    near[ix, iy] = True
+    near = binary_dilation(near, np.ones((2 * rx + 1, 2 * ry + 1), bool))
+    Z = np.full((nx, ny), np.inf)
+    qi, qj = np.nonzero(near)
+    z = drop(xs[qi], ys[qj])
+    Z[qi, qj] = np.where(np.isfinite(z), z, np.inf)
+    best = np.full(bx.size, np.inf)
+    ox, oy = np.zeros(bx.size), np.zeros(bx.size)
+    for di in range(-rx, rx + 1):
+        i = ix + di
+        okx = (i >= 0) & (i < nx)
+        i = np.clip(i, 0, nx - 1)
+        dx = xs[i] - bx
+        for dj in range(-ry, ry + 1):
+            jj = iy + dj
+            ok = okx & (jj >= 0) & (jj < ny)
+            jj = np.clip(jj, 0, ny - 1)
+            dy = ys[jj] - by
+            d2 = dx * dx + dy * dy
+            with np.errstate(invalid="ignore"):
+                g = Z[i, jj] + R - np.sqrt(R * R - d2)
+            g = np.where(ok & (d2 < R * R) & np.isfinite(g), g, np.inf)
+            up = g < best
+            best = np.where(up, g, best)
+            ox, oy = np.where(up, dx, ox), np.where(up, dy, oy)
+    return best, ox, oy
 
 
 def _dist_to_segment(px, py, a, b):
