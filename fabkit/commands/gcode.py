@@ -138,12 +138,11 @@ def _finish(args, spec, surface, toolpath, profile, text, out, paths, R, t_plan,
 
     t = Timer()
     program = read_program(text)
-    est = estimate_time(program, profile.rapid)
     check = None
     if not args.no_verify:
         step("verifying the cut")
         toolpath, text, program, check = verified_cut(spec, surface, toolpath, profile, text, program)
-        est = estimate_time(program, profile.rapid)
+    est = estimate_time(program, profile.rapid)
     t_verify = t.seconds
 
     step("setup sheet")

@@ -32,7 +32,6 @@ def _toolpath(spec, surface):
     prof = profile_from_spec(spec, surface)
     text = write_program(tp, prof)
     program = read_program(text)
-    est = estimate_time(program, prof.rapid)
     t_write = t.seconds
     t = Timer()
     tp, text, program, ver = verified_cut(spec, surface, tp, prof, text, program)   # as gcode's

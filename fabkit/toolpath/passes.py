@@ -171,8 +171,8 @@ def contact_curve(ug, pu, cv, v, R=None, du=None):
     # not on the design's smooth part: an edge, the top face; the contact where du = 0);
     # interpolated from the flanks' contacts instead, the curve missed the cusps in a V
     # crease whose floor slopes across the passes (3*abs(x) + 2*abs(y): 0.18 mm left)
-    j = np.clip(np.searchsorted(p[first], ug), 1, max(int(first.sum()) - 1, 1))
     pf = p[first]
+    j = np.clip(np.searchsorted(pf, ug), 1, max(pf.size - 1, 1))
     gap = np.minimum(np.abs(ug - pf[np.minimum(j, pf.size - 1)]), np.abs(ug - pf[j - 1]))
     with np.errstate(all="ignore"):
         touch = v + R * (cv - v) / np.sqrt(R * R - du * du)
@@ -231,8 +231,7 @@ def _extend_where_profile_holds(ws, fr, R, ug, passes, target):
     for k, p in enumerate(live):
         h = _hermite(ug, p.Z, p.dZ, uq, p.bridged)
         for j, (sign, a, b) in enumerate(segs):
-            lo_i, hi_i = min(a, b), max(a, b)
-            if not (p.keep[lo_i] and p.keep[hi_i]):
+            if not (p.keep[a] and p.keep[b]):
                 continue
             good = (np.all(np.abs(p.dZ[[a, b]]) < 19.9) and np.all(np.isfinite(Zx[k, 3 * j:3 * j + 3]))
                     and np.all(np.abs(h[3 * j:3 * j + 3] - Zx[k, 3 * j:3 * j + 3]) <= 0.01 * target))
@@ -512,8 +511,10 @@ def place_passes(ws, fr, R: float, scallop: float, depth_lim: float, max_passes:
         tanh wall of slope 7: 0.053 mm left against the 0.0475 planned)."""
         ml = left(vs, cutters)
         top = ml.max(axis=0)
+        if not normal:      # vertically the crest is held by the floor rules as before
+            return top, ml
         cols = np.nonzero(np.isfinite(top) & (top > REFINE_SHARE * target))[0]
-        if cols.size and normal:    # (vertically the crest is held by the floor rules as before)
+        if cols.size:
             i = np.argmax(ml[:, cols], axis=0)
             h = (vs[-1, cols] - vs[0, cols]) / (vs.shape[0] - 1)
             off = np.linspace(-1.0, 1.0, 9)[1:-1]
@@ -544,8 +545,8 @@ def place_passes(ws, fr, R: float, scallop: float, depth_lim: float, max_passes:
         return float(((ml - base) / (lim - base)).max(initial=0.0))
 
     def above_floor(fl):
-        """(base, limit): FLOOR_EXCESS (vertical: FLOOR_EXCESS_VERTICAL) x target above the unreachable material fl
-        where that exceeds the target, else the target."""
+        """(base, limit): FLOOR_EXCESS (vertically FLOOR_EXCESS_VERTICAL) x target above
+        the unreachable material fl where that exceeds the target, else the target."""
         lim = np.maximum(target, fl + (FLOOR_EXCESS if normal else FLOOR_EXCESS_VERTICAL) * target)
         return np.where(lim > target, fl, 0.0), lim
 

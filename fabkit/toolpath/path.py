@@ -34,6 +34,7 @@ class Toolpath:
     stepover: float = 0.0               # mm, largest stepover between adjacent finishing passes
     stepover_min: float = 0.0           # mm, smallest (variable stepover)
     info: dict = field(default_factory=dict)  # planning figures for the setup sheet / summary
+    plan: object = field(default=None, repr=False, compare=False)  # the placed passes (add_passes)
 
     def __post_init__(self):
         self.points = np.ascontiguousarray(self.points, dtype=float).reshape(-1, 3)

@@ -228,9 +228,9 @@ def plan_toolpath(spec, surface, tol: Tolerances = DEFAULT) -> Toolpath:
 
     est = plan_estimate(spec, surface, tol)
     check_edge_depth(spec, ws, R, scallop)
+    normal = scallop_normal(spec)
     plan = place_passes(ws, fr, R, scallop, depth_lim, tol.max_passes, spec.path,
-                        chord=0.0 if scallop_normal(spec) else CHORD_SAFETY * tolerance,
-                        normal=scallop_normal(spec))
+                        chord=0.0 if normal else CHORD_SAFETY * tolerance, normal=normal)
     return _program(spec, ws, fr, plan, est, tol)
 
 
@@ -244,7 +244,7 @@ def add_passes(spec, surface, toolpath: Toolpath, v_over, tol: Tolerances = DEFA
     few points between the passes' contact curves; where those curves are not where the
     balls cut (the foot of such a valley at a stock edge), this puts back what it missed.
     Returns the new Toolpath, or None when there is nothing to add."""
-    plan = getattr(toolpath, "plan", None)
+    plan = toolpath.plan
     if plan is None or not len(v_over):
         return None
     m = spec.machining
@@ -302,10 +302,9 @@ def _program(spec, ws, fr, plan, est, tol):
     bridged = np.vstack([p.bridged for p in passes])
     info = summarize(fr, plan, V, passes_cut, points, kinds, zmin, len(rough), bridged, keep,
                      scallop, est)
-    tp = Toolpath(points, kinds, tool_radius=R, safe_z=safe_z, passes=len(passes_cut),
-                  stepover=info["stepover_max"], stepover_min=info["stepover_min"], info=info)
-    tp.plan = plan                    # the placed passes (for add_passes), not an output
-    return tp
+    return Toolpath(points, kinds, tool_radius=R, safe_z=safe_z, passes=len(passes_cut),
+                    stepover=info["stepover_max"], stepover_min=info["stepover_min"], info=info,
+                    plan=plan)
 
 
 def summarize(fr, plan, V, passes_cut, points, kinds, zmin, n_rough, bridged, keep, scallop,

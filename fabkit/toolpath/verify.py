@@ -345,8 +345,6 @@ def verify_cut(surface, program: Program, R: float, points: int = 40000, *, seed
       material_left_measure  'normal' | 'vertical': the measure of max_material_left
       over_at            with ``over`` (mm): (k, 2) X, Y of the points whose material left
                          (as max_material_left) exceeds it
-    ``cache``: a dict kept between verifications of programs for the same surface, R,
-    points and seed (the reachable height is computed once).
       max_material_above_design  largest (cut - design), unreachable material included
       unreachable        None, or {height, at, area (mm^2), points}: material above the
                          design no ball position removes (more than ``unreachable_min``)
@@ -358,6 +356,8 @@ def verify_cut(surface, program: Program, R: float, points: int = 40000, *, seed
       rapids_checked     rapids that go below the top face over the stock
       deepest_cut        deepest tip position below the top face, and the limits
       first_move_ok      the first move is a Z-only rapid up to the top face or above
+    ``cache``: a dict kept between verifications of programs for the same surface, R,
+    points and seed (the reachable height is computed once).
     With ``detail`` also the arrays ``X``, ``Y``, ``design``, ``cut`` (per sample point).
     """
     from .compensate import WorkSurface
@@ -485,7 +485,7 @@ def verify_cut(surface, program: Program, R: float, points: int = 40000, *, seed
 OVERHANG = 0.0
 REACH_GRID = 1.0 / 8.0                              # x R: the grid of start centres
 REACH_SEARCH = 24                                   # compass steps from the best coarse centre
-REACH_DIRS = 8                                      # compass directions (4 was up to 0.045 mm higher on 2*sin(x) + 2*sin(y))
+REACH_DIRS = 8          # compass directions (4 ended up to 0.045 mm higher on 2*sin(x) + 2*sin(y))
 REACH_STEP_MIN = 1e-5                               # x R: a point's search stops below this step
 
 
@@ -498,8 +498,8 @@ def reachable_height(ws, px, py, R: float, chunk: int = 20000, overhang: float |
     heights) centred within R of it: g(c) = Z(c) + R - sqrt(R^2 - |c - p|^2), minimised
     over the centre above the point, the normal-offset centre and a grid of centres
     (:data:`REACH_GRID` x R) over the stock, then by a compass search (8 directions, 24
-    steps from half the grid step, halved when none improves) from the best. Every centre tried is a real ball position, so the
-    height is an upper bound of the lowest one (the material it calls unreachable is
+    steps from half the grid step, halved when none improves) from the best. Every
+    centre tried is a real ball position, so the height is an upper bound of the lowest one (the material it calls unreachable is
     never less than there is); on a parabolic valley tighter than the ball it is within
     3e-4 mm of the centred ball's closed form (tested). Centres farther than
     ``overhang`` (default :data:`OVERHANG` x R) beyond the footprint are not tried (see
