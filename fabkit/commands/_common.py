@@ -125,10 +125,16 @@ def stage_bar(total: int, disabled: bool, desc: str, delay: float = 2.0):
             bar.refresh()
             done.wait(1.0)
 
-    threading.Thread(target=tick, daemon=True, name="fabkit-stage-bar").start()
+    ticker = threading.Thread(target=tick, daemon=True, name="fabkit-stage-bar")
+    ticker.start()
 
     def close() -> None:
         done.set()
+        ticker.join(timeout=2.0)
+        if shown():
+            # the bar was drawn by refresh(), which tqdm does not count as printed: without
+            # this, close() leaves it on the line and the summary is written after it
+            bar.last_print_t = max(bar.last_print_t, bar.start_t + bar.delay)
         bar.close()
 
     return step, close
