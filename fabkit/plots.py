@@ -85,11 +85,14 @@ def trajectory_png(traj: dict, summary: dict, *, title: str = "", units: str = "
 
 #: one marker and colour per outcome of a launch that does not escape (escaped
 #: launches are coloured by bounce count); the same everywhere a figure shows outcomes
-OUTCOME_STYLE = {"captured": ("x", "black"), "flew_off": ("^", "tab:orange"),
-                 "lost_contact": ("v", "tab:cyan"), "bridged": ("s", "tab:gray"),
+#: (sweep, robustness, design, compare): captured is grey, one bounce black
+OUTCOME_STYLE = {"captured": ("x", "0.6"), "flew_off": ("^", "tab:orange"),
+                 "lost_contact": ("v", "tab:cyan"), "bridged": ("s", "tab:pink"),
                  "slipped": ("D", "darkgoldenrod")}
+#: escaped launches by bounce count, as the seed paper's Fig. 1 colours them
 BOUNCE_COLOURS = {1: "black", 2: "tab:blue", 3: "tab:green", 4: "tab:red"}
 MANY_BOUNCES = "tab:brown"
+CAPTURED_COLOUR = OUTCOME_STYLE["captured"][1]
 
 
 def sweep_figure(result: dict, title: str = "", *, units: str = "", fmt: str = "png",
@@ -169,15 +172,19 @@ def explore_figure(result: dict, keys: list[str], *, title: str = "", units: str
     for i, d in enumerate(designs):
         rest = tuple((kk, d["params"][kk]) for kk in keys[1:])
         series.setdefault(rest, []).append((i, d))
+    # a choice key (simulation.model=full,ball) is categorical: one tick per value, no line
+    # joining the values, as if they were points on a numeric axis
+    values = [d["params"][xkey] for d in designs] if xkey else []
+    categories = list(dict.fromkeys(values)) if values and not all(
+        isinstance(x, (int, float)) and not isinstance(x, bool) for x in values) else None
     for s, (rest, items) in enumerate(sorted(series.items(), key=lambda kv: repr(kv[0]))):
         color = f"C{s % 10}"
         label = ", ".join(f"{kk}={vv:g}" if isinstance(vv, float) else f"{kk}={vv}" for kk, vv in rest) or None
         xs = [d["params"][xkey] if xkey else i for i, d in items]
-        numeric = all(isinstance(x, (int, float)) for x in xs)
-        if not numeric:
-            xs = list(range(len(xs)))
+        if categories is not None:
+            xs = [categories.index(x) for x in xs]
         vc = [np.nan if d["v_critical"] is None else d["v_critical"] for _, d in items]
-        ax1.plot(xs, vc, "-", color=color, lw=0.8, label=label)
+        ax1.plot(xs, vc, ls="none" if categories is not None else "-", color=color, lw=0.8, label=label)
         all_x += list(xs)
         for x, (_, d), y in zip(xs, items, vc):
             if d["v_critical"] is None:
@@ -194,6 +201,8 @@ def explore_figure(result: dict, keys: list[str], *, title: str = "", units: str
     ax1.set_ylabel(f"v_critical ({units}/s)" if units else "v_critical")
     ax2.set_ylabel(f"2-bounce windows, v_in ({units}/s)" if units else "2-bounce windows")
     ax2.set_xlabel(xkey or "design")
+    if categories is not None:
+        ax2.set_xticks(range(len(categories)), [str(c) for c in categories])
     if all_x:
         lo, hi = float(min(all_x)), float(max(all_x))
         pad = 0.05 * (hi - lo) if hi > lo else max(abs(lo) * 0.05, 0.5)
@@ -226,14 +235,13 @@ def robustness_figure(result: dict, *, title: str = "", units: str = "", fmt: st
     rows = result["rows"]
     v = np.array([r["v_in"] for r in rows], dtype=float)
     counts = sorted({int(b) for r in rows for b in r["p_bounces"]})
-    # one colour per count up to 8, distinct from the outcomes' colours; 9 and more share a layer
-    colours = {1: "0.75", 2: "tab:blue", 3: "tab:green", 4: "tab:red", 5: "tab:purple", 6: "tab:brown",
-               7: "tab:pink", 8: "tab:olive"}
+    # the sweep's colours: one per count up to 4, then 5 and more share a layer
     layers = [(f"escaped, {b} bounce{'s' if b > 1 else ''}",
-               np.array([r["p_bounces"].get(str(b), 0.0) for r in rows]), colours[b]) for b in counts if b <= 8]
-    if any(b > 8 for b in counts):
-        many = np.array([sum(p for b, p in r["p_bounces"].items() if int(b) > 8) for r in rows])
-        layers.append(("escaped, 9+ bounces", many, "#c5b0d5"))
+               np.array([r["p_bounces"].get(str(b), 0.0) for r in rows]), BOUNCE_COLOURS[b])
+              for b in counts if b in BOUNCE_COLOURS]
+    if any(b not in BOUNCE_COLOURS for b in counts):
+        many = np.array([sum(p for b, p in r["p_bounces"].items() if int(b) not in BOUNCE_COLOURS) for r in rows])
+        layers.append(("escaped, 5+ bounces", many, MANY_BOUNCES))
     for name, (_, color) in OUTCOME_STYLE.items():
         p = np.array([r["p_outcome"].get(name, 0.0) for r in rows])
         if p.any():
@@ -251,7 +259,8 @@ def robustness_figure(result: dict, *, title: str = "", units: str = "", fmt: st
     ax.set_ylabel("probability")
     ax2 = ax.twinx()
     nb = np.array([r["nominal_bounces"] if r["nominal_outcome"] == "escaped" else np.nan for r in rows], dtype=float)
-    ax2.plot(v, nb, "k.", ms=3, label="nominal bounces")
+    # white with a black edge: visible on the one-bounce layer, which is black
+    ax2.plot(v, nb, "o", ms=4, mfc="white", mec="black", mew=0.8, ls="none", label="nominal bounces")
     ax2.set_ylabel("nominal bounce count")
     from matplotlib.ticker import MaxNLocator
 
@@ -375,7 +384,6 @@ def analyze_figure(rows: list[dict], *, title: str = "", units: str = "", fmt: s
     fig.tight_layout()
     return _png(plt, fig, fmt)
 
-BOUNCE_COLORS = {1: "black", 2: "tab:blue", 3: "tab:green", 4: "tab:red"}   # the seed paper's Fig. 1
 
 
 def phi4_trajectory_png(record: dict, summary: dict, *, fmt: str = "png") -> bytes:
@@ -422,10 +430,10 @@ def compare_figure(panels: list[dict], *, title: str = "", fmt: str = "png") -> 
         for n in (1, 2, 3, 4):
             m = esc & (nb == n)
             if m.any():
-                ax.plot(v[m], vo[m], ".", ms=2.5, color=BOUNCE_COLORS[n])
+                ax.plot(v[m], vo[m], ".", ms=2.5, color=BOUNCE_COLOURS[n])
         rest = ~(esc & (nb >= 1) & (nb <= 4))
         if rest.any():
-            ax.plot(v[rest], np.zeros(rest.sum()), "|", ms=5, color="0.65")
+            ax.plot(v[rest], np.zeros(rest.sum()), "|", ms=5, color=CAPTURED_COLOUR)
         if vc:
             ax.axvline(1.0, color="tab:orange", lw=0.8, ls="--")
         u = p.get("units", "")
@@ -437,9 +445,9 @@ def compare_figure(panels: list[dict], *, title: str = "", fmt: str = "png") -> 
         ax.set_ylim(bottom=-0.03)
     from matplotlib.lines import Line2D
 
-    handles = [Line2D([], [], ls="", marker=".", ms=8, color=BOUNCE_COLORS[n],
+    handles = [Line2D([], [], ls="", marker=".", ms=8, color=BOUNCE_COLOURS[n],
                       label=f"{n} collision{'s' if n > 1 else ''}") for n in (1, 2, 3, 4)]
-    handles.append(Line2D([], [], ls="", marker="|", ms=8, color="0.65", label="captured, or 5+ collisions"))
+    handles.append(Line2D([], [], ls="", marker="|", ms=8, color=CAPTURED_COLOUR, label="captured, or 5+ collisions"))
     handles.append(Line2D([], [], ls="--", color="tab:orange", label="v_critical"))
     fig.legend(handles=handles, loc="lower center", ncol=6, fontsize=8, frameon=False)
     if title:
@@ -486,15 +494,14 @@ def design_figure(result: dict, bounds, *, title: str = "", units: str = "", fmt
             if sw["v_out"] is not None else np.full(H.size, np.nan)
         nb = np.asarray(sw["bounces"])
         esc = np.array([o == "escaped" for o in sw["outcome"]])
-        colors = {1: "black", 2: "tab:blue", 3: "tab:green", 4: "tab:red"}
         for k in sorted(set(nb[esc].tolist())):
             m = esc & (nb == k)
-            ax2.plot(H[m], vo[m], ".", ms=3, color=colors.get(k, "tab:gray"),
+            ax2.plot(H[m], vo[m], ".", ms=3, color=BOUNCE_COLOURS.get(k, MANY_BOUNCES),
                      label=f"{k} bounce{'s' if k > 1 else ''}" if k <= 4 else None)
         if (esc & (nb > 4)).any():
-            ax2.plot([], [], ".", color="tab:gray", label="5+ bounces")
+            ax2.plot([], [], ".", color=MANY_BOUNCES, label="5+ bounces")
         if (~esc).any():
-            ax2.plot(H[~esc], np.zeros((~esc).sum()), "|", color="0.6", ms=6, label="captured / off")
+            ax2.plot(H[~esc], np.zeros((~esc).sum()), "|", color=CAPTURED_COLOUR, ms=6, label="captured / off")
         first = True
         for win in w["windows"]:
             if win["observable"]:

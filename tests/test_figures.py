@@ -53,7 +53,36 @@ def test_robustness_title_gives_the_units_of_sigma(svg_text):
     svg = svg_text(plots.robustness_figure({"rows": rows, "sigma_y": 0.1, "sigma_vy": 0.5, "samples": 4},
                                            units="cm", fmt="svg"))
     assert "sigma_y 0.1 cm, sigma_vy 0.5 cm/s" in svg and "v_in (cm/s)" in svg
-    assert "escaped, 9+ bounces" in svg
+    assert "escaped, 5+ bounces" in svg
+
+
+def test_outcome_colours_are_the_same_in_every_figure(svg_text):
+    """One bounce is black and captured grey in the sweep, in robustness and in compare:
+    the colour of a count or an outcome means one thing across figures."""
+    from matplotlib.colors import to_hex
+
+    black, grey = to_hex(plots.BOUNCE_COLOURS[1]), to_hex(plots.OUTCOME_STYLE["captured"][1])
+    assert black != grey
+    sweep = svg_text(plots.sweep_figure(sweep_result(), "t", units="cm", fmt="svg")).lower()
+    rows = [{"v_in": v, "p_bounces": {"1": 0.5}, "p_outcome": {"captured": 0.5},
+             "nominal_outcome": "escaped", "nominal_bounces": 1} for v in (40.0, 41.0)]
+    rob = svg_text(plots.robustness_figure({"rows": rows, "sigma_y": 0.1, "sigma_vy": 0.5, "samples": 4},
+                                           units="cm", fmt="svg")).lower()
+    for svg in (sweep, rob):
+        assert black in svg and grey in svg
+
+
+def test_explore_figure_choice_key_is_categorical(svg_text):
+    """--vary simulation.model=full,simplified,ball: one tick named after each model, and no
+    line joining the models as if they were points on a numeric axis."""
+    designs = [{"params": {"simulation.model": m}, "v_critical": vc, "v_critical_error": 1e-5, "windows": [],
+                "safe": True} for m, vc in (("full", 51.7), ("simplified", 56.1), ("ball", 59.2))]
+    with matplotlib.rc_context({"svg.fonttype": "none"}):
+        svg = plots.explore_figure({"designs": designs}, ["simulation.model"], units="cm", fmt="svg").decode()
+    for m in ("full", "simplified", "ball"):
+        assert f">{m}<" in svg, m
+    # the joining line would be one path through the three points; markers only here
+    assert not re.search(r'<path d="M [^"]*L [^"]*L [^"]*"[^>]*style="fill: none; stroke: #1f77b4', svg)
 
 
 def test_precision_labels_do_not_overlap():
