@@ -178,30 +178,51 @@ def _calibration_table(cal: dict, marks: list | None, units: str, every: int) ->
             f"<div>{mk}</div></div>")
 
 
-def _sheet_table(sheet: dict) -> str:
-    skip = {"transform", "generated_at"}
-    rows = []
-    for k, v in sheet.items():
-        if k in skip:
+def _inline(text: str) -> str:
+    """Markdown's inline `code` and **bold**, on escaped text."""
+    import re
+
+    t = _e(text)
+    t = re.sub(r"`([^`]+)`", r"<code>\1</code>", t)
+    return re.sub(r"\*\*([^*]+)\*\*", r"<b>\1</b>", t)
+
+
+def markdown_html(md: str) -> str:
+    """The operator's setup sheet (``setup.md``, :func:`fabkit.toolpath.setup.sheet_markdown`)
+    as HTML: the same lines, each with its unit, so the page and the file beside the
+    program say the same thing. Handles what the sheet uses: headings, bullet lists,
+    paragraphs, inline code and bold; its preview image is shown elsewhere on the page."""
+    out: list[str] = []
+    in_list = False
+    for line in md.splitlines():
+        if line.startswith("- "):
+            if not in_list:
+                out.append("<ul>")
+                in_list = True
+            out.append(f"<li>{_inline(line[2:])}</li>")
             continue
-        if isinstance(v, dict):
-            v = ", ".join(f"{kk} {_fmt(vv)}" for kk, vv in v.items())
-        elif isinstance(v, (list, tuple)):
-            v = ", ".join(_fmt(x) for x in v)
+        if in_list:
+            out.append("</ul>")
+            in_list = False
+        if not line.strip() or line.startswith("!["):
+            continue
+        if line.startswith("#"):
+            level = len(line) - len(line.lstrip("#"))
+            out.append(f"<h{min(level + 2, 6)}>{_inline(line[level:].strip())}</h{min(level + 2, 6)}>")
         else:
-            v = _fmt(v)
-        rows.append(f"<tr><td class=l>{_e(k)}</td><td class=l>{_e(v)}</td></tr>")
-    return "<table>" + "".join(rows) + "</table>"
+            out.append(f"<p>{_inline(line)}</p>")
+    if in_list:
+        out.append("</ul>")
+    return "".join(out)
 
 
-def _fmt(v) -> str:
-    if isinstance(v, float):
-        return format(v, ".6g")
-    if isinstance(v, (list, tuple)):
-        return "[" + ", ".join(_fmt(x) for x in v) + "]"
-    if isinstance(v, dict):
-        return "{" + ", ".join(f"{k}: {_fmt(x)}" for k, x in v.items()) + "}"
-    return str(v)
+def _sheet_section(sheet: dict) -> str:
+    """The setup sheet as the operator reads it (setup.md's text), or a note without one."""
+    if not sheet:
+        return "<p class=missing>(setup sheet: not available)</p>"
+    from .toolpath.setup import sheet_markdown
+
+    return f'<div id="setup-sheet">{markdown_html(sheet_markdown(sheet, None))}</div>'
 
 
 def render(results: dict) -> str:
@@ -247,7 +268,7 @@ def render(results: dict) -> str:
         f"{_n(ver.get('max_material_left'), '.4f')} mm (checked at {_n(ver.get('checked_points'), 'd')} points); "
         + ", ".join(f"{k} {_n(v, '.3g')} s" for k, v in tps.items()) + ".</p></section>",
         f"<section><h2>Ramp calibration</h2>{_calibration_table(cal, results.get('ramp_marks'), u, max(1, len(cal['heights']) // 20))}</section>",
-        f"<section><h2>Setup sheet</h2>{_sheet_table(tp.get('sheet') or {})}</section>",
+        f"<section><h2>Setup sheet</h2>{_sheet_section(tp.get('sheet') or {})}</section>",
     ]
     title = f"fabkit report: {results['name']}"
     return ("<!DOCTYPE html>\n<html lang=en><head><meta charset=utf-8>"

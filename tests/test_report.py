@@ -6,9 +6,11 @@ README); the command's bad-input path runs through main()."""
 from __future__ import annotations
 
 import io
+import json
 import re
 import shutil
 import subprocess
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -33,6 +35,10 @@ def _png(color):
     return buf.getvalue()
 
 
+#: a real setup sheet (fabkit gcode specs/bowl.yaml, an inch program), generated_at removed
+SHEET = json.loads((Path(__file__).parent / "fixtures" / "report" / "bowl.setup.json").read_text())
+
+
 def _results(safe: bool):
     x = np.linspace(-44, 6, 30)
     y = np.linspace(-12.5, 12.5, 16)
@@ -50,13 +56,25 @@ def _results(safe: bool):
             "surface": {"x": x, "y": y, "z": z, "top": 5.0, "start": -30.0, "y0": 0.0},
             "sweep": {"png": _png("#ff00ff"), "v_critical": 51.742707, "v_critical_error": 1.7e-5, "windows": [],
                       "error_estimate": {"v_out_abs": 5e-9, "rtol_ref": 1e-11}, "launches": 400, "seconds": 40.0},
-            "toolpath": {"png": _png("#00ffff"), "sheet": {"program": "surface.ngc", "stock_mm": [500, 250, 76.2],
-                                                          "tool": {"diameter": 6.35}},
+            "toolpath": {"png": _png("#00ffff"), "sheet": SHEET,
                          "seconds": {"plan": 9.3, "write": 0.2, "verify": 1.0},
                          "verify": {"max_gouge": 0.0052, "max_material_left": 0.0504, "checked_points": 40000}},
             "calibration": {"heights": np.linspace(0.2, 4.5, 50), "v_in": np.sqrt(np.linspace(0.2, 4.5, 50)) * 37.43,
                             "g": 980.665, "k": 0.4, "units": "cm", "seconds": 1e-4},
             "ramp_marks": [{"height": 1.911, "v_in": 51.742707, "label": "v_critical"}]}
+
+
+def test_setup_sheet_is_the_operators_sheet_with_units():
+    """The page's setup sheet reads as setup.md does: each figure with its unit, no raw
+    dump of Python values (``verified True``, ``tool_number None``, a bare ``feed 59.055``)."""
+    page = render(_results(True))
+    sheet = page[page.index('<div id="setup-sheet">'):]
+    sheet = sheet[:sheet.index("</section>")]
+    text = re.sub(r"<[^>]+>", " ", sheet)
+    assert f"Feed {SHEET['feed']:g} in/min" in text and f"spindle {SHEET['spindle_rpm']:g} rpm" in text
+    assert f"Largest gouge {SHEET['max_gouge']:.4g} in" in text
+    assert f"{SHEET['passes']} raster passes" in text and "All lengths in  in" in text
+    assert not re.search(r"\b(True|False|None)\b", text)
 
 
 def test_self_contained():
