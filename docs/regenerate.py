@@ -1,0 +1,108 @@
+"""Rerun every figure and every command output the docs quote, so that a change reruns them.
+
+    python docs/regenerate.py              # every job (tens of minutes on 2 cores)
+    python docs/regenerate.py --list       # the jobs, the doc that quotes each, and its command
+    python docs/regenerate.py compare ramp # only these jobs
+
+Each job runs one documented ``fabkit`` command from the repository root, exactly as a user
+types it, writes the figure the doc shows (under docs/), and records the command, its
+summary (stdout), its wall time and the load average before and after it in
+``docs/outputs/<job>.txt``. A doc quotes those files; when a figure or a figure's number in
+a doc disagrees with its output file, the doc is stale.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shlex
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+OUT = ROOT / "docs" / "outputs"
+
+
+@dataclass(frozen=True)
+class Job:
+    name: str
+    doc: str
+    argv: tuple[str, ...]
+
+
+JOBS = (
+    Job("check", "README.md", ("check", "specs/surface.yaml")),
+    Job("check-as-built", "README.md", ("check", "specs/surface_as_built.yaml")),
+    Job("calibrate", "docs/simulator.md", ("calibrate", "specs/surface.yaml", "--height", "1", "4.5",
+                                           "--v-in", "50")),
+    Job("sweep", "docs/sweep_check.md", ("sweep", "specs/surface.yaml", "--plot", "docs/sweep.png")),
+    Job("gcode-surface", "docs/gcode.md", ("gcode", "specs/surface.yaml", "--no-progress")),
+    Job("gcode-bowl", "docs/gcode.md", ("gcode", "specs/bowl.yaml", "--no-progress")),
+    Job("ramp", "docs/lab.md", ("ramp", "specs/surface.yaml")),
+    Job("precision", "docs/numerics.md", ("precision", "specs/surface.yaml", "--plot", "docs/precision.png",
+                                          "--no-progress")),
+    Job("phi4", "docs/phi4.md", ("phi4", "--v-in", "0.2236", "--plot", "docs/phi4_three_bounce.png")),
+    Job("compare", "docs/phi4.md", ("compare", "specs/surface.yaml", "--plot", "docs/compare.png",
+                                    "--no-progress")),
+    Job("explore", "docs/explore.md", ("explore", "specs/surface.yaml", "--vary", "surface.params.eps=0.2:0.25:2",
+                                       "--v-in", "20", "90", "200", "--no-progress")),
+    Job("robustness", "docs/explore.md", ("robustness", "specs/surface.yaml", "--v-in", "43", "52", "46",
+                                          "--sigma-y", "0.1", "--sigma-vy", "0.5", "--samples", "50",
+                                          "--no-progress")),
+    Job("design", "docs/design.md", ("design", "specs/surface_eps015.yaml", "--vary", "surface.params.eps=0.1:0.4",
+                                     "--vary", "surface.params.c=0.04:0.12", "--vary", "surface.params.eta=2:5",
+                                     "--seed", "1", "--plot", "docs/design.png", "-o",
+                                     "toolpaths/surface_eps015.design.yaml", "--no-progress")),
+)
+
+
+def _fabkit() -> list[str]:
+    """The fabkit of this checkout, run as a module so the docs quote this code."""
+    return [sys.executable, "-m", "fabkit"]
+
+
+def run(job: Job) -> int:
+    load0 = os.getloadavg()[0]
+    t0 = time.perf_counter()
+    proc = subprocess.run(_fabkit() + list(job.argv), cwd=ROOT, capture_output=True, text=True)
+    seconds = time.perf_counter() - t0
+    load1 = os.getloadavg()[0]
+    OUT.mkdir(parents=True, exist_ok=True)
+    text = (f"$ fabkit {shlex.join(job.argv)}\n{proc.stdout}"
+            + (f"[stderr]\n{proc.stderr}" if proc.returncode else "")
+            + f"[exit {proc.returncode}; {seconds:.1f} s wall; load average {load0:.2f} before, {load1:.2f} after; "
+              f"quoted by {job.doc}]\n")
+    tmp = OUT / f".{job.name}.txt.tmp"
+    tmp.write_text(text)
+    tmp.replace(OUT / f"{job.name}.txt")
+    print(f"{job.name}: exit {proc.returncode}, {seconds:.1f} s (load {load0:.2f})", flush=True)
+    return proc.returncode
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("jobs", nargs="*", help="job names (default: all)")
+    ap.add_argument("--list", action="store_true", help="list the jobs and exit")
+    args = ap.parse_args(argv)
+    if args.list:
+        for j in JOBS:
+            print(f"{j.name:16s} {j.doc:22s} fabkit {shlex.join(j.argv)}")
+        return 0
+    names = {j.name for j in JOBS}
+    unknown = [n for n in args.jobs if n not in names]
+    if unknown:
+        print(f"unknown job(s): {', '.join(unknown)} (see --list)", file=sys.stderr)
+        return 2
+    worst = 0
+    for j in JOBS:
+        if not args.jobs or j.name in args.jobs:
+            rc = run(j)
+            worst = max(worst, 0 if rc in (0, 1) else rc)   # exit 1 is a verdict (an unsafe check), not a failure
+    return worst
+
+
+if __name__ == "__main__":
+    sys.exit(main())
