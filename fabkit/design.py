@@ -129,7 +129,7 @@ def searchable_keys(spec) -> list[str]:
 def parse_bound(text: str, spec, flag: str = "--vary") -> Bound:
     """``KEY=LO:HI`` -> :class:`Bound`; SpecError naming ``--vary`` (did-you-mean
     for an unknown key)."""
-    from .explore import _num, refuse_key
+    from .explore import _num, check_interval, refuse_key
     from .spec import SCHEMA
 
     text = str(text)
@@ -144,8 +144,7 @@ def parse_bound(text: str, spec, flag: str = "--vary") -> Bound:
     if len(parts) != 2 or not all(p.strip() for p in parts):
         raise SpecError(f"{key}: expected LO:HI, got {rhs!r}", key=flag)
     lo, hi = _num(parts[0], "LO", flag), _num(parts[1], "HI", flag)
-    if not hi > lo:
-        raise SpecError(f"{key}: need LO < HI, got {lo:g}:{hi:g}", key=flag)
+    check_interval(key, lo, hi, spec, flag)       # the key's own range, and a span the search can divide
     integer = False
     sec, _, name = key.partition(".")
     if not key.startswith("surface.params.") and name in SCHEMA[sec]:
