@@ -221,7 +221,7 @@ def parse_vary(text: str, spec, flag: str = "--vary") -> Vary:
         if n != int(n) or n < 1:
             raise SpecError(f"{key}: N must be a whole number >= 1, got {parts[2].strip()}", key=flag)
         if n > MAX_DESIGNS:
-            raise SpecError(f"{key}: N = {int(n)} exceeds the limit of {MAX_DESIGNS} designs", key=flag)
+            raise SpecError(f"{key}: N = {n:.6g} exceeds the limit of {MAX_DESIGNS} designs", key=flag)
         if n == 1 and lo != hi:
             raise SpecError(f"{key}: N = 1 needs LO = HI, got {lo:g}:{hi:g}", key=flag)
         if isinstance(field, Choice):
@@ -693,6 +693,25 @@ def check_scatter(sigma_y: float, sigma_vy: float, samples: int, n_v: int, tol=D
     if total > tol.max_launches:
         raise SpecError(f"{n_v} speeds x ({samples} samples + 1 nominal) = {total} launches exceed the limit "
                         f"{tol.max_launches}", key="--samples")
+
+
+#: the largest transverse velocity scatter, design units/s: far beyond any launch, and far
+#: below the numbers whose draws overflow
+MAX_SIGMA_VY = 1e6
+
+
+def check_scatter_size(spec, sigma_y, sigma_vy) -> None:
+    """SpecError (naming the flag) for a launch scatter too large to mean anything: a
+    transverse offset spread wider than the footprint (most launches would start off the
+    block), or a velocity spread above :data:`MAX_SIGMA_VY`. Finite, >= 0 is checked by
+    the callers."""
+    width = float(spec.surface.y[1] - spec.surface.y[0])
+    u = spec.units
+    if isinstance(sigma_y, (int, float)) and math.isfinite(sigma_y) and sigma_y > width:
+        raise SpecError(f"{sigma_y:g} {u} is wider than the footprint ({width:g} {u} across): most launches "
+                        "would start off the block", key="--sigma-y")
+    if isinstance(sigma_vy, (int, float)) and math.isfinite(sigma_vy) and sigma_vy > MAX_SIGMA_VY:
+        raise SpecError(f"must be at most {MAX_SIGMA_VY:g} {u}/s, got {sigma_vy:g}", key="--sigma-vy")
 
 
 def robustness(spec, v, *, sigma_y: float, sigma_vy: float, samples: int, seed: int = 0,

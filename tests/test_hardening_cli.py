@@ -808,3 +808,35 @@ def test_vary_parsing_keeps_good_values():
     assert (b.lo, b.hi, b.integer) == (1.5, 3.0, True)
     b = parse_bound("surface.params.eps=-1e12:1e12", spec)
     assert (b.lo, b.hi) == (-1e12, 1e12) and b.step == 1e9
+
+
+# ----------------------------------------------------------------------------
+# issue 29: every option tried with huge, tiny (subnormal), negative and junk numbers
+# ends with one line naming the option, exit 2 (they were exit 3, numpy warnings)
+# ----------------------------------------------------------------------------
+@pytest.mark.parametrize("argv,named,says", [
+    (["phi4", "--v-in", "0.27", "--dx", "1e-320"], "--dx", "grid intervals exceed"),      # was OverflowError
+    (["phi4", "--v-in", "0.27", "--dx", "5e-324"], "--dx", "grid intervals exceed"),
+    (["stl", "{spec}", "--tolerance", "1e-320"], "--tolerance", "at least 1e-06 mm"),       # was a numpy warning
+    (["stl", "{spec}", "--tolerance", "5e-324"], "--tolerance", "at least 1e-06 mm"),
+    (["design", "{spec}", "--vary", "surface.params.c=0.05:0.1", "--min-width", "5e-324"], "--min-width",
+     "below 1e-9"),                                                                          # was OverflowError
+    (["design", "{spec}", "--vary", "surface.params.c=0.05:0.1", "--sigma-y", "1e308"], "--sigma-y",
+     "wider than the footprint"),                                                            # was a numpy warning
+    (["design", "{spec}", "--vary", "surface.params.c=0.05:0.1", "--sigma-vy", "1e308"], "--sigma-vy",
+     "at most 1e+06"),
+    (["robustness", "{spec}", "--v-in", "40", "50", "3", "--sigma-y", "1e308", "--sigma-vy", "0",
+      "--samples", "2"], "--sigma-y", "wider than the footprint"),
+    (["robustness", "{spec}", "--v-in", "40", "50", "3", "--sigma-y", "0", "--sigma-vy", "1e300",
+      "--samples", "2"], "--sigma-vy", "at most 1e+06"),
+    (["sweep", "{spec}", "--v-in", "40", "50", "1e308"], "--v-in", "N = 1e+308 exceeds"),    # was 309 digits
+])
+def test_hostile_option_values_are_one_line(tmp_path, argv, named, says):
+    spec = _tiny_file(tmp_path)
+    before = set(tmp_path.rglob("*"))
+    with bounded(120):
+        code, out, err = _run([a.format(spec=spec) for a in argv])
+    _one_line_exit2(code, err, named)
+    assert says in err and len(err) < 300, err
+    assert "Warning" not in err
+    assert set(tmp_path.rglob("*")) == before

@@ -41,8 +41,8 @@ def config_from_args(args):
         key = "--dt" if getattr(args, "dt", None) is not None else "--t-max"
         raise SpecError(f"t_max / dt = {cfg.t_max:g} / {cfg.dt:g} = {cfg.t_max / cfg.dt:.3g} steps exceeds the "
                         f"limit {MAX_STEPS}: a larger --dt or a smaller --t-max", key=key)
-    if cfg.n > MAX_GRID:
-        raise SpecError(f"{cfg.n} grid intervals exceed the limit {MAX_GRID}", key="--dx")
+    if not cfg.length / cfg.dx <= MAX_GRID:          # in floats: a subnormal dx overflows an integer count
+        raise SpecError(f"{cfg.length / cfg.dx:.3g} grid intervals exceed the limit {MAX_GRID}", key="--dx")
     return cfg
 
 
