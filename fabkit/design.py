@@ -129,7 +129,7 @@ def searchable_keys(spec) -> list[str]:
 def parse_bound(text: str, spec, flag: str = "--vary") -> Bound:
     """``KEY=LO:HI`` -> :class:`Bound`; SpecError naming ``--vary`` (did-you-mean
     for an unknown key)."""
-    from .explore import _num, refuse_key
+    from .explore import _num, check_interval, refuse_key
     from .spec import SCHEMA
 
     text = str(text)
@@ -144,8 +144,7 @@ def parse_bound(text: str, spec, flag: str = "--vary") -> Bound:
     if len(parts) != 2 or not all(p.strip() for p in parts):
         raise SpecError(f"{key}: expected LO:HI, got {rhs!r}", key=flag)
     lo, hi = _num(parts[0], "LO", flag), _num(parts[1], "HI", flag)
-    if not hi > lo:
-        raise SpecError(f"{key}: need LO < HI, got {lo:g}:{hi:g}", key=flag)
+    check_interval(key, lo, hi, spec, flag)       # the key's own range, and a span the search can divide
     integer = False
     sec, _, name = key.partition(".")
     if not key.startswith("surface.params.") and name in SCHEMA[sec]:
@@ -220,12 +219,19 @@ def check_options(opts: Options, spec) -> None:
         raise SpecError(f"must be a whole number in 1..{MAX_SAMPLES}, got {opts.samples}", key="--samples")
     if opts.seed < 0:
         raise SpecError(f"must be >= 0, got {opts.seed}", key="--seed")
+    from .explore import check_scatter_size
+
+    check_scatter_size(spec, opts.sigma_y, opts.sigma_vy)
     from .physics.calibrate import ramp_heights
 
     H = ramp_heights(spec)
-    if opts.min_width >= float(np.max(H) - np.min(H)):
+    span = float(np.max(H) - np.min(H))
+    if opts.min_width >= span:
         raise SpecError(f"{opts.min_width:g} {spec.units} is not less than the ramp's range of heights "
                         f"({float(np.min(H)):g}..{float(np.max(H)):g} {spec.units})", key="--min-width")
+    if opts.min_width < 1e-9 * span:     # the screen spaces its heights min_width / 3 apart
+        raise SpecError(f"{opts.min_width:g} {spec.units} is below 1e-9 of the ramp's range of heights "
+                        f"({span:g} {spec.units}): no window can be measured that narrow", key="--min-width")
 
 
 def scatter_draws(opts: Options, y0: float, vy0: float) -> tuple[np.ndarray, np.ndarray]:

@@ -119,6 +119,61 @@ def _num(text: str, what: str, flag: str) -> float:
     return x
 
 
+#: the narrowest searchable or sampled interval LO:HI, relative to its ends' magnitude (the
+#: values must stay distinct floats, and a search's step, 1/1000 of the interval, too)
+MIN_SPAN_REL = 1e-9
+#: and in absolute terms (a step far above the smallest normal float)
+MIN_SPAN_ABS = 1e-100
+
+
+def check_value(key: str, value, spec, flag: str, what: str = "a value"):
+    """The value ``value`` of ``key`` (one end of a ``--vary`` interval or one listed value)
+    checked by the spec's own rules for that key (range, whole number, choice), as if it
+    were written in the spec; returns it as the spec would read it. SpecError naming
+    ``flag`` and the key."""
+    from .spec import SCHEMA, Params, _field
+
+    sec, _, rest = key.partition(".")
+    try:
+        if key.startswith("surface.params."):
+            return _field(Params(), {rest.split(".", 1)[1]: value}, "surface.params", "", spec.units)[
+                rest.split(".", 1)[1]]
+        if rest.count(".") == 1:          # an end of a footprint interval (surface.x.lo)
+            if not abs(value) <= 1e9:
+                raise SpecError(f"out of range (|value| <= 1e9), got {value:g}")
+            return value
+        return _field(SCHEMA[sec][rest], value, key, "", spec.units)
+    except SpecError as exc:
+        raise SpecError(f"{key}: {what}: {exc.detail}", key=flag) from None
+
+
+def check_interval(key: str, lo: float, hi: float, spec, flag: str) -> None:
+    """Both ends of ``key=LO:HI`` inside the key's range (:func:`check_value`), LO < HI,
+    and the interval wide enough to be divided (:data:`MIN_SPAN_REL`, :data:`MIN_SPAN_ABS`)
+    and not so wide that HI - LO overflows. SpecError naming ``flag``."""
+    from .spec import SCHEMA
+
+    sec, _, rest = key.partition(".")
+    if getattr(SCHEMA.get(sec, {}).get(rest), "integer", False):     # whole-number key: its whole numbers
+        first, last = math.ceil(lo), math.floor(hi)
+        if last < first:
+            raise SpecError(f"{key}: no whole number in {lo:g}:{hi:g}", key=flag)
+        check_value(key, float(first), spec, flag, "LO")
+        check_value(key, float(last), spec, flag, "HI")
+        return
+    check_value(key, lo, spec, flag, "LO")
+    check_value(key, hi, spec, flag, "HI")
+    if not hi > lo:
+        raise SpecError(f"{key}: need LO < HI, got {lo:g}:{hi:g}", key=flag)
+    span = hi - lo
+    if not math.isfinite(span):
+        raise SpecError(f"{key}: the interval {lo:g}:{hi:g} is too wide (HI - LO overflows)", key=flag)
+    need = max(MIN_SPAN_ABS, MIN_SPAN_REL * max(abs(lo), abs(hi)))
+    if span < need:
+        raise SpecError(f"{key}: the interval {lo:.17g}:{hi:.17g} is too narrow to divide (HI - LO = {span:g}, "
+                        f"need >= {need:g})", key=flag)
+
+
 def refuse_key(key: str, allowed, spec, flag: str, not_variable: str):
     """Raise the SpecError for a ``--vary`` key outside ``allowed``: a section the
     spec lacks, a key that exists but cannot be varied (``not_variable`` says why),
@@ -166,15 +221,18 @@ def parse_vary(text: str, spec, flag: str = "--vary") -> Vary:
         if n != int(n) or n < 1:
             raise SpecError(f"{key}: N must be a whole number >= 1, got {parts[2].strip()}", key=flag)
         if n > MAX_DESIGNS:
-            raise SpecError(f"{key}: N = {int(n)} exceeds the limit of {MAX_DESIGNS} designs", key=flag)
+            raise SpecError(f"{key}: N = {n:.6g} exceeds the limit of {MAX_DESIGNS} designs", key=flag)
         if n == 1 and lo != hi:
             raise SpecError(f"{key}: N = 1 needs LO = HI, got {lo:g}:{hi:g}", key=flag)
-        if n >= 2 and not hi > lo:
-            raise SpecError(f"{key}: need LO < HI, got {lo:g}:{hi:g}", key=flag)
         if isinstance(field, Choice):
             raise SpecError(f"{key}: a choice key takes a list of words, e.g. {key}="
                             f"{','.join(field.options)}", key=flag)
+        if n >= 2:
+            check_interval(key, lo, hi, spec, flag)
         values = [float(x) for x in np.linspace(lo, hi, int(n))]
+        if n >= 2 and len(set(values)) != len(values):
+            raise SpecError(f"{key}: {int(n)} values between {lo:g} and {hi:g} are not distinct numbers "
+                            "(a smaller N or a wider interval)", key=flag)
     else:
         values = []
         for item in rhs.split(","):
@@ -194,6 +252,8 @@ def parse_vary(text: str, spec, flag: str = "--vary") -> Vary:
         values = [int(x) for x in values]
     if len(set(map(repr, values))) != len(values):
         raise SpecError(f"{key}: repeated values", key=flag)
+    for x in values:
+        check_value(key, x, spec, flag, f"the value {x:g}" if isinstance(x, float) else f"the value {x}")
     return Vary(key, tuple(values))
 
 
@@ -633,6 +693,25 @@ def check_scatter(sigma_y: float, sigma_vy: float, samples: int, n_v: int, tol=D
     if total > tol.max_launches:
         raise SpecError(f"{n_v} speeds x ({samples} samples + 1 nominal) = {total} launches exceed the limit "
                         f"{tol.max_launches}", key="--samples")
+
+
+#: the largest transverse velocity scatter, design units/s: far beyond any launch, and far
+#: below the numbers whose draws overflow
+MAX_SIGMA_VY = 1e6
+
+
+def check_scatter_size(spec, sigma_y, sigma_vy) -> None:
+    """SpecError (naming the flag) for a launch scatter too large to mean anything: a
+    transverse offset spread wider than the footprint (most launches would start off the
+    block), or a velocity spread above :data:`MAX_SIGMA_VY`. Finite, >= 0 is checked by
+    the callers."""
+    width = float(spec.surface.y[1] - spec.surface.y[0])
+    u = spec.units
+    if isinstance(sigma_y, (int, float)) and math.isfinite(sigma_y) and sigma_y > width:
+        raise SpecError(f"{sigma_y:g} {u} is wider than the footprint ({width:g} {u} across): most launches "
+                        "would start off the block", key="--sigma-y")
+    if isinstance(sigma_vy, (int, float)) and math.isfinite(sigma_vy) and sigma_vy > MAX_SIGMA_VY:
+        raise SpecError(f"must be at most {MAX_SIGMA_VY:g} {u}/s, got {sigma_vy:g}", key="--sigma-vy")
 
 
 def robustness(spec, v, *, sigma_y: float, sigma_vy: float, samples: int, seed: int = 0,

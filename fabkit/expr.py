@@ -20,7 +20,10 @@ from typing import Callable, Mapping
 from .errors import SpecError
 from .tolerances import DEFAULT, Tolerances
 
-FUNCTIONS = ("exp", "log", "sqrt", "sin", "cos", "tan", "sinh", "cosh", "tanh", "sech", "abs")
+FUNCTIONS = ("exp", "log", "sqrt", "sin", "cos", "tan", "sinh", "cosh", "tanh", "sech", "abs",
+             "asin", "acos", "atan", "atan2")
+#: functions of two arguments (all others take one)
+BINARY = frozenset({"atan2"})
 CONSTANTS = ("pi",)
 VARIABLES = ("x", "y")
 RESERVED = frozenset(FUNCTIONS + CONSTANTS + VARIABLES)
@@ -82,9 +85,12 @@ def check_syntax(text: str, names: frozenset[str] | set[str], tol: Tolerances = 
             if not isinstance(node.func, ast.Name) or node.func.id not in FUNCTIONS:
                 what = node.func.id if isinstance(node.func, ast.Name) else "this call"
                 raise _fail(f"function {what!s} not allowed (allowed: {', '.join(FUNCTIONS)})")
-            if node.keywords or len(node.args) != 1 or isinstance(node.args[0], ast.Starred):
-                raise _fail(f"{node.func.id}() takes exactly one argument")
-            visit(node.args[0], depth + 1)
+            arity = 2 if node.func.id in BINARY else 1
+            if node.keywords or len(node.args) != arity or any(isinstance(a, ast.Starred) for a in node.args):
+                what = "two arguments (y, x)" if arity == 2 else "one argument"
+                raise _fail(f"{node.func.id}() takes exactly {what}")
+            for a in node.args:
+                visit(a, depth + 1)
         elif isinstance(node, ast.Name):
             if node.id in FUNCTIONS:
                 raise _fail(f"{node.id} is a function: write {node.id}(...)")
@@ -139,6 +145,8 @@ def to_sympy(text: str, params: Mapping[str, float], tol: Tolerances = DEFAULT, 
         "exp": sp.exp, "log": sp.log, "sqrt": sp.sqrt, "sin": sp.sin, "cos": sp.cos,
         "tan": sp.tan, "sinh": sp.sinh, "cosh": sp.cosh, "tanh": sp.tanh,
         "sech": lambda u: 1 / sp.cosh(u), "abs": sp.Abs,
+        "asin": lambda u: _inverse_sine(sp.asin, "asin", u), "acos": lambda u: _inverse_sine(sp.acos, "acos", u),
+        "atan": sp.atan, "atan2": _atan2,
     }
     names = {"x": x, "y": y, "pi": sp.pi}
     if symbolic:
@@ -167,7 +175,7 @@ def to_sympy(text: str, params: Mapping[str, float], tol: Tolerances = DEFAULT, 
             v = build(node.operand)
             return -v if isinstance(node.op, ast.USub) else v
         if isinstance(node, ast.Call):
-            return funcs[node.func.id](build(node.args[0]))
+            return funcs[node.func.id](*(build(a) for a in node.args))
         if isinstance(node, ast.Name):
             return names[node.id]
         if isinstance(node, ast.Constant):
@@ -184,6 +192,29 @@ def to_sympy(text: str, params: Mapping[str, float], tol: Tolerances = DEFAULT, 
     if h.has(sp.I):
         raise _fail("expression is complex")
     return h, x, y
+
+
+def _inverse_sine(f, name: str, u):
+    """asin(u) or acos(u), refusing a constant argument outside [-1, 1] (complex)."""
+    import sympy as sp
+
+    if u.is_number:
+        try:
+            uv = complex(sp.N(u, 17))
+        except (TypeError, ValueError, OverflowError):
+            raise _fail(f"{name}() of a value that is not a real number") from None
+        if uv.imag != 0 or not abs(uv.real) <= 1.0:
+            raise _fail(f"{name}() of {uv.real:g}: defined only on [-1, 1]")
+    return f(u)
+
+
+def _atan2(a, b):
+    """atan2(a, b): the angle of the point (b, a), in (-pi, pi]; refused at (0, 0)."""
+    import sympy as sp
+
+    if a.is_zero and b.is_zero:
+        raise _fail("atan2(0, 0) is undefined")
+    return sp.atan2(a, b)
 
 
 def _power(a, b, tol: Tolerances):
@@ -227,7 +258,10 @@ _DERIV_SHAPE = {"exp": ((1, 1), (1, 1), (1, 1)), "log": ((2, 1), (4, 1), (6, 1))
                 "sin": ((1, 1), (2, 1), (2, 1)), "cos": ((2, 1), (2, 1), (1, 1)),
                 "tan": ((4, 1), (8, 2), (16, 4)), "sinh": ((1, 1), (1, 1), (1, 1)),
                 "cosh": ((1, 1), (1, 1), (1, 1)), "tanh": ((7, 1), (10, 2), (20, 4)),
-                "Abs": ((1, 1), (1, 1), (1, 1)), "sign": ((1, 1), (1, 1), (1, 1))}
+                "Abs": ((1, 1), (1, 1), (1, 1)), "sign": ((1, 1), (1, 1), (1, 1)),
+                # (1 - u^2)^(-1/2), u (1 - u^2)^(-3/2), (2 u^2 + 1) (1 - u^2)^(-5/2); 1/(1 + u^2), ...
+                "asin": ((6, 1), (10, 2), (16, 3)), "acos": ((7, 1), (11, 2), (17, 3)),
+                "atan": ((5, 1), (9, 2), (16, 3))}
 _GENERIC_SHAPE = ((4, 1), (8, 2), (16, 4))
 _POWER_SHAPE = ((4, 1), (6, 1), (6, 1))          # u**n: n u**(n-1), n (n-1) u**(n-2), ...
 _EXP_SHAPE = ((1, 1), (1, 1), (1, 1))
@@ -294,6 +328,8 @@ def derivative_size(h, order: int = 2) -> int:
             out = acc
         elif e.is_Pow and e.exp.is_number:
             out = _chain_sizes(sizes(e.base), _POWER_SHAPE)
+        elif type(e).__name__ == "atan2":   # D atan2(a, b) = (b Da - a Db) / (a^2 + b^2): as atan(a/b)
+            out = _chain_sizes(_mul_sizes(sizes(e.args[0]), sizes(e.args[1])), _DERIV_SHAPE["atan"])
         elif e.is_Pow:   # b**c = exp(c log b)
             b = sizes(e.base)
             lb = (1 + b[0], 3 + b[0] + b[1], 6 + 2 * b[0] + b[1] + b[2], _chain_sizes(b, _DERIV_SHAPE["log"])[3])
@@ -416,3 +452,128 @@ def compile_surface(text: str, params: Mapping[str, float], tol: Tolerances = DE
         raw_h=raw_h,
         raw_all=raw_all,
     )
+
+
+#: relative distance to a singular point of asin, acos (|u| = 1) or atan2 (the origin, the
+#: branch cut) under which a footprint is taken to reach it (rounding of the arguments)
+DOMAIN_RTOL = 1e-9
+
+
+def check_domain(fns: SurfaceFunctions, x_range, y_range, n: int = 201) -> None:
+    """Refuse (SpecError on surface.height) a footprint that reaches a point where an
+    inverse trigonometric function of the formula has no derivative:
+
+    * asin(u), acos(u): |u| > 1 (undefined) or |u| = 1 (infinite derivative);
+    * atan2(a, b): the origin a = b = 0 (undefined), and the branch cut a = 0, b < 0,
+      across which atan2 jumps by 2 pi (h would have a cliff there).
+
+    Each argument is sampled on an ``n`` x ``n`` grid of the footprint and the worst
+    grid points are refined by bounded quasi-Newton with the exact gradient; a sign
+    change of a between neighbouring grid points where b < 0 is a crossing of the cut.
+    atan is defined, smooth and bounded everywhere."""
+    import numpy as np
+    import sympy as sp
+
+    h = fns.symbolic
+    nodes = [e for e in sp.preorder_traversal(h) if isinstance(e, (sp.asin, sp.acos, sp.atan2))]
+    if not nodes:
+        return
+    syms = {s.name: s for s in h.free_symbols}
+    x, y = syms.get("x", sp.Symbol("x", real=True)), syms.get("y", sp.Symbol("y", real=True))
+    xs = np.linspace(float(x_range[0]), float(x_range[1]), n)
+    ys = np.linspace(float(y_range[0]), float(y_range[1]), n)
+    X, Y = np.meshgrid(xs, ys)
+    bounds = [(float(x_range[0]), float(x_range[1])), (float(y_range[0]), float(y_range[1]))]
+
+    def numeric(e):
+        f = sp.lambdify((x, y), [e, sp.diff(e, x), sp.diff(e, y)], modules="numpy")
+
+        def call(xa, ya):
+            with np.errstate(all="ignore"):
+                return [np.broadcast_to(np.asarray(v, dtype=float), np.broadcast_shapes(
+                    np.shape(xa), np.shape(ya))) for v in f(xa, ya)]
+
+        return call
+
+    def least(F, G):
+        """(min, x, y) of F >= 0 over the footprint: the grid, then L-BFGS-B from its 5 best points."""
+        from scipy.optimize import minimize
+
+        vals = F(X, Y)
+        vals = np.where(np.isfinite(vals), vals, np.inf)
+        order = np.argsort(vals.ravel())[:5]
+        best = (float(vals.ravel()[order[0]]), float(X.ravel()[order[0]]), float(Y.ravel()[order[0]]))
+        for i in order:
+            p0 = np.array([X.ravel()[i], Y.ravel()[i]])
+            try:
+                with np.errstate(all="ignore"):
+                    r = minimize(lambda p: float(F(p[0], p[1])), p0, jac=lambda p: np.asarray(G(p[0], p[1]), float),
+                                 method="L-BFGS-B", bounds=bounds,
+                                 options={"ftol": 1e-30, "gtol": 1e-30, "maxiter": 200})
+            except (ValueError, FloatingPointError, OverflowError):
+                continue
+            if np.isfinite(r.fun) and r.fun < best[0]:
+                best = (float(r.fun), float(r.x[0]), float(r.x[1]))
+        return best
+
+    where = "at x={:.6g}, y={:.6g}"
+    for e in nodes:
+        if isinstance(e, (sp.asin, sp.acos)):
+            name = "asin" if isinstance(e, sp.asin) else "acos"
+            u = numeric(e.args[0])
+            # the largest |u|: the least of -u^2 ... as 1/(1 + u^2) keeps F >= 0 and smooth
+            def F(a, b, u=u):
+                v = u(a, b)[0]
+                return 1.0 / (1.0 + v * v)
+
+            def G(a, b, u=u):
+                v, vx, vy = (float(t) for t in u(a, b))
+                c = -2.0 * v / (1.0 + v * v) ** 2
+                return [c * vx, c * vy]
+
+            f, px, py = least(F, G)
+            umax = math.sqrt(max(1.0 / f - 1.0, 0.0)) if f > 0 else math.inf
+            if not math.isfinite(umax) or umax > 1.0 + DOMAIN_RTOL:
+                raise _fail(f"{name}() of a value outside [-1, 1] on the footprint ({where.format(px, py)}: "
+                            f"|argument| = {umax:.6g}), where {name} is undefined")
+            if umax >= 1.0 - DOMAIN_RTOL:
+                raise _fail(f"{name}() reaches |argument| = 1 on the footprint ({where.format(px, py)}), "
+                            f"where its derivative is infinite (keep the argument inside (-1, 1))")
+            continue
+        a, b = numeric(e.args[0]), numeric(e.args[1])
+        A, B = a(X, Y)[0], b(X, Y)[0]
+        scale = float(np.nanmax(np.hypot(A, B))) if np.isfinite(np.hypot(A, B)).any() else 1.0
+        scale = scale if scale > 0 else 1.0
+
+        def F0(p, q, a=a, b=b, s=scale):
+            return (a(p, q)[0] ** 2 + b(p, q)[0] ** 2) / (s * s)
+
+        def G0(p, q, a=a, b=b, s=scale):
+            (av, ax, ay), (bv, bx, by) = a(p, q), b(p, q)
+            return [2 * (av * ax + bv * bx) / (s * s), 2 * (av * ay + bv * by) / (s * s)]
+
+        f, px, py = least(F0, G0)
+        if f <= DOMAIN_RTOL ** 2:
+            raise _fail(f"atan2() at the origin of its arguments on the footprint ({where.format(px, py)}), "
+                        "where it is undefined (move the centre off the block)")
+
+        def F1(p, q, a=a, b=b, s=scale):
+            bv = np.maximum(b(p, q)[0], 0.0)
+            return (a(p, q)[0] ** 2 + bv * bv) / (s * s)
+
+        def G1(p, q, a=a, b=b, s=scale):
+            (av, ax, ay), (bv, bx, by) = a(p, q), b(p, q)
+            bv = max(float(bv), 0.0)
+            return [2 * (av * ax + bv * bx) / (s * s), 2 * (av * ay + bv * by) / (s * s)]
+
+        f, px, py = least(F1, G1)
+        neg = B < 0
+        cross_x = (np.sign(A[:, 1:]) != np.sign(A[:, :-1])) & neg[:, 1:] & neg[:, :-1]
+        cross_y = (np.sign(A[1:, :]) != np.sign(A[:-1, :])) & neg[1:, :] & neg[:-1, :]
+        if cross_x.any() or cross_y.any():
+            i, j = np.argwhere(cross_x)[0] if cross_x.any() else np.argwhere(cross_y)[0]
+            f, px, py = 0.0, float(X[i, j]), float(Y[i, j])
+        if f <= DOMAIN_RTOL ** 2:
+            raise _fail(f"atan2(a, b) jumps by 2 pi across a = 0, b < 0, which meets the footprint "
+                        f"({where.format(px, py)}): h would have a cliff there (atan2(-a, -b) puts the "
+                        "jump on the other side, at a = 0, b > 0)")

@@ -397,11 +397,11 @@ def phi4_trajectory_png(record: dict, summary: dict, *, fmt: str = "png") -> byt
     A = np.asarray(record["A"], dtype=float)[0]
     m = np.isfinite(X)
     ax.plot(t[m], X[m], "-", color="black", lw=1.2, label="X(t)")
-    ax.set_xlabel("t")
-    ax.set_ylabel("X (half-separation)")
+    ax.set_xlabel("t (the PDE's dimensionless time, c = 1)")
+    ax.set_ylabel("X, half-separation (PDE length; kink width sqrt 2)")
     ax2 = ax.twinx()
     ax2.plot(t, A, "--", color="tab:blue", lw=1.0, label="A(t)")
-    ax2.set_ylabel("A (shape mode)", color="tab:blue")
+    ax2.set_ylabel("A, shape-mode amplitude (dimensionless, as phi)", color="tab:blue")
     for k, tb in enumerate(summary.get("bounce_times", [])):
         ax.axvline(tb, color="0.6", lw=0.7, ls=":")
     out = summary.get("outcome", "")

@@ -100,7 +100,14 @@ class Surface:
         A derivative that is undefined (0/0: nan) where h is finite is a kink of the
         formula, like abs at 0: the apex of a cone sqrt(x^2 + y^2), a crease written
         sqrt(x^2). Those are accepted on a few grid points (at most KINK_SHARE of them);
-        an infinite derivative (a vertical tangent, sqrt(x) at 0) is refused."""
+        an infinite derivative (a vertical tangent, sqrt(x) at 0) is refused, and so is
+        a footprint reaching a singular point of asin, acos or atan2 (expr.check_domain)."""
+        from .expr import check_domain
+
+        try:
+            check_domain(self.fns, self.x_range, self.y_range)
+        except SpecError as exc:
+            raise exc.with_location(file=self.source) from None
         X, Y = self.grid(201)
         vals = self.derivatives(X, Y)
         kink = self._kinks(X, Y, vals)

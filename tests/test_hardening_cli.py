@@ -759,3 +759,84 @@ def test_precision_without_launches_still_studies_toolpath_and_mesh(tmp_path, mo
     code, out, err = _run(["precision", spec, "--quick"])
     assert code == 0 and "precision: simulation study skipped: no well-conditioned" in out
     assert "precision: precision:" not in out + err
+
+
+# ----------------------------------------------------------------------------
+# issue 29: --vary values get the spec key's own range checks (design and explore)
+# ----------------------------------------------------------------------------
+@pytest.mark.parametrize("command,vary,says", [
+    ("design", "surface.params.eps=-1e308:1e308", "out of range"),         # was OverflowError (exit 3)
+    ("design", "surface.params.eps=0:5e-324", "too narrow"),               # was an optimizer error (exit 3)
+    ("design", "surface.params.eps=1:1.0000000000000002", "too narrow"),
+    ("design", "simulation.start=-1e308:1e308", "too wide"),                # no range of its own: HI - LO overflows
+    ("design", "ball.diameter=0:3", "must be > 0"),                        # the key's own range
+    ("design", "simulation.damping=-1:1", "must be >= 0"),
+    ("design", "ramp.samples=2:1e300", "must be <= 10000"),
+    ("design", "surface.x.lo=-1e10:0", "out of range"),
+    ("design", "ramp.samples=2.5:2.7", "no whole number"),
+    ("explore", "surface.params.eps=-1e308:1e308:3", "out of range"),
+    ("explore", "surface.params.eps=0:5e-324:2", "too narrow"),
+    ("explore", "surface.params.eps=1e308,2", "out of range"),
+    ("explore", "tool.diameter=0:1:2", "must be > 0"),
+    ("explore", "simulation.model=full,bogus", "must be one of"),
+    ("explore", "ball.inertia=solid,-1", "must be in [0, 10]"),
+    ("explore", "surface.params.eps=1:1.000000000001:1000", "too narrow"),
+])
+def test_vary_values_get_the_keys_range_checks(tmp_path, command, vary, says):
+    spec = _tiny_file(tmp_path)
+    before = set(tmp_path.rglob("*"))
+    with bounded(60):
+        code, out, err = _run([command, spec, "--vary", vary, "--no-progress"])
+    _one_line_exit2(code, err, "--vary")
+    assert says in err and vary.split("=")[0] in err, err
+    assert set(tmp_path.rglob("*")) == before
+
+
+def test_vary_parsing_keeps_good_values():
+    """What passes the checks is exactly the grid asked for (values against linspace's
+    closed form lo + i (hi - lo) / (n - 1)), whole numbers for whole-number keys."""
+    from fabkit.design import parse_bound
+    from fabkit.explore import parse_vary
+    from fabkit.spec import load_spec
+
+    spec = load_spec(PAPER)
+    v = parse_vary("surface.params.eps=0.1:0.4:4", spec)
+    assert v.values == pytest.approx([0.1 + i * 0.1 for i in range(4)], rel=1e-15)
+    assert parse_vary("ramp.samples=2:4:3", spec).values == (2, 3, 4)
+    assert parse_vary("ball.inertia=solid,0.5", spec).values == ("solid", 0.5)
+    b = parse_bound("ramp.samples=1.5:3", spec)
+    assert (b.lo, b.hi, b.integer) == (1.5, 3.0, True)
+    b = parse_bound("surface.params.eps=-1e12:1e12", spec)
+    assert (b.lo, b.hi) == (-1e12, 1e12) and b.step == 1e9
+
+
+# ----------------------------------------------------------------------------
+# issue 29: every option tried with huge, tiny (subnormal), negative and junk numbers
+# ends with one line naming the option, exit 2 (they were exit 3, numpy warnings)
+# ----------------------------------------------------------------------------
+@pytest.mark.parametrize("argv,named,says", [
+    (["phi4", "--v-in", "0.27", "--dx", "1e-320"], "--dx", "grid intervals exceed"),      # was OverflowError
+    (["phi4", "--v-in", "0.27", "--dx", "5e-324"], "--dx", "grid intervals exceed"),
+    (["stl", "{spec}", "--tolerance", "1e-320"], "--tolerance", "at least 1e-06 mm"),       # was a numpy warning
+    (["stl", "{spec}", "--tolerance", "5e-324"], "--tolerance", "at least 1e-06 mm"),
+    (["design", "{spec}", "--vary", "surface.params.c=0.05:0.1", "--min-width", "5e-324"], "--min-width",
+     "below 1e-9"),                                                                          # was OverflowError
+    (["design", "{spec}", "--vary", "surface.params.c=0.05:0.1", "--sigma-y", "1e308"], "--sigma-y",
+     "wider than the footprint"),                                                            # was a numpy warning
+    (["design", "{spec}", "--vary", "surface.params.c=0.05:0.1", "--sigma-vy", "1e308"], "--sigma-vy",
+     "at most 1e+06"),
+    (["robustness", "{spec}", "--v-in", "40", "50", "3", "--sigma-y", "1e308", "--sigma-vy", "0",
+      "--samples", "2"], "--sigma-y", "wider than the footprint"),
+    (["robustness", "{spec}", "--v-in", "40", "50", "3", "--sigma-y", "0", "--sigma-vy", "1e300",
+      "--samples", "2"], "--sigma-vy", "at most 1e+06"),
+    (["sweep", "{spec}", "--v-in", "40", "50", "1e308"], "--v-in", "N = 1e+308 exceeds"),    # was 309 digits
+])
+def test_hostile_option_values_are_one_line(tmp_path, argv, named, says):
+    spec = _tiny_file(tmp_path)
+    before = set(tmp_path.rglob("*"))
+    with bounded(120):
+        code, out, err = _run([a.format(spec=spec) for a in argv])
+    _one_line_exit2(code, err, named)
+    assert says in err and len(err) < 300, err
+    assert "Warning" not in err
+    assert set(tmp_path.rglob("*")) == before

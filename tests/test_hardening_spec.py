@@ -14,6 +14,7 @@ hanging CI; it asserts nothing about speed.
 from __future__ import annotations
 
 import copy
+import json
 import math
 import tempfile
 from pathlib import Path
@@ -30,7 +31,7 @@ from fabkit.spec import SCHEMA, TOP_KEYS, Num, load_spec, validate
 from fabkit.surface import Surface
 from fabkit.tolerances import DEFAULT
 
-from conftest import PAPER, bounded, paper_raw
+from conftest import PAPER, bounded, paper_raw, write_spec
 
 JUNK = Path(__file__).parent / "fixtures" / "junk"
 FAST = settings(max_examples=40, deadline=None, derandomize=True, database=None,
@@ -769,3 +770,71 @@ def test_docs_state_the_guards_the_code_has():
     assert f"({limit}," in stl_md
     assert not re.search(r"triangles.{0,40}5 ?000 ?000", errors_md + stl_md)
     assert "aliases and anchors" not in errors_md
+
+
+# ----------------------------------------------------------------------------
+# issue 29: a formula with atan2 (a helicoid-like ramp, centre off the block) is milled
+# ----------------------------------------------------------------------------
+HELIX = {
+    "name": "helix", "units": "mm",
+    "surface": {"height": "2*atan2(y, x + c) - 0.02*y", "params": {"c": 60}, "x": [-10, 10], "y": [-8, 8],
+                "top": 3.0},
+    "stock": {"thickness": 20, "depth_limit": 15},
+    "tool": {"shape": "ball", "diameter": 6, "reach": 30},
+    "machining": {"scallop": 0.2, "tolerance": 0.02, "direction": "x", "feed": 2000, "plunge": 500,
+                  "spindle": 12000, "safe_height": 5, "dialect": "linuxcnc", "units": "mm"},
+}
+
+
+def _feed_points(text: str) -> np.ndarray:
+    """The end points (X, Y, Z) of the program's G1 moves (modal words tracked)."""
+    import re
+
+    pos, mode, out = {"X": np.nan, "Y": np.nan, "Z": np.nan}, None, []
+    for line in text.splitlines():
+        line = re.sub(r"\(.*?\)", "", line)
+        for g in re.findall(r"G(\d+)", line):
+            if g in ("0", "1"):
+                mode = g
+        words = dict(re.findall(r"([XYZ])(-?[\d.]+)", line))
+        for k, v in words.items():
+            pos[k] = float(v)
+        if words and mode == "1":
+            out.append((pos["X"], pos["Y"], pos["Z"]))
+    return np.array(out)
+
+
+def test_gcode_with_atan2_writes_a_verified_program(cli, tmp_path):
+
+    spec = write_spec(tmp_path, HELIX)
+    with bounded(300):
+        code, out, err = cli("gcode", spec, "--json")
+    assert code == 0, err
+    s = json.loads(out)
+    assert s["verified"] is True
+    prog = tmp_path / "toolpaths" / "helix.ngc"
+    # independent no-gouge check of the program: every feed end point's ball (centre a radius
+    # above the tip) stays at least R - tolerance from the design surface h = 2 atan2(y, x + 60) - y/50
+    pts = _feed_points(prog.read_text())
+    assert len(pts) > 50
+    ox, oy, oz = s["design_to_work"]["offset"]
+    R = 3.0
+    c = np.column_stack([pts[:, 0] - ox, pts[:, 1] - oy, pts[:, 2] - oz + R])
+    gx, gy = np.meshgrid(np.linspace(-10, 10, 401), np.linspace(-8, 8, 321))
+    gz = np.minimum(2 * np.arctan2(gy, gx + 60) - 0.02 * gy, 3.0)
+    surf = np.column_stack([gx.ravel(), gy.ravel(), gz.ravel()])
+    c = c[np.abs(c[:, 0]) <= 10 + R]
+    dmin = min(np.sqrt(((surf[None, :, :] - c[i:i + 8, None, :]) ** 2).sum(-1)).min()
+               for i in range(0, len(c), 8))
+    assert R - 0.02 - 1e-3 <= dmin <= R + 0.02       # no gouge, and the ball does touch
+
+
+def test_gcode_with_atan2_at_its_origin_is_refused(cli, tmp_path):
+
+    raw = copy.deepcopy(HELIX)
+    raw["surface"]["params"]["c"] = 5           # atan2(y, x + 5): undefined at (-5, 0), on the block
+    spec = write_spec(tmp_path, raw)
+    code, out, err = cli("gcode", spec)
+    assert code == 2
+    assert err.count("\n") == 1 and "surface.height" in err and "atan2" in err and "Traceback" not in err
+    assert not (tmp_path / "toolpaths").exists()

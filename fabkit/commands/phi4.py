@@ -41,8 +41,8 @@ def config_from_args(args):
         key = "--dt" if getattr(args, "dt", None) is not None else "--t-max"
         raise SpecError(f"t_max / dt = {cfg.t_max:g} / {cfg.dt:g} = {cfg.t_max / cfg.dt:.3g} steps exceeds the "
                         f"limit {MAX_STEPS}: a larger --dt or a smaller --t-max", key=key)
-    if cfg.n > MAX_GRID:
-        raise SpecError(f"{cfg.n} grid intervals exceed the limit {MAX_GRID}", key="--dx")
+    if not cfg.length / cfg.dx <= MAX_GRID:          # in floats: a subnormal dx overflows an integer count
+        raise SpecError(f"{cfg.length / cfg.dx:.3g} grid intervals exceed the limit {MAX_GRID}", key="--dx")
     return cfg
 
 
@@ -84,20 +84,40 @@ def _one(args, v: float, cfg, fmt) -> int:
 
     timer = Timer()
     r = collide([v], cfg, record=bool(args.plot))
-    seconds = timer.seconds
     out = OUTCOMES[int(r.outcome[0])]
     nb = int(r.bounces[0])
     bt = [float(t) for t in r.bounce_times[0, :nb] if np.isfinite(t)]
     v_out = float(r.v_out[0])
+    # the error of this result, by step halving: the same collision at dt/2 (ETDRK4 is fourth
+    # order, so |v_out(dt) - v_out(dt/2)| is v_out(dt)'s error to about 1/15)
+    half = cfg.with_(dt=0.5 * cfg.dt)
+    check = collide([v], half) if half.t_max / half.dt <= MAX_STEPS else None
+    error, error_note = None, None
+    if check is None:
+        error_note = f"not estimated: dt/2 would exceed {MAX_STEPS} steps"
+    elif OUTCOMES[int(check.outcome[0])] != out or int(check.bounces[0]) != nb:
+        half_out = OUTCOMES[int(check.outcome[0])]
+        error_note = (f"the outcome changes at dt/2 = {half.dt:g} ({half_out}, {int(check.bounces[0])} bounces): "
+                      f"the step does not resolve this collision; use --dt {0.25 * cfg.dt:g} or smaller")
+    elif out == "escaped":
+        error = abs(v_out - float(check.v_out[0]))
+    seconds = timer.seconds
     payload = {"v_in": v, "outcome": out, "bounces": nb, "bounce_times": bt,
-               "v_out": v_out if out == "escaped" else None, "t_end": float(r.t_end[0]),
+               "v_out": v_out if out == "escaped" else None,
+               "v_out_error": error, "v_out_error_method": "step halving: |v_out(dt) - v_out(dt/2)|",
+               "error_note": error_note, "t_end": float(r.t_end[0]),
                "seconds": seconds, "config": config_dict(cfg)}
+    if out != "escaped":
+        err_txt = "no v_out" if error_note is None else error_note
+    elif error is not None:
+        err_txt = f"v_out error {error:.1e} c (step halving, dt/2 = {half.dt:g})"
+    else:
+        err_txt = error_note
     lines = [f"phi4: v_in = {v:g} c, X0 = {cfg.x0:g}, dx = {cfg.dx:g}, dt = {cfg.dt:g}, t_max = {cfg.t_max:g}",
              f"outcome: {out}" + (f", v_out = {v_out:.6f} c" if out == "escaped" else f" (at t = {cfg.t_max:g})"),
              f"bounces: {nb}" + (f" at t = {', '.join(f'{t:.2f}' for t in bt[:8])}" if bt else "")
              + (f", ... (the first 8 of {len(bt)}; all in --json)" if len(bt) > 8 else ""),
-             f"phi4: v_out error ~4e-5 c at these defaults, more inside narrow windows "
-             f"(docs/numerics.md, phi^4), {seconds:.1f} s"]
+             f"phi4: {err_txt}; {seconds:.1f} s with the check at dt/2"]
     if args.plot:
         from ..io import write_atomic
         from ..plots import phi4_trajectory_png
@@ -144,8 +164,9 @@ def _sweep(args, v: np.ndarray, cfg, fmt) -> int:
         txt = f"v_critical: none ({res['v_critical_reason']})"
     lines.append(f"phi4: {txt}")
     lines.append(f"phi4: {res['launches']} collisions in {res['seconds']:.1f} s "
-                 f"({1e3 * res['seconds_per_collision']:.0f} ms each); v_out error ~4e-5 c, "
-                 f"grid error of v_critical ~1e-5 c (docs/numerics.md, phi^4)")
+                 f"({1e3 * res['seconds_per_collision']:.0f} ms each); at dx = 1/4, dt = 1/20 v_out error ~3e-6 c, "
+                 f"up to 3e-4 c inside narrow windows, v_critical ~1e-5 c (docs/numerics.md, phi^4; "
+                 f"one speed gives its own step-halving estimate)")
     payload = {k: res[k] for k in ("v_in", "v_out", "bounces", "outcome", "v_critical", "windows",
                                    "v_critical_error", "v_critical_reason", "v_critical_extrapolated",
                                    "t_max_bias", "launches", "seconds", "seconds_per_collision", "config")}

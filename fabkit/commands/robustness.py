@@ -15,7 +15,7 @@ from ._common import Timer, check_paths, emit, plot_format, prepare_simulator
 
 
 def run(args) -> int:
-    from ..explore import Engine, check_scatter, robustness, table_bytes, table_format
+    from ..explore import Engine, check_scatter, check_scatter_size, robustness, table_bytes, table_format
     from ..io import atomic_outputs
     from ..spec import load_spec
     from ._common import progress_bar
@@ -25,6 +25,7 @@ def run(args) -> int:
     spec = load_spec(args.spec, need=("surface", "simulation"), command="robustness")
     v = speeds(spec, args.v_in)
     check_scatter(args.sigma_y, args.sigma_vy, args.samples, len(v), seed=args.seed)
+    check_scatter_size(spec, args.sigma_y, args.sigma_vy)
     check_paths(args, {"--out": args.out, "--plot": args.plot})
     fmt = table_format(args.out)
     if not args.scheduler:

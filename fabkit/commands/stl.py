@@ -16,11 +16,18 @@ from ..tolerances import DEFAULT
 from ._common import Timer, check_paths, default_output, emit
 
 
+#: the finest --tolerance, mm (1 nm): far below any machine, and above the numbers whose
+#: triangle estimate overflows (a subnormal tolerance)
+MIN_TOLERANCE_MM = 1e-6
+
+
 def _tolerance(value) -> float:
     if value is None:
         return DEFAULT.mesh_tolerance_mm
     if not (math.isfinite(value) and value > 0):
         raise SpecError(f"must be a finite number of mm > 0, got {value!r}", key="--tolerance")
+    if value < MIN_TOLERANCE_MM:
+        raise SpecError(f"must be at least {MIN_TOLERANCE_MM:g} mm, got {value:g}", key="--tolerance")
     return float(value)
 
 

@@ -31,7 +31,7 @@ def speeds(spec, v_in_arg, tol=None) -> np.ndarray:
         if not (np.isfinite(n) and n == int(n) and n >= 2):
             raise SpecError(f"N must be a whole number >= 2, got {n:g}", key="--v-in")
         if n > tol.max_launches:
-            raise SpecError(f"N = {int(n)} exceeds the limit {tol.max_launches}", key="--v-in")
+            raise SpecError(f"N = {n:.6g} exceeds the limit {tol.max_launches}", key="--v-in")
         return np.linspace(lo, hi, int(n))
     spec.require("ramp", "ball", command="sweep (without --v-in)")
     from .. import units
