@@ -63,12 +63,13 @@ _SYNC = re.compile(r"(?:^|[^A-Z])(?:M0*[2-6]|M30|G0*4)(?![0-9.])")
 
 @dataclass
 class CapRegion:
-    """A run of consecutive feed moves the planner kept below their feed."""
+    """A run of consecutive feed moves the look-ahead or the corners kept below their
+    feed (the feed already clipped by the axis rates)."""
 
     first_line: int
     last_line: int
     at: tuple                   # (x, y) mm where the run starts
-    feed: float                 # programmed F, mm/min
+    feed: float                 # F clipped by the axis rates, mm/min
     speed: float                # mean speed over the run (length / time), mm/min
     lost_s: float               # time over length/feed along the run
 
@@ -88,10 +89,12 @@ class RunTime:
     plunge_s: float             # G1 moves straight down
     rapid_s: float              # G0 moves
     length_over_feed_s: float   # the same program at its feeds and rapid rates with no acceleration
-    capped_fraction: float      # share of the feed length run below CAPPED_BELOW x F
+    capped_fraction: float      # share of the cut length run below CAPPED_BELOW x F
+    rate_capped_fraction: float  # ... where the axis rates allow less than F
+    accel_capped_fraction: float  # ... held below min(F, axis rates) by acceleration
     lost_rate_s: float          # time over length/feed because the axis rates clip F
     lost_lookahead_s: float     # ... because of acceleration: look-ahead, corners, starts and stops
-    regions: list = field(default_factory=list)    # the largest CapRegion's
+    regions: list = field(default_factory=list)    # the CapRegion's (acceleration) losing the most time
     blocks: int = 0
     model: str = ""
 
@@ -100,19 +103,25 @@ class RunTime:
                 "feed_s": round(self.feed_s, 1), "plunge_s": round(self.plunge_s, 1),
                 "rapid_s": round(self.rapid_s, 1), "length_over_feed_s": round(self.length_over_feed_s, 1),
                 "feed_capped_fraction": round(self.capped_fraction, 4),
+                "feed_capped_by_rates_fraction": round(self.rate_capped_fraction, 4),
+                "feed_capped_by_acceleration_fraction": round(self.accel_capped_fraction, 4),
                 "time_lost_to_axis_rates_s": round(self.lost_rate_s, 1),
                 "time_lost_to_acceleration_s": round(self.lost_lookahead_s, 1),
                 "capped_regions": [r.to_json() for r in self.regions], "blocks": self.blocks, "model": self.model}
 
     def summary(self) -> str:
-        from ..commands.gcode import _hm  # formatting only
-
         s = (f"run time on {self.machine}: {_hm(self.total_s)} ({self.total_s:.0f} s: feeds {self.feed_s:.0f}, "
              f"plunges {self.plunge_s:.0f}, rapids {self.rapid_s:.0f}); length/feed {_hm(self.length_over_feed_s)}")
         if self.capped_fraction > 0:
-            s += (f"; feed capped on {100 * self.capped_fraction:.0f} % of the cut length "
-                  f"(+{self.lost_rate_s:.0f} s by the axis rates, +{self.lost_lookahead_s:.0f} s by acceleration)")
+            s += (f"; feed capped on {100 * self.capped_fraction:.0f} % of the cut length: by the axis rates on "
+                  f"{100 * self.rate_capped_fraction:.0f} % (+{self.lost_rate_s:.0f} s), by acceleration on "
+                  f"{100 * self.accel_capped_fraction:.0f} % (+{self.lost_lookahead_s:.0f} s)")
         return s
+
+
+def _hm(seconds: float) -> str:
+    m = int(round(seconds / 60.0))
+    return f"{m // 60} h {m % 60} min" if m >= 60 else f"{m} min"
 
 
 # ----------------------------------------------------------------------------
@@ -351,42 +360,50 @@ def _report(program, blocks: Blocks, t: np.ndarray, peak: np.ndarray, machine, m
     feed = ~blocks.rapid & ~blocks.plunge
     # the length/feed estimate of the same moves: G0 at the axis-limited rapid rate
     ideal = blocks.length / np.where(blocks.rapid, blocks.rate_cap, blocks.feed) * 60.0
-    clipped = blocks.length / np.where(blocks.rapid, blocks.rate_cap, np.minimum(blocks.feed, blocks.rate_cap)) * 60.0
+    reach = np.where(blocks.rapid, blocks.rate_cap, np.minimum(blocks.feed, blocks.rate_cap))
+    clipped = blocks.length / reach * 60.0
     cut = ~blocks.rapid
-    capped = cut & (peak < CAPPED_BELOW * blocks.feed)
     cut_len = blocks.length[cut].sum()
-    frac = float(blocks.length[capped].sum() / cut_len) if cut_len > 0 else 0.0
+
+    def share(mask):
+        return float(blocks.length[mask].sum() / cut_len) if cut_len > 0 else 0.0
+
+    frac = share(cut & (peak < CAPPED_BELOW * blocks.feed))
+    frac_rate = share(cut & (blocks.rate_cap < CAPPED_BELOW * blocks.feed))
+    slowed = cut & (peak < CAPPED_BELOW * reach)          # held below what the axis rates allow
     lost_rate = float(np.sum((clipped - ideal)[cut]))
     lost_acc = float(np.sum((t - clipped)[cut]))
-    regions = _regions(program, blocks, capped, t, ideal, top)
+    regions = _regions(program, blocks, slowed, t, clipped, top)
     name = machine.name or machine.controller
     return RunTime(controller=machine.controller, machine=name, total_s=float(t.sum()),
                    feed_s=float(t[feed].sum()), plunge_s=float(t[blocks.plunge].sum()),
                    rapid_s=float(t[blocks.rapid].sum()), length_over_feed_s=float(ideal.sum()),
-                   capped_fraction=frac, lost_rate_s=lost_rate, lost_lookahead_s=lost_acc,
+                   capped_fraction=frac, rate_capped_fraction=frac_rate, accel_capped_fraction=share(slowed),
+                   lost_rate_s=lost_rate, lost_lookahead_s=lost_acc,
                    regions=regions, blocks=int(len(blocks.length)), model=model)
 
 
-def _regions(program, blocks: Blocks, capped: np.ndarray, t, ideal, top: int) -> list:
-    """The ``top`` runs of consecutive capped feed blocks that lose the most time."""
-    if not capped.any():
+def _regions(program, blocks: Blocks, slowed: np.ndarray, t, clipped, top: int) -> list:
+    """The ``top`` runs of consecutive feed blocks held below their (rate-clipped) feed
+    by acceleration that lose the most time."""
+    if not slowed.any():
         return []
-    idx = np.flatnonzero(capped)
+    idx = np.flatnonzero(slowed)
     breaks = np.flatnonzero(np.diff(idx) > 1)
     starts = np.concatenate([[0], breaks + 1])
     ends = np.concatenate([breaks, [len(idx) - 1]])
-    lost = np.add.reduceat((t - ideal)[idx], starts)
+    lost = np.add.reduceat((t - clipped)[idx], starts)
     order = np.argsort(-lost)[:top]
     out = []
     for r in order:
         a, b = idx[starts[r]], idx[ends[r]]
         sel = slice(a, b + 1)
-        length = blocks.length[sel][capped[sel]].sum()
-        time = t[sel][capped[sel]].sum()
+        length = blocks.length[sel][slowed[sel]].sum()
+        time = t[sel][slowed[sel]].sum()
         mv = blocks.move[a]
         p0 = program.points[mv - 1] if mv > 0 else program.start
         out.append(CapRegion(first_line=int(program.line[blocks.move[a]]), last_line=int(program.line[blocks.move[b]]),
                              at=(float(np.nan_to_num(p0[0])), float(np.nan_to_num(p0[1]))),
-                             feed=float(np.median(blocks.feed[sel])), speed=float(length / time * 60.0),
-                             lost_s=float(lost[r])))
+                             feed=float(np.median(np.minimum(blocks.feed, blocks.rate_cap)[sel])),
+                             speed=float(length / time * 60.0), lost_s=float(lost[r])))
     return out

@@ -134,14 +134,18 @@ def _read_text(path, noun: str) -> str:
 
 
 def load_machine(path) -> Machine:
-    """A profile file: a YAML mapping of the ``machine`` keys, or a spec with a
-    ``machine`` section. Bad files raise SpecError naming the file and key."""
+    """A profile file: a YAML mapping of the ``machine`` keys, a spec with a
+    ``machine`` section, or the controller's own settings (a grbl ``$$`` dump, a
+    LinuxCNC INI). Bad files raise SpecError naming the file and key."""
     import yaml
 
     from ..spec import _SafeLoader
 
     p = str(path)
     text = _read_text(p, "machine profile")
+    native = _native(text, p)
+    if native is not None:
+        return native
     try:
         raw = yaml.load(text, Loader=_SafeLoader)
     except yaml.YAMLError as exc:
@@ -281,14 +285,22 @@ def parse_linuxcnc_ini(text: str, file: str = "<ini>") -> Machine:
         raise SpecError(exc.detail, file=file, key=exc.key) from None
 
 
+def _native(text: str, p: str) -> Machine | None:
+    """The profile of a grbl ``$$`` dump or a LinuxCNC INI; None for other text."""
+    if re.search(r"^\s*\$\d+\s*=", text, re.M):
+        return parse_grbl(text, p)
+    if re.search(r"^\s*\[(TRAJ|AXIS_[XYZ0-9])\]", text, re.M | re.I):
+        return parse_linuxcnc_ini(text, p)
+    return None
+
+
 def import_settings(path) -> Machine:
     """A grbl ``$$`` dump or a LinuxCNC INI file -> profile (the format is recognised
     from the text: ``$N=`` lines, or ``[TRAJ]`` / ``[AXIS_..]`` sections)."""
     p = str(path)
     text = _read_text(p, "machine settings")
-    if re.search(r"^\s*\$\d+\s*=", text, re.M):
-        return parse_grbl(text, p)
-    if re.search(r"^\s*\[(TRAJ|AXIS_[XYZ0-9])\]", text, re.M | re.I):
-        return parse_linuxcnc_ini(text, p)
+    native = _native(text, p)
+    if native is not None:
+        return native
     raise SpecError("not a grbl $$ dump ($110=500.000 lines) or a LinuxCNC INI ([TRAJ], [AXIS_X] sections)",
                     file=p)
