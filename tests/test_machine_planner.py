@@ -111,3 +111,57 @@ def test_linuxcnc_blend_corner():
     vc = math.sqrt(50.0 * rad)
     expect = trapezoid(100, 0, vc, 50, 100) + trapezoid(100, vc, 0, 50, 100)
     assert r.total_s == pytest.approx(expect, rel=1e-12)
+
+
+def _ring_buffer_reference(blocks_len, accel, max_entry, fresh, size=16):
+    """grbl's planner written out plainly: a ring of ``size`` slots (size - 1 usable),
+    planner_recalculate's reverse and forward passes from the executing block, blocks
+    added one at a time while the buffer has room, a block's exit fixed when it starts.
+    Returns the boundary speeds^2 (entry of each block, exit of the last)."""
+    n = len(blocks_len)
+    out = [0.0] * (n + 1)
+    entry = [0.0] * n
+    queue = []              # block indices in the buffer; queue[0] is executing
+    nxt = 0
+    current_entry = 0.0
+    k = 0
+    while k < n:
+        # stream: fill the buffer (a fresh block waits until the buffer has emptied)
+        while nxt < n and len(queue) < size - 1 and not (fresh[nxt] and nxt != k and queue):
+            queue.append(nxt)
+            nxt += 1
+        # planner_recalculate over the queue: the last ends at rest; reverse then forward
+        for i in queue:
+            entry[i] = max_entry[i] if i != k else current_entry
+        exit_sqr = 0.0
+        for i in reversed(queue[1:]):
+            entry[i] = min(max_entry[i], exit_sqr + 2 * accel[i] * blocks_len[i])
+            exit_sqr = entry[i]
+        prev = current_entry
+        for i in queue[1:]:
+            entry[i] = min(entry[i], prev + 2 * accel[i - 1] * blocks_len[i - 1])
+            prev = entry[i]
+        # block k runs: its exit is the next block's entry (0 when it is the last queued)
+        out[k] = current_entry
+        current_entry = entry[queue[1]] if len(queue) > 1 else 0.0
+        queue.pop(0)
+        k += 1
+    out[n] = 0.0
+    return out
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_streamed_speeds_match_a_plain_ring_buffer(seed):
+    from fabkit.machine.planner import streamed_speeds
+
+    r = np.random.default_rng(seed)
+    n = 300
+    L = r.choice([0.05, 0.5, 3.0, 40.0], size=n) * r.uniform(0.5, 1.5, size=n)
+    a = r.uniform(3e4, 2e6, size=n)
+    me = r.uniform(0, 3e6, size=n) * (r.random(n) > 0.1)
+    fresh = r.random(n) < 0.02
+    fresh[0] = True
+    me = np.where(fresh, 0.0, me)
+    got = streamed_speeds(me, a, L, fresh)
+    want = _ring_buffer_reference(L, a, me, fresh)
+    np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-6)
