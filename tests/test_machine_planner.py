@@ -165,3 +165,16 @@ def test_streamed_speeds_match_a_plain_ring_buffer(seed):
     got = streamed_speeds(me, a, L, fresh)
     want = _ring_buffer_reference(L, a, me, fresh)
     np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-6)
+
+
+def test_per_pass_times():
+    m = dataclasses.replace(GRBL, max_rate=(6000.0,) * 3)
+    sync = ["M5", "M3 S1000"]
+    text = prog(["G1 X50 F3000", *sync, "G1 Y1", *sync, "G1 X0", *sync, "G1 Y2", *sync, "G1 X50", "M5", "G0 Z5"])
+    r = run_time(text, m, raster_axis=0)
+    p = r.passes
+    assert p["passes"] == 3
+    first = trapezoid(50, 0, 0, 50, 10)
+    later = trapezoid(1, 0, 0, 50, 10) + first          # the step across counts with the pass it leads into
+    assert p["min_s"] == pytest.approx(first, abs=0.006) and p["max_s"] == pytest.approx(later, abs=0.006)
+    assert p["median_s"] == pytest.approx(later, abs=0.006)

@@ -117,7 +117,7 @@ def machine_run(args, spec, program, text):
     machine = machine_from_spec(spec, getattr(args, "machine", None))
     if machine is None:
         return None, None, None
-    run = run_time(text, machine, program)
+    run = run_time(text, machine, program, raster_axis=0 if spec.machining.direction == "x" else 1)
     mcheck = check_program(program, text, machine, run)
     mcheck.raise_if_refused(machine.source)
     for w in mcheck.warnings:

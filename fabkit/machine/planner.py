@@ -95,6 +95,7 @@ class RunTime:
     lost_rate_s: float          # time over length/feed because the axis rates clip F
     lost_lookahead_s: float     # ... because of acceleration: look-ahead, corners, starts and stops
     regions: list = field(default_factory=list)    # the CapRegion's (acceleration) losing the most time
+    passes: dict | None = None  # per raster pass (see :func:`pass_times`), when the raster axis is known
     blocks: int = 0
     model: str = ""
 
@@ -107,11 +108,16 @@ class RunTime:
                 "feed_capped_by_acceleration_fraction": round(self.accel_capped_fraction, 4),
                 "time_lost_to_axis_rates_s": round(self.lost_rate_s, 1),
                 "time_lost_to_acceleration_s": round(self.lost_lookahead_s, 1),
-                "capped_regions": [r.to_json() for r in self.regions], "blocks": self.blocks, "model": self.model}
+                "capped_regions": [r.to_json() for r in self.regions], "per_pass": self.passes,
+                "blocks": self.blocks, "model": self.model}
 
     def summary(self) -> str:
         s = (f"run time on {self.machine}: {_hm(self.total_s)} ({self.total_s:.0f} s: feeds {self.feed_s:.0f}, "
              f"plunges {self.plunge_s:.0f}, rapids {self.rapid_s:.0f}); length/feed {_hm(self.length_over_feed_s)}")
+        if self.passes:
+            p = self.passes
+            s += (f"; {p['passes']} passes of {p['median_s']:.1f} s median ({p['min_s']:.1f}-{p['max_s']:.1f}; "
+                  f"length/feed {p['median_length_over_feed_s']:.1f})")
         if self.capped_fraction > 0:
             s += (f"; feed capped on {100 * self.capped_fraction:.0f} % of the cut length: by the axis rates on "
                   f"{100 * self.rate_capped_fraction:.0f} % (+{self.lost_rate_s:.0f} s), by acceleration on "
@@ -317,9 +323,11 @@ def trapezoid_times(v0: np.ndarray, v1: np.ndarray, vmax: np.ndarray, accel: np.
 # ----------------------------------------------------------------------------
 # the run time
 # ----------------------------------------------------------------------------
-def run_time(text: str, machine, program: Program | None = None, top: int = 5) -> RunTime:
+def run_time(text: str, machine, program: Program | None = None, top: int = 5,
+             raster_axis: int | None = None) -> RunTime:
     """The controller's run time of the program ``text`` on ``machine``
-    (:class:`fabkit.machine.profile.Machine`). ``program``: the text already read back."""
+    (:class:`fabkit.machine.profile.Machine`). ``program``: the text already read back;
+    ``raster_axis`` (0: x, 1: y): the passes' direction, for the per-pass figures."""
     from ..toolpath.verify import read_program
 
     if program is None:
@@ -345,7 +353,46 @@ def run_time(text: str, machine, program: Program | None = None, top: int = 5) -
     v = np.sqrt(v2)
     t_min, peak = trapezoid_times(v[:-1], v[1:], nom, blocks.accel, blocks.length)
     t = t_min * 60.0
-    return _report(program, blocks, t, peak, machine, model, top)
+    rt = _report(program, blocks, t, peak, machine, model, top)
+    if raster_axis is not None:
+        ideal = blocks.length / np.where(blocks.rapid, blocks.rate_cap, blocks.feed) * 60.0
+        rt.passes = pass_times(program, blocks, t, ideal, raster_axis)
+    return rt
+
+
+def pass_times(program, blocks: Blocks, t: np.ndarray, ideal: np.ndarray, axis: int) -> dict | None:
+    """Per raster pass: a pass is a run of cutting moves along ``axis`` in one direction
+    (it ends where the direction along ``axis`` reverses or at a rapid, so a pass the
+    program interrupts with a lift counts as two; the moves that step across between
+    passes count with the pass they lead into). Returns the count,
+    the median, shortest and longest pass times (s), the median length/feed time, and
+    the slowest pass's lines; None when there is no pass."""
+    cut = ~blocks.rapid
+    if not cut.any():
+        return None
+    sgn = np.sign(np.round(blocks.unit[:, axis], 12))
+    along = cut & (sgn != 0)
+    idx = np.flatnonzero(along)
+    if not len(idx):
+        return None
+    # a new pass where the sign along the axis flips, or a rapid lies between two along-moves
+    rapid_before = np.concatenate([[0], np.cumsum(blocks.rapid)])
+    new = np.ones(len(idx), dtype=bool)
+    new[1:] = (sgn[idx[1:]] != sgn[idx[:-1]]) | (rapid_before[idx[1:]] != rapid_before[idx[:-1] + 1])
+    starts = idx[new]
+    bounds = np.concatenate([starts, [len(t)]])
+    pt = np.add.reduceat(np.where(cut, t, 0.0), starts)
+    pi = np.add.reduceat(np.where(cut, ideal, 0.0), starts)
+    # the last pass ends at its last along-move
+    last = idx[-1] + 1
+    pt[-1] = t[starts[-1]:last][cut[starts[-1]:last]].sum()
+    pi[-1] = ideal[starts[-1]:last][cut[starts[-1]:last]].sum()
+    k = int(np.argmax(pt))
+    end = min(int(bounds[k + 1]) - 1, len(t) - 1)
+    return {"passes": int(len(starts)), "median_s": round(float(np.median(pt)), 2),
+            "min_s": round(float(pt.min()), 2), "max_s": round(float(pt.max()), 2),
+            "median_length_over_feed_s": round(float(np.median(pi)), 2),
+            "slowest_lines": [int(program.line[blocks.move[starts[k]]]), int(program.line[blocks.move[end]])]}
 
 
 def _g64_p(text: str) -> float | None:

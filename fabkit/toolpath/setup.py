@@ -195,6 +195,11 @@ def _run_markdown(sheet: dict) -> list[str]:
              f"plunges {rt['plunge_s']:g} s, rapids {rt['rapid_s']:g} s",
              f"- Length/feed estimate of the same moves (no acceleration): {_hms(rt['length_over_feed_s'])} "
              f"({rt['length_over_feed_s']:g} s)"]
+    pp = rt.get("per_pass")
+    if pp:
+        lines.append(f"- {pp['passes']} passes: {pp['median_s']:g} s each (median; {pp['min_s']:g} to {pp['max_s']:g} s, "
+                     f"the longest at lines {pp['slowest_lines'][0]}-{pp['slowest_lines'][1]}); "
+                     f"length/feed {pp['median_length_over_feed_s']:g} s")
     if rt["feed_capped_fraction"] > 0:
         lines.append(f"- The controller keeps the feed below F on {100 * rt['feed_capped_fraction']:.0f} % of the "
                      f"cut length: the axis rates on {100 * rt['feed_capped_by_rates_fraction']:.0f} % "
