@@ -221,6 +221,7 @@ def _finish(args, spec, surface, toolpath, profile, text, out, paths, R, t_plan,
                f"setup sheet: {paths['json']}, {paths['md']}, {paths['png']}"]
     if run is not None:
         summary.insert(2, run.summary())
+        summary.insert(3, mcheck.summary())
     payload = dict(sheet)
     payload.update(program_path=str(out), setup_paths={k: str(v) for k, v in paths.items()},
                    seconds=round(seconds, 3), ok=not bad, failures=bad)

@@ -39,6 +39,13 @@ class MachineCheck:
                 "warnings": list(self.warnings),
                 "travel_mm": {ax: [round(a, 4), round(b, 4)] for ax, (a, b) in self.travel.items()}}
 
+    def summary(self) -> str:
+        """One line: the travel used against the machine's, and the warnings' count."""
+        t = ", ".join(f"{ax.upper()} {a:.4g}/{b:g}" for ax, (a, b) in self.travel.items())
+        w = f"; {len(self.warnings)} warning(s)" if self.warnings else ""
+        return f"checked against {self.machine}: travel used/available {t} mm" + \
+            ("" if self.ok else "; REFUSED") + w
+
     def raise_if_refused(self, file: str | None = None) -> None:
         if self.refusals:
             raise SpecError("the machine cannot run this program: " + "; ".join(self.refusals), file=file,
