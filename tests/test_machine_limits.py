@@ -64,6 +64,7 @@ def test_tool_change_without_changer_refused(cli, tmp_path, plain_planner):
     spec = write_spec(tmp_path, raw)
     code, out, err = cli("gcode", spec, "--machine", dump(tmp_path), "--no-verify")
     assert code == 2 and "T3" in err and "no tool changer" in err
+    assert "machining.dialect is linuxcnc, the machine runs grbl" in err     # grbl rejects G64, G43, M6
     raw["machine"] = {"controller": "linuxcnc", "max_rate": [3000, 3000, 1000], "tool_changer": True,
                       "travel": [500, 500, 100]}
     spec = write_spec(tmp_path, raw)                 # the spec's own machine section
@@ -108,4 +109,8 @@ def test_check_program_units():
     assert any("X travel" in r and "101.6 mm" in r for r in chk.refusals)
     assert any("1200 rpm" in r for r in chk.refusals) and any("M6" in r for r in chk.refusals)
     assert chk.warnings and "F762" in chk.warnings[0]
+    lcnc = "G21 G90 G64 P0.005\nG0 X0 Y0 Z0\nG1 X10 F400\nM2\n"
+    chk = check_program(read_program(lcnc), lcnc, m)
+    assert chk.refusals == ["the program uses G64, which grbl 1.1 does not accept (error:20): write it with "
+                            "machining.dialect: grbl"]
     assert grbl_defaults().tool_changer is False and math.isclose(grbl_defaults().max_rate[0], 500.0)

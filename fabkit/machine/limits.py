@@ -18,7 +18,19 @@ from ..errors import SpecError
 #: relative slack on comparisons (rounding of the program's numbers)
 SLACK = 1e-9
 _S_WORD = re.compile(r"S\s*([-+]?(?:\d+\.?\d*|\.\d+))")
-_M6 = re.compile(r"(?:^|[^A-Z0-9.])M0*6(?![0-9.])")
+#: the G and M words grbl 1.1 accepts (doc/markdown/commands.md); others are error:20
+GRBL_WORDS = frozenset({"G0", "G1", "G2", "G3", "G4", "G10", "G17", "G18", "G19", "G20", "G21", "G28", "G30",
+                        "G38.2", "G38.3", "G38.4", "G38.5", "G40", "G43.1", "G49", "G53", "G54", "G55", "G56",
+                        "G57", "G58", "G59", "G61", "G80", "G90", "G91", "G91.1", "G92", "G92.1", "G93", "G94",
+                        "M0", "M1", "M2", "M3", "M4", "M5", "M7", "M8", "M9", "M30", "M56"})
+_GM_WORD = re.compile(r"([GM])\s*([0-9]+(?:\.[0-9]*)?)")
+_COMMENTS = re.compile(r"\([^()\n]*\)|;[^\n]*")
+
+
+def _num(v: str) -> str:
+    """'01' -> '1', '38.20' -> '38.2' (as used_words names them)."""
+    f = float(v)
+    return str(int(f)) if f.is_integer() else f"{f:g}"
 
 
 @dataclass
@@ -79,6 +91,9 @@ def precheck(spec, surface, machine) -> MachineCheck:
     L, W = surface.stock_size_mm
     chk.refusals += [r.replace("the program spans", "the block spans") for r in travel_refusals({"x": L, "y": W}, machine)]
     chk.refusals += spindle_refusals(spec.machining.spindle, machine)
+    if machine.controller == "grbl" and spec.machining.dialect != "grbl":
+        chk.refusals.append(f"machining.dialect is {spec.machining.dialect}, the machine runs grbl (it rejects "
+                            "G64, G43 and M6): set machining.dialect: grbl")
     if spec.tool.number is not None and spec.machining.dialect == "linuxcnc" and not machine.tool_changer:
         chk.refusals.append(f"the program changes to tool T{spec.tool.number} (M6), the machine has no tool changer "
                             "(remove tool.number or set machine.tool_changer: true for a manual change)")
@@ -96,14 +111,17 @@ def check_program(program, text: str, machine, run=None) -> MachineCheck:
         span[ax] = float(col.max() - col.min()) if col.size else 0.0
         chk.travel[ax] = (span[ax], float(machine.travel[i]))
     chk.refusals += travel_refusals(span, machine)
-    upper = text.upper()
-    speeds = [float(m.group(1)) for ln in upper.splitlines() if "M3" in ln or "M4" in ln or "S" in ln
-              for m in _S_WORD.finditer(re.sub(r"\([^)]*\)|;.*", "", ln))]
-    for rpm in sorted(set(speeds)):
+    clean = _COMMENTS.sub(" ", text.upper())
+    words = {f"{g}{_num(v)}" for g, v in _GM_WORD.findall(clean)}
+    for rpm in sorted({float(v) for v in _S_WORD.findall(clean)}):
         chk.refusals += spindle_refusals(rpm, machine)
-    if not machine.tool_changer and any(_M6.search(re.sub(r"\([^)]*\)|;.*", "", ln)) for ln in upper.splitlines()
-                                        if "M" in ln):
+    if not machine.tool_changer and "M6" in words:
         chk.refusals.append("the program calls M6 (tool change), the machine has no tool changer")
+    if machine.controller == "grbl":
+        foreign = sorted(w for w in words if w not in GRBL_WORDS and w != "M6")
+        if foreign:
+            chk.refusals.append(f"the program uses {', '.join(foreign)}, which grbl 1.1 does not accept "
+                                "(error:20): write it with machining.dialect: grbl")
     feeds = program.kinds == 1
     if feeds.any():
         a, b = program.segments()
