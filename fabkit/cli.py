@@ -78,6 +78,8 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("-o", "--output", metavar="PATH", help="output program (default toolpaths/<name>.ngc)")
     c.add_argument("--no-verify", action="store_true", help="skip the built-in cut verification")
     c.add_argument("--json", action="store_true", help="print the summary as JSON")
+    c.add_argument("--machine", metavar="FILE", help="machine profile (YAML; `fabkit machine import`): the "
+                   "controller's run time and the checks before cutting (default: the spec's machine section)")
     c.add_argument("--no-progress", action="store_true", help="no progress bar")
 
     c = cmd("calibrate", "map ramp release height to entry speed v_in (rolling, energy)")
@@ -173,6 +175,13 @@ def build_parser() -> argparse.ArgumentParser:
 
     c = cmd("report", "the whole design on one self-contained HTML page (verdict, surface, toolpath, sweep, ...)")
     c.add_argument("-o", "--output", metavar="PATH", help="output page (default toolpaths/<name>.report.html)")
+    c.add_argument("--json", action="store_true", help="print JSON")
+
+    h = "machine profiles: `import FILE` reads a grbl $$ dump or a LinuxCNC INI into a profile (YAML)"
+    c = sub.add_parser("machine", help=h, description=h)
+    c.add_argument("action", choices=["import"], help="import: settings file -> profile")
+    c.add_argument("file", metavar="FILE", help="grbl $$ dump (text) or LinuxCNC .ini")
+    c.add_argument("-o", "--output", metavar="OUT.yaml", help="write the profile here (default: print it)")
     c.add_argument("--json", action="store_true", help="print JSON")
 
     # the solitary-wave side: phi^4 collisions and the seed paper's Fig. 1

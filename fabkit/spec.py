@@ -89,6 +89,14 @@ class NumList:
 
 
 @dataclass(frozen=True)
+class Flag:
+    """true | false."""
+
+    default: Any = REQUIRED
+    doc: str = ""
+
+
+@dataclass(frozen=True)
 class Params:
     default: Any = dataclasses.field(default_factory=dict)
     doc: str = ""
@@ -144,6 +152,31 @@ SCHEMA: dict[str, dict[str, Any]] = {
                              doc="points at which the cut is verified"),
         "park": NumList(default=(0.0, 0.0), min_len=2, max_len=2, length="mm",
                         doc="[X, Y] work mm where the program ends, at the safe height"),
+    },
+    # the machine that runs the program (fabkit/machine): also a profile file of the same
+    # keys (`--machine FILE`, `fabkit machine import`). Rates mm/min, accelerations mm/s^2.
+    "machine": {
+        "name": Text(default=None, doc="what the profile describes"),
+        "controller": Choice(("grbl", "linuxcnc"), default="grbl"),
+        "max_rate": NumList(default=(500.0, 500.0, 500.0), gt=0, min_len=3, max_len=3,
+                            doc="mm/min per axis X Y Z (grbl $110-$112, LinuxCNC [AXIS_n] MAX_VELOCITY)"),
+        "acceleration": NumList(default=(10.0, 10.0, 10.0), gt=0, min_len=3, max_len=3,
+                                doc="mm/s^2 per axis X Y Z (grbl $120-$122, [AXIS_n] MAX_ACCELERATION)"),
+        "travel": NumList(default=(200.0, 200.0, 200.0), gt=0, min_len=3, max_len=3, length="mm",
+                          doc="mm per axis X Y Z (grbl $130-$132, [AXIS_n] MAX_LIMIT - MIN_LIMIT)"),
+        "steps_per_mm": NumList(default=(250.0, 250.0, 250.0), gt=0, min_len=3, max_len=3,
+                                doc="grbl $100-$102: positions are whole steps"),
+        "junction_deviation": Num(default=0.01, ge=0, le=10, length="mm", doc="grbl $11"),
+        "arc_tolerance": Num(default=0.002, gt=0, le=10, length="mm", doc="grbl $12"),
+        "path_tolerance": Num(default=None, ge=0, le=100, length="mm",
+                              doc="LinuxCNC G64 P; default: the program's G64 P"),
+        "max_velocity": Num(default=None, gt=0, le=1e7,
+                            doc="mm/min, LinuxCNC [TRAJ] MAX_LINEAR_VELOCITY; default: no limit beyond the axes"),
+        "max_acceleration": Num(default=None, gt=0, le=1e7,
+                                doc="mm/s^2, LinuxCNC [TRAJ] MAX_LINEAR_ACCELERATION"),
+        "rapid": Num(default=None, gt=0, le=1e7, doc="mm/min; default: the axis rates"),
+        "spindle": Pair(default=None, doc="[min, max] rpm (grbl $31, $30); default: not checked"),
+        "tool_changer": Flag(default=False, doc="true: M6 changes the tool (LinuxCNC); false: one tool"),
     },
     "ball": {
         "diameter": Num(default=2.5, gt=0, le=1e6, length="design"),
@@ -495,6 +528,10 @@ def _field(f: Any, value: Any, key: str, file: str, unit: str) -> Any:
                 raise SpecError(f"out of range, got {v:g}", file=file, key=f"{key}[{i}]")
             out.append(v)
         return tuple(out)
+    if isinstance(f, Flag):
+        if not isinstance(value, bool):
+            raise SpecError(f"must be true | false, got {_show(value)}", file=file, key=key)
+        return value
     if isinstance(f, Params):
         if value is None:
             return {}

@@ -69,6 +69,7 @@ def run(args) -> int:
     # refuse now, not after minutes of planning
     check_paths(args, {"--output": out, **{f"--output (setup sheet .{k})": p for k, p in paths.items()}})
     surface = Surface.from_spec(spec)
+    _machine_precheck(args, spec, surface)     # the machine's travel, spindle, tool changer: before planning
     plan_estimate(spec, surface)        # the guards first: a refusal costs about a second
     check_depth(spec, surface)
     R = spec.tool.diameter / 2.0
@@ -92,6 +93,36 @@ def run(args) -> int:
                        step)
     finally:
         close()
+
+
+def _machine_precheck(args, spec, surface) -> None:
+    """The machine profile (``--machine`` or the spec's section) against the stock,
+    spindle and tool call, before any planning (SpecError, exit 2)."""
+    from ..machine.limits import precheck
+    from ..machine.profile import machine_from_spec
+
+    machine = machine_from_spec(spec, getattr(args, "machine", None))
+    if machine is not None:
+        precheck(spec, surface, machine).raise_if_refused(machine.source)
+
+
+def machine_run(args, spec, program, text):
+    """(machine, run time, checks) of the program on the machine profile, or (None, None,
+    None) without one. Refuses (SpecError, exit 2) travel, spindle or tool change beyond
+    the machine; warns of feeds above its rates."""
+    from ..machine.limits import check_program
+    from ..machine.planner import run_time
+    from ..machine.profile import machine_from_spec
+
+    machine = machine_from_spec(spec, getattr(args, "machine", None))
+    if machine is None:
+        return None, None, None
+    run = run_time(text, machine, program, raster_axis=0 if spec.machining.direction == "x" else 1)
+    mcheck = check_program(program, text, machine, run)
+    mcheck.raise_if_refused(machine.source)
+    for w in mcheck.warnings:
+        warn(w)
+    return machine, run, mcheck
 
 
 def verified_cut(spec, surface, toolpath, profile, text, program):
@@ -144,13 +175,15 @@ def _finish(args, spec, surface, toolpath, profile, text, out, paths, R, t_plan,
         toolpath, text, program, check = verified_cut(spec, surface, toolpath, profile, text, program)
     est = estimate_time(program, profile.rapid)
     t_verify = t.seconds
+    machine, run, mcheck = machine_run(args, spec, program, text)    # refuses before anything is written
 
     step("setup sheet")
     t = Timer()
     lines = text.count("\n")
     timings = {"plan": t_plan, "write": t_write, "verify": t_verify}
     sheet = setup_sheet(spec, surface, toolpath, profile, out, check, est, lines, timings=timings,
-                        generated_at=_generated_at(), program=program)
+                        generated_at=_generated_at(), program=program, machine=machine, run=run,
+                        machine_check=mcheck)
     L, W = surface.stock_size_mm
     png = preview_png(program, L, W, profile.units)
     md = sheet_markdown(sheet, paths["png"].name)
@@ -186,6 +219,9 @@ def _finish(args, spec, surface, toolpath, profile, text, out, paths, R, t_plan,
                f"(compare with the machine's limits; see the setup sheet)" if need["feed_max"] is not None else
                f"machine: spindle {need['spindle_rpm']:g} rpm (no feed moves)",
                f"setup sheet: {paths['json']}, {paths['md']}, {paths['png']}"]
+    if run is not None:
+        summary.insert(2, run.summary())
+        summary.insert(3, mcheck.summary())
     payload = dict(sheet)
     payload.update(program_path=str(out), setup_paths={k: str(v) for k, v in paths.items()},
                    seconds=round(seconds, 3), ok=not bad, failures=bad)

@@ -83,7 +83,8 @@ def _r(v, nd=9):
 
 def setup_sheet(spec, surface, toolpath, profile, program_path, check: dict | None,
                 estimated_time_s: float, lines: int, timings: dict | None = None,
-                generated_at: str | None = None, program=None) -> dict:
+                generated_at: str | None = None, program=None, machine=None, run=None,
+                machine_check=None) -> dict:
     """The setup sheet as a dict (JSON-ready). ``check``: the result of
     :func:`fabkit.toolpath.verify.verify_cut` (work mm) or None when not verified.
     ``program``: the program read back (:func:`fabkit.toolpath.verify.read_program`);
@@ -157,11 +158,61 @@ def setup_sheet(spec, surface, toolpath, profile, program_path, check: dict | No
             "spindle_rpm": _r(need["spindle_rpm"]),
         }
         sheet["grbl_defaults"] = dict(GRBL_DEFAULTS)
+    if machine is not None:
+        sheet.update(_machine_keys(machine, run, machine_check, k))
     if timings:
         sheet["timings_s"] = {key: round(float(v), 3) for key, v in timings.items()}
     if generated_at:
         sheet["generated_at"] = generated_at
     return sheet
+
+
+def _machine_keys(machine, run, machine_check, k: float) -> dict:
+    """The sheet's keys for a machine profile: ``machine`` (the profile, in its own
+    units: mm, mm/min, mm/s^2), ``run_time`` (the controller's planner simulated:
+    seconds; feeds and positions in program units) and ``machine_check``."""
+    out = {"machine": {**machine.to_dict(), "source": machine.source}}
+    if run is not None:
+        rt = run.to_json()
+        for r in rt["capped_regions"]:
+            r["at"] = [_r(v * k) for v in r["at"]]
+            r["feed"], r["mean_speed"] = _r(r["feed"] * k), _r(r["mean_speed"] * k)
+        out["run_time"] = rt
+    if machine_check is not None:
+        out["machine_check"] = machine_check.to_json()
+    return out
+
+
+def _run_markdown(sheet: dict) -> list[str]:
+    """The 'Run time on this machine' section (empty without a machine profile)."""
+    rt = sheet.get("run_time")
+    if not rt:
+        return []
+    u = sheet["units"]
+    lines = ["## Run time on this machine", "",
+             f"- Machine: {rt['machine']} ({rt['controller']}; {rt['model']})",
+             f"- Run time {_hms(rt['total_s'])} ({rt['total_s']:g} s): feeds {rt['feed_s']:g} s, "
+             f"plunges {rt['plunge_s']:g} s, rapids {rt['rapid_s']:g} s",
+             f"- Length/feed estimate of the same moves (no acceleration): {_hms(rt['length_over_feed_s'])} "
+             f"({rt['length_over_feed_s']:g} s)"]
+    pp = rt.get("per_pass")
+    if pp:
+        lines.append(f"- {pp['passes']} passes: {pp['median_s']:g} s each (median; {pp['min_s']:g} to {pp['max_s']:g} s, "
+                     f"the longest at lines {pp['slowest_lines'][0]}-{pp['slowest_lines'][1]}); "
+                     f"length/feed {pp['median_length_over_feed_s']:g} s")
+    if rt["feed_capped_fraction"] > 0:
+        lines.append(f"- The controller keeps the feed below F on {100 * rt['feed_capped_fraction']:.0f} % of the "
+                     f"cut length: the axis rates on {100 * rt['feed_capped_by_rates_fraction']:.0f} % "
+                     f"(+{rt['time_lost_to_axis_rates_s']:g} s), acceleration (look-ahead, corners) on "
+                     f"{100 * rt['feed_capped_by_acceleration_fraction']:.0f} % "
+                     f"(+{rt['time_lost_to_acceleration_s']:g} s); where acceleration costs most:")
+        for r in rt["capped_regions"]:
+            lines.append(f"  - lines {r['lines'][0]}-{r['lines'][1]} from X{r['at'][0]:g} Y{r['at'][1]:g}: "
+                         f"F{r['feed']:g} runs at {r['mean_speed']:g} {u}/min on average "
+                         f"(+{r['time_lost_s']:g} s)")
+    for w in sheet.get("machine_check", {}).get("warnings", []):
+        lines.append(f"- Warning: {w}")
+    return lines + [""]
 
 
 def sheet_json(sheet: dict) -> str:
@@ -243,6 +294,7 @@ def sheet_markdown(sheet: dict, png_name: str | None) -> str:
         if sheet["depth"] is not None else f"- Safe height Z{sheet['safe_z']:g}",
         "",
         *_needs_markdown(sheet),
+        *_run_markdown(sheet),
         "## Passes",
         "",
         f"- {sheet['passes']} raster passes along {sheet['direction']}, stepover "

@@ -1,0 +1,456 @@
+"""The run time the controller really takes: its motion planner simulated on the
+program text (read back by :func:`fabkit.toolpath.verify.read_program`).
+
+grbl 1.1 (planner.c, stepper.c), as modelled here:
+
+- **Blocks.** Each G0/G1 is a block between whole-step positions
+  (``round(mm * steps_per_mm)``, grbl's ``lround``); a block of no steps is dropped.
+  Its length, unit vector, acceleration and rapid rate follow
+  ``limit_value_by_axis_maximum``: min over moving axes of ``limit_i / |u_i|``.
+  Nominal speed: the rapid rate for G0, ``min(F, rapid rate)`` for G1 (at least 1 mm/min).
+- **Junctions.** grbl's junction deviation: ``v^2 = a_j * delta * s / (1 - s)``,
+  ``s = sin(theta/2) = sqrt((1 - cos)/2)`` (cos of the angle between the moves,
+  negated as in grbl), ``a_j`` the axis-limited acceleration along ``u - u_prev``;
+  a reversal stops, a straight junction is free. The entry speed is also capped by
+  the nominal speeds of both blocks. The first block after an empty buffer starts at rest.
+- **Look-ahead while streaming.** The buffer holds 16 blocks, 15 usable. When the
+  segment generator takes block k, the buffer holds blocks k .. k+14 and the last
+  one must end at rest (planner_recalculate's reverse pass from it); the forward
+  pass limits k+1's entry by what block k can reach from its own (fixed) entry.
+  Each block's exit speed is fixed when it starts (no new block arrives while it
+  runs: a slot frees only when the segment generator finishes a block). The host
+  is assumed to keep the buffer full (the serial line keeps up).
+- **Synchronisation.** M3/M4/M5/M6, M2/M30 and G4 wait until the buffer is empty
+  (grbl's ``protocol_buffer_synchronize``): the move before them ends at rest.
+- **Trapezoids.** Each block runs accelerate / cruise / decelerate at the block's
+  acceleration between its entry and exit speeds; the time is the integral of this
+  profile (closed form). The segment generator runs it in 10 ms segments of whole
+  steps; the difference is the step-timing rounding (measured against grbl 1.1h's
+  own planner and segment generator: docs/machine.md).
+
+Not modelled: the spindle's spin-up (M3 dwell on controllers that have one),
+feed/rapid overrides (100 %), the serial line's own limit on short blocks.
+
+LinuxCNC (approximate, see :func:`linuxcnc_time`): the same trapezoids and per-axis
+limits, the [TRAJ] velocity/acceleration caps, a look-ahead over the whole queue
+(its optimiser looks 200 segments ahead), and G64 P blending as a circular blend at
+each corner: the blend may deviate P from the corner and use at most half of each
+segment; its speed is ``sqrt(a_n * r)`` with ``a_n`` half the acceleration (the
+tangential/normal split LinuxCNC's planner uses for blends). Not modelled: the
+naive-CAM collinear merge (G64 Q), the blend's own time being shorter than the
+corner's (the path is taken as the programmed polyline), spindle-synchronised motion.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..toolpath.verify import RAPID, Program
+
+#: grbl 1.1: BLOCK_BUFFER_SIZE 16 on the ATmega328p, one slot kept empty
+GRBL_LOOKAHEAD = 15
+#: LinuxCNC's trajectory optimiser depth (TP_LOOKAHEAD_DEPTH)
+LINUXCNC_LOOKAHEAD = 200
+MINIMUM_FEED_RATE = 1.0          # mm/min (grbl config.h)
+SOME_LARGE_VALUE = 1.0e38
+#: a feed block counts as capped when its peak speed is below this fraction of F
+CAPPED_BELOW = 0.99
+_SYNC = re.compile(r"(?:^|[^A-Z])(?:M0*[2-6]|M30|G0*4)(?![0-9.])")
+
+
+@dataclass
+class CapRegion:
+    """A run of consecutive feed moves the look-ahead or the corners kept below their
+    feed (the feed already clipped by the axis rates)."""
+
+    first_line: int
+    last_line: int
+    at: tuple                   # (x, y) mm where the run starts
+    feed: float                 # F clipped by the axis rates, mm/min
+    speed: float                # mean speed over the run (length / time), mm/min
+    lost_s: float               # time over length/feed along the run
+
+    def to_json(self) -> dict:
+        return {"lines": [self.first_line, self.last_line], "at": [round(float(v), 3) for v in self.at],
+                "feed": round(self.feed, 1), "mean_speed": round(self.speed, 1), "time_lost_s": round(self.lost_s, 1)}
+
+
+@dataclass
+class RunTime:
+    """The controller's run time of a program (seconds) and where it goes."""
+
+    controller: str
+    machine: str
+    total_s: float
+    feed_s: float               # G1 moves other than plunges
+    plunge_s: float             # G1 moves straight down
+    rapid_s: float              # G0 moves
+    length_over_feed_s: float   # the same program at its feeds and rapid rates with no acceleration
+    capped_fraction: float      # share of the cut length run below CAPPED_BELOW x F
+    rate_capped_fraction: float  # ... where the axis rates allow less than F
+    accel_capped_fraction: float  # ... held below min(F, axis rates) by acceleration
+    lost_rate_s: float          # time over length/feed because the axis rates clip F
+    lost_lookahead_s: float     # ... because of acceleration: look-ahead, corners, starts and stops
+    regions: list = field(default_factory=list)    # the CapRegion's (acceleration) losing the most time
+    passes: dict | None = None  # per raster pass (see :func:`pass_times`), when the raster axis is known
+    blocks: int = 0
+    model: str = ""
+
+    def to_json(self) -> dict:
+        return {"controller": self.controller, "machine": self.machine, "total_s": round(self.total_s, 1),
+                "feed_s": round(self.feed_s, 1), "plunge_s": round(self.plunge_s, 1),
+                "rapid_s": round(self.rapid_s, 1), "length_over_feed_s": round(self.length_over_feed_s, 1),
+                "feed_capped_fraction": round(self.capped_fraction, 4),
+                "feed_capped_by_rates_fraction": round(self.rate_capped_fraction, 4),
+                "feed_capped_by_acceleration_fraction": round(self.accel_capped_fraction, 4),
+                "time_lost_to_axis_rates_s": round(self.lost_rate_s, 1),
+                "time_lost_to_acceleration_s": round(self.lost_lookahead_s, 1),
+                "capped_regions": [r.to_json() for r in self.regions], "per_pass": self.passes,
+                "blocks": self.blocks, "model": self.model}
+
+    def summary(self) -> str:
+        s = (f"run time on {self.machine}: {_hm(self.total_s)} ({self.total_s:.0f} s: feeds {self.feed_s:.0f}, "
+             f"plunges {self.plunge_s:.0f}, rapids {self.rapid_s:.0f}); length/feed {_hm(self.length_over_feed_s)}")
+        if self.passes:
+            p = self.passes
+            s += (f"; {p['passes']} passes of {p['median_s']:.1f} s median ({p['min_s']:.1f}-{p['max_s']:.1f}; "
+                  f"length/feed {p['median_length_over_feed_s']:.1f})")
+        if self.capped_fraction > 0:
+            s += (f"; feed capped on {100 * self.capped_fraction:.0f} % of the cut length: by the axis rates on "
+                  f"{100 * self.rate_capped_fraction:.0f} % (+{self.lost_rate_s:.0f} s), by acceleration on "
+                  f"{100 * self.accel_capped_fraction:.0f} % (+{self.lost_lookahead_s:.0f} s)")
+        return s
+
+
+def _hm(seconds: float) -> str:
+    m = int(round(seconds / 60.0))
+    return f"{m // 60} h {m % 60} min" if m >= 60 else f"{m} min"
+
+
+# ----------------------------------------------------------------------------
+# blocks
+# ----------------------------------------------------------------------------
+def sync_starts(text: str, program: Program) -> np.ndarray:
+    """(n,) bool: the move starts after a line that empties the buffer (M2-M6, M30, G4)."""
+    out = np.zeros(len(program), dtype=bool)
+    if not len(program):
+        return out
+    lines = [i + 1 for i, ln in enumerate(text.splitlines())
+             if ("M" in ln.upper() or "G4" in ln.upper()) and _SYNC.search(re.sub(r"\([^)]*\)|;.*", "", ln.upper()))]
+    if lines:
+        idx = np.searchsorted(program.line, np.asarray(lines), side="right")
+        idx = idx[idx < len(program)]
+        out[idx] = True
+    return out
+
+
+def _axis_limit(limit: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """grbl's limit_value_by_axis_maximum, row-wise: min over u_i != 0 of limit_i / |u_i|."""
+    with np.errstate(divide="ignore"):
+        r = np.where(u != 0, limit[None, :] / np.abs(u), np.inf)
+    return np.minimum(r.min(axis=1), SOME_LARGE_VALUE)
+
+
+@dataclass
+class Blocks:
+    """The planner's blocks (mm, mm/min, mm/min^2) and which move each came from."""
+
+    move: np.ndarray            # index into the program's moves
+    length: np.ndarray
+    unit: np.ndarray            # (n, 3)
+    accel: np.ndarray
+    nominal: np.ndarray
+    feed: np.ndarray            # programmed F (rapid rate for G0)
+    rate_cap: np.ndarray        # the axis-limited rate along the block
+    rapid: np.ndarray           # bool
+    plunge: np.ndarray          # bool
+    fresh: np.ndarray           # bool: starts from an empty buffer
+
+
+def make_blocks(program: Program, machine, sync: np.ndarray | None = None, quantize: bool = True) -> Blocks:
+    """Blocks of ``program`` on ``machine`` (positions in whole steps when ``quantize``)."""
+    pts = np.vstack([program.start[None, :], program.points]) if len(program) else program.start[None, :]
+    pts = np.nan_to_num(pts, nan=0.0)
+    spm = np.asarray(machine.steps_per_mm, dtype=float)
+    if quantize:
+        x = pts * spm
+        steps = np.sign(x) * np.floor(np.abs(x) + 0.5)          # lround: half away from zero
+        delta = np.diff(steps, axis=0) / spm
+        moving = np.any(np.diff(steps, axis=0) != 0, axis=1)
+    else:
+        delta = np.diff(pts, axis=0)
+        moving = np.any(delta != 0, axis=1)
+    keep = np.flatnonzero(moving)
+    d = delta[keep]
+    length = np.linalg.norm(d, axis=1)
+    unit = d / length[:, None] if len(keep) else d
+    acc = np.asarray(machine.acceleration, dtype=float) * 3600.0            # mm/s^2 -> mm/min^2
+    accel = _axis_limit(acc, unit)
+    rate = _axis_limit(np.asarray(machine.max_rate, dtype=float), unit)
+    rapid = program.kinds[keep] == RAPID
+    if getattr(machine, "rapid", None):
+        rate_g0 = np.minimum(rate, machine.rapid)
+    else:
+        rate_g0 = rate
+    vmax = getattr(machine, "max_velocity", None)
+    if vmax:
+        rate = np.minimum(rate, vmax)
+        rate_g0 = np.minimum(rate_g0, vmax)
+    amax = getattr(machine, "max_acceleration", None)
+    if amax:
+        accel = np.minimum(accel, amax * 3600.0)
+    feed = np.where(rapid, rate_g0, program.feed[keep])
+    nominal = np.maximum(np.where(rapid, rate_g0, np.minimum(feed, rate)), MINIMUM_FEED_RATE)
+    plunge = ~rapid & (np.abs(d[:, 0]) + np.abs(d[:, 1]) == 0) & (d[:, 2] < 0)
+    fresh = np.zeros(len(keep), dtype=bool)
+    if len(keep):
+        fresh[0] = True
+        if sync is not None and sync.any():
+            # a sync line before any dropped move still empties the buffer before the next block
+            s_idx = np.flatnonzero(sync)
+            pos = np.searchsorted(keep, s_idx, side="left")
+            fresh[pos[pos < len(keep)]] = True
+    return Blocks(move=keep, length=length, unit=unit, accel=accel, nominal=nominal, feed=feed,
+                  rate_cap=np.where(rapid, rate_g0, rate), rapid=rapid, plunge=plunge, fresh=fresh)
+
+
+def grbl_junction_sqr(unit: np.ndarray, accel_limits: np.ndarray, deviation: float) -> np.ndarray:
+    """(n,) grbl 1.1's max junction speed^2 (mm/min)^2 at the start of each block
+    (entry 0 for the first block; the caller applies the buffer-empty rule)."""
+    n = len(unit)
+    out = np.zeros(n)
+    if n < 2:
+        return out
+    prev, cur = unit[:-1], unit[1:]
+    cos = -np.sum(prev * cur, axis=1)
+    jv = cur - prev
+    norm = np.linalg.norm(jv, axis=1)
+    jv = jv / np.where(norm > 0, norm, 1.0)[:, None]
+    ja = _axis_limit(accel_limits, jv)
+    sin_d2 = np.sqrt(np.clip(0.5 * (1.0 - cos), 0.0, 1.0))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        v2 = np.maximum(0.0, ja * deviation * sin_d2 / (1.0 - sin_d2))
+    v2 = np.where(cos > 0.999999, 0.0, np.where(cos < -0.999999, SOME_LARGE_VALUE, v2))
+    out[1:] = v2
+    return out
+
+
+def blend_junction_sqr(unit: np.ndarray, length: np.ndarray, accel: np.ndarray, tolerance: float | None) -> np.ndarray:
+    """(n,) LinuxCNC-like corner speed^2 with a circular blend: deviation at most
+    ``tolerance`` from the corner (None/0: no limit but the segments), tangent length
+    at most half of each segment; speed^2 = (accel / 2) * radius."""
+    n = len(unit)
+    out = np.zeros(n)
+    if n < 2:
+        return out
+    cosd = np.clip(np.sum(unit[:-1] * unit[1:], axis=1), -1.0, 1.0)    # cos of the turning angle
+    theta = np.arccos(cosd)
+    half = 0.5 * theta
+    tan_h = np.tan(half)
+    lim_len = 0.5 * np.minimum(length[:-1], length[1:])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r_len = lim_len / tan_h
+        if tolerance:
+            r_tol = tolerance / (1.0 / np.cos(half) - 1.0)
+            r = np.minimum(r_len, r_tol)
+        else:
+            r = r_len
+        v2 = 0.5 * np.minimum(accel[:-1], accel[1:]) * r
+    v2 = np.where(theta < 1e-9, SOME_LARGE_VALUE, np.where(theta > np.pi / 2 + 1e-9, 0.0, v2))
+    out[1:] = np.nan_to_num(v2, nan=0.0, posinf=SOME_LARGE_VALUE)
+    return out
+
+
+# ----------------------------------------------------------------------------
+# the look-ahead and the trapezoids
+# ----------------------------------------------------------------------------
+def streamed_speeds(max_entry_sqr: np.ndarray, accel: np.ndarray, length: np.ndarray, fresh: np.ndarray,
+                    window: int = GRBL_LOOKAHEAD) -> np.ndarray:
+    """(n + 1,) speed^2 at each block boundary: entry of block k, exit of the last.
+
+    While block k runs the buffer holds blocks k .. k + window - 1 and the last must end
+    at rest (so must the block before a ``fresh`` one: the buffer empties there). The
+    reverse pass over that window gives the most block k+1 may enter at (R_k); the
+    forward pass: v_{k+1}^2 = min(R_k, v_k^2 + 2 a_k L_k). Vectorised: the reverse pass is
+    ``window - 1`` array steps; the forward recursion is a running minimum of
+    R_k - S_{k+1} with S the prefix sums of 2 a L (exact in real arithmetic)."""
+    n = len(length)
+    v2 = np.zeros(n + 1)
+    if n == 0:
+        return v2
+    c = 2.0 * accel * length
+    # a fresh block cannot be entered at speed, and nothing after it is in the window before it
+    maxe = np.where(fresh, 0.0, max_entry_sqr)
+    pad = window
+    maxe_p = np.concatenate([maxe, np.zeros(pad)])
+    c_p = np.concatenate([c, np.zeros(pad)])
+    barrier = np.concatenate([fresh, np.ones(pad, dtype=bool)])
+    k = np.arange(n)
+    b = np.zeros(n)                        # entry^2 allowed at block k + j, built from j = window - 1 down to 1
+    for j in range(window - 1, 0, -1):
+        idx = k + j
+        b = np.minimum(maxe_p[idx], b + c_p[idx])
+        # a barrier at k + j: the window ends before it (buffer empties), so entry there is 0
+        # and the blocks before it see an exit at rest -> already 0 through maxe (fresh: 0)
+    # the buffer empties before a fresh block: its entry stays 0 (maxe), so b there is 0 and
+    # the reverse pass through it propagates a stop to the blocks before it
+    del barrier
+    R = b                                  # R[k]: allowed entry^2 of block k + 1 seen from block k
+    S = np.concatenate([[0.0], np.cumsum(c)])
+    u = np.minimum.accumulate(np.concatenate([[0.0], R - S[1:]]))
+    v2 = np.maximum(u + S, 0.0)
+    v2[-1] = 0.0
+    return v2
+
+
+def trapezoid_times(v0: np.ndarray, v1: np.ndarray, vmax: np.ndarray, accel: np.ndarray,
+                    length: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(time in minutes, peak speed) of each block's accelerate/cruise/decelerate profile
+    between entry ``v0`` and exit ``v1`` (mm/min), nominal ``vmax``, acceleration
+    ``accel`` (mm/min^2), length mm. Closed form."""
+    peak2 = np.minimum(vmax * vmax, 0.5 * (v0 * v0 + v1 * v1) + accel * length)
+    peak = np.sqrt(np.maximum(peak2, np.maximum(v0, v1) ** 2))
+    d_acc = (peak * peak - v0 * v0) / (2.0 * accel)
+    d_dec = (peak * peak - v1 * v1) / (2.0 * accel)
+    cruise = np.maximum(length - d_acc - d_dec, 0.0)
+    t = (peak - v0) / accel + (peak - v1) / accel + np.where(peak > 0, cruise / np.where(peak > 0, peak, 1), 0)
+    return t, peak
+
+
+# ----------------------------------------------------------------------------
+# the run time
+# ----------------------------------------------------------------------------
+def run_time(text: str, machine, program: Program | None = None, top: int = 5,
+             raster_axis: int | None = None) -> RunTime:
+    """The controller's run time of the program ``text`` on ``machine``
+    (:class:`fabkit.machine.profile.Machine`). ``program``: the text already read back;
+    ``raster_axis`` (0: x, 1: y): the passes' direction, for the per-pass figures."""
+    from ..toolpath.verify import read_program
+
+    if program is None:
+        program = read_program(text)
+    sync = sync_starts(text, program)
+    grbl = machine.controller == "grbl"
+    blocks = make_blocks(program, machine, sync, quantize=grbl)
+    acc = np.asarray(machine.acceleration, dtype=float) * 3600.0
+    if grbl:
+        junction = grbl_junction_sqr(blocks.unit, acc, machine.junction_deviation)
+        window = GRBL_LOOKAHEAD
+        model = "grbl 1.1 planner: 15-block streamed look-ahead, junction deviation, axis limits, trapezoids"
+    else:
+        tol = machine.path_tolerance if machine.path_tolerance is not None else _g64_p(text)
+        junction = blend_junction_sqr(blocks.unit, blocks.length, blocks.accel, tol)
+        window = LINUXCNC_LOOKAHEAD
+        model = ("LinuxCNC trajectory planner, approximate: trapezoids, axis and [TRAJ] limits, "
+                 f"{LINUXCNC_LOOKAHEAD}-segment look-ahead, circular G64 P blends at half acceleration")
+    nom = blocks.nominal
+    prev_nom = np.concatenate([[0.0], nom[:-1]])
+    max_entry = np.minimum(junction, np.minimum(nom, prev_nom) ** 2)
+    v2 = streamed_speeds(max_entry, blocks.accel, blocks.length, blocks.fresh, window)
+    v = np.sqrt(v2)
+    t_min, peak = trapezoid_times(v[:-1], v[1:], nom, blocks.accel, blocks.length)
+    t = t_min * 60.0
+    rt = _report(program, blocks, t, peak, machine, model, top)
+    if raster_axis is not None:
+        ideal = blocks.length / np.where(blocks.rapid, blocks.rate_cap, blocks.feed) * 60.0
+        rt.passes = pass_times(program, blocks, t, ideal, raster_axis)
+    return rt
+
+
+def pass_times(program, blocks: Blocks, t: np.ndarray, ideal: np.ndarray, axis: int) -> dict | None:
+    """Per raster pass: a pass is a run of cutting moves along ``axis`` in one direction
+    (it ends where the direction along ``axis`` reverses or at a rapid, so a pass the
+    program interrupts with a lift counts as two; the moves that step across between
+    passes count with the pass they lead into). Returns the count,
+    the median, shortest and longest pass times (s), the median length/feed time, and
+    the slowest pass's lines; None when there is no pass."""
+    cut = ~blocks.rapid
+    if not cut.any():
+        return None
+    sgn = np.sign(np.round(blocks.unit[:, axis], 12))
+    along = cut & (sgn != 0)
+    idx = np.flatnonzero(along)
+    if not len(idx):
+        return None
+    # a new pass where the sign along the axis flips, or a rapid lies between two along-moves
+    rapid_before = np.concatenate([[0], np.cumsum(blocks.rapid)])
+    new = np.ones(len(idx), dtype=bool)
+    new[1:] = (sgn[idx[1:]] != sgn[idx[:-1]]) | (rapid_before[idx[1:]] != rapid_before[idx[:-1] + 1])
+    starts = idx[new]
+    bounds = np.concatenate([starts, [len(t)]])
+    pt = np.add.reduceat(np.where(cut, t, 0.0), starts)
+    pi = np.add.reduceat(np.where(cut, ideal, 0.0), starts)
+    # the last pass ends at its last along-move
+    last = idx[-1] + 1
+    pt[-1] = t[starts[-1]:last][cut[starts[-1]:last]].sum()
+    pi[-1] = ideal[starts[-1]:last][cut[starts[-1]:last]].sum()
+    k = int(np.argmax(pt))
+    end = min(int(bounds[k + 1]) - 1, len(t) - 1)
+    return {"passes": int(len(starts)), "median_s": round(float(np.median(pt)), 2),
+            "min_s": round(float(pt.min()), 2), "max_s": round(float(pt.max()), 2),
+            "median_length_over_feed_s": round(float(np.median(pi)), 2),
+            "slowest_lines": [int(program.line[blocks.move[starts[k]]]), int(program.line[blocks.move[end]])]}
+
+
+def _g64_p(text: str) -> float | None:
+    m = re.search(r"G64\s*P\s*([0-9.]+)", text[:20000].upper())
+    if not m:
+        return None
+    p = float(m.group(1))
+    return p * (25.4 if "G20" in text[:2000].upper() else 1.0)
+
+
+def _report(program, blocks: Blocks, t: np.ndarray, peak: np.ndarray, machine, model: str, top: int) -> RunTime:
+    feed = ~blocks.rapid & ~blocks.plunge
+    # the length/feed estimate of the same moves: G0 at the axis-limited rapid rate
+    ideal = blocks.length / np.where(blocks.rapid, blocks.rate_cap, blocks.feed) * 60.0
+    reach = np.where(blocks.rapid, blocks.rate_cap, np.minimum(blocks.feed, blocks.rate_cap))
+    clipped = blocks.length / reach * 60.0
+    cut = ~blocks.rapid
+    cut_len = blocks.length[cut].sum()
+
+    def share(mask):
+        return float(blocks.length[mask].sum() / cut_len) if cut_len > 0 else 0.0
+
+    frac = share(cut & (peak < CAPPED_BELOW * blocks.feed))
+    frac_rate = share(cut & (blocks.rate_cap < CAPPED_BELOW * blocks.feed))
+    slowed = cut & (peak < CAPPED_BELOW * reach)          # held below what the axis rates allow
+    lost_rate = float(np.sum((clipped - ideal)[cut]))
+    lost_acc = float(np.sum((t - clipped)[cut]))
+    regions = _regions(program, blocks, slowed, t, clipped, top)
+    name = machine.name or machine.controller
+    return RunTime(controller=machine.controller, machine=name, total_s=float(t.sum()),
+                   feed_s=float(t[feed].sum()), plunge_s=float(t[blocks.plunge].sum()),
+                   rapid_s=float(t[blocks.rapid].sum()), length_over_feed_s=float(ideal.sum()),
+                   capped_fraction=frac, rate_capped_fraction=frac_rate, accel_capped_fraction=share(slowed),
+                   lost_rate_s=lost_rate, lost_lookahead_s=lost_acc,
+                   regions=regions, blocks=int(len(blocks.length)), model=model)
+
+
+def _regions(program, blocks: Blocks, slowed: np.ndarray, t, clipped, top: int) -> list:
+    """The ``top`` runs of consecutive feed blocks held below their (rate-clipped) feed
+    by acceleration that lose the most time."""
+    if not slowed.any():
+        return []
+    idx = np.flatnonzero(slowed)
+    breaks = np.flatnonzero(np.diff(idx) > 1)
+    starts = np.concatenate([[0], breaks + 1])
+    ends = np.concatenate([breaks, [len(idx) - 1]])
+    lost = np.add.reduceat((t - clipped)[idx], starts)
+    order = np.argsort(-lost)[:top]
+    out = []
+    for r in order:
+        a, b = idx[starts[r]], idx[ends[r]]
+        sel = slice(a, b + 1)
+        length = blocks.length[sel][slowed[sel]].sum()
+        time = t[sel][slowed[sel]].sum()
+        mv = blocks.move[a]
+        p0 = program.points[mv - 1] if mv > 0 else program.start
+        out.append(CapRegion(first_line=int(program.line[blocks.move[a]]), last_line=int(program.line[blocks.move[b]]),
+                             at=(float(np.nan_to_num(p0[0])), float(np.nan_to_num(p0[1]))),
+                             feed=float(np.median(np.minimum(blocks.feed, blocks.rate_cap)[sel])),
+                             speed=float(length / time * 60.0), lost_s=float(lost[r])))
+    return out
