@@ -176,6 +176,8 @@ def build_parser() -> argparse.ArgumentParser:
     c = cmd("report", "the whole design on one self-contained HTML page (verdict, surface, toolpath, sweep, ...)")
     c.add_argument("-o", "--output", metavar="PATH", help="output page (default toolpaths/<name>.report.html)")
     c.add_argument("--json", action="store_true", help="print JSON")
+    c.add_argument("--machine", metavar="FILE", help="machine profile: the setup sheet shows the controller's run "
+                   "time and the checks (default: the spec's machine section)")
 
     h = "machine profiles: `import FILE` reads a grbl $$ dump or a LinuxCNC INI into a profile (YAML)"
     c = sub.add_parser("machine", help=h, description=h)

@@ -165,7 +165,7 @@ SCHEMA: dict[str, dict[str, Any]] = {
         "travel": NumList(default=(200.0, 200.0, 200.0), gt=0, min_len=3, max_len=3, length="mm",
                           doc="mm per axis X Y Z (grbl $130-$132, [AXIS_n] MAX_LIMIT - MIN_LIMIT)"),
         "steps_per_mm": NumList(default=(250.0, 250.0, 250.0), gt=0, min_len=3, max_len=3,
-                                doc="grbl $100-$102: positions are whole steps"),
+                                doc="grbl $100-$102: positions are whole steps (not used for linuxcnc)"),
         "junction_deviation": Num(default=0.01, ge=0, le=10, length="mm", doc="grbl $11"),
         "arc_tolerance": Num(default=0.002, gt=0, le=10, length="mm", doc="grbl $12"),
         "path_tolerance": Num(default=None, ge=0, le=100, length="mm",

@@ -114,3 +114,18 @@ def test_check_program_units():
     assert chk.refusals == ["the program uses G64, which grbl 1.1 does not accept (error:20): write it with "
                             "machining.dialect: grbl"]
     assert grbl_defaults().tool_changer is False and math.isclose(grbl_defaults().max_rate[0], 500.0)
+
+
+def test_report_sheet_shows_the_machine(tmp_path, plain_planner):
+    from fabkit.commands.report import _toolpath
+    from fabkit.machine.profile import load_machine
+    from fabkit.report import _sheet_table
+    from fabkit.spec import load_spec
+    from fabkit.surface import Surface
+
+    spec = load_spec(write_spec(tmp_path, small_raw(dialect="grbl")))
+    tool = _toolpath(spec, Surface.from_spec(spec), load_machine(dump(tmp_path, tx=50.0)))
+    sheet = tool["sheet"]
+    assert sheet["run_time"]["total_s"] > sheet["run_time"]["length_over_feed_s"] > 0
+    assert not sheet["machine_check"]["ok"] and "X travel" in sheet["machine_check"]["refusals"][0]
+    assert "run_time" in _sheet_table(sheet) and "X travel" in _sheet_table(sheet)

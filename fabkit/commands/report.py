@@ -18,7 +18,7 @@ NEEDS = ("surface", "stock", "tool", "machining", "ball", "ramp", "simulation")
 SURFACE_SAMPLES = (90, 46)   # the 3-D view's grid (x, y)
 
 
-def _toolpath(spec, surface):
+def _toolpath(spec, surface, machine=None):
     from ..toolpath.gcode import profile_from_spec, write_program
     from ..toolpath.raster import plan_toolpath
     from ..toolpath.setup import preview_png, setup_sheet
@@ -38,8 +38,16 @@ def _toolpath(spec, surface):
     est = estimate_time(program, prof.rapid)
     t_verify = t.seconds
     timings = {"plan": t_plan, "write": t_write, "verify": t_verify}
+    run = mcheck = None
+    if machine is not None:     # the machine's run time and checks, shown (not refused) in the sheet
+        from ..machine.limits import check_program
+        from ..machine.planner import run_time
+
+        run = run_time(text, machine, program, raster_axis=0 if spec.machining.direction == "x" else 1)
+        mcheck = check_program(program, text, machine, run)
     sheet = setup_sheet(spec, surface, tp, prof, f"{spec.name}.ngc", ver, est, text.count("\n"),
-                        timings=timings, generated_at=_generated_at(), program=program)
+                        timings=timings, generated_at=_generated_at(), program=program, machine=machine,
+                        run=run, machine_check=mcheck)
     L, W = surface.stock_size_mm
     png = preview_png(program, L, W, prof.units)
     return {"png": png, "sheet": sheet, "seconds": timings,
@@ -67,6 +75,9 @@ def run(args) -> int:
         raise SpecError(f"the report is an HTML page: name it .html, not '{path.suffix}'", key="--output")
     surface = Surface.from_spec(spec)
     check_depth(spec, surface)
+    from ..machine.profile import machine_from_spec
+
+    machine = machine_from_spec(spec, getattr(args, "machine", None))    # a bad profile: exit 2 now
 
     t = Timer()
     cal = calibration_table(spec)
@@ -86,7 +97,7 @@ def run(args) -> int:
                  "windows": sw["windows"], "error_estimate": sw["error_estimate"], "launches": sw["launches"],
                  "seconds": t.seconds}
 
-    tool = _toolpath(spec, surface)
+    tool = _toolpath(spec, surface, machine)
 
     nx, ny = SURFACE_SAMPLES
     xs = np.linspace(surface.x_range[0], surface.x_range[1], nx)

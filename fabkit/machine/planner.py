@@ -282,22 +282,17 @@ def streamed_speeds(max_entry_sqr: np.ndarray, accel: np.ndarray, length: np.nda
     if n == 0:
         return v2
     c = 2.0 * accel * length
-    # a fresh block cannot be entered at speed, and nothing after it is in the window before it
+    # a fresh block is entered at rest (the buffer empties before it): max entry 0, so the
+    # reverse pass through it makes the blocks before it stop there; past the program's
+    # end the padding (max entry 0) stops the last block
     maxe = np.where(fresh, 0.0, max_entry_sqr)
-    pad = window
-    maxe_p = np.concatenate([maxe, np.zeros(pad)])
-    c_p = np.concatenate([c, np.zeros(pad)])
-    barrier = np.concatenate([fresh, np.ones(pad, dtype=bool)])
+    maxe_p = np.concatenate([maxe, np.zeros(window)])
+    c_p = np.concatenate([c, np.zeros(window)])
     k = np.arange(n)
-    b = np.zeros(n)                        # entry^2 allowed at block k + j, built from j = window - 1 down to 1
+    b = np.zeros(n)                        # entry^2 allowed at block k + j, from j = window - 1 down to 1
     for j in range(window - 1, 0, -1):
         idx = k + j
         b = np.minimum(maxe_p[idx], b + c_p[idx])
-        # a barrier at k + j: the window ends before it (buffer empties), so entry there is 0
-        # and the blocks before it see an exit at rest -> already 0 through maxe (fresh: 0)
-    # the buffer empties before a fresh block: its entry stays 0 (maxe), so b there is 0 and
-    # the reverse pass through it propagates a stop to the blocks before it
-    del barrier
     R = b                                  # R[k]: allowed entry^2 of block k + 1 seen from block k
     S = np.concatenate([[0.0], np.cumsum(c)])
     u = np.minimum.accumulate(np.concatenate([[0.0], R - S[1:]]))

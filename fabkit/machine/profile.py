@@ -252,8 +252,7 @@ def parse_linuxcnc_ini(text: str, file: str = "<ini>") -> Machine:
          "imperial": MM_PER_INCH}.get(units)
     if k is None:
         raise SpecError(f"unknown unit {units!r} (mm | inch)", file=file, key="[TRAJ]LINEAR_UNITS")
-    body: dict = {"controller": "linuxcnc", "name": f"LinuxCNC ({Path(file).name})",
-                  "steps_per_mm": [1e6] * 3}
+    body: dict = {"controller": "linuxcnc", "name": f"LinuxCNC ({Path(file).name})"}
     rate, acc, travel = [], [], []
     for i, ax in enumerate("XYZ"):
         sec = next((s for s in (f"AXIS_{ax}", f"AXIS_{i}") if cp.has_section(s)), None)
