@@ -27,7 +27,7 @@ def run(args) -> int:
                         f"{', '.join('.' + f for f in EXPORT_FORMATS)})", key="--output")
     g, k = gravity(spec.units), ball_k(spec)
     prepare_simulator(spec)
-    chk = check(spec)
+    chk = check(spec).to_json()
     t_check = timer.seconds
     targets = mark_targets(chk, g, k)
     h_max = max([float(max(ramp_heights(spec)))] + [t["height"] for t in targets])

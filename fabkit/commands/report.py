@@ -73,7 +73,7 @@ def run(args) -> int:
     cal["seconds"] = t.seconds
 
     prepare_simulator(spec)
-    chk = check(spec)
+    chk = check(spec).to_json()
 
     t = Timer()
     problem = problem_from_spec(spec)
