@@ -1,10 +1,17 @@
 """The pre-fabrication check: does the ball stay on the milled part for every ramp height?
 
+The one check of fabkit: ``fabkit check``, ``explore`` (each design, through its Dask
+engine), ``design`` (its screen, unrefined, and its verification), ``report`` and
+``ramp`` (the marks) all call :func:`check`, which returns a :class:`CheckReport` that
+carries the verdict (``safe``: every ramp height safe and the cut machinable) and why.
+
 :func:`check` launches the ramp's release heights (``ramp.heights`` sampled
-densely, :func:`calibrate.ramp_heights`), calibrated to entry speeds, with the
-spec's model and damping, through the batched integrator. A launch is unsafe
-if it flies off (reaches top - margin, or leaves the footprint shrunk by the
-margin) or loses contact (full model). It reports:
+densely, :func:`calibrate.ramp_heights`, or the ``heights`` given), turned into entry
+speeds by :func:`entry_speeds` (the one place), with the spec's model (the finite
+``ball`` unless the spec names another) and damping, through a launcher (default the
+compiled engine in this process). A launch is unsafe if it flies off (reaches top -
+margin, or leaves the footprint shrunk by the margin), loses contact, or (the finite
+ball) bridges or slips. It reports:
 
 * ``safe`` and the first (lowest) failing height with the launch's end point
   and the reason;
