@@ -29,14 +29,17 @@ Explore
 :func:`design_grid`): the spec with the grid's keys replaced and fully
 re-validated (an invalid combination becomes that design's ``error``). Per
 design: ``v_critical`` (± ``v_critical_error``, the half-width of its bracket,
-1e-6 relative) and the n-bounce ``windows`` by :func:`sweep.sweep`; the
-pre-fabrication check of :func:`check.check` re-done through the engine: the
-ramp's release heights launched, the highest safe release height (1e-4
-relative) and the first failing height, and the machining feasibility (depth
-of the cut against the stock and tool, tool radius against the smallest
-concave radius). ``safe``: no ramp height flies off or loses contact and the
-cut is machinable (without a ``ramp`` section, judged over the ``--v-in``
-launches instead).
+1e-6 relative) and the n-bounce ``windows`` by :func:`sweep.sweep`, and the
+pre-fabrication check: with a ramp, all of it is :func:`physics.check.check`
+itself, run through the engine (``launcher``): the ramp's release heights
+launched (with the ``--v-in`` speeds in the same batch), the highest safe
+release height (1e-4 relative) and the first failing height, and the machining
+feasibility (depth of the cut against the stock and tool, tool radius against
+the smallest concave radius). ``safe`` is the check's verdict: no ramp height
+flies off, loses contact, bridges or slips, and the cut is machinable (without
+a ``ramp`` section, judged over the ``--v-in`` launches instead). ``model``:
+the model that made the design's results (the spec's: the finite ball unless
+it names another).
 
 Robustness
 ----------
