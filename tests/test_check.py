@@ -115,3 +115,37 @@ def test_as_built_block_fails_the_check_below_v_critical(cli):
     assert 1.5 <= r["highest_safe_height"] < r["first_failure"]["height"] < 2.50
     # the boundary bisected between the last safe and the first failing sample
     assert r["first_failure"]["height"] - r["highest_safe_height"] <= (4.5 - 0.2) / 399
+
+
+def test_check_takes_a_launcher_and_heights():
+    """check(spec, launcher=..., heights=...): a launcher that keeps no end states (the
+    sweep's Launches, as explore's engine returns) gives the report of the default one,
+    the failing launch's end state found again in-process; the heights given are the
+    heights launched; the report's verdict is the command's (exit 1, the same reason)."""
+    import numpy as np
+
+    from fabkit.physics.check import check, entry_speeds
+    from fabkit.physics.models import problem_from_spec
+    from fabkit.physics.sweep import make_launcher
+    from fabkit.spec import load_spec
+
+    spec = load_spec(CLIPPED).with_overrides({"ramp.samples": 12, "simulation.rtol": 1e-6,
+                                              "simulation.atol": 1e-8})
+    base = make_launcher(problem_from_spec(spec).with_(stop_trapped=True))
+    seen = []
+
+    def launch(v):
+        seen.append(np.asarray(v, dtype=float).copy())
+        return base(v)
+
+    a = check(spec)
+    b = check(spec, launcher=launch)
+    assert not a.safe and a.reason.startswith("UNSAFE: release height") and a.reason == b.reason
+    assert a.first_failure == b.first_failure and a.highest_safe_height == b.highest_safe_height
+    assert a.v_critical == b.v_critical and a.reachable_windows == b.reachable_windows
+    assert b.launches == sum(len(x) for x in seen) and np.array_equal(seen[0], b.v_in)
+    H = np.array([0.5, 1.0, 1.4])
+    c = check(spec, heights=H[::-1])
+    assert np.array_equal(c.heights, H) and np.array_equal(c.v_in, entry_speeds(spec, H))
+    assert c.ramp_safe and c.first_failure is None and c.highest_safe_height == 1.4   # below top - margin
+    assert c.to_json()["safe"] is c.safe and c.to_json()["model"] == "full"
