@@ -34,7 +34,7 @@ def main(argv=None):
     for model in args.models.split(","):
         spec = base.with_overrides({"simulation.model": model})
         t0 = time.perf_counter()
-        r = check(spec)
+        r = check(spec).to_json()
         dt = time.perf_counter() - t0
         rows[model] = {"v_critical": r["v_critical"], "critical_height": r["critical_height"],
                        "reachable_windows": r["reachable_windows"], "safe": r["safe"],

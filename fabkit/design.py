@@ -255,16 +255,14 @@ def _problem(spec):
     return problem_from_spec(spec).with_(stop_trapped=True)
 
 
-def _machining_violation(m: dict | None, ball_radius_mm: float | None = None) -> tuple[float, str]:
-    """(violation, reason) of the machining constraints (0, '' when met); with the finite
-    ball model (``ball_radius_mm``), its radius against the smallest concave radius too."""
+def _machining_violation(m: dict | None) -> tuple[float, str]:
+    """(violation, reason) of the machining constraints (0, '' when met): the depth limits
+    and the tool radius against the smallest concave radius. (The finite ball's own
+    contact limits, bridging, lost contact and slip, are the check's: dynamic, where the
+    ball rolls, not over the whole footprint.)"""
     if m is None:
         return 0.0, ""
     viol, why = 0.0, []
-    r = m.get("min_concave_radius_mm")
-    if ball_radius_mm is not None and r is not None and ball_radius_mm > r:
-        viol += ball_radius_mm / r - 1.0
-        why.append(f"ball radius {ball_radius_mm:.3f} mm > smallest concave radius {r:.3f} mm")
     for key, over in (m.get("depth_over_mm") or {}).items():
         lim = m["limits_mm"][key]
         viol += over / lim
@@ -274,13 +272,6 @@ def _machining_violation(m: dict | None, ball_radius_mm: float | None = None) ->
         viol += m["tool_radius_mm"] / r - 1.0
         why.append(f"tool radius {m['tool_radius_mm']:.3f} mm > smallest concave radius {r:.3f} mm")
     return viol, "; ".join(why)
-
-
-def _ball_radius_mm(spec) -> float | None:
-    """The ball's radius in mm when the spec simulates the finite ball, else None."""
-    if spec.simulation.model != "ball":
-        return None
-    return 0.5 * float(spec.ball.diameter) * spec.scale
 
 
 def _vc_violation(vc: float | None, v_top: float, reason: str) -> tuple[float, str]:
@@ -299,12 +290,10 @@ def _centres(spec, problem, windows: list[dict], opts: Options) -> list[dict]:
     """Each window ``{lo, hi, height_lo, height_hi}`` with ``width`` (release height),
     and, for those at least ``min_width`` wide, ``p_two``: the fraction of the scatter
     launches at the centre height that end in two bounces (one batch for all)."""
-    from .physics.calibrate import ball_k, v_in_from_height
+    from .physics.check import entry_speeds
     from .physics.integrate import launch_batch
-    from .physics.sweep import ESCAPED
-    from .units import gravity
+    from .physics.models import ESCAPED
 
-    g, k = gravity(spec.units), ball_k(spec)
     Y, VY = scatter_draws(opts, problem.y0, problem.vy0)
     out, todo = [], []
     for w in windows:
@@ -318,7 +307,7 @@ def _centres(spec, problem, windows: list[dict], opts: Options) -> list[dict]:
         out.append(w)
     if todo:
         m = Y.size
-        v = np.repeat(np.asarray([v_in_from_height(out[i]["centre"], g, k) for i in todo], dtype=float), m)
+        v = np.repeat(entry_speeds(spec, [out[i]["centre"] for i in todo]), m)
         r = launch_batch(problem, v, np.tile(Y, len(todo)), np.tile(VY, len(todo)), workers=1)
         two = ((np.asarray(r.outcome) == ESCAPED) & (np.asarray(r.bounces) == 2)).reshape(len(todo), m)
         for q, i in enumerate(todo):
@@ -355,61 +344,35 @@ def screen_heights(spec, min_width: float) -> np.ndarray:
 
 
 def screen(spec, opts: Options) -> dict:
-    """The cheap evaluation the search runs (module doc). Returns ``feasible``,
-    ``violation``, ``reason``, ``windows`` [{lo, hi, height_lo, height_hi, width,
-    centre, p_two, observable}], ``observable``, ``observable_width``, ``two_width``,
-    ``v_critical``, ``v_top``, ``depth_mm``, ``launches``."""
-    from .physics.calibrate import ball_k, height_from_v_in, v_in_from_height
-    from .physics.check import machining
-    from .physics.models import unsafe as unsafe_mask
-    from .physics.sweep import critical_bracket, find_runs, make_launcher
-    from .units import gravity
+    """The cheap evaluation the search runs (module doc): the machining constraints
+    (no launch if they fail), then the check unrefined on the screen's heights. Returns
+    ``feasible``, ``violation``, ``reason``, ``windows`` [{lo, hi, height_lo, height_hi,
+    width, centre, p_two, observable}], ``observable``, ``observable_width``,
+    ``two_width``, ``v_critical``, ``v_top``, ``depth_mm``, ``model``, ``launches``."""
+    from .physics.check import check, machining
 
     spec.require("surface", "ball", "ramp", "simulation", command="design")
     m = machining(spec)
-    depth = None if m is None else m["depth_mm"]
-    viol, why = _machining_violation(m, _ball_radius_mm(spec))
+    viol, why = _machining_violation(m)
     if viol > 0:
-        return _infeasible("screen", viol, why, depth_mm=depth, launches=0)
-    g, k = gravity(spec.units), ball_k(spec)
-    H = screen_heights(spec, opts.min_width)
-    v = np.asarray(v_in_from_height(H, g, k), dtype=float)
-    problem = _problem(spec)
-    res = make_launcher(problem)(v)
-    unsafe = unsafe_mask(res.outcome)
-    if unsafe.any():
-        i = int(np.flatnonzero(unsafe)[0])
-        return _infeasible("screen", float(unsafe.mean()),
-                           f"release height {H[i]:.4g} {spec.units} flies off or loses contact (or, for the "
-                           "finite ball, bridges or slips)",
-                           depth_mm=depth, launches=int(v.size))
+        return _infeasible("screen", viol, why, depth_mm=None if m is None else m["depth_mm"], launches=0,
+                           model=spec.simulation.model)
     # no refinement launches: v_critical from the bracket of neighbouring samples (its
     # midpoint, to one spacing: ~1 %, against a 5 % margin), window edges halfway between
     # the outermost two-bounce sample and the next one out (to half a spacing, min_width / 6)
-    lo, hi, why_vc = critical_bracket(v, res)
-    vc = None if lo is None else 0.5 * (lo + hi)
-    wins = []
-    for nb, i, j in find_runs(res):
-        if nb != 2 or i == 0 or j == v.size - 1:
-            continue                        # not reachable: an edge lies outside the ramp's range
-        a, b = 0.5 * (v[i - 1] + v[i]), 0.5 * (v[j] + v[j + 1])
-        wins.append({"lo": float(a), "hi": float(b), "height_lo": float(height_from_v_in(a, g, k)),
-                     "height_hi": float(height_from_v_in(b, g, k))})
-    ev = {"stage": "screen", "v_critical": vc, "v_top": float(v[-1]), "depth_mm": depth, "check": None,
-          "windows": _centres(spec, problem, wins, opts)}
-    viol, why = _vc_violation(vc, float(v[-1]), why_vc)
-    ev.update(feasible=viol == 0, violation=viol, reason=why,
-              launches=int(v.size) + sum(1 for w in ev["windows"] if w["p_two"] is not None) * (opts.samples if opts.scatter else 1))
-    return _summarise(ev)
+    problem = _problem(spec)
+    rep = check(spec, heights=screen_heights(spec, opts.min_width), problem=problem, machining_report=m,
+                refine=False)
+    return _judge(spec, problem, rep, opts, "screen")
 
 
 def check_tolerances() -> dict:
     """The tolerances :func:`verify` runs the check with (its defaults): ``rel_tol``
     (highest safe height), ``v_rel_tol`` (v_critical), ``edge_rel_tol`` (window edges),
     ``gap_rel_tol`` (gaps between windows seen), all relative."""
-    from .physics.check import check
+    from .physics.check import TOLERANCES
 
-    return dict(check.__kwdefaults__)
+    return dict(TOLERANCES)
 
 
 def verify(spec, opts: Options) -> dict:
@@ -421,34 +384,45 @@ def verify(spec, opts: Options) -> dict:
     bounces and v_out, for the plot)."""
     from .physics.check import check
 
-    r = check(spec)
-    m = r["machining"]
-    check_ok = bool(r["safe"] and (m is None or m["feasible"]))
-    viol, why = _machining_violation(m, _ball_radius_mm(spec))
-    reasons = [why] if why else []
-    if not r["safe"]:
-        from .physics.models import OUTCOMES, UNSAFE
+    problem = _problem(spec)
+    return _judge(spec, problem, check(spec, problem=problem), opts, "check")
 
-        unsafe = np.array([o in {OUTCOMES[c] for c in UNSAFE} for o in r["outcomes"]])
-        viol += float(unsafe.mean())
-        f = r["first_failure"]
+
+def _judge(spec, problem, rep, opts: Options, stage: str) -> dict:
+    """A design's evaluation from its check report ``rep``: the check's verdict, the
+    search's constraints (the check's, plus the tool radius and the v_critical margin)
+    with their violation, and the reachable windows with their centre launches."""
+    viol, why = _machining_violation(rep.machining)
+    reasons = [why] if why else []
+    if not rep.ramp_safe:
+        from .physics.models import unsafe as unsafe_mask
+
+        viol += float(unsafe_mask(rep.outcome).mean())
+        f = rep.first_failure
         reasons.append(f"release height {f['height']:.4g} {spec.units} {f['outcome'].replace('_', ' ')} "
                        f"({f['reason']})")
-    v_top = float(np.max(r["v_in"]))
-    dv, why = _vc_violation(r["v_critical"], v_top, r.get("v_critical_reason", ""))
+    v_top = float(np.max(rep.v_in))
+    dv, why = _vc_violation(rep.v_critical, v_top, rep.v_critical_reason)
     viol += dv
     if why:
         reasons.append(why)
-    ev = {"stage": "check", "feasible": viol == 0, "violation": viol, "reason": "; ".join(reasons),
-          "check": "pass" if check_ok else "fail", "v_critical": r["v_critical"], "v_top": v_top,
-          "critical_height": r["critical_height"], "depth_mm": None if m is None else m["depth_mm"],
-          "highest_safe_height": r["highest_safe_height"], "first_failure": r["first_failure"], "machining": m,
-          "v_critical_error": r.get("v_critical_error"),
-          "windows": _centres(spec, _problem(spec), [{kk: w.get(kk) for kk in ("lo", "hi", "height_lo", "height_hi",
-                                                                             "edge_error")}
-                                                     for w in r["reachable_windows"]], opts),
-          "sweep": {"heights": r["heights"], "v_in": r["v_in"], "outcome": r["outcomes"], "bounces": r["bounces"],
-                    "v_out": r.get("v_out")}}
+    m = rep.machining
+    windows = []
+    if rep.ramp_safe or stage == "check":
+        windows = _centres(spec, problem, [{kk: w.get(kk) for kk in ("lo", "hi", "height_lo", "height_hi",
+                                                                    "edge_error")}
+                                           for w in rep.reachable_windows], opts)
+    ev = {"stage": stage, "model": rep.model, "feasible": viol == 0, "violation": viol,
+          "reason": "; ".join(reasons), "check": None if stage == "screen" else ("pass" if rep.safe else "fail"),
+          "v_critical": rep.v_critical, "v_top": v_top, "depth_mm": None if m is None else m["depth_mm"],
+          "windows": windows,
+          "launches": rep.launches + sum(1 for w in windows if w["p_two"] is not None) * (
+              opts.samples if opts.scatter else 1)}
+    if stage == "check":
+        ev.update(critical_height=rep.critical_height, highest_safe_height=rep.highest_safe_height,
+                  first_failure=rep.first_failure, machining=m, v_critical_error=rep.v_critical_error,
+                  sweep={"heights": rep.heights, "v_in": rep.v_in, "outcome": rep.outcomes,
+                         "bounces": rep.bounces, "v_out": rep.v_out})
     return _summarise(ev)
 
 

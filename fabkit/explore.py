@@ -29,14 +29,17 @@ Explore
 :func:`design_grid`): the spec with the grid's keys replaced and fully
 re-validated (an invalid combination becomes that design's ``error``). Per
 design: ``v_critical`` (± ``v_critical_error``, the half-width of its bracket,
-1e-6 relative) and the n-bounce ``windows`` by :func:`sweep.sweep`; the
-pre-fabrication check of :func:`check.check` re-done through the engine: the
-ramp's release heights launched, the highest safe release height (1e-4
-relative) and the first failing height, and the machining feasibility (depth
-of the cut against the stock and tool, tool radius against the smallest
-concave radius). ``safe``: no ramp height flies off or loses contact and the
-cut is machinable (without a ``ramp`` section, judged over the ``--v-in``
-launches instead).
+1e-6 relative) and the n-bounce ``windows`` by :func:`sweep.sweep`, and the
+pre-fabrication check: with a ramp, all of it is :func:`physics.check.check`
+itself, run through the engine (``launcher``): the ramp's release heights
+launched (with the ``--v-in`` speeds in the same batch), the highest safe
+release height (1e-4 relative) and the first failing height, and the machining
+feasibility (depth of the cut against the stock and tool, tool radius against
+the smallest concave radius). ``safe`` is the check's verdict: no ramp height
+flies off, loses contact, bridges or slips, and the cut is machinable (without
+a ``ramp`` section, judged over the ``--v-in`` launches instead). ``model``:
+the model that made the design's results (the spec's: the finite ball unless
+it names another).
 
 Robustness
 ----------
@@ -560,15 +563,16 @@ def evaluate_design(spec, v_grid, engine: Engine, *, rel_tol: float = 1e-6, heig
                     tol=DEFAULT) -> dict:
     """One design (a validated spec): v_critical, windows, ramp safety, machining.
 
-    ``v_grid``: the entry speeds (sorted) or None for the ramp's calibrated speeds.
+    With a ramp, this is the pre-fabrication check itself (:func:`physics.check.check`)
+    run through the engine, its sweep over ``v_grid`` (sorted entry speeds) or, for
+    None, the ramp's calibrated speeds; ``safe`` is the check's verdict. Without a
+    ramp, the sweep over ``v_grid`` and safety judged over those launches.
     Returns the design's entry without ``params``, plus ``grid`` (the grid launches:
     v_in, outcome, bounces, v_out arrays) for the per-launch table."""
-    from . import units
-    from .physics.calibrate import ball_k, ramp_heights, v_in_from_height
-    from .physics.check import highest_safe, machining
+    from .physics.check import check, machining
     from .physics.models import OUTCOMES
     from .physics.models import unsafe as unsafe_mask
-    from .physics.sweep import Launches, sweep
+    from .physics.sweep import sweep
 
     t0 = time.perf_counter()
     design = design_of(spec)
@@ -580,60 +584,40 @@ def evaluate_design(spec, v_grid, engine: Engine, *, rel_tol: float = 1e-6, heig
         return engine.launch(design, v)
 
     has_ramp = spec.has("ramp") and spec.has("ball")
-    H = vr = None
+    if v_grid is None and not has_ramp:
+        raise SpecError("missing section (needed by explore without --v-in)", file=spec.path, key="ramp")
     if has_ramp:
-        g, k = units.gravity(spec.units), ball_k(spec)
-        H = np.sort(np.asarray(ramp_heights(spec), dtype=float))
-        vr = np.asarray(v_in_from_height(H, g, k), dtype=float)
-    if v_grid is None:
-        if not has_ramp:
-            raise SpecError("missing section (needed by explore without --v-in)", file=spec.path, key="ramp")
-        v, first = np.unique(vr, return_index=True)
-        r = launch(vr)
-        ramp_res = r
-        grid = Launches(v, r.outcome[first], r.bounces[first], r.v_out[first], r.bounce_times[first])
+        if v_grid is not None and np.size(v_grid) * 2 > tol.max_launches:
+            raise SpecError(f"{np.size(v_grid)} launches exceed the limit {tol.max_launches}", key="--v-in")
+        sweep_v = None if v_grid is None else np.sort(np.asarray(v_grid, dtype=float))
+        rep = check(spec, launcher=launch, sweep_v=sweep_v, problem=problem, rel_tol=height_rel_tol,
+                    v_rel_tol=rel_tol, edge_rel_tol=rel_tol, tol=tol)
+        out: dict = {"v_critical": rep.v_critical, "v_critical_error": rep.v_critical_error,
+                     "v_critical_reason": rep.v_critical_reason, "windows": rep.windows, "safe_over": "ramp",
+                     "highest_safe_height": rep.highest_safe_height, "first_failure": rep.first_failure}
+        m, grid, safe, v = rep.machining, rep.grid, rep.safe, rep.grid.v_in
     else:
         v = np.sort(np.asarray(v_grid, dtype=float))
-        if v.size * (2 if has_ramp else 1) > tol.max_launches:
+        if v.size > tol.max_launches:
             raise SpecError(f"{v.size} launches exceed the limit {tol.max_launches}", key="--v-in")
-        both = launch(v if vr is None else np.concatenate([v, vr]))
-        n = v.size
-        grid = Launches(v, both.outcome[:n], both.bounces[:n], both.v_out[:n], both.bounce_times[:n])
-        ramp_res = None if vr is None else Launches(vr, both.outcome[n:], both.bounces[n:], both.v_out[n:],
-                                                     both.bounce_times[n:])
-    sw = sweep(problem, v, launcher=launch, initial=grid, rel_tol=rel_tol, error_samples=0, tn=False,
-               tol=tol)
-
-    out: dict = {"v_critical": sw["v_critical"], "v_critical_error": sw["v_critical_error"],
-                 "v_critical_reason": sw["v_critical_reason"], "windows": sw["windows"]}
-    first_failure = None
-    if has_ramp:
-        unsafe = unsafe_mask(ramp_res.outcome)
-        if unsafe.any():
-            i = int(np.flatnonzero(unsafe)[0])
-            first_failure = {"height": float(H[i]), "v_in": float(vr[i]),
-                             "outcome": OUTCOMES[int(ramp_res.outcome[i])]}
-            highest = None if i == 0 else highest_safe(launch, float(H[i - 1]), float(H[i]), g, k,
-                                                        height_rel_tol)
-        else:
-            highest = float(H[-1])
-        ramp_safe = not bool(unsafe.any())
-        out["safe_over"] = "ramp"
-    else:
+        grid = launch(v)
+        sw = sweep(problem, v, launcher=launch, initial=grid, rel_tol=rel_tol, error_samples=0, tn=False,
+                   tol=tol)
         unsafe = unsafe_mask(grid.outcome)
-        highest = None
-        ramp_safe = not bool(unsafe.any())
+        first_failure = None
         if unsafe.any():
             i = int(np.flatnonzero(unsafe)[0])
             first_failure = {"height": None, "v_in": float(v[i]), "outcome": OUTCOMES[int(grid.outcome[i])]}
-        out["safe_over"] = "v_in"
-    out["highest_safe_height"] = highest
-    out["first_failure"] = first_failure
-    m = machining(spec)
+        out = {"v_critical": sw["v_critical"], "v_critical_error": sw["v_critical_error"],
+               "v_critical_reason": sw["v_critical_reason"], "windows": sw["windows"], "safe_over": "v_in",
+               "highest_safe_height": None, "first_failure": first_failure}
+        m = machining(spec)
+        safe = not bool(unsafe.any()) and (m is None or bool(m["feasible"]))
+    out["model"] = problem.model
     out["depth_mm"] = None if m is None else m["depth_mm"]
     out["depth_ok"] = None if m is None else m["depth_ok"]
     out["machining"] = m
-    out["safe"] = bool(ramp_safe and (m is None or m["feasible"]))
+    out["safe"] = bool(safe)
     out["outcomes"] = _counts(grid.outcome)
     out["launches"] = counted["n"]
     out["seconds"] = time.perf_counter() - t0

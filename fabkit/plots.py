@@ -458,7 +458,7 @@ def compare_figure(panels: list[dict], *, title: str = "", fmt: str = "png") -> 
 
 def design_figure(result: dict, bounds, *, title: str = "", units: str = "", fmt: str = "png") -> bytes:
     """Figure bytes (``fmt``) for ``fabkit design``: the objective of every screened design in the
-    order of evaluation with the best so far (top), and the winner's v_out against
+    order of evaluation, the checked designs' own scores and the best checked so far (top), and the winner's v_out against
     release height from its check, coloured by bounce count, observable windows shaded
     (bottom)."""
     plt, fig = _figure(figsize=(8.5, 7.5))
@@ -469,13 +469,31 @@ def design_figure(result: dict, bounds, *, title: str = "", units: str = "", fmt
     n = np.arange(1, y.size + 1)
     feas = np.array([h["feasible"] for h in hist], dtype=bool)
     score = np.where(feas, -y, np.nan)
-    ax1.plot(n[feas], score[feas], "o", ms=3.5, color="C0", label="feasible (screen)", zorder=3)
+    ax1.plot(n[feas], score[feas], "o", ms=3.5, color="C0", alpha=0.6, label="feasible (screen, unchecked)",
+             zorder=3)
     if (~feas).any():
-        ax1.plot(n[~feas], np.zeros((~feas).sum()), "x", ms=4, color="tab:red", label="infeasible")
-    if y.size:
-        best = np.maximum.accumulate(np.where(feas, -y, -np.inf))
+        ax1.plot(n[~feas], np.zeros((~feas).sum()), "x", ms=4, color="tab:red", label="infeasible (screen)")
+    # what was checked: the baseline (before the search) and the verified finalists, each at
+    # the evaluation that first screened it; the best so far is over checked designs only
+    from .design import objective
+
+    span = float(result.get("span") or 1.0)
+    checked = [(0, result["baseline"])]
+    for ev in result.get("finalists") or []:
+        vals = list(ev["values"])
+        idx = next((i + 1 for i, h in enumerate(hist) if list(h["values"]) == vals), None)
+        if idx is not None:
+            checked.append((idx, ev))
+    pts = [(i, -objective(ev, span)) for i, ev in checked if ev is not None and ev["feasible"]]
+    if pts:
+        ax1.plot([i for i, _ in pts], [v for _, v in pts], "D", ms=6, mfc="none", mec="k", mew=1.2,
+                 label="checked (fabkit check)", zorder=4)
+        xs = np.arange(0, y.size + 1)
+        best = np.full(xs.size, -np.inf)
+        for i, v in pts:
+            best[i:] = np.maximum(best[i:], v)
         ok = np.isfinite(best)
-        ax1.step(n[ok], best[ok], where="post", color="k", lw=1.2, label="best so far")
+        ax1.step(xs[ok], best[ok], where="post", color="k", lw=1.2, label="best checked so far")
     pop = result["optimizer"]["population"]
     for g in range(pop, y.size, pop):
         ax1.axvline(g + 0.5, color="0.85", lw=0.8)
@@ -484,7 +502,7 @@ def design_figure(result: dict, bounds, *, title: str = "", units: str = "", fmt
                 label=f"baseline (checked): {base['observable']} observable")
     ax1.set_xlabel("evaluation (grey lines: generations)")
     ax1.set_ylabel("observable windows + width / ramp range")
-    ax1.legend(fontsize=7, loc="center right")
+    ax1.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
     ax1.grid(alpha=0.3)
     w = result["winner"]
     if w is not None and w.get("sweep") is not None:

@@ -194,7 +194,7 @@ SCHEMA: dict[str, dict[str, Any]] = {
                        doc="heights sampled in [min, max] (each is a full simulation: at most 10000)"),
     },
     "simulation": {
-        "model": Choice(("full", "simplified", "ball"), default="full"),
+        "model": Choice(("full", "simplified", "ball"), default="ball"),
         "damping": Num(default=0.0, ge=0, le=1e9, doc="viscous coefficient, 1/s"),
         "nonlinear_damping": Num(default=0.0, ge=0, le=1e9,
                                  doc="the paper's localized damping, coefficient of F(x)^2 y^2 ydot"),

@@ -179,7 +179,7 @@ def test_highest_safe_height_matches_check_and_invalid_design_is_reported(cli, t
     i = int(np.flatnonzero(r.outcome == 2)[0])                     # flew_off
     assert clipped["safe"] is False and clipped["first_failure"]["height"] == H[i]
     assert clipped["first_failure"]["outcome"] == "flew_off"
-    assert clipped["highest_safe_height"] == check(s2)["highest_safe_height"]
+    assert clipped["highest_safe_height"] == check(s2).highest_safe_height
     assert 1.5 <= clipped["highest_safe_height"] < H[i]             # undamped energy bound: top - margin
     assert paper["safe"] is True and paper["highest_safe_height"] == 4.5
 

@@ -702,13 +702,15 @@ def test_check_lists_every_window_or_says_how_many(tmp_path, monkeypatch):
     import fabkit.physics.check as pc
 
     def fake(n):
-        def check(spec, *, progress=None, rel_tol=1e-4, v_rel_tol=1e-5, edge_rel_tol=1e-4):
+        def check(spec, *, progress=None, **kw):
             wins = [{"lo": 10 + i, "hi": 10.5 + i, "height_lo": 1 + i / 100, "height_hi": 1.004 + i / 100,
                      "v_out_max": 1.0} for i in range(n)]
-            return {"safe": True, "highest_safe_height": 1.0, "first_failure": None, "v_critical": 50.0,
-                    "v_critical_reason": "", "critical_height": 1.9, "reachable_windows": wins, "machining": None,
-                    "heights": np.array([0.2, 1.0]), "v_in": np.array([16.0, 40.0]), "outcomes": ["escaped"] * 2,
-                    "model": "full", "damping": 0.1, "bounces": np.array([1, 1])}
+            return pc.CheckReport(
+                model="full", damping=0.1, units="cm", heights=np.array([0.2, 1.0]), v_in=np.array([16.0, 40.0]),
+                outcome=np.array([0, 0], dtype=np.int8), bounces=np.array([1, 1]), v_out=np.array([1.0, 1.0]),
+                first_failure=None, highest_safe_height=1.0, v_critical=50.0, v_critical_error=1e-5,
+                v_critical_reason="", critical_height=1.9, windows=wins, reachable_windows=wins, machining=None,
+                ball=None, grid=None, tolerances=dict(pc.TOLERANCES))
         return check
 
     spec = _tiny_file(tmp_path)

@@ -28,24 +28,24 @@ def run(args) -> int:
         r = check(spec, progress=cb)
     finally:
         close()
-    r["seconds"] = timer.seconds
+    r.seconds = timer.seconds
     u = spec.units
-    lines = [f"check: {len(r['heights'])} release heights {r['heights'][0]:.4g}..{r['heights'][-1]:.4g} {u} "
-             f"(v_in {r['v_in'][0]:.4g}..{r['v_in'][-1]:.4g} {u}/s), {r['model']} model, "
-             f"damping {r['damping']:g} 1/s"]
-    vc = r["v_critical"]
+    H, v = r.heights, r.v_in
+    lines = [f"check: {len(H)} release heights {H[0]:.4g}..{H[-1]:.4g} {u} "
+             f"(v_in {v[0]:.4g}..{v[-1]:.4g} {u}/s), {r.model} model, damping {r.damping:g} 1/s"]
+    vc = r.v_critical
     if vc is not None:
-        lines.append(f"check: v_critical {vc:.6f} {u}/s at release height {r['critical_height']:.4f} {u}")
+        lines.append(f"check: v_critical {vc:.6f} {u}/s at release height {r.critical_height:.4f} {u}")
     else:
-        lines.append(f"check: no v_critical over the ramp's speeds ({r['v_critical_reason']})")
-    wins = r["reachable_windows"]
+        lines.append(f"check: no v_critical over the ramp's speeds ({r.v_critical_reason})")
+    wins = r.reachable_windows
     lines.append(f"check: {len(wins)} two-bounce window{'' if len(wins) == 1 else 's'} reachable from the ramp"
                  + (f" (the first {SHOW} listed; all in --json)" if len(wins) > SHOW else "")
                  + (":" if wins else ""))
     for w in wins[:SHOW]:
         lines.append(f"  release height {w['height_lo']:.4f}..{w['height_hi']:.4f} {u} "
                      f"(v_in {w['lo']:.6f}..{w['hi']:.6f} {u}/s)")
-    b = r.get("ball")
+    b = r.ball
     if b is not None:
         cnt = b["unsafe_counts"]
         txt = (f"check: ball radius {b['radius']:g} {u}: largest |F_t|/N {b['max_slip']:.4g} at release height "
@@ -56,7 +56,7 @@ def run(args) -> int:
         named = [f"{n} {c}" for n, c in cnt.items() if c]
         txt += "; " + (", ".join(named) + " of the heights" if named else "no bridging, lost contact or slip")
         lines.append(txt)
-    m = r["machining"]
+    m = r.machining
     if m is not None:
         txt = f"check: cut depth {m['depth_mm']:.2f} mm"
         if m["limits_mm"]:
@@ -68,33 +68,17 @@ def run(args) -> int:
             if not m["radius_ok"]:
                 txt += " (TOOL TOO LARGE: concave regions will be undercut)"
         lines.append(txt)
-    first = r["first_failure"]
-    hs = r["highest_safe_height"]
-    tols = check.__kwdefaults__
+    hs = r.highest_safe_height
+    tols = r.tolerances
     lines.append(f"check: highest safe release height "
                  + (f"{hs:.4f} {u}" if hs is not None else "none (the lowest height already fails)")
                  + f"; error: heights bracketed to {tols['rel_tol']:g}, v_critical to {tols['v_rel_tol']:g}, "
                  f"window edges to {tols['edge_rel_tol']:g} relative"
                  + (f" (gaps over {tols['gap_rel_tol']:g} seen)" if tols.get("gap_rel_tol") else "")
-                 + f", {r['seconds']:.1f} s")
-    payload = {kk: r.get(kk) for kk in ("safe", "highest_safe_height", "first_failure", "v_critical",
-                                        "v_critical_error", "critical_height", "reachable_windows", "machining",
-                                        "heights", "outcomes", "seconds")}
-    payload["v_in"] = r["v_in"]
-    payload["model"] = r["model"]
-    if r.get("ball") is not None:
-        payload["ball"] = r["ball"]
-    payload["units"] = u
-    safe = r["safe"] and (m is None or m["feasible"])
-    payload["safe"] = safe
+                 + f", {r.seconds:.1f} s")
     if not args.json:
-        lines.append("check: SAFE" if safe else "check: UNSAFE")
-    emit(lines, payload, args.json)
-    if first is not None:
-        raise DesignError(f"UNSAFE: release height {first['height']:.4f} {u} (v_in {first['v_in']:.4g} {u}/s) "
-                          f"{first['outcome'].replace('_', ' ')} at x={first['x']:.4g}, y={first['y']:.4g}, "
-                          f"t={first['t']:.3g} s ({first['reason']})")
-    if m is not None and not m["feasible"]:
-        key, over = next(iter(m["depth_over_mm"].items()))
-        raise DesignError(f"UNMACHINABLE: the cut is {m['depth_mm']:.2f} mm deep, {over:.2f} mm over {key}")
+        lines.append(f"check: {'SAFE' if r.safe else 'UNSAFE'} ({r.model} model)")
+    emit(lines, r.to_json(), args.json)
+    if not r.safe:
+        raise DesignError(r.reason)
     return 0

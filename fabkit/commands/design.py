@@ -86,7 +86,7 @@ def run(args) -> int:
         if args.plot:
             from ..plots import design_figure
 
-            out.write(args.plot, design_figure(res, bounds, title=f"{spec.name}: design", units=u,
+            out.write(args.plot, design_figure(res, bounds, title=f"{spec.name}: design, {spec.simulation.model} model", units=u,
                                                  fmt=plot_format(args.plot)))
 
     opt = res["optimizer"]
@@ -94,7 +94,8 @@ def run(args) -> int:
              if engine["scheduler"] else "in-process")
     lines = [f"design: {len(bounds)} keys, " + ", ".join(f"{b.key}={b.lo:g}:{b.hi:g}" for b in bounds)
              + f"; differential evolution, population {opt['population']}, {opt['generations']} generations, "
-             f"seed {opt['seed']}: {opt['evaluations']} screened ({res['screened']} distinct) {where}",
+             f"seed {opt['seed']}: {opt['evaluations']} screened ({res['screened']} distinct) {where}, "
+             f"{spec.simulation.model} model (screen and check)",
              f"design: observable = reachable two-bounce window >= {opts.min_width:g} {u} wide in release height"
              + (f", P(2 bounces) >= 0.8 at its centre over {opts.samples} launches (sigma_y {opts.sigma_y:g} {u}, "
                 f"sigma_vy {opts.sigma_vy:g} {u}/s)" if opts.sigma_y > 0 or opts.sigma_vy > 0
@@ -121,7 +122,7 @@ def run(args) -> int:
                "winner": _public(w, bounds), "output": str(output) if w is not None else None,
                "history": res["history"], "optimizer": opt, "options": res["options"],
                "bounds": [{"key": b.key, "lo": b.lo, "hi": b.hi, "step": b.step} for b in bounds],
-               "engine": engine, "check_tolerances": tols, "units": u, "seconds": res["seconds"]}
+               "engine": engine, "check_tolerances": tols, "model": spec.simulation.model, "units": u, "seconds": res["seconds"]}
     emit(lines, payload, args.json)
     if w is None:
         raise DesignError("no design within the bounds passes the constraints (see the table)")

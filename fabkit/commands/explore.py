@@ -20,6 +20,12 @@ def _fmt(x) -> str:
     return f"{x:g}" if isinstance(x, float) else str(x)
 
 
+def _models(designs: list[dict], spec) -> str:
+    """Which model made the designs' results: the spec's, or those the grid varies."""
+    names = list(dict.fromkeys(d["model"] for d in designs if d.get("model")) or [spec.simulation.model])
+    return f"{names[0]} model" if len(names) == 1 else f"models {', '.join(names)}"
+
+
 def run(args) -> int:
     from ..explore import Engine, design_grid, explore, parse_vary, table_bytes, table_format
     from ..io import atomic_outputs
@@ -79,7 +85,7 @@ def run(args) -> int:
         if args.plot:
             from ..plots import explore_figure
 
-            out.write(args.plot, explore_figure(res, [vv.key for vv in varies], title=f"{spec.name}: explore",
+            out.write(args.plot, explore_figure(res, [vv.key for vv in varies], title=f"{spec.name}: explore, {_models(designs, spec)}",
                                                 units=u, fmt=plot_format(args.plot)))
 
     eng = res["engine"]
@@ -87,7 +93,7 @@ def run(args) -> int:
              if eng["scheduler"] else "in-process")
     lines = [f"explore: {len(designs)} designs ({len(bad)} invalid), "
              + (f"v_in {v[0]:.4g}..{v[-1]:.4g} {u}/s x {len(v)}" if v is not None else "the ramp's speeds")
-             + f", {res['launches']} launches {where}"]
+             + f", {_models(designs, spec)}, {res['launches']} launches {where}"]
     for d in designs:
         name = ", ".join(f"{kk}={_fmt(vv)}" for kk, vv in d["params"].items()) or "the spec as is"
         if "error" in d:
@@ -106,7 +112,7 @@ def run(args) -> int:
                      + ("SAFE" if d["safe"] else "UNSAFE"))
     lines.append(f"explore: v_critical to 1e-6 relative (± is its bracket half-width), highest safe height "
                  f"to 1e-4 relative; {res['seconds']:.1f} s" + (f"; rows in {args.out}" if args.out else ""))
-    payload = {"designs": designs, "units": u, "v_in": v, "launches": res["launches"], "engine": eng,
+    payload = {"designs": designs, "model": spec.simulation.model, "units": u, "v_in": v, "launches": res["launches"], "engine": eng,
                "seconds": res["seconds"]}
     emit(lines, payload, args.json)
     return 0

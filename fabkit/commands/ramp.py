@@ -27,7 +27,7 @@ def run(args) -> int:
                         f"{', '.join('.' + f for f in EXPORT_FORMATS)})", key="--output")
     g, k = gravity(spec.units), ball_k(spec)
     prepare_simulator(spec)
-    chk = check(spec)
+    chk = check(spec).to_json()
     t_check = timer.seconds
     targets = mark_targets(chk, g, k)
     h_max = max([float(max(ramp_heights(spec)))] + [t["height"] for t in targets])
@@ -48,7 +48,7 @@ def run(args) -> int:
         "bodies": solid.bodies, "genus": solid.genus, "watertight": True,
         "angle_deg": 30.0, "transition_length": prof.L, "length": prof.u_end,
         "top_height": float(prof.drop(prof.u_end)), "profile_error_mm": solid.profile_error_mm,
-        "extent_mm": solid.extent_mm, "safe": chk["safe"], "highest_safe_height": chk["highest_safe_height"],
+        "extent_mm": solid.extent_mm, "safe": chk["safe"], "highest_safe_height": chk["highest_safe_height"], "model": chk["model"],
         "units": u, "seconds": timer.seconds, "check_seconds": t_check,
     }
     lines = [f"ramp: {Path(path)}, one watertight body ({len(solid.faces)} triangles, volume "
@@ -64,7 +64,7 @@ def run(args) -> int:
         hs = chk['highest_safe_height']
         lines.append(f"warning: UNSAFE above release height {hs:.5g} {u} (fabkit check)" if hs is not None else
                      "warning: UNSAFE at every release height (fabkit check)")
-    lines.append(f"ramp: mark heights exact (closed-form calibration, contact point by root finding to "
+    lines.append(f"ramp: marks from fabkit check on the {chk['model']} model; mark heights exact (closed-form calibration, contact point by root finding to "
                  f"1e-12), running surface within {solid.profile_error_mm:.1g} mm of the profile, "
                  f"{timer.seconds:.1f} s (check {t_check:.1f} s)")
     emit(lines, payload, args.json)

@@ -84,7 +84,7 @@ def run(args) -> int:
     cal["seconds"] = t.seconds
 
     prepare_simulator(spec)
-    chk = check(spec)
+    chk = check(spec).to_json()
 
     t = Timer()
     problem = problem_from_spec(spec)
@@ -114,11 +114,12 @@ def run(args) -> int:
     page = render(results)
     write_atomic(path, page)
     verdict = "SAFE" if chk["safe"] else "UNSAFE"
-    payload = {"path": str(path), "verdict": verdict, "safe": chk["safe"], "bytes": len(page.encode()),
+    payload = {"path": str(path), "verdict": verdict, "safe": chk["safe"], "model": chk["model"], "bytes": len(page.encode()),
                "seconds": total.seconds,
                "seconds_by_part": {"check": chk["seconds"], "sweep": sweep_res["seconds"],
                                    **{f"toolpath_{k}": v for k, v in tool["seconds"].items()}}}
-    emit([f"report: {path} ({len(page.encode()) / 1e6:.2f} MB, self-contained), verdict {verdict}, "
+    emit([f"report: {path} ({len(page.encode()) / 1e6:.2f} MB, self-contained), verdict {verdict} "
+          f"({chk['model']} model), "
           f"{total.seconds:.1f} s (check {chk['seconds']:.1f}, sweep {sweep_res['seconds']:.1f}, toolpath "
           f"{sum(tool['seconds'].values()):.1f})"], payload, args.json)
     return 0

@@ -46,7 +46,7 @@ def run(args) -> int:
         if args.plot:
             from ..plots import robustness_figure
 
-            out.write(args.plot, robustness_figure(res, title=f"{spec.name}: robustness", units=u,
+            out.write(args.plot, robustness_figure(res, title=f"{spec.name}: robustness, {res['model']} model", units=u,
                                                    fmt=plot_format(args.plot)))
 
     s = res["summary"]

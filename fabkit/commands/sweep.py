@@ -34,14 +34,14 @@ def speeds(spec, v_in_arg, tol=None) -> np.ndarray:
             raise SpecError(f"N = {n:.6g} exceeds the limit {tol.max_launches}", key="--v-in")
         return np.linspace(lo, hi, int(n))
     spec.require("ramp", "ball", command="sweep (without --v-in)")
-    from .. import units
-    from ..physics.calibrate import ball_k, ramp_heights, v_in_from_height
+    from ..physics.calibrate import ramp_heights
+    from ..physics.check import entry_speeds
 
     H = ramp_heights(spec)
     if len(H) > tol.max_launches:
         raise SpecError(f"{len(H)} heights exceed the limit {tol.max_launches}", file=spec.path,
                         key="ramp.samples")
-    return np.unique(v_in_from_height(H, units.gravity(spec.units), ball_k(spec)))
+    return np.unique(entry_speeds(spec, H))
 
 
 def run(args) -> int:

@@ -1,10 +1,17 @@
 """The pre-fabrication check: does the ball stay on the milled part for every ramp height?
 
+The one check of fabkit: ``fabkit check``, ``explore`` (each design, through its Dask
+engine), ``design`` (its screen, unrefined, and its verification), ``report`` and
+``ramp`` (the marks) all call :func:`check`, which returns a :class:`CheckReport` that
+carries the verdict (``safe``: every ramp height safe and the cut machinable) and why.
+
 :func:`check` launches the ramp's release heights (``ramp.heights`` sampled
-densely, :func:`calibrate.ramp_heights`), calibrated to entry speeds, with the
-spec's model and damping, through the batched integrator. A launch is unsafe
-if it flies off (reaches top - margin, or leaves the footprint shrunk by the
-margin) or loses contact (full model). It reports:
+densely, :func:`calibrate.ramp_heights`, or the ``heights`` given), turned into entry
+speeds by :func:`entry_speeds` (the one place), with the spec's model (the finite
+``ball`` unless the spec names another) and damping, through a launcher (default the
+compiled engine in this process). A launch is unsafe if it flies off (reaches top -
+margin, or leaves the footprint shrunk by the margin), loses contact, or (the finite
+ball) bridges or slips. It reports:
 
 * ``safe`` and the first (lowest) failing height with the launch's end point
   and the reason;
@@ -32,11 +39,13 @@ from __future__ import annotations
 
 import math
 import time
+from dataclasses import dataclass
 
 import numpy as np
 
+from .models import BRIDGED, CAPTURED, ESCAPED, FLEW_OFF, LOST_CONTACT, OUTCOMES, SLIPPED
 from .models import unsafe as unsafe_mask
-from .sweep import CAPTURED, ESCAPED, FLEW_OFF, LOST_CONTACT, Launches, make_launcher, sweep
+from .sweep import Launches, find_runs, sweep
 
 
 def end_reason(problem, outcome: int, x: float, y: float, status: int = 0) -> str:
@@ -55,8 +64,6 @@ def end_reason(problem, outcome: int, x: float, y: float, status: int = 0) -> st
 
 def _why(problem, outcome: int, x: float, y: float) -> str:
     """A short reason for an unsafe end state."""
-    from .models import BRIDGED, SLIPPED
-
     if outcome == LOST_CONTACT:
         return ("loses contact (the normal force falls to zero: the surface falls away faster than gravity "
                 "holds the ball)")
@@ -80,91 +87,274 @@ def _why(problem, outcome: int, x: float, y: float) -> str:
     return "flies off"
 
 
-def _full_launches(problem, v, progress=None, rtol=None, atol=None):
-    """Launch ``v`` with the batched integrator, keeping the end states."""
+# ----------------------------------------------------------------------------
+# the ramp: release height <-> entry speed, in one place
+# ----------------------------------------------------------------------------
+def entry_speeds(spec, heights) -> np.ndarray:
+    """The entry speeds (design units/s) of release heights ``heights`` (design units)
+    on the spec's ramp: the one place every command turns heights into speeds (today
+    the closed form of :func:`calibrate.v_in_from_height`)."""
+    from ..units import gravity
+    from .calibrate import ball_k, v_in_from_height
+
+    return np.asarray(v_in_from_height(np.asarray(heights, dtype=float), gravity(spec.units), ball_k(spec)),
+                      dtype=float)
+
+
+def release_heights(spec, v_in) -> np.ndarray:
+    """The release heights (design units) that give entry speeds ``v_in`` (design
+    units/s): the inverse of :func:`entry_speeds`."""
+    from ..units import gravity
+    from .calibrate import ball_k, height_from_v_in
+
+    return np.asarray(height_from_v_in(np.asarray(v_in, dtype=float), gravity(spec.units), ball_k(spec)),
+                      dtype=float)
+
+
+# ----------------------------------------------------------------------------
+# the report
+# ----------------------------------------------------------------------------
+@dataclass
+class CheckReport:
+    """What :func:`check` found, with its verdict (:attr:`safe`) and why (:attr:`reason`).
+
+    Arrays (M,) over the ramp's release heights ``heights`` (design units, sorted):
+    ``v_in`` (design units/s), ``outcome`` (codes of :data:`models.OUTCOMES`),
+    ``bounces``, ``v_out`` (nan unless escaped). ``windows``: every n-bounce window of
+    the sweep; ``reachable_windows``: the two-bounce ones the ramp reaches. ``grid``:
+    the launches the sweep started from (the ramp's, or ``sweep_v``'s). ``tolerances``:
+    the relative tolerances it ran with; ``refined`` False: the unrefined reading of the
+    samples (v_critical to one sample spacing, window edges halfway between samples,
+    no highest-safe bisection)."""
+
+    model: str
+    damping: float
+    units: str
+    heights: np.ndarray
+    v_in: np.ndarray
+    outcome: np.ndarray
+    bounces: np.ndarray
+    v_out: np.ndarray
+    first_failure: dict | None
+    highest_safe_height: float | None
+    v_critical: float | None
+    v_critical_error: float | None
+    v_critical_reason: str
+    critical_height: float | None
+    windows: list
+    reachable_windows: list
+    machining: dict | None
+    ball: dict | None
+    grid: object
+    tolerances: dict
+    refined: bool = True
+    launches: int = 0
+    seconds: float = 0.0
+
+    @property
+    def ramp_safe(self) -> bool:
+        """No ramp height flies off, loses contact, bridges or slips."""
+        return not bool(unsafe_mask(self.outcome).any())
+
+    @property
+    def feasible(self) -> bool:
+        """The cut is machinable (no stock or tool: nothing to violate)."""
+        return self.machining is None or bool(self.machining["feasible"])
+
+    @property
+    def safe(self) -> bool:
+        """The verdict: safe for every ramp height and machinable."""
+        return self.ramp_safe and self.feasible
+
+    @property
+    def outcomes(self) -> list[str]:
+        return [OUTCOMES[int(o)] for o in self.outcome]
+
+    @property
+    def reason(self) -> str:
+        """Why the check fails, one line ('' when it passes): the first failing height
+        first, else the machining limit the cut exceeds."""
+        f, u = self.first_failure, self.units
+        if f is not None:
+            return (f"UNSAFE: release height {f['height']:.4f} {u} (v_in {f['v_in']:.4g} {u}/s) "
+                    f"{f['outcome'].replace('_', ' ')} at x={f['x']:.4g}, y={f['y']:.4g}, "
+                    f"t={f['t']:.3g} s ({f['reason']})")
+        if not self.feasible:
+            m = self.machining
+            key, over = next(iter(m["depth_over_mm"].items()))
+            return f"UNMACHINABLE: the cut is {m['depth_mm']:.2f} mm deep, {over:.2f} mm over {key}"
+        return ""
+
+    def to_json(self) -> dict:
+        """The JSON of ``fabkit check --json`` (every key of earlier versions kept;
+        ``safe`` is the verdict)."""
+        out = {"safe": self.safe, "highest_safe_height": self.highest_safe_height,
+               "first_failure": self.first_failure, "v_critical": self.v_critical,
+               "v_critical_error": self.v_critical_error, "critical_height": self.critical_height,
+               "reachable_windows": self.reachable_windows, "machining": self.machining,
+               "heights": self.heights, "outcomes": self.outcomes, "seconds": self.seconds, "v_in": self.v_in,
+               "model": self.model}
+        if self.ball is not None:
+            out["ball"] = self.ball
+        out.update(units=self.units, damping=self.damping, v_critical_reason=self.v_critical_reason,
+                   ramp_safe=self.ramp_safe, reason=self.reason, bounces=self.bounces, v_out=self.v_out,
+                   tolerances=self.tolerances)
+        return out
+
+
+#: the check's tolerances (relative): highest safe height, v_critical, window edges,
+#: gaps between windows seen
+TOLERANCES = {"rel_tol": 1e-4, "v_rel_tol": 1e-6, "edge_rel_tol": 1e-6, "gap_rel_tol": 1e-4}
+
+
+def _as_launches(r):
+    """A launcher's result as the sweep's :class:`Launches` (a full ``LaunchResult``
+    keeps only the fields the sweep reads)."""
+    if isinstance(r, Launches):
+        return r
+    return Launches(np.asarray(r.v_in, dtype=float), np.asarray(r.outcome, dtype=np.int8),
+                    np.asarray(r.bounces, dtype=int), np.asarray(r.v_out, dtype=float),
+                    np.asarray(r.bounce_times, dtype=float))
+
+
+def _in_process(problem, progress=None):
+    """The default launcher: the compiled engine in this process, keeping the end
+    states (``LaunchResult``); ``progress`` goes to the first call only."""
     from .integrate import launch_batch
 
-    kw = {"progress": progress} if progress is not None else {}
-    r = launch_batch(problem, v, rtol=rtol, atol=atol, **kw)
-    return r
+    state = {"progress": progress}
+
+    def launch(v):
+        cb, state["progress"] = state["progress"], None
+        return launch_batch(problem, np.asarray(v, dtype=float), **({"progress": cb} if cb is not None else {}))
+
+    return launch
 
 
-def check(spec, *, progress=None, rel_tol: float = 1e-4, v_rel_tol: float = 1e-6,
-          edge_rel_tol: float = 1e-6, gap_rel_tol: float = 1e-4) -> dict:
-    """Run the pre-fabrication check of ``spec`` (sections surface, ball, ramp,
-    simulation; stock and tool optional). Returns the report dict (see module doc):
-    safe, highest_safe_height, first_failure {height, v_in, outcome, reason, x, y, t},
-    v_critical, v_critical_error, critical_height, reachable_windows [{lo, hi, height_lo,
-    height_hi, v_out_max, edge_error}], machining, heights, v_in,
-    outcomes, bounces, v_out (nan unless escaped), seconds. Heights in design units,
-    speeds in design units/s."""
-    from ..units import gravity
-    from .calibrate import ball_k, height_from_v_in, ramp_heights, v_in_from_height
-    from .models import OUTCOMES, problem_from_spec
+def _take(r, sl):
+    """Rows ``sl`` of a launcher's result (a ``Launches`` or a ``LaunchResult``)."""
+    if isinstance(r, Launches):
+        return Launches(r.v_in[sl], r.outcome[sl], r.bounces[sl], r.v_out[sl], r.bounce_times[sl])
+    from dataclasses import fields, replace
+
+    return replace(r, **{f.name: getattr(r, f.name)[sl] for f in fields(r)
+                         if isinstance(getattr(r, f.name), np.ndarray)})
+
+
+def check(spec, *, launcher=None, heights=None, sweep_v=None, progress=None, problem=None, machining_report=None,
+          refine: bool = True, rel_tol: float = TOLERANCES["rel_tol"], v_rel_tol: float = TOLERANCES["v_rel_tol"],
+          edge_rel_tol: float = TOLERANCES["edge_rel_tol"], gap_rel_tol: float = TOLERANCES["gap_rel_tol"],
+          tol=None) -> CheckReport:
+    """The pre-fabrication check of ``spec`` (sections surface, ball, ramp, simulation;
+    stock and tool optional), on the spec's model (module doc). Returns a
+    :class:`CheckReport`; raises nothing for an unsafe design.
+
+    ``launcher``: ``v_in (M,) -> Launches`` running the spec's problem (default: the
+    compiled engine in this process; explore passes its Dask engine). ``heights``: the
+    release heights to launch (default the ramp's, :func:`calibrate.ramp_heights`).
+    ``sweep_v``: the entry speeds v_critical and the windows are swept over (default
+    the ramp's own), launched in one batch with the ramp's. ``problem``: the spec's
+    :class:`models.Problem` if already built. ``machining_report``: :func:`machining`
+    of the spec if already computed. ``refine`` False: no refinement launches (see
+    :class:`CheckReport`). Heights in design units, speeds in design units/s."""
+    from ..tolerances import DEFAULT
+    from .calibrate import ramp_heights
+    from .models import problem_from_spec
 
     t0 = time.perf_counter()
+    tol = DEFAULT if tol is None else tol
     spec.require("surface", "ball", "ramp", "simulation", command="check")
-    # a launch whose energy falls below every exit is captured for good: stop it there
-    # (trap.py; only captured launches are affected, and the check asks only which fly off)
-    problem = problem_from_spec(spec).with_(stop_trapped=True)
-    g, k = gravity(spec.units), ball_k(spec)
-    H = np.sort(np.asarray(ramp_heights(spec), dtype=float))
-    v = v_in_from_height(H, g, k)
-    lr = _full_launches(problem, v, progress)
-    unsafe = unsafe_mask(lr.outcome)
+    if problem is None:
+        # a launch whose energy falls below every exit is captured for good: stop it there
+        # (trap.py; only captured launches are affected, and the check asks only which fly off)
+        problem = problem_from_spec(spec).with_(stop_trapped=True)
+    full_results = launcher is None
+    launch = _in_process(problem, progress) if launcher is None else launcher
+    counted = {"n": 0}
 
-    out: dict = {"safe": not bool(unsafe.any()), "model": problem.model, "damping": problem.damping}
-    if problem.model == "ball":
-        out["ball"] = _ball_summary(problem, H, lr)
-    first = None
-    if unsafe.any():
-        i = int(np.flatnonzero(unsafe)[0])
-        first = {"height": float(H[i]), "v_in": float(v[i]), "outcome": OUTCOMES[int(lr.outcome[i])],
-                 "reason": _why(problem, int(lr.outcome[i]), float(lr.x_end[i]), float(lr.y_end[i])),
-                 "x": float(lr.x_end[i]), "y": float(lr.y_end[i]), "t": float(lr.t_end[i])}
-        if i == 0:
-            highest = None
-        else:
-            highest = highest_safe(make_launcher(problem), float(H[i - 1]), float(H[i]), g, k, rel_tol)
+    def counting(v):
+        counted["n"] += len(v)
+        return launch(v)
+
+    def launches_of(v):
+        return _as_launches(counting(v))
+
+    H = np.sort(np.asarray(ramp_heights(spec) if heights is None else heights, dtype=float))
+    v = entry_speeds(spec, H)
+    if sweep_v is None:
+        lr = counting(v)
+        grid = _as_launches(lr)
+        vs = v
+    else:
+        vs = np.sort(np.asarray(sweep_v, dtype=float))
+        both = counting(np.concatenate([vs, v]))
+        n = vs.size
+        grid = _as_launches(_take(both, slice(0, n)))
+        lr = _take(both, slice(n, None))
+    ramp = _as_launches(lr)
+    bad = unsafe_mask(ramp.outcome)
+
+    first = highest = None
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        # the end state of the failing launch: from the launcher if it kept it, else that
+        # one launch again in this process (a launch does not depend on its batch)
+        end = lr if full_results else _in_process(problem)(v[i:i + 1])
+        j = i if full_results else 0
+        o = int(end.outcome[j])
+        first = {"height": float(H[i]), "v_in": float(v[i]), "outcome": OUTCOMES[o],
+                 "reason": _why(problem, o, float(end.x_end[j]), float(end.y_end[j])),
+                 "x": float(end.x_end[j]), "y": float(end.y_end[j]), "t": float(end.t_end[j])}
+        if i > 0:
+            highest = (highest_safe(launches_of, float(H[i - 1]), float(H[i]), lambda h: entry_speeds(spec, h),
+                                    rel_tol) if refine else float(H[i - 1]))
     else:
         highest = float(H[-1])
-    out["highest_safe_height"] = highest
-    out["first_failure"] = first
 
-    # v_critical and windows over the ramp's speeds (reusing these launches)
-    initial = Launches(v, lr.outcome, lr.bounces, lr.v_out, lr.bounce_times)
-    sw = sweep(problem, v, initial=initial, rel_tol=v_rel_tol, error_samples=0, tn=False, k=1, k_edge=1,
-               edge_rel_tol=edge_rel_tol, gap_rel_tol=gap_rel_tol)
+    # v_critical and windows over the swept speeds (reusing these launches)
+    sw = sweep(problem, vs, launcher=launches_of, initial=grid, rel_tol=v_rel_tol, error_samples=0, tn=False,
+               k=1, k_edge=1, edge_rel_tol=edge_rel_tol, gap_rel_tol=gap_rel_tol, refine=refine, tol=tol)
     vc = sw["v_critical"]
-    out["v_critical"] = vc
-    out["v_critical_error"] = sw["v_critical_error"]
-    out["v_critical_reason"] = sw["v_critical_reason"]
-    out["critical_height"] = None if vc is None else float(height_from_v_in(vc, g, k))
+    windows = sw["windows"] if refine else _midpoint_windows(vs, grid)
     vmin, vmax = float(v[0]), float(v[-1])
     reach = []
-    for w in sw["windows"]:
+    for w in windows:
         if w["bounces"] == 2 and vmin < w["lo"] and w["hi"] < vmax:
-            reach.append({"lo": w["lo"], "hi": w["hi"], "height_lo": float(height_from_v_in(w["lo"], g, k)),
-                          "height_hi": float(height_from_v_in(w["hi"], g, k)),
+            reach.append({"lo": w["lo"], "hi": w["hi"], "height_lo": float(release_heights(spec, w["lo"])),
+                          "height_hi": float(release_heights(spec, w["hi"])),
                           "v_out_max": w.get("v_out_max"), "edge_error": w.get("edge_error")})
-    out["reachable_windows"] = reach
-    out["machining"] = machining(spec)
-    out["heights"] = H
-    out["v_in"] = v
-    out["outcomes"] = [OUTCOMES[int(o)] for o in lr.outcome]
-    out["bounces"] = lr.bounces
-    out["v_out"] = lr.v_out
-    out["seconds"] = time.perf_counter() - t0
+    m = machining(spec) if machining_report is None else machining_report
+    ball = _ball_summary(problem, H, lr) if problem.model == "ball" else None
+    return CheckReport(
+        model=problem.model, damping=problem.damping, units=spec.units, heights=H, v_in=v,
+        outcome=np.asarray(ramp.outcome, dtype=np.int8), bounces=np.asarray(ramp.bounces, dtype=int),
+        v_out=np.asarray(ramp.v_out, dtype=float), first_failure=first, highest_safe_height=highest,
+        v_critical=vc, v_critical_error=sw["v_critical_error"], v_critical_reason=sw["v_critical_reason"],
+        critical_height=None if vc is None else float(release_heights(spec, vc)), windows=windows,
+        reachable_windows=reach, machining=m, ball=ball, grid=grid,
+        tolerances={"rel_tol": rel_tol, "v_rel_tol": v_rel_tol, "edge_rel_tol": edge_rel_tol,
+                    "gap_rel_tol": gap_rel_tol},
+        refined=refine, launches=counted["n"], seconds=time.perf_counter() - t0)
+
+
+def _midpoint_windows(v: np.ndarray, res) -> list[dict]:
+    """The windows of sorted samples without refinement: each run of equal bounce
+    counts (n >= 2), its edges halfway between its outermost samples and the next ones
+    out (to half a sample spacing; the range's own end where the run reaches it)."""
+    out = []
+    for nb, i, j in find_runs(res):
+        lo = 0.5 * (v[i - 1] + v[i]) if i > 0 else float(v[i])
+        hi = 0.5 * (v[j] + v[j + 1]) if j + 1 < v.size else float(v[j])
+        out.append({"bounces": nb, "lo": float(lo), "hi": float(hi), "samples": j - i + 1, "edge_error": None})
     return out
 
 
 def _ball_summary(problem, H, lr) -> dict:
     """The finite ball's contact figures over the ramp's heights: the largest slip ratio
     |F_t|/N (the static friction the rolling needs) and where, the counts of the ball's
-    unsafe outcomes, and the surface's bridging limit."""
-    from .models import BRIDGED, OUTCOMES, SLIPPED
-
-    s = np.asarray(lr.max_slip, dtype=float)
+    unsafe outcomes, and the surface's bridging limit. (The slip ratio only when the
+    launcher kept it.)"""
+    s = np.asarray(getattr(lr, "max_slip", np.full(len(H), np.nan)), dtype=float)
     ok = np.isfinite(s)
     i = int(np.nanargmax(np.where(ok, s, -np.inf))) if ok.any() else None
     counts = {OUTCOMES[c]: int(np.sum(lr.outcome == c)) for c in (LOST_CONTACT, BRIDGED, SLIPPED)}
@@ -176,16 +366,14 @@ def _ball_summary(problem, H, lr) -> dict:
             "unsafe_counts": counts}
 
 
-def highest_safe(launch, h_safe: float, h_fail: float, g: float, k: float, rel_tol: float,
-                 m: int = 1) -> float:
+def highest_safe(launch, h_safe: float, h_fail: float, speeds, rel_tol: float, m: int = 1) -> float:
     """Highest safe release height in [h_safe, h_fail] (design units) by bisection
     (``m`` = 1, the default) or batched k-section, ``m`` launches a round, to width <= rel_tol * h_fail; returns the safe
-    end of the bracket. ``launch``: a launcher ``v_in (M,) -> Launches`` (sweep.py)."""
-    from .calibrate import v_in_from_height
-
+    end of the bracket. ``launch``: a launcher ``v_in (M,) -> Launches`` (sweep.py);
+    ``speeds``: release heights -> entry speeds (:func:`entry_speeds`)."""
     while h_fail - h_safe > rel_tol * h_fail:
         hs = h_safe + (h_fail - h_safe) * np.arange(1, m + 1) / (m + 1)
-        r = launch(np.asarray(v_in_from_height(hs, g, k), dtype=float))
+        r = launch(np.asarray(speeds(hs), dtype=float))
         bad = np.flatnonzero(unsafe_mask(r.outcome))
         if len(bad) == 0:
             h_safe = float(hs[-1])
@@ -229,4 +417,5 @@ def machining(spec) -> dict | None:
     return out
 
 
-__all__ = ["check", "machining", "end_reason", "ESCAPED"]
+__all__ = ["CheckReport", "TOLERANCES", "check", "entry_speeds", "machining", "end_reason", "release_heights",
+           "ESCAPED"]
