@@ -148,6 +148,14 @@ def _verdict(check: dict, units: str) -> str:
             f'<p id="why">{"; ".join(why)}.</p>')
 
 
+def _tolerances(check: dict) -> dict:
+    """The relative tolerances the check ran with (``CheckReport.tolerances``); the
+    check's defaults for a result that does not carry them."""
+    from .physics.check import TOLERANCES
+
+    return {**TOLERANCES, **(check.get("tolerances") or {})}
+
+
 def _windows_table(check: dict, units: str) -> str:
     ws = check.get("reachable_windows") or []
     vmax = any(w.get("v_out_max") is not None for w in ws)
@@ -157,7 +165,8 @@ def _windows_table(check: dict, units: str) -> str:
                    for i, w in enumerate(ws, start=1))
     if not rows:
         return "<p>No two-bounce window lies inside the ramp's range.</p>"
-    return (f"<p>Two-bounce windows the ramp can reach (edges to 1e-4 relative):</p>"
+    return (f"<p>Two-bounce windows the ramp can reach (edges to {_tolerances(check)['edge_rel_tol']:.0e} "
+            f"relative in v_in):</p>"
             f"<table><tr><th>window</th><th>v_in lo ({units}/s)</th><th>v_in hi</th><th>H lo ({units})</th>"
             f"<th>H hi</th>" + ("<th>v_out max</th>" if vmax else "") + f"</tr>{rows}</table>")
 
@@ -245,9 +254,10 @@ def render(results: dict) -> str:
     sections = [
         f"<section><h2>Pre-fabrication check</h2>{_verdict(chk, u)}"
         f"<p class=meta>{_e(chk.get('model'))} model, damping {_n(chk.get('damping'))} 1/s; "
-        f"{len(chk.get('heights', []))} release heights launched; boundary to 1e-4 relative; "
+        f"{len(chk.get('heights', []))} release heights launched; highest safe height to "
+        f"{_tolerances(chk)['rel_tol']:.0e} relative; "
         + (f"v_critical {_n(vc, '.7g')} {u}/s (release height {_n(chk.get('critical_height'), '.5g')} {u}, "
-           f"to 1e-5 relative)" if vc is not None
+           f"to {_tolerances(chk)['v_rel_tol']:.0e} relative)" if vc is not None
            else f"no v_critical over the ramp's speeds ({_e(chk.get('v_critical_reason') or 'not found')})")
         + f"; {_n(chk.get('seconds'), '.3g')} s.</p>{_windows_table(chk, u)}</section>",
         f"<section><h2>The surface</h2><p class=meta>z = h(x, y) clipped at the top face ({_n(surf['top'])} {u}); "

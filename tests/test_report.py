@@ -77,6 +77,15 @@ def test_setup_sheet_is_the_operators_sheet_with_units():
     assert not re.search(r"\b(True|False|None)\b", text)
 
 
+def test_accuracy_lines_come_from_the_checks_tolerances():
+    """The page states the tolerances the check ran with, not fixed strings."""
+    res = _results(True)
+    res["check"]["tolerances"] = {"rel_tol": 3e-3, "v_rel_tol": 2e-7, "edge_rel_tol": 5e-8, "gap_rel_tol": 1e-4}
+    page = render(res)
+    assert "highest safe height to 3e-03 relative" in page
+    assert "to 2e-07 relative)" in page and "edges to 5e-08 relative in v_in" in page
+
+
 def test_self_contained():
     page = render(_results(True))
     assert not re.search(r"""(src|href)\s*=\s*["']?(https?:)?//""", page)
