@@ -134,7 +134,7 @@ def check(spec, *, progress=None, rel_tol: float = 1e-4, v_rel_tol: float = 1e-6
     # v_critical and windows over the ramp's speeds (reusing these launches)
     initial = Launches(v, lr.outcome, lr.bounces, lr.v_out, lr.bounce_times)
     sw = sweep(problem, v, initial=initial, rel_tol=v_rel_tol, error_samples=0, tn=False, k=1, k_edge=1,
-               edge_rel_tol=edge_rel_tol, gap_rel_tol=gap_rel_tol)
+               edge_rel_tol=edge_rel_tol, gap_rel_tol=gap_rel_tol, bounces=(2,))
     vc = sw["v_critical"]
     out["v_critical"] = vc
     out["v_critical_error"] = sw["v_critical_error"]
