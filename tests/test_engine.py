@@ -256,3 +256,11 @@ def test_escape_within_one_step_is_found(model):
     # |xd| at the crossing: sqrt(2 a delta) ~ 5 mm/s, so a position error e moves it by a e / v
     assert r.v_out[0] == pytest.approx(speed(t_cross), rel=1e-5)
     assert r.t_end[0] / r.steps[0] > 2 * (tm - t_cross)   # the whole dip is shorter than a mean step
+    # the scipy path (reference.solve_launch: the peer launcher and the stiff Radau path) alike
+    from fabkit.physics.reference import solve_launch
+
+    for method in ("DOP853",) if model == "ball" else ("DOP853", "Radau"):   # (Radau on the ball: a minute)
+        ref = [solve_launch(p, v, method=method, rtol=1e-10, atol=1e-12) for v in (v_out_of, v_short)]
+        assert [q["outcome"] for q in ref] == ["escaped", "captured"], method
+        assert ref[0]["bounces"] == 1 and ref[0]["t_end"] == pytest.approx(t_cross, abs=1e-7)
+        assert ref[0]["v_out"] == pytest.approx(speed(t_cross), rel=1e-3)

@@ -81,6 +81,7 @@ def run(args) -> int:
                                         "v_critical_error", "critical_height", "reachable_windows", "machining",
                                         "heights", "outcomes", "seconds")}
     payload["v_in"] = r["v_in"]
+    payload["resolution"] = tols.get("gap_rel_tol")     # the windows hold no other outcome down to it
     payload["model"] = r["model"]
     if r.get("ball") is not None:
         payload["ball"] = r["ball"]

@@ -20,15 +20,27 @@ What :func:`sweep` computes, and how accurately
   at the top of the range are set aside first (the surface cannot hold them);
   if no launch at the top escapes after one bounce, ``v_critical`` is None and
   ``v_critical_reason`` says why.
-* ``windows``: maximal runs of consecutive samples that escape with the same
-  bounce count n >= 2, as ``{bounces, lo, hi, samples}``. For n = 2 the edges are
-  refined by bisection to ``rel_tol`` relative, toward the boundary of the
-  connected run of two-bounce launches (``edge_error`` gives the half-width);
-  for n >= 3 ``lo``/``hi`` are the outermost samples inside the run (accurate to
-  one sample spacing).
-* ``tn_fit`` (the paper's eq. tn): in each two-bounce window, v_out is
-  maximized by a few rounds of batched k-section; there T_n = t_2 - t_1 (time
-  between the two bounces). Each window gets n = the number of complete
+* ``windows``: the n-bounce windows (n >= 2), resolved to ``gap_rel_tol``
+  (the *resolution*, default 1e-4 relative in v_in, reported as ``resolution``): a
+  reported window holds no launch of another outcome at that resolution. From each
+  maximal run of consecutive samples escaping after n bounces: probes between its
+  samples, at most the resolution apart, split it where a launch of another outcome
+  lies between them (near v_critical the windows crowd together, separated by capture
+  gaps far narrower than the sampling); every edge is bisected to ``edge_rel_tol``
+  (default ``rel_tol``) toward the boundary of the connected run, after a walk from the
+  inside end at the resolution where the next launch outside is a sample
+  (``edge_error``: the half-width; ``lo``/``hi``: the brackets' midpoints); each part is
+  then probed again at its own scale, min(resolution |v|, width / MIN_PROBES) apart
+  (MIN_PROBES = 32), and split and bisected again where needed, until each part is
+  clean or narrower than the resolution. Parts narrower than the resolution (in the
+  fractal region near v_critical, where outcomes alternate on every scale) cannot be
+  resolved at it: they are not windows; ``unresolved_windows`` lists them
+  ``{bounces, lo, hi}``. Gaps narrower than the probes' spacing are not seen.
+* ``tn_fit`` (the paper's eq. tn): in each two-bounce window, v_out is maximized
+  inside it: from the best of its samples and probes (at most the resolution apart),
+  two rounds of batched k-section between that launch's neighbours; there T_n =
+  t_2 - t_1 (time between the two bounces), at a speed inside the window. Every
+  two-bounce window enters the fit. Each window gets n = the number of complete
   transverse oscillations between its bounces: n_0 = floor(T_0 / T_shape) for
   the first window (in the order of increasing v_in) and n_i = n_{i-1} +
   max(1, round((T_i - T_{i-1}) / d)) for the others, d = T_shape first and then
@@ -595,7 +607,10 @@ def sweep(problem, v_in, *, launcher=None, method: str = "fabkit", rtol: float |
     Returns a dict: ``v_in`` (N,) sorted, ``v_out`` (N,) (nan unless escaped),
     ``bounces`` (N,), ``outcome`` (N,) names, ``v_critical`` (float or None),
     ``v_critical_error``, ``v_critical_reason``, ``windows`` [{bounces, lo, hi,
-    samples, edge_error}], ``tn_fit`` {T, delta, n, T_n, v_in, T_shape, omega},
+    samples, edge_error}] (two-bounce ones also v_in_max, v_out_max, T_n),
+    ``resolution`` (the windows' resolution, relative; None without ``refine``),
+    ``unresolved_windows`` [{bounces, lo, hi}] (parts narrower than the resolution),
+    ``tn_fit`` {T, delta, n, T_n, v_in, T_shape, omega},
     ``error_estimate`` {v_out_abs, v_out_rel, launches, rtol_ref}, ``launches``
     (total run), ``seconds``. Accuracy: see the module docstring.
     ``initial``: results already computed for the sorted ``v_in`` (not re-run).
@@ -604,10 +619,14 @@ def sweep(problem, v_in, *, launcher=None, method: str = "fabkit", rtol: float |
     1: plain bisection; a launch costs a few hundredths of a millisecond on the
     compiled engine, so rounds of one launch per task are the cheapest).
     ``edge_rel_tol``: relative width the two-bounce window edges are refined to
-    (default ``rel_tol``). ``gap_rel_tol``: before the bisections, a walk from the
-    bracket's known end isolates the boundary to this relative resolution (default
-    1e-4: gaps between windows, and islands below v_critical, narrower than that are
-    not seen); None skips it.
+    (default ``rel_tol``). ``gap_rel_tol``: the resolution (default 1e-4 relative):
+    the windows are probed inside at most that far apart (see the module doc), and
+    before the bisections a walk from the bracket's known end isolates the boundary to
+    it (gaps between windows, and islands below v_critical, narrower than that are not
+    seen); None skips the probes and walks. ``bounces``: resolve and report only the
+    windows of these bounce counts (``check``: (2,)); None, every n >= 2.
+    Large batches (the probes) run on every core (``_threads``): results do not
+    depend on it.
     """
     from .models import OUTCOMES
 
