@@ -181,6 +181,7 @@ def test_sweep_cli_json_and_plot(cli, tmp_path):
 # one bounce from 40 up, captured elsewhere. v_out peaks at each window's centre.
 SYN_TWO = [(10.0, 14.5), (14.503, 20.005), (20.01, 22.5), (27.0, 27.01)]
 SYN_THREE = [(25.0, 27.0), (27.01, 30.0)]
+SYN_NARROW = (33.0, 33.001)     # two-bounce, 3e-5 relative wide, holding the sample at 33
 
 
 def _synthetic(v):
@@ -195,6 +196,8 @@ def _synthetic(v):
             n[m], out[m] = nb, models.ESCAPED
             vout[m] = 1.0 - ((v[m] - 0.5 * (lo + hi)) / (hi - lo)) ** 2
             bt[m, 0], bt[m, 1] = 0.0, lo          # T_n: the window's own lower edge
+    narrow = (v >= SYN_NARROW[0]) & (v < SYN_NARROW[1])
+    n[narrow], out[narrow], vout[narrow] = 2, models.ESCAPED, 1.0
     one = v >= 40.0
     n[one], out[one], vout[one] = 1, models.ESCAPED, 1.0
     return Launches(v, out.astype(np.int8), n, vout, bt)
@@ -225,6 +228,12 @@ def test_resolve_windows_splits_at_gaps_narrower_than_the_sampling():
         assert tn in [lo for lo, hi in SYN_TWO] and tn == pytest.approx(w["lo"], abs=w["edge_error"])
     # the probes: at most 1e-4 relative apart over the runs' spans (10..22 and 25..29), plus the edges
     assert sum(calls) < 1.05 * (12 / 10 + 4 / 25) / 1e-4 + 2000
+    # the narrow window is narrower than the resolution: not a window, listed apart
+    sw = sweep(_paper("full"), v, launcher=launch, error_samples=0, tn=False)
+    assert [(w["bounces"], w["lo"], w["hi"]) for w in sw["windows"]] == [(w["bounces"], w["lo"], w["hi"]) for w in wins]
+    assert sw["resolution"] == 1e-4 and len(sw["unresolved_windows"]) == 1
+    u = sw["unresolved_windows"][0]
+    assert u["bounces"] == 2 and u["lo"] == pytest.approx(33.0, abs=1e-4) and u["hi"] == pytest.approx(33.001, abs=1e-4)
     # a coarser resolution than the gap leaves it unseen: it says what it resolves
     coarse = resolve_windows(_synthetic, v, _synthetic(v), resolution=1e-2, edge_rel_tol=1e-6)
     assert [(w["bounces"], round(w["lo"], 4), round(w["hi"], 4)) for w in coarse][0] == (2, 10.0, 22.5)
