@@ -224,7 +224,8 @@ def test_resolve_windows_splits_at_gaps_narrower_than_the_sampling():
         assert list(r.bounces) == [w["bounces"]] * 2 and list(r.outcome) == [models.ESCAPED] * 2
     for w in [w for w in wins if w["bounces"] == 2]:     # v_out maximized inside the window, at its centre
         vb, vo, tn = w["best"]
-        assert w["lo"] <= vb <= w["hi"] and vb == pytest.approx(0.5 * (w["lo"] + w["hi"]), abs=1e-3 * (w["hi"] - w["lo"]))
+        assert w["lo"] <= vb <= w["hi"]
+        assert vb == pytest.approx(0.5 * (w["lo"] + w["hi"]), abs=1e-3 * (w["hi"] - w["lo"]))
         assert tn in [lo for lo, hi in SYN_TWO] and tn == pytest.approx(w["lo"], abs=w["edge_error"])
     # the probes: at most 1e-4 relative apart over the runs' spans (10..22 and 25..29), plus the edges
     assert sum(calls) < 1.05 * (12 / 10 + 4 / 25) / 1e-4 + 2000
