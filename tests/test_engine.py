@@ -3,6 +3,7 @@ time, threads, the cold-start message, and the lazy import of numba."""
 
 from __future__ import annotations
 
+import math
 import os
 import re
 import subprocess
@@ -137,3 +138,129 @@ def test_help_does_not_import_numba():
            "print('numba' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, check=True)
     assert out.stdout.strip().splitlines()[-1] == "False"
+
+
+# ----------------------------------------------------------------------------
+# escapes inside one step (issue 23, item 6)
+# ----------------------------------------------------------------------------
+# A damped bowl h = q x^2 + c y^2 (mm), launched on its wall at x = -30 toward +x: the
+# ball crosses the bottom, turns on the far wall (one bounce) and comes back. The launch
+# speed is chosen so that it turns again DELTA beyond the start line (a few micrometres),
+# for a millisecond or two, far shorter than a step: it escapes there. The speeds come
+# from independent solutions: the damped oscillator's closed form (simplified), scipy's
+# DOP853 on eq. (xyODE) restricted to y = 0 (full), the Newton-Euler ball (ball).
+DIP_Q, DIP_XS, DIP_MU, DIP_K = 1.0 / 60.0, -30.0, 0.5, 0.4
+GMM = 9806.65
+
+
+def _bowl(model):
+    return Problem(fns=compile_surface("q*x**2 + c*y**2", {"q": DIP_Q, "c": 0.05}), g=GMM, k=DIP_K, model=model,
+                   damping=DIP_MU, start=DIP_XS, x_range=(-200.0, 200.0), y_range=(-50.0, 50.0), t_max=1.0,
+                   radius=5.0 if model == "ball" else 0.0)
+
+
+def _oscillator(v):
+    """simplified: x'' = -2 g~ q x - mu x' in closed form: (x(t), xd(t)) functions."""
+    gt = GMM / (1 + DIP_K)
+    wd = math.sqrt(2 * gt * DIP_Q - DIP_MU ** 2 / 4)
+    c1, c2 = DIP_XS, (v + DIP_MU / 2 * DIP_XS) / wd
+
+    def x(t):
+        return math.exp(-DIP_MU * t / 2) * (c1 * math.cos(wd * t) + c2 * math.sin(wd * t))
+
+    def xd(t):
+        return math.exp(-DIP_MU * t / 2) * ((-DIP_MU / 2 * c1 + wd * c2) * math.cos(wd * t)
+                                           + (-DIP_MU / 2 * c2 - wd * c1) * math.sin(wd * t))
+    return x, xd, wd
+
+
+def _dip_simplified(v):
+    """(x at the second minimum... the first minimum after the bounce, its time, the
+    crossing time, |xd| there) from the closed form."""
+    from scipy.optimize import brentq
+
+    x, xd, wd = _oscillator(v)
+    # xd's zeros: the bounce in (0, pi/wd), the minimum in (pi/wd, 2 pi/wd)
+    ts = np.linspace(1e-9, 2 * math.pi / wd, 4001)
+    s = np.sign([xd(t) for t in ts])
+    z = [brentq(xd, ts[i], ts[i + 1], xtol=1e-15) for i in np.flatnonzero(s[:-1] * s[1:] < 0)]
+    tm = z[1]
+    return x(tm), tm, x, xd
+
+
+def _ref_solution(model, v):
+    """A dense solution to the minimum of x after the bounce: (x_min, t_min, x(t), |vx|(t))
+    with vx the centre's horizontal velocity."""
+    from scipy.integrate import solve_ivp
+
+    p = _bowl(model)
+    if model == "simplified":
+        xm, tm, x, xd = _dip_simplified(v)
+        return xm, tm, x, lambda t: abs(xd(t))
+    if model == "full":
+        gt = GMM / (1 + DIP_K)
+
+        def f(t, s):
+            hx, hxx = 2 * DIP_Q * s[0], 2 * DIP_Q
+            return [s[1], -(hxx * s[1] ** 2 + gt) * hx / (1 + hx * hx) - DIP_MU * s[1]]
+
+        def turn(t, s):
+            return s[1]
+        s0, vel = [DIP_XS, v], (lambda s: abs(s[1]))
+    else:
+        from ball_newton_euler import NewtonEuler
+
+        ne = NewtonEuler(p)
+        f = ne.rhs
+
+        def turn(t, s):
+            return ne.frame(s)[2]
+        s0, vel = ne.initial(v), (lambda s: abs(ne.frame(s)[1][0]))
+    turn.terminal, turn.direction = True, 1
+    sol = solve_ivp(f, (0.0, 1.0), s0, method="DOP853", rtol=1e-12, atol=1e-12, events=[turn],
+                    dense_output=True)
+    tm = float(sol.t_events[0][0])
+    return float(sol.y_events[0][0][0]), tm, (lambda t: float(sol.sol(t)[0])), (lambda t: vel(sol.sol(t)))
+
+
+def _speed_for(model, delta, v_guess=217.936):
+    """The launch speed whose x turns ``delta`` beyond the start line (secant iterations)."""
+    def g(v):
+        return _ref_solution(model, v)[0] - (DIP_XS - delta)
+    a, b = v_guess, v_guess * (1 + 1e-4)
+    ga, gb = g(a), g(b)
+    for _ in range(30):
+        if abs(gb) < 1e-9 * abs(DIP_XS) or gb == ga:
+            break
+        a, b, ga = b, b - gb * (b - a) / (gb - ga), gb
+        gb = g(b)
+    return b
+
+
+@pytest.mark.parametrize("model", ["simplified", "full", "ball"])
+def test_escape_within_one_step_is_found(model):
+    """Turns 2 um beyond the start line for about a millisecond: escaped, after one bounce,
+    at the reference's crossing time and speed; 2 um short of it: captured."""
+    from scipy.optimize import brentq
+
+    p = _bowl(model)
+    v_out_of = _speed_for(model, 2e-3)
+    v_short = _speed_for(model, -2e-3, v_out_of)
+    xm, tm, x, speed = _ref_solution(model, v_out_of)
+    t_cross = brentq(lambda t: x(t) - DIP_XS, tm - 0.05, tm, xtol=1e-15)
+    assert tm - t_cross < 2e-3                       # the excursion: a fraction of a step
+    r = launch_batch(p, [v_out_of, v_short])
+    assert r.outcome_names == ["escaped", "captured"]
+    assert r.bounces[0] == 1
+    assert r.t_end[0] == pytest.approx(t_cross, abs=1e-8)
+    # |xd| at the crossing: sqrt(2 a delta) ~ 5 mm/s, so a position error e moves it by a e / v
+    assert r.v_out[0] == pytest.approx(speed(t_cross), rel=1e-5)
+    assert r.t_end[0] / r.steps[0] > 2 * (tm - t_cross)   # the whole dip is shorter than a mean step
+    # the scipy path (reference.solve_launch: the peer launcher and the stiff Radau path) alike
+    from fabkit.physics.reference import solve_launch
+
+    for method in ("DOP853",) if model == "ball" else ("DOP853", "Radau"):   # (Radau on the ball: a minute)
+        ref = [solve_launch(p, v, method=method, rtol=1e-10, atol=1e-12) for v in (v_out_of, v_short)]
+        assert [q["outcome"] for q in ref] == ["escaped", "captured"], method
+        assert ref[0]["bounces"] == 1 and ref[0]["t_end"] == pytest.approx(t_cross, abs=1e-7)
+        assert ref[0]["v_out"] == pytest.approx(speed(t_cross), rel=1e-3)

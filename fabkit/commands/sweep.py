@@ -84,6 +84,7 @@ def run(args) -> int:
     two = [w for w in res["windows"] if w["bounces"] == 2]
     shown = two if len(two) <= SHOW else two[:SHOW]
     lines.append(f"sweep: {len(res['windows'])} windows of 2+ bounces, {len(two)} of two bounces"
+                 + (f", resolved to {res['resolution']:g} relative" if res.get("resolution") else "")
                  + (f" (the first {SHOW} listed; all in --json)" if len(shown) < len(two) else ""))
     for w in shown:
         lines.append(f"  2-bounce window {w['lo']:.6f} .. {w['hi']:.6f} {u}/s"
@@ -95,7 +96,7 @@ def run(args) -> int:
     lines.append(f"sweep: {err_txt}, {vc_txt}, {res['seconds']:.1f} s")
     payload = {kk: res[kk] for kk in ("v_in", "v_out", "bounces", "outcome", "v_critical", "windows", "tn_fit",
                                       "seconds", "error_estimate", "v_critical_error", "v_critical_reason",
-                                      "launches")}
+                                      "launches", "resolution", "unresolved_windows")}
     payload["model"] = problem.model
     payload["units"] = u
     emit(lines, payload, args.json)

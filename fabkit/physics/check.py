@@ -198,7 +198,9 @@ class CheckReport:
             out["ball"] = self.ball
         out.update(units=self.units, damping=self.damping, v_critical_reason=self.v_critical_reason,
                    ramp_safe=self.ramp_safe, reason=self.reason, bounces=self.bounces, v_out=self.v_out,
-                   tolerances=self.tolerances)
+                   tolerances=self.tolerances,
+                   # the reported windows hold no launch of another outcome down to this (relative)
+                   resolution=self.tolerances.get("gap_rel_tol") if self.refined else None)
         return out
 
 
@@ -313,7 +315,8 @@ def check(spec, *, launcher=None, heights=None, sweep_v=None, progress=None, pro
 
     # v_critical and windows over the swept speeds (reusing these launches)
     sw = sweep(problem, vs, launcher=launches_of, initial=grid, rel_tol=v_rel_tol, error_samples=0, tn=False,
-               k=1, k_edge=1, edge_rel_tol=edge_rel_tol, gap_rel_tol=gap_rel_tol, refine=refine, tol=tol)
+               k=1, k_edge=1, edge_rel_tol=edge_rel_tol, gap_rel_tol=gap_rel_tol, refine=refine, tol=tol,
+               bounces=(2,))
     vc = sw["v_critical"]
     windows = sw["windows"] if refine else _midpoint_windows(vs, grid)
     vmin, vmax = float(v[0]), float(v[-1])

@@ -25,7 +25,12 @@ Events (checked on every accepted step, from its start and end states):
                   variable, to xd = 0 exactly. Not terminal; the first K times are kept.
     escaped       x crosses ``start`` moving toward -x. Henon step with x as the
                   independent variable to x = start exactly; v_out = |xd| there (the
-                  ball: the centre's |x-velocity|).
+                  ball: the centre's |x-velocity|). A step over which xd turns from - to
+                  + (a minimum of x inside it) is checked too: the minimum is located
+                  (Henon step to xd = 0) and where it lies at or beyond the start line, the
+                  crossing before it by regula falsi on re-taken steps, so an excursion
+                  beyond the line shorter than a step (a few micrometres, for a
+                  millisecond) is an escape.
     flew_off      h(x, y) reaches top - margin (Henon step in z), or x or y leaves the
                   footprint shrunk by the margin (Henon step in x or y).
     lost_contact  (full model) the normal-force bracket B of eq. (xyODE) falls to 0 or

@@ -83,6 +83,8 @@ def _events(problem):
         # only while moving toward -x: at a huge speed the first steps can leave x == start
         # in floating point, which must not count as a return
         ("escaped", _event(lambda t, s: (s[0] - start) if (t > 0 and s[2] < 0) else 1.0, True, -1)),
+        # minima of x: one at or beyond the start line inside a step is an escape too (solve_launch)
+        ("x_min", _event(lambda t, s: s[2], False, 1)),
         ("flew_off:top", _event(lambda t, s: float(h(s[0], s[1])) - z_lim, True, 1)),
         ("flew_off:x_max", _event(lambda t, s: s[0] - (x1 - mg), True, 1)),
         ("flew_off:x_min", _event(lambda t, s: (x0 + mg) - s[0], True, 1)),
@@ -159,7 +161,7 @@ def solve_launch(problem, v_in: float, y0: float = 0.0, vy0: float = 0.0, *, met
     try:
         with np.errstate(all="ignore"):
             sol = solve_ivp(fun, (0.0, t_max), s0, method=method, rtol=rtol, atol=atol,
-                            events=[e for _, e in events])
+                            events=[e for _, e in events], dense_output=True)
     except (ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:
         # scipy's norms and Jacobians overflow at absurd speeds (beyond ~1e100 design units/s)
         return _failed(problem, s0, f"integration failed ({type(exc).__name__}: {exc})",
@@ -173,7 +175,7 @@ def solve_launch(problem, v_in: float, y0: float = 0.0, vy0: float = 0.0, *, met
     if sol.status == 1:  # a terminal event fired: the earliest one is where solve_ivp stopped
         best = None
         for i, n in enumerate(names):
-            if n == "bounce" or len(sol.t_events[i]) == 0:
+            if n in ("bounce", "x_min") or len(sol.t_events[i]) == 0:
                 continue
             te = float(sol.t_events[i][0])
             if best is None or te < best[0]:
@@ -184,7 +186,12 @@ def solve_launch(problem, v_in: float, y0: float = 0.0, vy0: float = 0.0, *, met
             reason = _REASONS.get(name, "")
     elif sol.status < 0:
         outcome, reason = "captured", f"integration failed: {sol.message}"
+    dip = _dip(sol, names.index("x_min"), float(problem.start), t_end)
+    if dip is not None:   # the start line crossed and crossed back inside a step: escaped there
+        t_end, end = dip
+        outcome, reason = "escaped", ""
 
+    Ys = sol.y[:, sol.t <= t_end] if dip is not None else sol.y     # the step points up to the end
     tb = np.asarray(sol.t_events[0], dtype=float)
     tb = tb[tb <= t_end]
     vx_end, vy_end = float(end[2]), float(end[3])
@@ -192,16 +199,16 @@ def solve_launch(problem, v_in: float, y0: float = 0.0, vy0: float = 0.0, *, met
     if ball:   # the centre's velocity; the largest slip ratio over the steps and the end
         q = _models().ball_quantities(problem, end)
         vx_end, vy_end = float(q["vx"]), float(q["vy"])
-        sl = np.append(_models().ball_quantities(problem, sol.y)["slip"][:-1], q["slip"])
+        sl = np.append(_models().ball_quantities(problem, Ys)["slip"][:-1], q["slip"])
         if outcome in ("lost_contact", "bridged") and sl.size > 1:
             sl = sl[:-1]   # the ratio is unbounded where contact is lost
         max_slip = float(np.nanmax(sl))
     v_out = abs(vx_end) if outcome == "escaped" else math.nan
 
-    xs, ys = sol.y[0], sol.y[1]
+    xs, ys = Ys[0], Ys[1]
     z = np.asarray(problem.fns.h(xs, ys), dtype=float)
     with np.errstate(all="ignore"):
-        e = np.array([_energy(problem, sol.y[:, j]) for j in range(sol.y.shape[1])])
+        e = np.array([_energy(problem, Ys[:, j]) for j in range(Ys.shape[1])])
         e0 = _energy(problem, s0)
         scale = max(0.5 * float(v_in) * float(v_in), 1e-300)
         drift = float(np.max(np.abs(e - e0)) / scale)
@@ -225,6 +232,35 @@ def solve_launch(problem, v_in: float, y0: float = 0.0, vy0: float = 0.0, *, met
         "status": int(sol.status),
         "message": str(sol.message),
     }
+
+
+def _dip(sol, i_min: int, start: float, t_end: float):
+    """The first minimum of x before ``t_end`` at or beyond the start line (x <= start),
+    which the escape event (a sign change at the step ends) misses when x returns above
+    the line within the step: (t, state) of the crossing before it, from the dense
+    output (brentq to rounding), or None."""
+    from scipy.optimize import brentq
+
+    tm = np.asarray(sol.t_events[i_min], dtype=float)
+    ym = sol.y_events[i_min]
+    for k in range(len(tm)):
+        if tm[k] > t_end:
+            break
+        if not ym[k][0] <= start:
+            continue
+        # the crossing: between the last step point before the minimum with x above the line
+        # and the minimum
+        above = np.flatnonzero((sol.t < tm[k]) & (sol.y[0] > start))
+        if len(above) == 0:
+            return None
+        ta = float(sol.t[above[-1]])
+        te = brentq(lambda t: float(sol.sol(t)[0]) - start, ta, float(tm[k]), xtol=1e-15, rtol=1e-15)
+        if te >= t_end:
+            return None
+        y = np.array(sol.sol(te), dtype=float)
+        y[0] = start
+        return float(te), y
+    return None
 
 
 def _failed(problem, s0, reason: str, seconds: float) -> dict:

@@ -20,15 +20,27 @@ What :func:`sweep` computes, and how accurately
   at the top of the range are set aside first (the surface cannot hold them);
   if no launch at the top escapes after one bounce, ``v_critical`` is None and
   ``v_critical_reason`` says why.
-* ``windows``: maximal runs of consecutive samples that escape with the same
-  bounce count n >= 2, as ``{bounces, lo, hi, samples}``. For n = 2 the edges are
-  refined by bisection to ``rel_tol`` relative, toward the boundary of the
-  connected run of two-bounce launches (``edge_error`` gives the half-width);
-  for n >= 3 ``lo``/``hi`` are the outermost samples inside the run (accurate to
-  one sample spacing).
-* ``tn_fit`` (the paper's eq. tn): in each two-bounce window, v_out is
-  maximized by a few rounds of batched k-section; there T_n = t_2 - t_1 (time
-  between the two bounces). Each window gets n = the number of complete
+* ``windows``: the n-bounce windows (n >= 2), resolved to ``gap_rel_tol``
+  (the *resolution*, default 1e-4 relative in v_in, reported as ``resolution``): a
+  reported window holds no launch of another outcome at that resolution. From each
+  maximal run of consecutive samples escaping after n bounces: probes between its
+  samples, at most the resolution apart, split it where a launch of another outcome
+  lies between them (near v_critical the windows crowd together, separated by capture
+  gaps far narrower than the sampling); every edge is bisected to ``edge_rel_tol``
+  (default ``rel_tol``) toward the boundary of the connected run, after a walk from the
+  inside end at the resolution where the next launch outside is a sample
+  (``edge_error``: the half-width; ``lo``/``hi``: the brackets' midpoints); each part is
+  then probed again at its own scale, min(resolution |v|, width / MIN_PROBES) apart
+  (MIN_PROBES = 32), and split and bisected again where needed, until each part is
+  clean or narrower than the resolution. Parts narrower than the resolution (in the
+  fractal region near v_critical, where outcomes alternate on every scale) cannot be
+  resolved at it: they are not windows; ``unresolved_windows`` lists them
+  ``{bounces, lo, hi}``. Gaps narrower than the probes' spacing are not seen.
+* ``tn_fit`` (the paper's eq. tn): in each two-bounce window, v_out is maximized
+  inside it: from the best of its samples and probes (at most the resolution apart),
+  two rounds of batched k-section between that launch's neighbours; there T_n =
+  t_2 - t_1 (time between the two bounces), at a speed inside the window. Every
+  two-bounce window enters the fit. Each window gets n = the number of complete
   transverse oscillations between its bounces: n_0 = floor(T_0 / T_shape) for
   the first window (in the order of increasing v_in) and n_i = n_{i-1} +
   max(1, round((T_i - T_{i-1}) / d)) for the others, d = T_shape first and then
@@ -90,7 +102,7 @@ def make_launcher(problem, *, method: str = "fabkit", rtol: float | None = None,
             kw = {}
             if cb is not None:
                 kw["progress"] = cb
-            r = launch_batch(problem, v, rtol=rtol, atol=atol, **kw)
+            r = launch_batch(problem, v, rtol=rtol, atol=atol, workers=_threads(len(v)), **kw)
             return Launches(v, np.asarray(r.outcome, dtype=np.int8), np.asarray(r.bounces, dtype=int),
                             np.asarray(r.v_out, dtype=float), np.asarray(r.bounce_times, dtype=float))
 
@@ -114,6 +126,17 @@ def make_launcher(problem, *, method: str = "fabkit", rtol: float | None = None,
                         np.array([r["v_out"] for r in rows], dtype=float), bt)
 
     return launch
+
+
+THREADED_BATCH = 256    # launches from which a batch runs on every core (results do not depend on it)
+
+
+def _threads(n: int) -> int:
+    """Threads for a batch of n launches on the compiled engine: every core for large
+    batches (the window probes), one for the small rounds of the bisections."""
+    import os
+
+    return max(1, min(os.cpu_count() or 1, 8)) if n >= THREADED_BATCH else 1
 
 
 def _concat(parts: list[Launches]) -> Launches:
@@ -239,11 +262,11 @@ def _critical_task(lo: float, hi: float, rel_tol: float, k: int, max_rounds: int
     return lo, hi
 
 
-def run_tasks(launch, tasks: list) -> list:
-    """Drive refinement generators together: every round, the speeds all live
-    tasks ask for go to the launcher in ONE batch (one call into the compiled
-    engine, or one set of Dask tasks, per round).
-    Returns each task's return value."""
+def _together(tasks: list):
+    """Generator: drives refinement generators together, yielding every round the
+    speeds all live tasks ask for as ONE array and sending each its share of the
+    results; returns each task's return value. A task may itself drive sub-tasks with
+    ``yield from _together(...)``."""
     results = [None] * len(tasks)
     pending = {}
     for i, t in enumerate(tasks):
@@ -254,7 +277,7 @@ def run_tasks(launch, tasks: list) -> list:
     while pending:
         ids = sorted(pending)
         sizes = [len(pending[i]) for i in ids]
-        parts = _split(launch(np.concatenate([pending[i] for i in ids])), sizes)
+        parts = _split((yield np.concatenate([np.asarray(pending[i], dtype=float) for i in ids])), sizes)
         pending = {}
         for i, r in zip(ids, parts):
             try:
@@ -262,6 +285,20 @@ def run_tasks(launch, tasks: list) -> list:
             except StopIteration as stop:
                 results[i] = stop.value
     return results
+
+
+def run_tasks(launch, tasks: list) -> list:
+    """Drive refinement generators together: every round, the speeds all live
+    tasks ask for go to the launcher in ONE batch (one call into the compiled
+    engine, or one set of Dask tasks, per round).
+    Returns each task's return value."""
+    g = _together(tasks)
+    try:
+        pts = next(g)
+        while True:
+            pts = g.send(launch(pts))
+    except StopIteration as stop:
+        return stop.value
 
 
 def refine_critical(launch, lo: float, hi: float, *, rel_tol: float = 1e-6, k: int = 64) -> tuple[float, float]:
@@ -293,25 +330,27 @@ def _two_bounce(r: Launches) -> np.ndarray:
 
 
 def _edge_task(a: float, b: float, side: int, rel_tol: float, k: int = 16, max_rounds: int = 40,
-               gap_rel_tol: float | None = None):
+               gap_rel_tol: float | None = None, inside=None):
     """Generator: k-section (``k`` = 1: plain bisection) of one window edge. side -1
     (left edge): b inside the two-bounce window, a outside; +1 (right edge): a inside,
     b outside. Keeps the edge of the connected two-bounce run touching the inside end;
     returns (a, b) narrowed to width <= rel_tol * max(|a|, |b|). With ``gap_rel_tol``,
     a walk from the inside end (:func:`_isolate`) first brackets the run's first
-    boundary to that resolution (gaps narrower than it are not seen)."""
+    boundary to that resolution (gaps narrower than it are not seen). ``inside``:
+    ``Launches -> bool array``, the window's outcome (default: two-bounce escapes)."""
+    inside_fn = _two_bounce if inside is None else inside
     if gap_rel_tol:
         gap = gap_rel_tol * max(abs(a), abs(b))
         if side < 0:
-            b, a = yield from _isolate(b, a, gap, _two_bounce)
+            b, a = yield from _isolate(b, a, gap, inside_fn)
         else:
-            a, b = yield from _isolate(a, b, gap, _two_bounce)
+            a, b = yield from _isolate(a, b, gap, inside_fn)
     for _ in range(max_rounds):
         if b - a <= rel_tol * max(abs(a), abs(b)):
             break
         p = a + (b - a) * np.arange(1, k + 1) / (k + 1)
         r = yield p
-        inside = _two_bounce(r)
+        inside = inside_fn(r)
         if side < 0:   # walk down from b while inside: p[j:] inside, p[j-1] outside
             j = k
             while j > 0 and inside[j - 1]:
@@ -323,6 +362,167 @@ def _edge_task(a: float, b: float, side: int, rel_tol: float, k: int = 16, max_r
                 j += 1
             a, b = (float(p[j]) if j >= 0 else a), (float(p[j + 1]) if j + 1 < k else b)
     return a, b
+
+
+def _outcome_of(n: int):
+    """The predicate of an n-bounce window: ``Launches -> bool array``."""
+    def inside(r: Launches) -> np.ndarray:
+        return (r.outcome == ESCAPED) & (r.bounces == n)
+    return inside
+
+
+def _between(a: float, b: float, resolution: float) -> np.ndarray:
+    """Probes strictly between a < b, evenly spaced at most ``resolution`` * |b| apart."""
+    m = int(math.ceil((b - a) / (resolution * abs(b)))) - 1 if resolution and resolution > 0 else 0
+    return a + (b - a) * np.arange(1, m + 1) / (m + 1) if m > 0 else np.zeros(0)
+
+
+MIN_PROBES = 32    # interior probes of a window at least, however narrow (see _clean_task)
+
+
+def _parts(x: np.ndarray, ins: np.ndarray) -> list[tuple[int, int]]:
+    """Maximal runs [a, b] (inclusive) of True in ``ins``."""
+    out, q = [], 0
+    while q < len(x):
+        if not ins[q]:
+            q += 1
+            continue
+        e = q
+        while e + 1 < len(x) and ins[e + 1]:
+            e += 1
+        out.append((q, e))
+        q = e + 1
+    return out
+
+
+def _clean_task(lo_br: tuple, hi_br: tuple, inside, resolution: float | None, edge_rel_tol: float, k_edge: int,
+                probed: float):
+    """Generator: one window between the edge brackets ``lo_br`` = (outside, inside) and
+    ``hi_br`` = (inside, outside), checked inside: a window at least ``resolution``
+    relative wide gets interior probes at most min(resolution |v|, width / MIN_PROBES)
+    apart (none where ``probed``, the spacing already launched over it, is that fine);
+    where one has another outcome it splits there, the new edges are bisected to
+    ``edge_rel_tol`` and each part is checked the same way. A part narrower than
+    ``resolution`` relative is not resolved at that resolution: returned apart. Returns
+    (windows, unresolved), each a list of (lo_br, hi_br)."""
+    lo_in, hi_in = float(lo_br[1]), float(hi_br[0])
+    lo, hi = 0.5 * (lo_br[0] + lo_br[1]), 0.5 * (hi_br[0] + hi_br[1])
+    if resolution and hi - lo < resolution * abs(hi):
+        return [], [(lo_br, hi_br)]
+    if not resolution:
+        return [(lo_br, hi_br)], []
+    step = min(resolution * abs(hi_in), (hi_in - lo_in) / MIN_PROBES)
+    if probed <= step * (1 + 1e-9):
+        return [(lo_br, hi_br)], []
+    m = int(math.ceil((hi_in - lo_in) / step)) - 1
+    if m <= 0:
+        return [(lo_br, hi_br)], []
+    pts = lo_in + (hi_in - lo_in) * np.arange(1, m + 1) / (m + 1)
+    r = yield pts
+    ins = inside(r)
+    if ins.all():
+        return [(lo_br, hi_br)], []
+    x = np.concatenate([[lo_in], pts, [hi_in]])
+    ins = np.concatenate([[True], ins, [True]])
+    spacing = (hi_in - lo_in) / (m + 1)
+    edges, parts = [], _parts(x, ins)
+    for a, b in parts:
+        edges.append(_edge_task(float(x[a - 1]), float(x[a]), -1, edge_rel_tol, k_edge, inside=inside)
+                     if a > 0 else iter(()))
+        edges.append(_edge_task(float(x[b]), float(x[b + 1]), +1, edge_rel_tol, k_edge, inside=inside)
+                     if b + 1 < len(x) else iter(()))
+    br = yield from _together(edges)
+    subs = [_clean_task(lo_br if a == 0 else br[2 * q], hi_br if b == len(x) - 1 else br[2 * q + 1], inside,
+                        resolution, edge_rel_tol, k_edge, spacing)
+            for q, (a, b) in enumerate(parts)]
+    done = yield from _together(subs)
+    return [w for d in done for w in d[0]], [u for d in done for u in d[1]]
+
+
+def _window_task(v: np.ndarray, v_out: np.ndarray, run: tuple[int, int, int], resolution: float | None,
+                 edge_rel_tol: float, k_edge: int = 1, tn: bool = True):
+    """Generator: the n-bounce windows of one run of samples (``find_runs``' (n, i, j)),
+    resolved. Probes between its consecutive samples, at most ``resolution`` relative
+    apart, split it where a launch of another outcome lies between them; every edge of
+    every part is bisected to ``edge_rel_tol`` relative (an edge next to a sample
+    outside the run after a walk from the inside end at ``resolution``, as in
+    :func:`_edge_task`); each part is then checked inside at its own scale
+    (:func:`_clean_task`: at least MIN_PROBES probes), and parts narrower than
+    ``resolution`` relative are set apart as unresolved. For n = 2 with ``tn``, v_out is
+    maximized inside each window. Returns (windows, unresolved): the windows in order,
+    each ``{bounces, lo, hi, samples, edge_error, lo_in, hi_in}`` (``lo_in``/``hi_in``:
+    the inside ends of the edge brackets, launches with the window's outcome) and, for
+    n = 2 with ``tn``, ``best`` (v_in, v_out, T_n) or None; unresolved ``{bounces, lo, hi}``."""
+    n, i, j = run
+    inside = _outcome_of(n)
+    x = np.asarray(v[i:j + 1], dtype=float)
+    vout = np.asarray(v_out[i:j + 1], dtype=float)
+    ins = np.ones(len(x), dtype=bool)
+    sample = np.ones(len(x), dtype=bool)
+    if resolution:
+        pts = np.concatenate([np.zeros(0)] + [_between(float(v[q]), float(v[q + 1]), resolution)
+                                             for q in range(i, j)])
+        if len(pts):
+            r = yield pts
+            x = np.concatenate([x, pts])
+            vout = np.concatenate([vout, r.v_out])
+            ins = np.concatenate([ins, inside(r)])
+            sample = np.concatenate([sample, np.zeros(len(pts), dtype=bool)])
+            order = np.argsort(x, kind="stable")
+            x, vout, ins, sample = x[order], vout[order], ins[order], sample[order]
+    parts = _parts(x, ins)
+    edges = []
+    for a, b in parts:
+        lo_out = float(x[a - 1]) if a > 0 else (float(v[i - 1]) if i > 0 else None)
+        hi_out = float(x[b + 1]) if b + 1 < len(x) else (float(v[j + 1]) if j + 1 < len(v) else None)
+        edges.append(_edge_task(float(x[a]) if lo_out is None else lo_out, float(x[a]), -1, edge_rel_tol, k_edge,
+                                gap_rel_tol=resolution, inside=inside))
+        edges.append(_edge_task(float(x[b]), float(x[b]) if hi_out is None else hi_out, +1, edge_rel_tol, k_edge,
+                                gap_rel_tol=resolution, inside=inside))
+    brackets = yield from _together(edges)
+    # each part checked at its own scale: the probes so far were at most resolution |v| apart
+    # between samples (a part holding a single sample: its edges only)
+    spacing = [(float(np.max(np.diff(x[a:b + 1]))) if b > a else math.inf) for a, b in parts]
+    checked = yield from _together([_clean_task(brackets[2 * q], brackets[2 * q + 1], inside, resolution,
+                                                edge_rel_tol, k_edge, spacing[q]) for q in range(len(parts))])
+    wins, unresolved = [], []
+    for q, (a, b) in enumerate(parts):
+        for lo_br, hi_br in checked[q][0]:
+            (a1, b1), (a2, b2) = lo_br, hi_br
+            held = int(np.sum(sample[a:b + 1] & (x[a:b + 1] >= b1) & (x[a:b + 1] <= a2)))
+            wins.append({"bounces": n, "lo": 0.5 * (a1 + b1), "hi": 0.5 * (a2 + b2), "samples": held,
+                         "edge_error": 0.5 * max(b1 - a1, b2 - a2), "lo_in": float(b1), "hi_in": float(a2)})
+        for lo_br, hi_br in checked[q][1]:
+            unresolved.append({"bounces": n, "lo": 0.5 * (lo_br[0] + lo_br[1]), "hi": 0.5 * (hi_br[0] + hi_br[1])})
+    if n == 2 and tn:
+        # v_out is maximized from the best of the samples and probes inside each window
+        # (at most ``resolution`` apart): between its neighbours, within the window
+        starts = []
+        for w in wins:
+            sel = (x >= w["lo_in"]) & (x <= w["hi_in"])
+            xs, vo = x[sel], np.where(np.isfinite(vout[sel]), vout[sel], -np.inf)
+            if len(xs) == 0 or not np.isfinite(vo).any():
+                starts.append(_maximize_task(w["lo_in"], w["hi_in"]))
+                continue
+            m = int(np.argmax(vo))
+            lo_m = float(xs[m - 1]) if m > 0 else w["lo_in"]
+            hi_m = float(xs[m + 1]) if m + 1 < len(xs) else w["hi_in"]
+            starts.append(_maximize_task(lo_m, hi_m, rounds=2))
+        best = yield from _together(starts)
+        for w, bb in zip(wins, best):
+            w["best"] = bb
+    return wins, unresolved
+
+
+def resolve_windows(launch, v, res: Launches, *, resolution: float | None = 1e-4, edge_rel_tol: float = 1e-6,
+                    k_edge: int = 1, tn: bool = False) -> list[dict]:
+    """The resolved n-bounce windows (n >= 2) of sorted samples ``v`` with results
+    ``res``, launching more through ``launch`` (v_in (M,) -> Launches): see
+    :func:`_window_task`. Every window's probes and edges share one batch per round."""
+    v = np.asarray(v, dtype=float)
+    done = run_tasks(launch, [_window_task(v, res.v_out, run, resolution, edge_rel_tol, k_edge, tn)
+                              for run in find_runs(res)])
+    return [w for part in done for w in part[0]]
 
 
 def _maximize_task(a: float, b: float, rounds: int = 3, k: int = 24):
@@ -401,13 +601,16 @@ def sweep(problem, v_in, *, launcher=None, method: str = "fabkit", rtol: float |
           atol: float | None = None, progress=None, rel_tol: float = 1e-6, k: int = 1,
           refine: bool = True, error_samples: int = 48, initial: Launches | None = None, tn: bool = True,
           k_edge: int = 1, edge_rel_tol: float | None = None, gap_rel_tol: float | None = 1e-4,
-          tol=DEFAULT) -> dict:
+          bounces: tuple | None = None, tol=DEFAULT) -> dict:
     """Launch at every ``v_in`` (N,) (design units/s, sorted ascending here) and analyse.
 
     Returns a dict: ``v_in`` (N,) sorted, ``v_out`` (N,) (nan unless escaped),
     ``bounces`` (N,), ``outcome`` (N,) names, ``v_critical`` (float or None),
     ``v_critical_error``, ``v_critical_reason``, ``windows`` [{bounces, lo, hi,
-    samples, edge_error}], ``tn_fit`` {T, delta, n, T_n, v_in, T_shape, omega},
+    samples, edge_error}] (two-bounce ones also v_in_max, v_out_max, T_n),
+    ``resolution`` (the windows' resolution, relative; None without ``refine``),
+    ``unresolved_windows`` [{bounces, lo, hi}] (parts narrower than the resolution),
+    ``tn_fit`` {T, delta, n, T_n, v_in, T_shape, omega},
     ``error_estimate`` {v_out_abs, v_out_rel, launches, rtol_ref}, ``launches``
     (total run), ``seconds``. Accuracy: see the module docstring.
     ``initial``: results already computed for the sorted ``v_in`` (not re-run).
@@ -416,10 +619,14 @@ def sweep(problem, v_in, *, launcher=None, method: str = "fabkit", rtol: float |
     1: plain bisection; a launch costs a few hundredths of a millisecond on the
     compiled engine, so rounds of one launch per task are the cheapest).
     ``edge_rel_tol``: relative width the two-bounce window edges are refined to
-    (default ``rel_tol``). ``gap_rel_tol``: before the bisections, a walk from the
-    bracket's known end isolates the boundary to this relative resolution (default
-    1e-4: gaps between windows, and islands below v_critical, narrower than that are
-    not seen); None skips it.
+    (default ``rel_tol``). ``gap_rel_tol``: the resolution (default 1e-4 relative):
+    the windows are probed inside at most that far apart (see the module doc), and
+    before the bisections a walk from the bracket's known end isolates the boundary to
+    it (gaps between windows, and islands below v_critical, narrower than that are not
+    seen); None skips the probes and walks. ``bounces``: resolve and report only the
+    windows of these bounce counts (``check``: (2,)); None, every n >= 2.
+    Large batches (the probes) run on every core (``_threads``): results do not
+    depend on it.
     """
     from .models import OUTCOMES
 
@@ -444,45 +651,44 @@ def sweep(problem, v_in, *, launcher=None, method: str = "fabkit", rtol: float |
         "outcome": [OUTCOMES[int(i)] for i in res.outcome],
     }
 
-    # v_critical, window edges and v_out maxima: refinement tasks run together
+    # v_critical, windows (probes, edges, v_out maxima): refinement tasks run together
     lo, hi, reason = critical_bracket(v, res)
-    runs = find_runs(res)
-    windows = [{"bounces": n, "lo": float(v[i]), "hi": float(v[j]), "samples": j - i + 1, "edge_error": None}
-               for n, i, j in runs]
-    two = [(w, i, j) for w, (n, i, j) in zip(windows, runs) if n == 2]
-    tasks = []
+    runs = [run for run in find_runs(res) if bounces is None or run[0] in bounces]
     e_tol = rel_tol if edge_rel_tol is None else float(edge_rel_tol)
+    tasks = []
     if refine:
-        if lo is not None:
-            tasks.append(_critical_task(lo, hi, rel_tol, k, gap_rel_tol=gap_rel_tol))
-        for w, i, j in two:
-            tasks.append(_edge_task(float(v[i - 1]) if i > 0 else float(v[i]), float(v[i]), -1, e_tol, k_edge,
-                                    gap_rel_tol=gap_rel_tol))
-            tasks.append(_edge_task(float(v[j]), float(v[j + 1]) if j + 1 < len(v) else float(v[j]), +1,
-                                    e_tol, k_edge, gap_rel_tol=gap_rel_tol))
-            tasks.append(_maximize_task(float(v[max(i - 1, 0)]), float(v[min(j + 1, len(v) - 1)]))
-                         if tn else iter(()))
+        tasks.append(_critical_task(lo, hi, rel_tol, k, gap_rel_tol=gap_rel_tol) if lo is not None else iter(()))
+        tasks += [_window_task(v, res.v_out, run, gap_rel_tol, e_tol, k_edge, tn) for run in runs]
     done = run_tasks(counting, tasks)
     if refine and lo is not None:
-        lo, hi = done.pop(0)
+        lo, hi = done[0]
     out["v_critical"] = None if lo is None else 0.5 * (lo + hi)
     out["v_critical_error"] = None if lo is None else 0.5 * (hi - lo)
     out["v_critical_reason"] = reason
 
     best = []
-    for q, (w, i, j) in enumerate(two):
-        if refine:
-            (a1, b1), (a2, b2), b = done[3 * q: 3 * q + 3]
-            w["lo"] = 0.5 * (a1 + b1) if i > 0 else float(v[i])
-            w["hi"] = 0.5 * (a2 + b2) if j + 1 < len(v) else float(v[j])
-            w["edge_error"] = 0.5 * max(b1 - a1, b2 - a2)
-        else:
-            m = i + int(np.nanargmax(res.v_out[i:j + 1]))
-            b = (float(v[m]), float(res.v_out[m]), float(res.bounce_times[m, 1] - res.bounce_times[m, 0]))
-        if b is not None:
-            w["v_in_max"], w["v_out_max"], w["T_n"] = b
-            best.append(b)
+    windows = []
+    if refine:
+        for w in (w for part in done[1:] for w in part[0]):
+            b = w.pop("best", None)
+            w.pop("lo_in")
+            w.pop("hi_in")
+            if b is not None:
+                w["v_in_max"], w["v_out_max"], w["T_n"] = b
+                best.append(b)
+            windows.append(w)
+    else:
+        for n, i, j in runs:
+            w = {"bounces": n, "lo": float(v[i]), "hi": float(v[j]), "samples": j - i + 1, "edge_error": None}
+            if n == 2:
+                m = i + int(np.nanargmax(res.v_out[i:j + 1]))
+                b = (float(v[m]), float(res.v_out[m]), float(res.bounce_times[m, 1] - res.bounce_times[m, 0]))
+                w["v_in_max"], w["v_out_max"], w["T_n"] = b
+                best.append(b)
+            windows.append(w)
     out["windows"] = windows
+    out["resolution"] = gap_rel_tol if refine else None
+    out["unresolved_windows"] = [u for part in done[1:] for u in part[1]] if refine else []
 
     # eq. (tn) fit
     _, T_shape = transverse_period(problem)

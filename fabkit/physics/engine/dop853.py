@@ -358,6 +358,37 @@ def locate(Y, F0, t, h, kind, target, P, A, Bw, ns, K, KH, Z, Zs, Zout, Yn, Yt, 
 
 
 @jit
+def dip(Y, F0, t, h, start, P, A, Bw, ns, K, KH, Z, Zs, Zout, Yn, Yt, Fs):
+    """A step from (Y, t) of size h over which xd turns from - to +: the time where x
+    first reaches ``start`` inside it, or inf when the minimum of x stays above it.
+    The minimum is located like a bounce (Henon's step to xd = 0); where it lies at or
+    beyond the start line, the crossing before it by Illinois regula falsi on re-taken
+    steps over [t, t_min] (x - start changes sign there). Each is as accurate as a step;
+    the crossing's state is left in Zout[:NV]."""
+    nv = Y.shape[0]
+    tm, ok = locate(Y, F0, t, h, K_VX, 0.0, P, A, Bw, ns, K, KH, Z, Zs, Zout, Yn, Yt, Fs)
+    if not (ok and tm >= t and tm <= t + h + 1e-9 * h):
+        # the minimum's time not found: the step's end stands for it
+        tm = t + h
+        rk_step(Y, F0, h, P, A, Bw, ns, K, Zs[:nv], Zout[:nv])
+    if not Zout[0] <= start:
+        return np.inf
+    hm = tm - t
+    rk_step(Y, F0, hm, P, A, Bw, ns, K, Zs[:nv], Yt)
+    if not Yt[0] <= start:
+        # the re-taken step to t_min ends above the line by a rounding: the minimum is the crossing
+        Zout[0] = start
+        return tm
+    te = bracketed(Y, F0, t, hm, K_X, start, P, A, Bw, ns, K, Zs[:nv], Yn, Yt, Fs)
+    if not (math.isfinite(te) and _all_finite(Yt, NE)):
+        Zout[0] = start
+        return tm
+    for c in range(nv):
+        Zout[c] = Yt[c]
+    return te
+
+
+@jit
 def _all_finite(a, n):
     for c in range(n):
         if not math.isfinite(a[c]):
@@ -556,6 +587,15 @@ def launch(v, y0, vy0, P, C, A, Bw, Ew, E3w, ns, order, dop, BT, FO, IO, TR, rec
                 if te < t_ev:
                     t_ev = te
                     code = oc
+                    for c in range(nv):
+                        Yev[c] = Zout[c]
+            if Y[2] < 0 and Ynew[2] >= 0 and Y[0] > start:
+                # a minimum of x inside the step: the start line crossed and crossed back
+                # within one step (however short the excursion) is an escape too
+                te = dip(Y, F, t, hstep, start, P, A, Bw, ns, K, KH, Z, Ys, Zout, Yn, Yt, Fs)
+                if te < t_ev:
+                    t_ev = te
+                    code = ESCAPED
                     for c in range(nv):
                         Yev[c] = Zout[c]
             if full and Bn <= 0 and B > 0:
