@@ -217,8 +217,8 @@ def check_options(opts: Options, spec) -> None:
         raise SpecError(f"must be finite and > 0, got {opts.min_width}", key="--min-width")
     if not 1 <= opts.samples <= MAX_SAMPLES:
         raise SpecError(f"must be a whole number in 1..{MAX_SAMPLES}, got {opts.samples}", key="--samples")
-    if opts.seed < 0:
-        raise SpecError(f"must be >= 0, got {opts.seed}", key="--seed")
+    if not 0 <= opts.seed < 2**63:      # as fabkit robustness (a seed JSON readers can hold)
+        raise SpecError(f"must be a whole number in 0..2**63-1, got {opts.seed}", key="--seed")
     from .explore import check_scatter_size
 
     check_scatter_size(spec, opts.sigma_y, opts.sigma_vy)

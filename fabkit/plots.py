@@ -406,6 +406,8 @@ def phi4_trajectory_png(record: dict, summary: dict, *, fmt: str = "png") -> byt
         ax.axvline(tb, color="0.6", lw=0.7, ls=":")
     out = summary.get("outcome", "")
     extra = f", v_out = {summary['v_out']:.4f}" if out == "escaped" and summary.get("v_out") else ""
+    if extra and summary.get("v_out_error") is not None:
+        extra += f" ± {summary['v_out_error']:.1g} (step halving)"
     ax.set_title(f"phi^4 kink-antikink, v_in = {summary.get('v_in', 0):g}: {out}, "
                  f"{summary.get('bounces', 0)} bounce(s){extra}", fontsize=10)
     ax.grid(alpha=0.3)

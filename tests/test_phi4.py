@@ -229,3 +229,25 @@ def test_shape_amplitude_is_continuous_where_the_speed_is_measured():
     # the speed used: dX/dt apart, held while the kinks overlap, linear between
     V, held = phi4.kink_speed([5.0, 3.5, 2.0], [-0.3, 0.1, 0.9], [0.2, 0.2, 0.2])
     assert V.tolist() == pytest.approx([0.3, 0.15, 0.2]) and held.tolist() == pytest.approx([0.3, 0.2, 0.2])
+
+
+def test_initial_data_of_far_kinks_has_no_overflow():
+    """--x0 1000 (allowed up to 1e3) put the kinks where cosh overflows (|a| > 710): phi_t and
+    the shape mode use sech = 2 e^-|a| / (1 + e^-2|a|), equal to 1/cosh where that is finite and
+    to its asymptote 2 e^-|a| far out."""
+    import warnings
+
+    a = np.linspace(-700, 700, 2801)
+    np.testing.assert_allclose(phi4.sech(a), 1 / np.cosh(a), rtol=1e-15, atol=0)
+    far = np.array([30.0, 300.0, 700.0])
+    np.testing.assert_allclose(phi4.sech(far), 2 * np.exp(-far), rtol=1e-15)
+    x = np.linspace(0.0, 1040.0, 4161)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        phi, phi_t = pair(x, [0.2], 1000.0)
+        chi = phi4.shape_mode(x)
+    g = 1 / math.sqrt(1 - 0.04)
+    near = np.abs(x - 1000.0) < 100
+    np.testing.assert_allclose(phi_t[0, near], -(g * 0.2 / math.sqrt(2)) / np.cosh(g * (x[near] - 1000) / math.sqrt(2)) ** 2,
+                               rtol=1e-13, atol=1e-300)
+    assert np.isfinite(phi).all() and np.isfinite(chi).all() and abs(chi[-1]) < 1e-300

@@ -89,13 +89,14 @@ def _one(args, v: float, cfg, fmt) -> int:
     bt = [float(t) for t in r.bounce_times[0, :nb] if np.isfinite(t)]
     v_out = float(r.v_out[0])
     # the error of this result, by step halving: the same collision at dt/2 (ETDRK4 is fourth
-    # order, so |v_out(dt) - v_out(dt/2)| is v_out(dt)'s error to about 1/15)
+    # order, so |v_out(dt) - v_out(dt/2)| is about 15/16 of v_out(dt)'s error)
     half = cfg.with_(dt=0.5 * cfg.dt)
     check = collide([v], half) if half.t_max / half.dt <= MAX_STEPS else None
     error, error_note = None, None
     if check is None:
         error_note = f"not estimated: dt/2 would exceed {MAX_STEPS} steps"
-    elif OUTCOMES[int(check.outcome[0])] != out or int(check.bounces[0]) != nb:
+    elif OUTCOMES[int(check.outcome[0])] != out or (out == "escaped" and int(check.bounces[0]) != nb):
+        # (a capture's count of bounces by t_max is not converged at any step: not compared)
         half_out = OUTCOMES[int(check.outcome[0])]
         error_note = (f"the outcome changes at dt/2 = {half.dt:g} ({half_out}, {int(check.bounces[0])} bounces): "
                       f"the step does not resolve this collision; use --dt {0.25 * cfg.dt:g} or smaller")

@@ -27,8 +27,7 @@ def _tolerance(value) -> float:
     if not (math.isfinite(value) and value > 0):
         raise SpecError(f"must be a finite number of mm > 0, got {value!r}", key="--tolerance")
     if value < MIN_TOLERANCE_MM:
-        raise SpecError(f"must be >= {MIN_TOLERANCE_MM:g} mm (the smallest chordal tolerance), got {value:g}",
-                        key="--tolerance")
+        raise SpecError(f"must be >= {MIN_TOLERANCE_MM:g} mm (the finest tolerance), got {value:g}", key="--tolerance")
     return float(value)
 
 

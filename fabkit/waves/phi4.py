@@ -112,10 +112,17 @@ def kink(x, v: float = 0.0, center: float = 0.0):
     return np.tanh(g * (np.asarray(x, dtype=float) - center) / SQRT2)
 
 
+def sech(a):
+    """1/cosh(a) without overflow: 2 e^-|a| / (1 + e^-2|a|) (cosh overflows past |a| = 710,
+    which a kink 1000 away reaches)."""
+    e = np.exp(-np.abs(np.asarray(a, dtype=float)))
+    return 2.0 * e / (1.0 + e * e)
+
+
 def shape_mode(xi):
     """chi(xi) = (3/sqrt 2)^(1/2) sech(xi/sqrt 2) tanh(xi/sqrt 2) (the paper's normalization)."""
     s = np.asarray(xi, dtype=float) / SQRT2
-    return math.sqrt(3.0 / SQRT2) * np.tanh(s) / np.cosh(s)
+    return math.sqrt(3.0 / SQRT2) * np.tanh(s) * sech(s)
 
 
 def pair(x, v, X):
@@ -127,7 +134,7 @@ def pair(x, v, X):
     g = 1.0 / np.sqrt(1.0 - v * v)
     a, b = g * (x + X) / SQRT2, g * (x - X) / SQRT2
     phi = np.tanh(a) - np.tanh(b) - 1.0
-    phi_t = -(g * v / SQRT2) * (1.0 / np.cosh(a) ** 2 + 1.0 / np.cosh(b) ** 2)
+    phi_t = -(g * v / SQRT2) * (sech(a) ** 2 + sech(b) ** 2)
     return phi, phi_t
 
 
