@@ -154,3 +154,135 @@ def test_captured_launch_every_turn_above_the_noise_counted():
         if not hit:
             assert dip < 1.5 * dip_min, (a, dip)
     assert sum(d < dip_min / 3 for _, d in turns) >= 3    # the case has sub-noise turns to miss
+
+
+# ----------------------------------------------------------------------------
+# hostile tracks and options: each ends within its bound with exit 0 or 2, one line,
+# no traceback, no numpy warning, nothing written
+# ----------------------------------------------------------------------------
+def _quiet_cli(cli, *argv):
+    """``cli`` with every warning an error (a numpy RuntimeWarning would become exit 3)
+    and a time bound (a hang fails the test instead of the suite)."""
+    import warnings
+
+    from conftest import bounded
+
+    with bounded(90), warnings.catch_warnings():
+        warnings.simplefilter("error")
+        return cli(*argv)
+
+
+def _launch_frames(seed=7):
+    truth = L.run((L.START, 0.0, 47.5, 0.0), MU_TRUE, 4.0)
+    return L.frames(truth, fps=FPS, noise=NOISE, seed=seed)
+
+
+def _refused(code, out, err, tmp_path, *needles):
+    assert code == 2 and out == "" and err.count("\n") == 1, (code, err)
+    assert "Traceback" not in err and "internal error" not in err and "Warning" not in err
+    for n in needles:
+        assert n in err, err
+    assert not (tmp_path / "fig.png").exists()
+
+
+def test_a_ball_that_never_moves_is_a_result_not_a_search(cli, tmp_path):
+    t = np.arange(0.0, 3.0, 1.0 / FPS)
+    f = tmp_path / "still.csv"
+    f.write_text(L.csv_text(t, -20.0 + 0 * t, 0 * t))
+    code, out, err = _quiet_cli(cli, "analyze", PAPER, f, "--json")
+    assert code == 0 and err == "", err
+    r = json.loads(out)["tracks"][0]
+    assert r["kind"] == "still" and r["bounces"] == 0 and r["v_in"] is None
+    assert "never moves" in r["notes"][-1] and "no release or launch found" in r["notes"][-1]
+    assert "damping" not in r          # nothing fitted
+    # the same with noise (0.3 mm): still, not a release fitted to noise
+    rng = np.random.default_rng(4)
+    f.write_text(L.csv_text(t, -20.0 + rng.normal(0, NOISE, t.size), rng.normal(0, NOISE, t.size)))
+    code, out, err = _quiet_cli(cli, "analyze", PAPER, f, "--json")
+    assert code == 0 and json.loads(out)["tracks"][0]["kind"] == "still"
+
+
+def test_a_track_in_metres_for_a_cm_spec_is_refused_by_its_accelerations(cli, tmp_path):
+    t, x, y = _launch_frames()
+    f = tmp_path / "metres.csv"
+    f.write_text(L.csv_text(t, x / 100.0, y / 100.0))
+    code, out, err = _quiet_cli(cli, "analyze", PAPER, f, "--plot", "fig.png")
+    _refused(code, out, err, tmp_path, str(f), "accelerations", "unit (cm)")
+    # ... and the same launch in cm reads near 1 (the screen's ratio, kept in the JSON)
+    g = tmp_path / "cm.csv"
+    g.write_text(L.csv_text(t, x, y))
+    from fabkit.lab.analyze import screen_track
+    from fabkit.lab.tracks import read_track
+    from fabkit.physics.models import problem_from_spec
+    from fabkit.spec import load_spec
+
+    sc = screen_track(problem_from_spec(load_spec(PAPER)), read_track(g))
+    assert sc["kind"] is None and abs(sc["accel_ratio"] - 1) < 0.1
+
+
+def test_huge_values_are_refused_before_any_arithmetic_overflows(cli, tmp_path):
+    t, x, y = _launch_frames()
+    f = tmp_path / "huge.csv"
+    rows = [f"{float(a)!r},{float(b) * 1e150!r},{float(c) * 1e150!r}\n" for a, b, c in zip(t, x, y)]
+    f.write_text("t,x,y\n" + "".join(rows))
+    code, out, err = _quiet_cli(cli, "analyze", PAPER, f, "--plot", "fig.png")
+    _refused(code, out, err, tmp_path, str(f), "beyond the footprint", "unit (cm)")
+    f.write_text("t,x,y\n" + "".join(f"{float(a)!r},1e308,{float(c)!r}\n" for a, c in zip(t, y)))
+    code, out, err = _quiet_cli(cli, "analyze", PAPER, f, "--scale", "1e9", "--plot", "fig.png")
+    _refused(code, out, err, tmp_path, str(f), "line 2", "non-finite position")
+
+
+@pytest.mark.parametrize("opt, value, needle", [
+    ("--scale", "1e-300", "--scale: must be within 1e-09..1e+09"),
+    ("--scale", "1e307", "--scale: must be within 1e-09..1e+09"),
+    ("--fps", "1e-320", "--fps: must be within 1..1e+07"),
+    ("--fps", "1e308", "--fps: must be within 1..1e+07"),
+    ("--fps", "0", "--fps: must be > 0"),
+    ("--rotate", "1e300", "--rotate: must be within -360..360"),
+    ("--origin", "1e300", "--origin: must be within"),
+])
+def test_options_get_range_checks_like_spec_keys(cli, tmp_path, opt, value, needle):
+    t, x, y = _launch_frames()
+    f = tmp_path / "frames.csv"
+    f.write_text("frame,x,y\n" + "".join(f"{i},{float(b)!r},{float(c)!r}\n" for i, (b, c) in enumerate(zip(x, y))))
+    extra = [opt, value] + (["0"] if opt == "--origin" else [])
+    if opt != "--fps":
+        extra += ["--fps", "125"]
+    code, out, err = _quiet_cli(cli, "analyze", PAPER, f, *extra, "--plot", "fig.png")
+    _refused(code, out, err, tmp_path, needle)
+
+
+def test_a_very_long_track_is_refused_by_its_size_guard_before_parsing(cli, tmp_path):
+    from fabkit.lab.tracks import MAX_POINTS
+
+    n = MAX_POINTS + 100
+    f = tmp_path / "long.csv"
+    f.write_text("t,x,y\n" + "\n".join(f"{i / 125.0},{-30 + i * 1e-4},0" for i in range(n)) + "\n")
+    code, out, err = _quiet_cli(cli, "analyze", PAPER, f, "--plot", "fig.png")
+    _refused(code, out, err, tmp_path, str(f), f"more than the {MAX_POINTS} rows", "size guard")
+
+
+def test_the_fits_budget_running_out_is_reported(cli, tmp_path, monkeypatch):
+    """The fits of a track stop at their budget (model runs here, the same path as the
+    time budget): the result says so and keeps the best point reached; a budget that ends
+    before the first model run ends refuses the track, naming it."""
+    import fabkit.lab.analyze as A
+
+    rel = L.run((-28.0, 6.0, 0.0, 0.0), MU_TRUE, 2.0, escape=False)
+    f = _write(tmp_path, "release.csv", rel, seed=2)
+    monkeypatch.setattr(A, "MAX_MODEL_RUNS", 3)
+    code, out, err = _quiet_cli(cli, "analyze", PAPER, f, "--json")
+    assert code == 0, err
+    r = json.loads(out)["tracks"][0]
+    assert "budget of 3 model runs" in r["fit_status"] and "fit stopped" in r["notes"][-1]
+    assert r["damping_error"] is None      # no error bar from a fit that did not converge
+    code, out, err = _quiet_cli(cli, "analyze", PAPER, f)
+    assert code == 0 and "fit stopped" in out
+    monkeypatch.setattr(A, "MAX_MODEL_RUNS", 0)
+    code, out, err = _quiet_cli(cli, "analyze", PAPER, f, "--plot", "fig.png")
+    _refused(code, out, err, tmp_path, str(f), "cannot follow this track", "budget of 0 model runs")
+    # one runaway integration stops at MAX_RHS_CALLS evaluations
+    monkeypatch.setattr(A, "MAX_MODEL_RUNS", 500)
+    monkeypatch.setattr(A, "MAX_RHS_CALLS", 50)
+    code, out, err = _quiet_cli(cli, "analyze", PAPER, f, "--plot", "fig.png")
+    _refused(code, out, err, tmp_path, str(f), "more than 50 evaluations")

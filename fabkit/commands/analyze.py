@@ -14,13 +14,9 @@ def _num(v, fmt=".5g"):
 
 
 def _video_map(args):
-    from ..lab.tracks import VideoMap
+    from ..lab.tracks import VideoMap, check_options
 
-    if args.scale is not None and not (math.isfinite(args.scale) and args.scale > 0):
-        raise SpecError(f"must be > 0, got {args.scale:g}", key="--scale")
-    for k, v in (("--origin", args.origin or ()), ("--rotate", [args.rotate or 0.0])):
-        if not all(math.isfinite(x) for x in v):
-            raise SpecError("must be finite", key=k)
+    check_options(fps=args.fps, scale=args.scale, origin=args.origin, rotate=args.rotate)
     return VideoMap(scale=args.scale if args.scale is not None else 1.0,
                     origin=tuple(args.origin) if args.origin else (0.0, 0.0),
                     rotate=float(args.rotate or 0.0), flip_y=bool(args.flip_y))
@@ -43,6 +39,8 @@ def _lines(res, units):
         bt = ", ".join(f"{t:.4f}" for t in r["bounce_times"])
         out.append(f"{r['file']}: {r['kind']}, {r['frames']} frames at {r['fps']:.4g}/s, noise {r['noise_sigma']:.2g} {u}"
                    + (f"; {'; '.join(r['notes'])}" if r["notes"] else ""))
+        if r["kind"] == "still":
+            continue
         out.append(f"  bounces {r['bounces']}" + (f" at t = {bt} s" if bt else "") + f", outcome {r['outcome']}"
                    + (f" (turns of x that fall back less than {r['bounce_min_dip']:.2g} {u} are below the noise "
                       f"and not counted)" if r["outcome"] == "captured" and r["kind"] == "launch" else ""))
@@ -70,13 +68,14 @@ def _lines(res, units):
         err = f" (± {tn['T_error']:.2g}, ± {tn['delta_error']:.2g})" if "T_error" in tn else ""
         out.append(f"eq. (tn): T_n = {tn['T']:.4f} n + {tn['delta']:.4f} s{err} over {len(tn['n'])} two-bounce "
                    f"launches, residual max {tn['residual_max']:.2g} s")
-    out.append(f"analyze: bounce times ± {max([e for r in res['tracks'] for e in r['bounce_time_errors']] or [0]):.1g} s "
-               f"(1 sigma), {res['seconds']:.2f} s")
+    errs = [e for r in res["tracks"] for e in r["bounce_time_errors"]]
+    out.append("analyze: " + (f"bounce times ± {max(errs):.1g} s (1 sigma), " if errs else "")
+               + f"{res['seconds']:.2f} s")
     return out
 
 
 def run(args) -> int:
-    from ..lab.analyze import analyze
+    from ..lab.analyze import analyze, screen_tracks
     from ..lab.tracks import read_track
     from ..physics.models import problem_from_spec
 
@@ -88,15 +87,15 @@ def run(args) -> int:
     check_outputs({"--plot": args.plot}, inputs=list(args.tracks))
     spec = load_spec(args.spec, need=("surface", "simulation"), command="analyze")
     vm = _video_map(args)
-    if args.fps is not None and not (math.isfinite(args.fps) and args.fps > 0):
-        raise SpecError(f"must be > 0, got {args.fps:g}", key="--fps")
     tracks = [read_track(p, fps=args.fps, video=vm) for p in args.tracks]
     problem = problem_from_spec(spec)
     if problem.model == "ball":
         raise SpecError("analyze fits the point models (full, simplified); the ball model is not "
                         "supported by the track analysis", file=spec.path, key="simulation.model")
-    prepare_simulator(problem)
-    res = analyze(problem, tracks)
+    screens = screen_tracks(problem, tracks)     # refusals before the simulator loads
+    if any(sc["kind"] == "launch" for sc in screens):
+        prepare_simulator(problem)
+    res = analyze(problem, tracks, screens)
     for r, tr in zip(res["tracks"], tracks):
         r["_track"] = {"t": tr.t, "x": tr.x, "y": tr.y}
     res["seconds"] = timer.seconds

@@ -31,6 +31,14 @@ from ..errors import SpecError
 
 MAX_TRACK_BYTES = 64 * 1024 * 1024   # a 10 s video at 1000 frames/s is ~0.5 MB of CSV
 MIN_POINTS = 12                      # a track shorter than 0.1 s at 125 frames/s says nothing
+#: size guard, stated up front: at most this many rows a track (100 s at 1000 frames/s);
+#: longer tracks are refused before they are parsed (cut them to the launch or release)
+MAX_POINTS = 100_000
+#: the options' ranges (checked like spec keys: one line naming the option, exit 2)
+FPS_RANGE = (1.0, 1.0e7)             # frames/s: a phone's slow motion to a 10 MHz camera
+SCALE_RANGE = (1.0e-9, 1.0e9)        # design units per video unit
+ORIGIN_MAX = 1.0e12                  # |origin|, video units
+ROTATE_MAX = 360.0                   # |rotate|, degrees
 
 
 @dataclass(frozen=True)
@@ -79,6 +87,26 @@ class Track:
         return float(np.median(np.diff(self.t)))
 
 
+def check_options(fps=None, scale=None, origin=None, rotate=None) -> None:
+    """Range checks of the track options (``--fps``, ``--scale``, ``--origin``, ``--rotate``):
+    SpecError naming the option (exit 2) before any file is read."""
+    def _in(name, v, lo, hi, unit):
+        if v is None:
+            return
+        if not (math.isfinite(v) and lo <= v <= hi):
+            raise SpecError(f"must be within {lo:g}..{hi:g} {unit}, got {v:g}", key=name)
+
+    if scale is not None and not (math.isfinite(scale) and scale > 0):
+        raise SpecError(f"must be > 0, got {scale:g}", key="--scale")
+    if fps is not None and not (math.isfinite(fps) and fps > 0):
+        raise SpecError(f"must be > 0, got {fps:g}", key="--fps")
+    _in("--fps", fps, *FPS_RANGE, "frames/s")
+    _in("--scale", scale, *SCALE_RANGE, "design units per video unit")
+    for v in (origin or ()):
+        _in("--origin", v, -ORIGIN_MAX, ORIGIN_MAX, "video units")
+    _in("--rotate", rotate, -ROTATE_MAX, ROTATE_MAX, "degrees")
+
+
 def _bad(path, line: int | None, what: str) -> SpecError:
     return SpecError(what, file=str(path), key=f"line {line}" if line else None)
 
@@ -122,6 +150,9 @@ def read_track(path, *, fps: float | None = None, video: VideoMap | None = None)
     """Read one track file (any of the module's formats) and map it to design coordinates."""
     text = _read_text(path)
     lines = text.splitlines()
+    if len(lines) > MAX_POINTS + 64:
+        raise SpecError(f"{len(lines)} lines: more than the {MAX_POINTS} rows a track may have "
+                        "(size guard): cut the track to the launch or release", file=str(path))
     first = next((i for i, ln in enumerate(lines) if ln.strip()), None)
     if first is None:
         raise SpecError("empty file", file=str(path))
@@ -148,8 +179,7 @@ def read_track(path, *, fps: float | None = None, video: VideoMap | None = None)
     if use_frame:
         if fps is None:
             raise _bad(path, hline + 1, "has a frame column and no time column: give --fps")
-        if not (math.isfinite(fps) and fps > 0):
-            raise SpecError(f"must be > 0, got {fps:g}", key="--fps")
+        check_options(fps=fps)
     want = [iframe if use_frame else it, ix, iy] + ([ipart] if ipart is not None else [])
     names = ["frame" if use_frame else "t", "x", "y", "particle"]
     rows, where, skipped = [], [], 0
@@ -202,7 +232,15 @@ def read_track(path, *, fps: float | None = None, video: VideoMap | None = None)
                    f"({names[0]} = {a[i, 0]:g}): times must increase")
     if len(t) < MIN_POINTS:
         raise SpecError(f"only {len(t)} tracked points; at least {MIN_POINTS} are needed", file=str(path))
-    x, y = (video or VideoMap()).apply(a[:, 1], a[:, 2])
+    if not np.all(np.isfinite(t)):
+        i = int(np.flatnonzero(~np.isfinite(t))[0])
+        raise _bad(path, int(where[i]), f"frame {a[i, 0]:g} / --fps {fps:g} is not a finite time")
+    with np.errstate(all="ignore"):
+        x, y = (video or VideoMap()).apply(a[:, 1], a[:, 2])
+    if not (np.all(np.isfinite(x)) and np.all(np.isfinite(y))):
+        i = int(np.flatnonzero(~(np.isfinite(x) & np.isfinite(y)))[0])
+        raise _bad(path, int(where[i]), f"x, y = {a[i, 1]:g}, {a[i, 2]:g} map to a non-finite position "
+                   f"(--scale, --origin)")
     return Track(file=str(path), t=t, x=x, y=y, format=fmt, name=name, particle=particle,
                  skipped_rows=skipped, notes=notes)
 
