@@ -87,7 +87,7 @@ def run(args) -> int:
     check_outputs({"--plot": args.plot}, inputs=list(args.tracks))
     spec = load_spec(args.spec, need=("surface", "simulation"), command="analyze")
     vm = _video_map(args)
-    tracks = [read_track(p, fps=args.fps, video=vm) for p in args.tracks]
+    tracks = [read_track(p, fps=args.fps, video=vm, units=spec.units) for p in args.tracks]
     problem = problem_from_spec(spec)
     if problem.model == "ball":
         raise SpecError("analyze fits the point models (full, simplified); the ball model is not "
