@@ -46,6 +46,12 @@ def test_release_damping_and_omega_fitted_with_the_model(cli, tmp_path):
     assert r["damping_logdec"] < r["damping"]
     assert 0.85 < r["logdec_ratio"] < 0.99
     assert abs(r["damping_logdec"] / r["damping"] - r["logdec_ratio"]) < 0.03
+    # the loss laws compared: viscous alone is chosen, within 5 %, its error bar honest
+    lo = json.loads(out)["losses"]
+    assert lo["criterion"] == "BIC" and lo["chosen"] == "viscous", lo["delta_bic"]
+    v = lo["laws"]["viscous"]
+    assert abs(v["coefficients"]["damping"] / MU_TRUE - 1) < 0.05
+    assert abs(v["coefficients"]["damping"] - MU_TRUE) < 4 * v["errors"]["damping"] + 1e-4
 
 
 def _check_launch(r, truth, v_in):
@@ -286,3 +292,62 @@ def test_the_fits_budget_running_out_is_reported(cli, tmp_path, monkeypatch):
     monkeypatch.setattr(A, "MAX_RHS_CALLS", 50)
     code, out, err = _quiet_cli(cli, "analyze", PAPER, f, "--plot", "fig.png")
     _refused(code, out, err, tmp_path, str(f), "more than 50 evaluations")
+
+
+# ----------------------------------------------------------------------------
+# loss laws: viscous damping, rolling resistance, both (the simulation: lab_sim's
+# hand-written rolling resistance, c N opposing v)
+# ----------------------------------------------------------------------------
+CRR_TRUE = 0.004
+
+
+def test_rolling_resistance_in_fabkits_engine_matches_the_independent_simulation():
+    """fabkit's compiled engine (full model) with ball.rolling_resistance against lab_sim's
+    hand-written law at rtol 1e-12: the same bounces and exit speed to 1e-7."""
+    from fabkit.physics.integrate import launch_batch
+    from fabkit.physics.models import problem_from_spec
+    from fabkit.spec import load_spec
+
+    p = problem_from_spec(load_spec(PAPER), damping=0.0, rolling_resistance=CRR_TRUE)
+    truth = L.run((L.START, 0.0, 47.5, 0.0), 0.0, 30.0, crr=CRR_TRUE)
+    r = launch_batch(p, [47.5], [0.0], [0.0], workers=1)
+    assert truth["escaped"] and int(r.bounces[0]) == len(truth["bounce_times"])
+    assert abs(float(r.v_out[0]) / truth["v_out"] - 1) < 1e-7
+    np.testing.assert_allclose(r.bounce_times[0][:int(r.bounces[0])], truth["bounce_times"], rtol=0, atol=1e-7)
+
+
+def test_rolling_resistance_alone_is_chosen_and_fitted(cli, tmp_path):
+    rel = L.run((-28.0, 6.0, 0.0, 0.0), 0.0, 3.0, escape=False, crr=CRR_TRUE)
+    f = _write(tmp_path, "release.csv", rel, seed=1)
+    code, out, err = cli("analyze", PAPER, f, "--json")
+    assert code == 0, err
+    lo = json.loads(out)["losses"]
+    assert lo["chosen"] == "rolling" and lo["delta_bic"]["viscous"] > 2, lo["delta_bic"]
+    c = lo["laws"]["rolling"]
+    assert abs(c["coefficients"]["rolling_resistance"] / CRR_TRUE - 1) < 0.05
+    assert abs(c["coefficients"]["rolling_resistance"] - CRR_TRUE) < 4 * c["errors"]["rolling_resistance"]
+    assert c["coefficients"]["damping"] == 0.0
+
+
+def test_both_losses_fitted_and_written_to_a_spec(cli, tmp_path):
+    """A release and a launch (speeds from rest to 47 cm/s: viscous loss grows with speed,
+    rolling does not): both chosen, each within 10 %; -o writes a spec that loads with them."""
+    import yaml
+
+    mu, crr = 0.1, 0.003
+    rel = L.run((-28.0, 6.0, 0.0, 0.0), mu, 3.0, escape=False, crr=crr)
+    la = L.run((L.START, 0.0, 47.5, 0.0), mu, 15.0, crr=crr)
+    files = [_write(tmp_path, "release.csv", rel, seed=1), _write(tmp_path, "launch.csv", la, seed=2)]
+    code, out, err = cli("analyze", PAPER, *files, "--json", "-o", "fitted.yaml")
+    assert code == 0, err
+    lo = json.loads(out)["losses"]
+    assert lo["chosen"] == "both" and min(lo["delta_bic"]["viscous"], lo["delta_bic"]["rolling"]) > 6
+    c = lo["laws"]["both"]["coefficients"]
+    assert abs(c["damping"] / mu - 1) < 0.10 and abs(c["rolling_resistance"] / crr - 1) < 0.10
+    raw = yaml.safe_load((tmp_path / "fitted.yaml").read_text())
+    assert raw["simulation"]["damping"] == c["damping"]
+    assert raw["ball"]["rolling_resistance"] == c["rolling_resistance"]
+    assert raw["surface"] == yaml.safe_load(PAPER.read_text())["surface"]
+    from fabkit.spec import load_spec
+
+    assert load_spec(tmp_path / "fitted.yaml").ball.rolling_resistance == c["rolling_resistance"]

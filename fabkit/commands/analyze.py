@@ -63,6 +63,20 @@ def _lines(res, units):
                            + f", {s['outcome']}, v_out {_num(s['v_out'], '.6g')} {u}/s")
             if r.get("T_n") is not None:
                 out.append(f"  T_n = {r['T_n']:.4f} s between the bounces, n = {r['n']} transverse maxima")
+    lo = res.get("losses")
+    if lo and lo.get("chosen"):
+        out.append(f"losses ({lo['criterion']} over {len(lo['segments'])} segment(s) of releases and launch legs): "
+                   f"the data support {lo['chosen']} (evidence {lo['evidence']})")
+        for law, f in lo["laws"].items():
+            c, e = f["coefficients"], f["errors"]
+            parts = []
+            if "damping" in _LAW_KEYS[law]:
+                parts.append(f"damping {c['damping']:.5g} ± {_num(e['damping'], '.2g')} 1/s")
+            if "rolling_resistance" in _LAW_KEYS[law]:
+                parts.append(f"rolling resistance {c['rolling_resistance']:.5g} ± {_num(e['rolling_resistance'], '.2g')}")
+            out.append(f"  {law}: {', '.join(parts)}; residual rms {f['residual_rms']:.3g} {u}, "
+                       f"BIC {lo['delta_bic'][law]:+.1f}" + ("" if f["fit_status"] == "converged"
+                                                             else f" ({f['fit_status']})"))
     tn = res.get("tn_fit")
     if tn:
         err = f" (± {tn['T_error']:.2g}, ± {tn['delta_error']:.2g})" if "T_error" in tn else ""
@@ -72,6 +86,40 @@ def _lines(res, units):
     out.append("analyze: " + (f"bounce times ± {max(errs):.1g} s (1 sigma), " if errs else "")
                + f"{res['seconds']:.2f} s")
     return out
+
+
+_LAW_KEYS = {"viscous": ("damping",), "rolling": ("rolling_resistance",), "both": ("damping", "rolling_resistance")}
+
+
+def fitted_spec_text(spec, res, tracks) -> str:
+    """The spec's YAML with the losses of the law the tracks support (simulation.damping,
+    ball.rolling_resistance; the other set to 0), validated before it is written."""
+    import yaml
+
+    from ..io import read_regular
+    from ..spec import validate
+
+    lo = res.get("losses") or {}
+    law = lo.get("chosen")
+    if not law:
+        raise SpecError("no release or launch to fit the losses to: nothing written", key="--output")
+    coef = lo["laws"][law]["coefficients"]
+    for k in ("damping", "rolling_resistance"):
+        if not (math.isfinite(coef[k]) and coef[k] >= 0):
+            raise SpecError(f"the {law} law's fitted {k} is {coef[k]:.4g} (negative or not finite): not written",
+                            key="--output")
+    raw = yaml.safe_load(read_regular(spec.path, 1 << 20, "spec").decode("utf-8-sig"))
+    raw.setdefault("simulation", {})["damping"] = float(coef["damping"])
+    if not isinstance(raw.get("ball"), dict):
+        raw["ball"] = {}
+    raw["ball"]["rolling_resistance"] = float(coef["rolling_resistance"])
+    validate(raw, str(spec.path))
+    err = lo["laws"][law]["errors"]
+    head = [f"# {spec.path} with the losses fitted by fabkit analyze to {', '.join(t.file for t in tracks)}:",
+            f"# the {law} law ({lo['criterion']}, evidence {lo['evidence']} over the next law); damping "
+            f"{coef['damping']:.6g} ± {err['damping']:.2g} 1/s, rolling resistance {coef['rolling_resistance']:.6g} "
+            f"± {err['rolling_resistance']:.2g} (one sigma)"]
+    return "\n".join(head) + "\n" + yaml.safe_dump(raw, sort_keys=False, default_flow_style=None)
 
 
 def run(args) -> int:
@@ -84,7 +132,7 @@ def run(args) -> int:
     # the figure must not overwrite a track
     from ..io import check_outputs
 
-    check_outputs({"--plot": args.plot}, inputs=list(args.tracks))
+    check_outputs({"--plot": args.plot, "--output": args.output}, inputs=[*args.tracks, args.spec])
     spec = load_spec(args.spec, need=("surface", "simulation"), command="analyze")
     vm = _video_map(args)
     tracks = [read_track(p, fps=args.fps, video=vm, units=spec.units) for p in args.tracks]
@@ -101,6 +149,7 @@ def run(args) -> int:
     res["seconds"] = timer.seconds
     payload = _public(res)
     lines = _lines(res, spec.units)
+    fitted_text = fitted_spec_text(spec, res, tracks) if args.output else None   # refused before any write
     if args.plot:
         from ..io import write_atomic
         from ..plots import analyze_figure
@@ -110,5 +159,11 @@ def run(args) -> int:
         write_atomic(args.plot, png)
         payload["plot"] = str(args.plot)
         lines.append(f"wrote {args.plot}")
+    if args.output:
+        from ..io import write_atomic
+
+        write_atomic(args.output, fitted_text)
+        payload["output"] = str(args.output)
+        lines.append(f"wrote {args.output} (the spec with the {res['losses']['chosen']} law's losses)")
     emit(lines, payload, args.json)
     return 0

@@ -496,8 +496,10 @@ def well_bottom(problem) -> float:
 # model integration (for the fits): the spec's right-hand side, damping per lane
 # ----------------------------------------------------------------------------
 def model_solve(problem, S0: np.ndarray, mu: np.ndarray, t0: float, t_eval: np.ndarray,
-                rtol: float = FIT_RTOL, dense: bool = False, budget: Budget | None = None):
-    """Integrate lanes of the spec's model from t0: S0 (4, m) states, mu (m,) viscous damping.
+                rtol: float = FIT_RTOL, dense: bool = False, budget: Budget | None = None, crr=None):
+    """Integrate lanes of the spec's model from t0: S0 (4, m) states, mu (m,) viscous damping,
+    ``crr`` (m,) rolling resistance (None: the spec's; models.py's module doc, the same
+    terms as :func:`fabkit.physics.models.rolling_coefficient`).
 
     The conservative part (and any nonlinear damping) is ``models.rhs`` of the problem
     with its viscous damping set to 0; -mu v is added per lane, exactly as the model
@@ -507,9 +509,15 @@ def model_solve(problem, S0: np.ndarray, mu: np.ndarray, t0: float, t_eval: np.n
 
     from ..physics.models import fused
 
-    fn = fused(problem.with_(damping=0.0))   # the model's generated right-hand side
+    from ..physics.models import rolling_coefficient
+
     m = S0.shape[1]
     mu = np.asarray(mu, dtype=float).reshape(m)
+    crr = np.full(m, float(problem.rolling_resistance)) if crr is None else \
+        np.asarray(crr, dtype=float).reshape(m)
+    rolling = bool(np.any(crr != 0))
+    p1 = problem.with_(rolling_resistance=1.0)
+    fn = fused(problem.with_(damping=0.0, rolling_resistance=0.0))   # the model's generated right-hand side
     d = np.empty((4, m))
     calls = [0]
 
@@ -521,10 +529,13 @@ def model_solve(problem, S0: np.ndarray, mu: np.ndarray, t0: float, t_eval: np.n
         if budget is not None and calls[0] % 64 == 0:
             budget.check()
         S = Yf.reshape(4, m)
-        ax, ay = fn(S[0], S[1], S[2], S[3])[:2]
+        ax, ay, _, hx, hy, B, _ = fn(S[0], S[1], S[2], S[3])
         d[0], d[1] = S[2], S[3]
-        d[2] = ax - mu * S[2]
-        d[3] = ay - mu * S[3]
+        c = -mu
+        if rolling:
+            c = c + crr * rolling_coefficient(p1, S[2], S[3], hx, hy, B)
+        d[2] = ax + c * S[2]
+        d[3] = ay + c * S[3]
         return d.ravel().copy()
 
     scale = max(1.0, float(np.max(np.abs(S0))))
@@ -941,7 +952,7 @@ def screen_tracks(problem, tracks: list) -> list[dict]:
     return out
 
 
-def analyze(problem, tracks: list, screens: list | None = None) -> dict:
+def analyze(problem, tracks: list, screens: list | None = None, compare_losses: bool = True) -> dict:
     """All tracks: releases first (their fitted damping, averaged with inverse-variance
     weights, is then used for the launches' simulations), then launches, then eq. (tn)."""
     t0 = time.perf_counter()
@@ -964,6 +975,11 @@ def analyze(problem, tracks: list, screens: list | None = None) -> dict:
         if kinds[i] == "launch":
             rows[i] = analyze_track(problem, tr, mu_launch, screen=screens[i])
     ordered = [rows[i] for i in range(len(tracks))]
-    return {"tracks": ordered, "tn_fit": fit_tn(ordered), "launch_damping": mu_launch,
+    losses = None
+    if compare_losses:
+        from .losses import compare_laws, segments_of
+
+        losses = compare_laws(problem, segments_of(tracks, ordered), mu_launch)
+    return {"tracks": ordered, "tn_fit": fit_tn(ordered), "losses": losses, "launch_damping": mu_launch,
             "launch_damping_source": mu_source, "model": problem.model, "units": problem.units,
             "seconds": time.perf_counter() - t0}
