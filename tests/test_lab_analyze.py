@@ -5,6 +5,7 @@ eq. xyODE written out by hand, scipy DOP853 at rtol 1e-12), filmed at 125 frames
 from __future__ import annotations
 
 import json
+import math
 
 import numpy as np
 import pytest
@@ -351,3 +352,30 @@ def test_both_losses_fitted_and_written_to_a_spec(cli, tmp_path):
     from fabkit.spec import load_spec
 
     assert load_spec(tmp_path / "fitted.yaml").ball.rolling_resistance == c["rolling_resistance"]
+
+
+@pytest.mark.parametrize("model", ["full", "simplified"])
+def test_point_rolling_resistance_on_an_incline_closed_form(model):
+    """A point launched up the plane h = s x with rolling resistance c_rr N: the classic
+    incline, x'' = -g~ (s + c_rr) / (1 + s^2) in the full model (N/m = g / sqrt(1 + s^2),
+    |v| = xd sqrt(1 + s^2)), -g~ (s + c_rr) in the simplified one (N/m = g, |v| = xd);
+    exact up to the direction's smoothing, (v_s / v)^2 / 2 ~ 1e-6 here."""
+    from scipy.integrate import solve_ivp
+
+    from fabkit.expr import compile_surface
+    from fabkit.physics.models import Problem, dissipated_power, rhs
+
+    s, crr, k, g, u0, T = 0.1, 0.02, 0.4, 980.665, 20.0, 0.15   # it stops at 0.24 s
+    p = Problem(fns=compile_surface("s*x", {"s": s}), g=g, k=k, model=model, rolling_resistance=crr,
+                radius=1.25, units="cm")
+    gt = g / (1 + k)
+    a = gt * (s + crr) / (1 + s * s) if model == "full" else gt * (s + crr)
+    sol = solve_ivp(lambda t, S: rhs(p, S), (0, T), [0.0, 0.0, u0, 0.0], method="DOP853", rtol=1e-12, atol=1e-12)
+    assert sol.y[2, -1] == pytest.approx(u0 - a * T, rel=2e-6)
+    assert sol.y[0, -1] == pytest.approx(u0 * T - a * T * T / 2, rel=2e-6)
+    # the power it dissipates per unit (1 + k) m: c_rr (N/m) |v| / (1 + k)
+    hx = np.array(s)
+    P = dissipated_power(p, 0.0, 0.0, u0, 0.0, hx, 0.0)
+    speed = u0 * math.sqrt(1 + s * s) if model == "full" else u0
+    n_over_m = g / math.sqrt(1 + s * s) if model == "full" else g
+    assert P == pytest.approx(crr * n_over_m / (1 + k) * speed, rel=1e-5)

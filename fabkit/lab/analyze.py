@@ -965,7 +965,8 @@ def analyze(problem, tracks: list, screens: list | None = None, compare_losses: 
         if kinds[i] in ("release", "still"):
             rows[i] = analyze_track(problem, tr, screen=screens[i])
     fitted = [(r["damping"], r["damping_error"]) for r in rows.values()
-              if r.get("damping") is not None and r.get("damping_error")]
+              if r.get("damping") is not None and np.isfinite(r["damping"])
+              and r.get("damping_error") is not None and np.isfinite(r["damping_error"]) and r["damping_error"] > 0]
     mu_launch, mu_source = float(problem.damping), "spec"
     if fitted:
         w = np.array([1.0 / e ** 2 for _, e in fitted])

@@ -193,7 +193,8 @@ def compare_laws(problem, segments: list[Segment], mu0: float, budget_factory=No
         return None
     v = np.concatenate([np.hypot(np.gradient(s.x, s.t), np.gradient(s.y, s.t)) for s in segments])
     vmean = float(np.median(v)) if v.size else 10.0
-    mu0 = max(float(mu0), 1e-3)
+    mu0 = float(mu0) if math.isfinite(mu0) and mu0 > 1e-3 else 0.1
+    vmean = vmean if math.isfinite(vmean) and vmean > 0 else 10.0
     c0 = mu0 * vmean / problem.g_tilde
     starts = {"viscous": [mu0], "rolling": [c0], "both": [0.5 * mu0, 0.5 * c0]}
     fits: dict[str, LawFit] = {}
