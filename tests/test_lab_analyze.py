@@ -345,6 +345,10 @@ def test_both_losses_fitted_and_written_to_a_spec(cli, tmp_path):
     assert lo["chosen"] == "both" and min(lo["delta_bic"]["viscous"], lo["delta_bic"]["rolling"]) > 6
     c = lo["laws"]["both"]["coefficients"]
     assert abs(c["damping"] / mu - 1) < 0.10 and abs(c["rolling_resistance"] / crr - 1) < 0.10
+    # the launch simulated again with the fitted losses does what the track did
+    sim = json.loads(out)["tracks"][1]["simulation_fitted_losses"]
+    assert sim["law"] == "both" and sim["bounces"] == len(la["bounce_times"]) == 2
+    assert sim["outcome"] == "escaped" and abs(sim["v_out"] / la["v_out"] - 1) < 0.03
     raw = yaml.safe_load((tmp_path / "fitted.yaml").read_text())
     assert raw["simulation"]["damping"] == c["damping"]
     assert raw["ball"]["rolling_resistance"] == c["rolling_resistance"]

@@ -61,6 +61,12 @@ def _lines(res, units):
                 sbt = ", ".join(f"{t:.4f}" for t in s["bounce_times"])
                 out.append(f"  simulation: bounces {s['bounces']}" + (f" at t = {sbt} s" if sbt else "")
                            + f", {s['outcome']}, v_out {_num(s['v_out'], '.6g')} {u}/s")
+            s = r.get("simulation_fitted_losses")
+            if s:
+                sbt = ", ".join(f"{t:.4f}" for t in s["bounce_times"][:16])
+                out.append(f"  simulation with the fitted {s['law']} losses: bounces {s['bounces']}"
+                           + (f" at t = {sbt} s" if sbt else "") + f", {s['outcome']}, v_out "
+                           f"{_num(s['v_out'], '.6g')} {u}/s")
             if r.get("T_n") is not None:
                 out.append(f"  T_n = {r['T_n']:.4f} s between the bounces, n = {r['n']} transverse maxima")
     lo = res.get("losses")
@@ -119,7 +125,12 @@ def fitted_spec_text(spec, res, tracks) -> str:
             f"# the {law} law ({lo['criterion']}, evidence {lo['evidence']} over the next law); damping "
             f"{coef['damping']:.6g} ± {err['damping']:.2g} 1/s, rolling resistance {coef['rolling_resistance']:.6g} "
             f"± {err['rolling_resistance']:.2g} (one sigma)"]
-    return "\n".join(head) + "\n" + yaml.safe_dump(raw, sort_keys=False, default_flow_style=None)
+    class _Dumper(yaml.SafeDumper):
+        """Sections as blocks, lists in one line (as the shipped specs write them)."""
+
+    _Dumper.add_representer(list, lambda d, v: d.represent_sequence("tag:yaml.org,2002:seq", v, flow_style=True))
+    body = yaml.dump(raw, Dumper=_Dumper, sort_keys=False, default_flow_style=False, allow_unicode=True)
+    return "\n".join(head) + "\n" + body
 
 
 def run(args) -> int:

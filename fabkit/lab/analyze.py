@@ -662,13 +662,17 @@ def fit_release(problem, track, sigma: float, mu0: float, budget: Budget | None 
 # ----------------------------------------------------------------------------
 # launches
 # ----------------------------------------------------------------------------
-def simulate_launch(problem, v_in: float, y0: float, vy0: float, mu: float, t_shift: float) -> dict:
+def simulate_launch(problem, v_in: float, y0: float, vy0: float, mu: float, t_shift: float,
+                    crr: float | None = None) -> dict:
     """The same launch through fabkit's simulator (integrate.launch_batch), times shifted
-    to the track's clock (``t_shift`` = the track's time at x = start)."""
+    to the track's clock (``t_shift`` = the track's time at x = start); ``crr``: the
+    rolling resistance (None: the spec's)."""
     from ..physics.integrate import launch_batch
     from ..physics.models import OUTCOMES
 
     p = problem.with_(damping=float(mu))
+    if crr is not None:
+        p = p.with_(rolling_resistance=float(crr))
     r = launch_batch(p, [float(v_in)], [float(y0)], [float(vy0)], record=True, workers=1)
     nb = int(r.bounces[0])
     bt = [float(b) + t_shift for b in r.bounce_times[0][: min(nb, r.bounce_times.shape[1])]]
@@ -981,6 +985,18 @@ def analyze(problem, tracks: list, screens: list | None = None, compare_losses: 
         from .losses import compare_laws, segments_of
 
         losses = compare_laws(problem, segments_of(tracks, ordered), mu_launch)
+        if losses and losses.get("chosen"):
+            # each launch again through the simulator with the law the data support
+            c = losses["laws"][losses["chosen"]]["coefficients"]
+            if c["damping"] >= 0 and c["rolling_resistance"] >= 0:
+                for r in ordered:
+                    ent = r.get("_entry")
+                    if r.get("kind") == "launch" and ent is not None:
+                        sim = simulate_launch(problem, r["v_in"], ent[2], ent[4], c["damping"], ent[0],
+                                              crr=c["rolling_resistance"])
+                        sim["law"] = losses["chosen"]
+                        sim["rolling_resistance"] = c["rolling_resistance"]
+                        r["simulation_fitted_losses"] = sim
     return {"tracks": ordered, "tn_fit": fit_tn(ordered), "losses": losses, "launch_damping": mu_launch,
             "launch_damping_source": mu_source, "model": problem.model, "units": problem.units,
             "seconds": time.perf_counter() - t0}
