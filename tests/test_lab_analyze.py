@@ -207,6 +207,14 @@ def test_a_ball_that_never_moves_is_a_result_not_a_search(cli, tmp_path):
     f.write_text(L.csv_text(t, -20.0 + rng.normal(0, NOISE, t.size), rng.normal(0, NOISE, t.size)))
     code, out, err = _quiet_cli(cli, "analyze", PAPER, f, "--json")
     assert code == 0 and json.loads(out)["tracks"][0]["kind"] == "still"
+    # no release or launch: no losses to write, and nothing written
+    code, out, err = _quiet_cli(cli, "analyze", PAPER, f, "-o", "fitted.yaml", "--plot", "fig.png")
+    _refused(code, out, err, tmp_path, "--output: no release or launch to fit the losses to")
+    assert not (tmp_path / "fitted.yaml").exists()
+    # the output may not be the spec or a track
+    for target in (PAPER, f):
+        code, out, err = _quiet_cli(cli, "analyze", PAPER, f, "-o", target)
+        _refused(code, out, err, tmp_path, "--output: output", "is the input")
 
 
 def test_a_track_in_metres_for_a_cm_spec_is_refused_by_its_accelerations(cli, tmp_path):
