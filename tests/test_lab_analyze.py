@@ -281,7 +281,7 @@ def test_the_fits_budget_running_out_is_reported(cli, tmp_path, monkeypatch):
     """The fits of a track stop at their budget (model runs here, the same path as the
     time budget): the result says so and keeps the best point reached; a budget that ends
     before the first model run ends refuses the track, naming it."""
-    import fabkit.lab.analyze as A
+    import fabkit.lab.fitting as A
 
     rel = L.run((-28.0, 6.0, 0.0, 0.0), MU_TRUE, 2.0, escape=False)
     f = _write(tmp_path, "release.csv", rel, seed=2)

@@ -124,7 +124,7 @@ def _law_vectors(law: str, q: np.ndarray, m: int):
 
 def fit_law(problem, segments: list[Segment], law: str, q0, budget=None) -> LawFit:
     """Least squares of every segment's state and the law's shared coefficients (module doc)."""
-    from .analyze import FIT_RTOL, _covariance_errors, _least_squares, model_solve
+    from .fitting import FIT_RTOL, covariance_errors, least_squares_bounded, model_solve
 
     nl = len(LAWS[law])
     S = len(segments)
@@ -162,8 +162,8 @@ def fit_law(problem, segments: list[Segment], law: str, q0, budget=None) -> LawF
             row += n2
         return J
 
-    x, r, J, nfev, status = _least_squares(fun, jac, p0, budget, xtol=1e-10, max_nfev=FIT_MAX_NFEV)
-    err = _covariance_errors(J, r, p0.size)
+    x, r, J, nfev, status = least_squares_bounded(fun, jac, p0, budget, xtol=1e-10, max_nfev=FIT_MAX_NFEV)
+    err = covariance_errors(J, r, p0.size)
     names = LAWS[law]
     q = x[4 * S:]
     coef = {"damping": 0.0, "rolling_resistance": 0.0}
@@ -187,7 +187,7 @@ def compare_laws(problem, segments: list[Segment], mu0: float, budget_factory=No
     None without segments. ``mu0``: the viscous damping's start (the releases' fit or the
     spec's); the rolling resistance starts where it removes the same power at the
     segments' mean speed: c_rr = mu0 v_mean / g~."""
-    from .analyze import Budget, FitStopped
+    from .fitting import Budget, FitStopped
 
     if not segments:
         return None
