@@ -167,6 +167,8 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--flip-y", action="store_true", dest="flip_y", help="video y grows downward")
     c.add_argument("--json", action="store_true", help="print JSON")
     c.add_argument("--plot", metavar="FILE", help="track and model overlaid, x(t) and y(t): " + PLOT)
+    c.add_argument("-o", "--output", metavar="PATH", help="write the spec with the losses of the law the tracks "
+                   "support (simulation.damping, ball.rolling_resistance) to PATH (YAML)")
 
     c = cmd("ramp", "the launch ramp as a watertight solid, with release marks at calibrated heights")
     c.add_argument("-o", "--output", metavar="PATH", help="output file (default toolpaths/<name>.ramp.stl; "

@@ -184,7 +184,7 @@ SCHEMA: dict[str, dict[str, Any]] = {
         "friction": Num(default=None, ge=0, le=1e6,
                         doc="static friction coefficient (model ball: slipped where |F_t|/N exceeds it)"),
         "rolling_resistance": Num(default=0.0, ge=0, le=10,
-                                  doc="rolling resistance coefficient (model ball): a force c N opposing v"),
+                                  doc="rolling resistance coefficient (every model): a force c N opposing v"),
     },
     "ramp": {
         "heights": NumList(gt=0, min_len=1, length="design",

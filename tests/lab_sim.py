@@ -4,6 +4,14 @@ The paper's eq. (xyODE) with viscous damping, written out by hand for the append
 surface h = eta (e^{ax} - e^{bx}) + c y^2 + eps y e^{dx} (cm) and integrated with
 scipy's DOP853 at rtol 1e-12 (nothing of fabkit's models or integrator is used), then
 sampled like a camera: frames at ``fps``, Gaussian noise of ``noise`` cm on x and y.
+
+Rolling resistance ``crr``: a force crr N on the ball opposing its velocity. With the
+ball's mass m and inertia k m r^2, its tangential equation is (1 + k) m a = m g_t + F,
+so F adds F/((1 + k) m) to the acceleration along the surface; F is tangent, so its
+horizontal part is what enters (xdd, ydd). N = m (g + v^T H v) / |(-h_x, -h_y, 1)|
+(gravity's normal part plus the centripetal term of the path's normal curvature), |v|
+the 3-D speed; the direction is smoothed as v / sqrt(|v|^2 + VS^2) (VS = 1e-3 sqrt(g r),
+r = 1.25 cm) so a release from rest starts.
 """
 
 from __future__ import annotations
@@ -12,11 +20,13 @@ import numpy as np
 from scipy.integrate import solve_ivp
 
 P = dict(a=0.389, b=0.306, c=0.0764, d=0.306, eta=3.27, eps=0.25)
-G_TILDE = 980.665 / 1.4          # cm/s^2, solid ball (k = 2/5)
+G = 980.665                      # cm/s^2
+G_TILDE = G / 1.4                # cm/s^2, solid ball (k = 2/5)
 START = -30.0
+VS = 1e-3 * (G * 1.25) ** 0.5    # cm/s
 
 
-def rhs(t, s, mu):
+def rhs(t, s, mu, crr=0.0):
     x, y, vx, vy = s
     a, b, c, d, eta, eps = P["a"], P["b"], P["c"], P["d"], P["eta"], P["eps"]
     ea, eb, ed = np.exp(a * x), np.exp(b * x), np.exp(d * x)
@@ -25,24 +35,31 @@ def rhs(t, s, mu):
     hxx = eta * (a * a * ea - b * b * eb) + eps * d * d * y * ed
     hxy = eps * d * ed
     hyy = 2 * c
-    B = hxx * vx * vx + 2 * hxy * vx * vy + hyy * vy * vy + G_TILDE
+    curv = hxx * vx * vx + 2 * hxy * vx * vy + hyy * vy * vy
+    B = curv + G_TILDE
     q = B / (1 + hx * hx + hy * hy)
-    return [vx, vy, -q * hx - mu * vx, -q * hy - mu * vy]
+    ax, ay = -q * hx - mu * vx, -q * hy - mu * vy
+    if crr:
+        n_over_m = max(G + curv, 0.0) / np.sqrt(1 + hx * hx + hy * hy)
+        speed2 = vx * vx + vy * vy + (hx * vx + hy * vy) ** 2
+        f = crr * n_over_m / 1.4 / np.sqrt(speed2 + VS * VS)
+        ax, ay = ax - f * vx, ay - f * vy
+    return [vx, vy, ax, ay]
 
 
-def run(state0, mu, t_max, *, escape=True):
+def run(state0, mu, t_max, *, escape=True, crr=0.0):
     """Dense solution from ``state0`` = (x, y, vx, vy) at t = 0; stops on escape
     (x back through START moving toward -x) when ``escape``."""
-    def bounce(t, s, mu):
+    def bounce(t, s, mu, crr):
         return s[2]
     bounce.direction = -1
 
-    def out(t, s, mu):
+    def out(t, s, mu, crr):
         return s[0] - START
     out.terminal, out.direction = True, -1
     ev = [bounce, out] if escape else [bounce]
     sol = solve_ivp(rhs, (0.0, t_max), list(state0), method="DOP853", rtol=1e-12, atol=1e-12,
-                    dense_output=True, events=ev, args=(mu,))
+                    dense_output=True, events=ev, args=(mu, crr))
     escaped = escape and len(sol.t_events[1]) > 0
     return {"sol": sol, "t_end": float(sol.t[-1]), "bounce_times": list(sol.t_events[0]),
             "escaped": escaped, "v_out": abs(float(sol.y_events[1][0][2])) if escaped else None}

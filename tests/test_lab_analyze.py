@@ -5,6 +5,7 @@ eq. xyODE written out by hand, scipy DOP853 at rtol 1e-12), filmed at 125 frames
 from __future__ import annotations
 
 import json
+import math
 
 import numpy as np
 import pytest
@@ -46,6 +47,12 @@ def test_release_damping_and_omega_fitted_with_the_model(cli, tmp_path):
     assert r["damping_logdec"] < r["damping"]
     assert 0.85 < r["logdec_ratio"] < 0.99
     assert abs(r["damping_logdec"] / r["damping"] - r["logdec_ratio"]) < 0.03
+    # the loss laws compared: viscous alone is chosen, within 5 %, its error bar honest
+    lo = json.loads(out)["losses"]
+    assert lo["criterion"] == "BIC" and lo["chosen"] == "viscous", lo["delta_bic"]
+    v = lo["laws"]["viscous"]
+    assert abs(v["coefficients"]["damping"] / MU_TRUE - 1) < 0.05
+    assert abs(v["coefficients"]["damping"] - MU_TRUE) < 4 * v["errors"]["damping"] + 1e-4
 
 
 def _check_launch(r, truth, v_in):
@@ -154,3 +161,233 @@ def test_captured_launch_every_turn_above_the_noise_counted():
         if not hit:
             assert dip < 1.5 * dip_min, (a, dip)
     assert sum(d < dip_min / 3 for _, d in turns) >= 3    # the case has sub-noise turns to miss
+
+
+# ----------------------------------------------------------------------------
+# hostile tracks and options: each ends within its bound with exit 0 or 2, one line,
+# no traceback, no numpy warning, nothing written
+# ----------------------------------------------------------------------------
+def _quiet_cli(cli, *argv):
+    """``cli`` with every warning an error (a numpy RuntimeWarning would become exit 3)
+    and a time bound (a hang fails the test instead of the suite)."""
+    import warnings
+
+    from conftest import bounded
+
+    with bounded(90), warnings.catch_warnings():
+        warnings.simplefilter("error")
+        return cli(*argv)
+
+
+def _launch_frames(seed=7):
+    truth = L.run((L.START, 0.0, 47.5, 0.0), MU_TRUE, 4.0)
+    return L.frames(truth, fps=FPS, noise=NOISE, seed=seed)
+
+
+def _refused(code, out, err, tmp_path, *needles):
+    assert code == 2 and out == "" and err.count("\n") == 1, (code, err)
+    assert "Traceback" not in err and "internal error" not in err and "Warning" not in err
+    for n in needles:
+        assert n in err, err
+    assert not (tmp_path / "fig.png").exists()
+
+
+def test_a_ball_that_never_moves_is_a_result_not_a_search(cli, tmp_path):
+    t = np.arange(0.0, 3.0, 1.0 / FPS)
+    f = tmp_path / "still.csv"
+    f.write_text(L.csv_text(t, -20.0 + 0 * t, 0 * t))
+    code, out, err = _quiet_cli(cli, "analyze", PAPER, f, "--json")
+    assert code == 0 and err == "", err
+    r = json.loads(out)["tracks"][0]
+    assert r["kind"] == "still" and r["bounces"] == 0 and r["v_in"] is None
+    assert "never moves" in r["notes"][-1] and "no release or launch found" in r["notes"][-1]
+    assert "damping" not in r          # nothing fitted
+    # the same with noise (0.3 mm): still, not a release fitted to noise
+    rng = np.random.default_rng(4)
+    f.write_text(L.csv_text(t, -20.0 + rng.normal(0, NOISE, t.size), rng.normal(0, NOISE, t.size)))
+    code, out, err = _quiet_cli(cli, "analyze", PAPER, f, "--json")
+    assert code == 0 and json.loads(out)["tracks"][0]["kind"] == "still"
+    # no release or launch: no losses to write, and nothing written
+    code, out, err = _quiet_cli(cli, "analyze", PAPER, f, "-o", "fitted.yaml", "--plot", "fig.png")
+    _refused(code, out, err, tmp_path, "--output: no release or launch to fit the losses to")
+    assert not (tmp_path / "fitted.yaml").exists()
+    # the output may not be the spec or a track
+    for target in (PAPER, f):
+        code, out, err = _quiet_cli(cli, "analyze", PAPER, f, "-o", target)
+        _refused(code, out, err, tmp_path, "--output: output", "is the input")
+
+
+def test_a_track_in_metres_for_a_cm_spec_is_refused_by_its_accelerations(cli, tmp_path):
+    t, x, y = _launch_frames()
+    f = tmp_path / "metres.csv"
+    f.write_text(L.csv_text(t, x / 100.0, y / 100.0))
+    code, out, err = _quiet_cli(cli, "analyze", PAPER, f, "--plot", "fig.png")
+    _refused(code, out, err, tmp_path, str(f), "accelerations", "unit (cm)")
+    # ... and the same launch in cm reads near 1 (the screen's ratio, kept in the JSON)
+    g = tmp_path / "cm.csv"
+    g.write_text(L.csv_text(t, x, y))
+    from fabkit.lab.analyze import screen_track
+    from fabkit.lab.tracks import read_track
+    from fabkit.physics.models import problem_from_spec
+    from fabkit.spec import load_spec
+
+    sc = screen_track(problem_from_spec(load_spec(PAPER)), read_track(g))
+    assert sc["kind"] is None and abs(sc["accel_ratio"] - 1) < 0.1
+
+
+def test_huge_values_are_refused_before_any_arithmetic_overflows(cli, tmp_path):
+    t, x, y = _launch_frames()
+    f = tmp_path / "huge.csv"
+    rows = [f"{float(a)!r},{float(b) * 1e150!r},{float(c) * 1e150!r}\n" for a, b, c in zip(t, x, y)]
+    f.write_text("t,x,y\n" + "".join(rows))
+    code, out, err = _quiet_cli(cli, "analyze", PAPER, f, "--plot", "fig.png")
+    _refused(code, out, err, tmp_path, str(f), "beyond the footprint", "unit (cm)")
+    f.write_text("t,x,y\n" + "".join(f"{float(a)!r},1e308,{float(c)!r}\n" for a, c in zip(t, y)))
+    code, out, err = _quiet_cli(cli, "analyze", PAPER, f, "--scale", "1e9", "--plot", "fig.png")
+    _refused(code, out, err, tmp_path, str(f), "line 2", "non-finite position")
+
+
+@pytest.mark.parametrize("opt, value, needle", [
+    ("--scale", "1e-300", "--scale: must be within 1e-09..1e+09"),
+    ("--scale", "1e307", "--scale: must be within 1e-09..1e+09"),
+    ("--fps", "1e-320", "--fps: must be within 1..1e+07"),
+    ("--fps", "1e308", "--fps: must be within 1..1e+07"),
+    ("--fps", "0", "--fps: must be > 0"),
+    ("--rotate", "1e300", "--rotate: must be within -360..360"),
+    ("--origin", "1e300", "--origin: must be within"),
+])
+def test_options_get_range_checks_like_spec_keys(cli, tmp_path, opt, value, needle):
+    t, x, y = _launch_frames()
+    f = tmp_path / "frames.csv"
+    f.write_text("frame,x,y\n" + "".join(f"{i},{float(b)!r},{float(c)!r}\n" for i, (b, c) in enumerate(zip(x, y))))
+    extra = [opt, value] + (["0"] if opt == "--origin" else [])
+    if opt != "--fps":
+        extra += ["--fps", "125"]
+    code, out, err = _quiet_cli(cli, "analyze", PAPER, f, *extra, "--plot", "fig.png")
+    _refused(code, out, err, tmp_path, needle)
+
+
+def test_a_very_long_track_is_refused_by_its_size_guard_before_parsing(cli, tmp_path):
+    from fabkit.lab.tracks import MAX_POINTS
+
+    n = MAX_POINTS + 100
+    f = tmp_path / "long.csv"
+    f.write_text("t,x,y\n" + "\n".join(f"{i / 125.0},{-30 + i * 1e-4},0" for i in range(n)) + "\n")
+    code, out, err = _quiet_cli(cli, "analyze", PAPER, f, "--plot", "fig.png")
+    _refused(code, out, err, tmp_path, str(f), f"more than the {MAX_POINTS} rows", "size guard")
+
+
+def test_the_fits_budget_running_out_is_reported(cli, tmp_path, monkeypatch):
+    """The fits of a track stop at their budget (model runs here, the same path as the
+    time budget): the result says so and keeps the best point reached; a budget that ends
+    before the first model run ends refuses the track, naming it."""
+    import fabkit.lab.fitting as A
+
+    rel = L.run((-28.0, 6.0, 0.0, 0.0), MU_TRUE, 2.0, escape=False)
+    f = _write(tmp_path, "release.csv", rel, seed=2)
+    monkeypatch.setattr(A, "MAX_MODEL_RUNS", 3)
+    code, out, err = _quiet_cli(cli, "analyze", PAPER, f, "--json")
+    assert code == 0, err
+    r = json.loads(out)["tracks"][0]
+    assert "budget of 3 model runs" in r["fit_status"] and "fit stopped" in r["notes"][-1]
+    assert r["damping_error"] is None      # no error bar from a fit that did not converge
+    code, out, err = _quiet_cli(cli, "analyze", PAPER, f)
+    assert code == 0 and "fit stopped" in out
+    monkeypatch.setattr(A, "MAX_MODEL_RUNS", 0)
+    code, out, err = _quiet_cli(cli, "analyze", PAPER, f, "--plot", "fig.png")
+    _refused(code, out, err, tmp_path, str(f), "cannot follow this track", "budget of 0 model runs")
+    # one runaway integration stops at MAX_RHS_CALLS evaluations
+    monkeypatch.setattr(A, "MAX_MODEL_RUNS", 500)
+    monkeypatch.setattr(A, "MAX_RHS_CALLS", 50)
+    code, out, err = _quiet_cli(cli, "analyze", PAPER, f, "--plot", "fig.png")
+    _refused(code, out, err, tmp_path, str(f), "more than 50 evaluations")
+
+
+# ----------------------------------------------------------------------------
+# loss laws: viscous damping, rolling resistance, both (the simulation: lab_sim's
+# hand-written rolling resistance, c N opposing v)
+# ----------------------------------------------------------------------------
+CRR_TRUE = 0.004
+
+
+def test_rolling_resistance_in_fabkits_engine_matches_the_independent_simulation():
+    """fabkit's compiled engine (full model) with ball.rolling_resistance against lab_sim's
+    hand-written law at rtol 1e-12: the same bounces and exit speed to 1e-7."""
+    from fabkit.physics.integrate import launch_batch
+    from fabkit.physics.models import problem_from_spec
+    from fabkit.spec import load_spec
+
+    p = problem_from_spec(load_spec(PAPER), damping=0.0, rolling_resistance=CRR_TRUE)
+    truth = L.run((L.START, 0.0, 47.5, 0.0), 0.0, 30.0, crr=CRR_TRUE)
+    r = launch_batch(p, [47.5], [0.0], [0.0], workers=1)
+    assert truth["escaped"] and int(r.bounces[0]) == len(truth["bounce_times"])
+    assert abs(float(r.v_out[0]) / truth["v_out"] - 1) < 1e-7
+    np.testing.assert_allclose(r.bounce_times[0][:int(r.bounces[0])], truth["bounce_times"], rtol=0, atol=1e-7)
+
+
+def test_rolling_resistance_alone_is_chosen_and_fitted(cli, tmp_path):
+    rel = L.run((-28.0, 6.0, 0.0, 0.0), 0.0, 3.0, escape=False, crr=CRR_TRUE)
+    f = _write(tmp_path, "release.csv", rel, seed=1)
+    code, out, err = cli("analyze", PAPER, f, "--json")
+    assert code == 0, err
+    lo = json.loads(out)["losses"]
+    assert lo["chosen"] == "rolling" and lo["delta_bic"]["viscous"] > 2, lo["delta_bic"]
+    c = lo["laws"]["rolling"]
+    assert abs(c["coefficients"]["rolling_resistance"] / CRR_TRUE - 1) < 0.05
+    assert abs(c["coefficients"]["rolling_resistance"] - CRR_TRUE) < 4 * c["errors"]["rolling_resistance"]
+    assert c["coefficients"]["damping"] == 0.0
+
+
+def test_both_losses_fitted_and_written_to_a_spec(cli, tmp_path):
+    """A release and a launch (speeds from rest to 47 cm/s: viscous loss grows with speed,
+    rolling does not): both chosen, each within 10 %; -o writes a spec that loads with them."""
+    import yaml
+
+    mu, crr = 0.1, 0.003
+    rel = L.run((-28.0, 6.0, 0.0, 0.0), mu, 3.0, escape=False, crr=crr)
+    la = L.run((L.START, 0.0, 47.5, 0.0), mu, 15.0, crr=crr)
+    files = [_write(tmp_path, "release.csv", rel, seed=1), _write(tmp_path, "launch.csv", la, seed=2)]
+    code, out, err = cli("analyze", PAPER, *files, "--json", "-o", "fitted.yaml")
+    assert code == 0, err
+    lo = json.loads(out)["losses"]
+    assert lo["chosen"] == "both" and min(lo["delta_bic"]["viscous"], lo["delta_bic"]["rolling"]) > 6
+    c = lo["laws"]["both"]["coefficients"]
+    assert abs(c["damping"] / mu - 1) < 0.10 and abs(c["rolling_resistance"] / crr - 1) < 0.10
+    # the launch simulated again with the fitted losses does what the track did
+    sim = json.loads(out)["tracks"][1]["simulation_fitted_losses"]
+    assert sim["law"] == "both" and sim["bounces"] == len(la["bounce_times"]) == 2
+    assert sim["outcome"] == "escaped" and abs(sim["v_out"] / la["v_out"] - 1) < 0.03
+    raw = yaml.safe_load((tmp_path / "fitted.yaml").read_text())
+    assert raw["simulation"]["damping"] == c["damping"]
+    assert raw["ball"]["rolling_resistance"] == c["rolling_resistance"]
+    assert raw["surface"] == yaml.safe_load(PAPER.read_text())["surface"]
+    from fabkit.spec import load_spec
+
+    assert load_spec(tmp_path / "fitted.yaml").ball.rolling_resistance == c["rolling_resistance"]
+
+
+@pytest.mark.parametrize("model", ["full", "simplified"])
+def test_point_rolling_resistance_on_an_incline_closed_form(model):
+    """A point launched up the plane h = s x with rolling resistance c_rr N: the classic
+    incline, x'' = -g~ (s + c_rr) / (1 + s^2) in the full model (N/m = g / sqrt(1 + s^2),
+    |v| = xd sqrt(1 + s^2)), -g~ (s + c_rr) in the simplified one (N/m = g, |v| = xd);
+    exact up to the direction's smoothing, (v_s / v)^2 / 2 ~ 1e-6 here."""
+    from scipy.integrate import solve_ivp
+
+    from fabkit.expr import compile_surface
+    from fabkit.physics.models import Problem, dissipated_power, rhs
+
+    s, crr, k, g, u0, T = 0.1, 0.02, 0.4, 980.665, 20.0, 0.15   # it stops at 0.24 s
+    p = Problem(fns=compile_surface("s*x", {"s": s}), g=g, k=k, model=model, rolling_resistance=crr,
+                radius=1.25, units="cm")
+    gt = g / (1 + k)
+    a = gt * (s + crr) / (1 + s * s) if model == "full" else gt * (s + crr)
+    sol = solve_ivp(lambda t, S: rhs(p, S), (0, T), [0.0, 0.0, u0, 0.0], method="DOP853", rtol=1e-12, atol=1e-12)
+    assert sol.y[2, -1] == pytest.approx(u0 - a * T, rel=2e-6)
+    assert sol.y[0, -1] == pytest.approx(u0 * T - a * T * T / 2, rel=2e-6)
+    # the power it dissipates per unit (1 + k) m: c_rr (N/m) |v| / (1 + k)
+    hx = np.array(s)
+    P = dissipated_power(p, 0.0, 0.0, u0, 0.0, hx, 0.0)
+    speed = u0 * math.sqrt(1 + s * s) if model == "full" else u0
+    n_over_m = g / math.sqrt(1 + s * s) if model == "full" else g
+    assert P == pytest.approx(crr * n_over_m / (1 + k) * speed, rel=1e-5)

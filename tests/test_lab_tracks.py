@@ -103,3 +103,86 @@ def test_a_track_that_is_a_pipe_or_device_is_refused_not_read(cli, tmp_path):
     for p, needle in ((fifo, "a named pipe"), (os.devnull, "a device")):
         code, out, err = cli("analyze", PAPER, p)
         assert code == 2 and out == "" and f"{p}: is {needle}" in err and err.count("\n") == 1, err
+
+
+# ----------------------------------------------------------------------------
+# headers that state units (Logger Pro, PASCO Capstone, Kinovea)
+# ----------------------------------------------------------------------------
+@pytest.mark.parametrize("cell, expected", [
+    ("Time (s)", ("t", "s")), ("Latest: X (m)", ("x", "m")), ('"Run 1: Y (m)"', ("y", "m")),
+    ("x [cm]", ("x", "cm")), ("t/ms", ("t", "ms")), ("X Position (mm) Run #1", ("x", "mm")),
+    ("Position Y (px)", ("y", "px")), ("x", ("x", None)), ("Frame", ("frame", None)),
+    ("X Velocity (m/s)", ("x velocity", "m/s")),
+])
+def test_header_cells_name_and_unit(cell, expected):
+    from fabkit.lab.tracks import parse_header_cell
+
+    assert parse_header_cell(cell) == expected
+
+
+def test_logger_pro_export_in_metres_read_in_the_specs_cm(tmp_path):
+    """Logger Pro's CSV: data-set prefixes, quoted cells, velocity columns beside; metres
+    to the spec's cm is exactly 100."""
+    rows = ['"Latest: Time (s)","Latest: X (m)","Latest: Y (m)","Latest: X Velocity (m/s)"']
+    rows += [f"{t!r},{x / 100!r},{y / 100!r},0.4" for t, x, y in zip(T.tolist(), X.tolist(), Y.tolist())]
+    p = tmp_path / "lp.csv"
+    p.write_text("\n".join(rows) + "\n")
+    tr = read_track(p, units="cm")
+    np.testing.assert_allclose(tr.t, T, rtol=0, atol=0)
+    np.testing.assert_allclose(tr.x, X, rtol=1e-15, atol=1e-13)
+    np.testing.assert_allclose(tr.y, Y, rtol=1e-15, atol=1e-15)
+    assert "units converted: x in m, y in m -> s, cm" in tr.notes
+    # the same file for an inch spec: 1 m = 1000 / 25.4 in
+    np.testing.assert_allclose(read_track(p, units="in").x, X / 100 * 1000 / 25.4, rtol=1e-15)
+
+
+def test_kinovea_ms_and_pasco_run_suffix(tmp_path):
+    k = tmp_path / "kinovea.txt"
+    TXY = list(zip(T.tolist(), X.tolist(), Y.tolist()))
+    k.write_text("Time (ms)\tX (mm)\tY (mm)\n" + "".join(f"{t * 1000!r}\t{x * 10!r}\t{y * 10!r}\n" for t, x, y in TXY))
+    tr = read_track(k, units="cm")
+    np.testing.assert_allclose(tr.t, T, rtol=1e-15, atol=1e-17)
+    np.testing.assert_allclose(tr.x, X, rtol=1e-15)
+    assert "t in ms" in tr.notes[0]
+    pa = tmp_path / "pasco.csv"
+    pa.write_text("Time (s) Run #1,X Position (in) Run #1,Y Position (in) Run #1\n"
+                  + "".join(f"{t!r},{x / 2.54!r},{y / 2.54!r}\n" for t, x, y in TXY))
+    np.testing.assert_allclose(read_track(pa, units="cm").x, X, rtol=1e-14)
+
+
+def test_pixels_keep_the_video_map_and_stated_units_refuse_scale(tmp_path):
+    TXY = list(zip(T.tolist(), X.tolist(), Y.tolist()))
+    p = tmp_path / "px.csv"
+    p.write_text("t (s),x (px),y (px)\n" + "".join(f"{t!r},{x / 0.05!r},{y / 0.05!r}\n" for t, x, y in TXY))
+    tr = read_track(p, units="cm", video=VideoMap(scale=0.05))
+    np.testing.assert_allclose(tr.x, X, rtol=1e-14)
+    m = tmp_path / "m.csv"
+    m.write_text("t (s),x (m),y (m)\n" + "".join(f"{t!r},{x / 100!r},{y / 100!r}\n" for t, x, y in TXY))
+    with pytest.raises(SpecError, match="--scale: .*m.csv states its positions in a length unit"):
+        read_track(m, units="cm", video=VideoMap(scale=0.05))
+    u = tmp_path / "u.csv"
+    u.write_text("t (s),x (furlong),y (m)\n0,1,2\n")
+    with pytest.raises(SpecError, match=r"line 1: x: unknown length unit 'furlong'"):
+        read_track(u, units="cm")
+    u.write_text("t (fortnight),x,y\n0,1,2\n")
+    with pytest.raises(SpecError, match=r"line 1: t: unknown time unit 'fortnight'"):
+        read_track(u, units="cm")
+
+
+def test_analyze_reads_a_launch_exported_in_metres_and_ms(cli, tmp_path):
+    """The whole command on a launch exported by a tool in m and ms: the same v_in (2 %)
+    as the independent simulation's, and the screen's acceleration ratio near 1."""
+    import json
+
+    import lab_sim as L
+
+    truth = L.run((L.START, 0.0, 47.5, 0.0), 0.15, 4.0)
+    t, x, y = L.frames(truth, fps=125.0, noise=0.03, seed=8)
+    p = tmp_path / "launch.csv"
+    p.write_text('"Time (ms)","X (m)","Y (m)"\n' + "".join(f"{a * 1000:.4f},{b / 100:.8f},{c / 100:.8f}\n"
+                                                         for a, b, c in zip(t, x, y)))
+    code, out, err = cli("analyze", PAPER, p, "--json")
+    assert code == 0, err
+    r = json.loads(out)["tracks"][0]
+    assert r["kind"] == "launch" and abs(r["v_in"] / 47.5 - 1) < 0.02
+    assert abs(r["accel_ratio"] - 1) < 0.1 and "units converted" in r["notes"][0]

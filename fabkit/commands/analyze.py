@@ -14,13 +14,9 @@ def _num(v, fmt=".5g"):
 
 
 def _video_map(args):
-    from ..lab.tracks import VideoMap
+    from ..lab.tracks import VideoMap, check_options
 
-    if args.scale is not None and not (math.isfinite(args.scale) and args.scale > 0):
-        raise SpecError(f"must be > 0, got {args.scale:g}", key="--scale")
-    for k, v in (("--origin", args.origin or ()), ("--rotate", [args.rotate or 0.0])):
-        if not all(math.isfinite(x) for x in v):
-            raise SpecError("must be finite", key=k)
+    check_options(fps=args.fps, scale=args.scale, origin=args.origin, rotate=args.rotate)
     return VideoMap(scale=args.scale if args.scale is not None else 1.0,
                     origin=tuple(args.origin) if args.origin else (0.0, 0.0),
                     rotate=float(args.rotate or 0.0), flip_y=bool(args.flip_y))
@@ -43,6 +39,8 @@ def _lines(res, units):
         bt = ", ".join(f"{t:.4f}" for t in r["bounce_times"])
         out.append(f"{r['file']}: {r['kind']}, {r['frames']} frames at {r['fps']:.4g}/s, noise {r['noise_sigma']:.2g} {u}"
                    + (f"; {'; '.join(r['notes'])}" if r["notes"] else ""))
+        if r["kind"] == "still":
+            continue
         out.append(f"  bounces {r['bounces']}" + (f" at t = {bt} s" if bt else "") + f", outcome {r['outcome']}"
                    + (f" (turns of x that fall back less than {r['bounce_min_dip']:.2g} {u} are below the noise "
                       f"and not counted)" if r["outcome"] == "captured" and r["kind"] == "launch" else ""))
@@ -63,20 +61,80 @@ def _lines(res, units):
                 sbt = ", ".join(f"{t:.4f}" for t in s["bounce_times"])
                 out.append(f"  simulation: bounces {s['bounces']}" + (f" at t = {sbt} s" if sbt else "")
                            + f", {s['outcome']}, v_out {_num(s['v_out'], '.6g')} {u}/s")
+            s = r.get("simulation_fitted_losses")
+            if s:
+                sbt = ", ".join(f"{t:.4f}" for t in s["bounce_times"][:16])
+                out.append(f"  simulation with the fitted {s['law']} losses: bounces {s['bounces']}"
+                           + (f" at t = {sbt} s" if sbt else "") + f", {s['outcome']}, v_out "
+                           f"{_num(s['v_out'], '.6g')} {u}/s")
             if r.get("T_n") is not None:
                 out.append(f"  T_n = {r['T_n']:.4f} s between the bounces, n = {r['n']} transverse maxima")
+    lo = res.get("losses")
+    if lo and lo.get("chosen"):
+        out.append(f"losses ({lo['criterion']} over {len(lo['segments'])} segment(s) of releases and launch legs): "
+                   f"the data support {lo['chosen']} (evidence {lo['evidence']})")
+        for law, f in lo["laws"].items():
+            c, e = f["coefficients"], f["errors"]
+            parts = []
+            if "damping" in _LAW_KEYS[law]:
+                parts.append(f"damping {c['damping']:.5g} ± {_num(e['damping'], '.2g')} 1/s")
+            if "rolling_resistance" in _LAW_KEYS[law]:
+                parts.append(f"rolling resistance {c['rolling_resistance']:.5g} ± {_num(e['rolling_resistance'], '.2g')}")
+            out.append(f"  {law}: {', '.join(parts)}; residual rms {f['residual_rms']:.3g} {u}, "
+                       f"BIC {lo['delta_bic'][law]:+.1f}" + ("" if f["fit_status"] == "converged"
+                                                             else f" ({f['fit_status']})"))
     tn = res.get("tn_fit")
     if tn:
         err = f" (± {tn['T_error']:.2g}, ± {tn['delta_error']:.2g})" if "T_error" in tn else ""
         out.append(f"eq. (tn): T_n = {tn['T']:.4f} n + {tn['delta']:.4f} s{err} over {len(tn['n'])} two-bounce "
                    f"launches, residual max {tn['residual_max']:.2g} s")
-    out.append(f"analyze: bounce times ± {max([e for r in res['tracks'] for e in r['bounce_time_errors']] or [0]):.1g} s "
-               f"(1 sigma), {res['seconds']:.2f} s")
+    errs = [e for r in res["tracks"] for e in r["bounce_time_errors"]]
+    out.append("analyze: " + (f"bounce times ± {max(errs):.1g} s (1 sigma), " if errs else "")
+               + f"{res['seconds']:.2f} s")
     return out
 
 
+_LAW_KEYS = {"viscous": ("damping",), "rolling": ("rolling_resistance",), "both": ("damping", "rolling_resistance")}
+
+
+def fitted_spec_text(spec, res, tracks) -> str:
+    """The spec's YAML with the losses of the law the tracks support (simulation.damping,
+    ball.rolling_resistance; the other set to 0), validated before it is written."""
+    import yaml
+
+    from ..io import read_regular
+    from ..spec import validate
+
+    lo = res.get("losses") or {}
+    law = lo.get("chosen")
+    if not law:
+        raise SpecError("no release or launch to fit the losses to: nothing written", key="--output")
+    coef = lo["laws"][law]["coefficients"]
+    for k in ("damping", "rolling_resistance"):
+        if not (math.isfinite(coef[k]) and coef[k] >= 0):
+            raise SpecError(f"the {law} law's fitted {k} is {coef[k]:.4g} (negative or not finite): not written",
+                            key="--output")
+    raw = yaml.safe_load(read_regular(spec.path, 1 << 20, "spec").decode("utf-8-sig"))
+    raw.setdefault("simulation", {})["damping"] = float(coef["damping"])
+    if not isinstance(raw.get("ball"), dict):
+        raw["ball"] = {}
+    raw["ball"]["rolling_resistance"] = float(coef["rolling_resistance"])
+    validate(raw, str(spec.path))
+    err = lo["laws"][law]["errors"]
+    head = [f"# {spec.path} with the losses fitted by fabkit analyze to {', '.join(t.file for t in tracks)}:",
+            f"# the {law} law ({lo['criterion']}, evidence {lo['evidence']} over the next law); damping "
+            f"{coef['damping']:.6g} ± {err['damping']:.2g} 1/s, rolling resistance {coef['rolling_resistance']:.6g} "
+            f"± {err['rolling_resistance']:.2g} (one sigma)"]
+    class _Dumper(yaml.SafeDumper):
+        """Sections as blocks, lists in one line (as the shipped specs write them)."""
+
+    _Dumper.add_representer(list, lambda d, v: d.represent_sequence("tag:yaml.org,2002:seq", v, flow_style=True))
+    body = yaml.dump(raw, Dumper=_Dumper, sort_keys=False, default_flow_style=False, allow_unicode=True)
+    return "\n".join(head) + "\n" + body
+
+
 def run(args) -> int:
-    from ..lab.analyze import analyze
+    from ..lab.analyze import analyze, screen_tracks
     from ..lab.tracks import read_track
     from ..physics.models import problem_from_spec
 
@@ -85,23 +143,24 @@ def run(args) -> int:
     # the figure must not overwrite a track
     from ..io import check_outputs
 
-    check_outputs({"--plot": args.plot}, inputs=list(args.tracks))
+    check_outputs({"--plot": args.plot, "--output": args.output}, inputs=[*args.tracks, args.spec])
     spec = load_spec(args.spec, need=("surface", "simulation"), command="analyze")
     vm = _video_map(args)
-    if args.fps is not None and not (math.isfinite(args.fps) and args.fps > 0):
-        raise SpecError(f"must be > 0, got {args.fps:g}", key="--fps")
-    tracks = [read_track(p, fps=args.fps, video=vm) for p in args.tracks]
+    tracks = [read_track(p, fps=args.fps, video=vm, units=spec.units) for p in args.tracks]
     problem = problem_from_spec(spec)
     if problem.model == "ball":
         raise SpecError("analyze fits the point models (full, simplified); the ball model is not "
                         "supported by the track analysis", file=spec.path, key="simulation.model")
-    prepare_simulator(problem)
-    res = analyze(problem, tracks)
+    screens = screen_tracks(problem, tracks)     # refusals before the simulator loads
+    if any(sc["kind"] == "launch" for sc in screens):
+        prepare_simulator(problem)
+    res = analyze(problem, tracks, screens)
     for r, tr in zip(res["tracks"], tracks):
         r["_track"] = {"t": tr.t, "x": tr.x, "y": tr.y}
     res["seconds"] = timer.seconds
     payload = _public(res)
     lines = _lines(res, spec.units)
+    fitted_text = fitted_spec_text(spec, res, tracks) if args.output else None   # refused before any write
     if args.plot:
         from ..io import write_atomic
         from ..plots import analyze_figure
@@ -111,5 +170,11 @@ def run(args) -> int:
         write_atomic(args.plot, png)
         payload["plot"] = str(args.plot)
         lines.append(f"wrote {args.plot}")
+    if args.output:
+        from ..io import write_atomic
+
+        write_atomic(args.output, fitted_text)
+        payload["output"] = str(args.output)
+        lines.append(f"wrote {args.output} (the spec with the {res['losses']['chosen']} law's losses)")
     emit(lines, payload, args.json)
     return 0

@@ -42,6 +42,13 @@ track ends moving toward -x, left of the well, after a bounce, and that the mode
 carries back to x = start has ``escaped``; one with a point beyond top - margin or
 outside the footprint shrunk by the margin ``flew_off``; else ``captured``.
 
+Budgets and screen
+------------------
+Every fit is bounded (:mod:`fabkit.lab.fitting`: wall time, model runs, evaluations an
+integration; running out is reported); :func:`screen_track` refuses, before any fit, a
+track that cannot be of this surface in the spec's unit, and finds a ball that never
+moves. The loss laws are compared in :mod:`fabkit.lab.losses`.
+
 Releases: the damping fitted with the model
 -------------------------------------------
 The spec's model (models.fused, eq. xyODE or xyODE_simp, with the spec's nonlinear
@@ -69,6 +76,8 @@ import time
 import numpy as np
 
 from ..errors import SpecError
+from . import fitting
+from .fitting import FIT_RTOL, Budget, FitStopped, covariance_errors, least_squares_bounded, model_solve
 
 SG_WINDOW = 9          # frames of the local cubic fits (noise and smoothing)
 PROMINENCE_SIGMA = 8.0
@@ -77,8 +86,11 @@ PEAK_HALF = 4          # frames either side of a bounce in its parabola fit
 PEAK_HALF_MAX = 16     # ... widened up to this for a flat, slow turn
 VERTEX_DROP_SIGMA = 6.0
 WIDE_WINDOW = 25       # frames of the second, wider smoothing (shallow turns)
-FIT_RTOL = 1e-8
 LEG_START = 0.5        # s: first span of a leg's continuation fit (fit_leg)
+#: the screen before any fit (:func:`screen_track`)
+STILL_SIGMA = 10.0     # a track whose smoothed x and y move less than this many noise
+STILL_FRACTION = 1e-4  # sigma + this fraction of the footprint's size never moves
+ACCEL_RATIO = (0.2, 5.0)   # the track's accelerations over the model's: outside, refused
 
 
 # ----------------------------------------------------------------------------
@@ -290,7 +302,7 @@ def edge_state(track, end: bool = False, seconds: float = EDGE_SECONDS):
     return (out[0], pos[0], pos[1], vel[0], vel[1])
 
 
-def fit_leg(problem, track, sel: np.ndarray, end: bool, mu: float) -> dict:
+def fit_leg(problem, track, sel: np.ndarray, end: bool, mu: float, budget: Budget | None = None) -> dict:
     """The model's state at the first (``end``: last) frame and the viscous damping, fitted
     by least squares to the frames ``sel`` (a leg of a launch: before its first bounce, or
     after its last); ``mu`` is the damping's starting value. Returns {"t", "state" (4,),
@@ -309,20 +321,21 @@ def fit_leg(problem, track, sel: np.ndarray, end: bool, mu: float) -> dict:
     reach = np.abs(t[idx] - t0)
     span = LEG_START
     while span < reach[-1]:
-        p = _fit_leg_once(problem, track, idx[reach <= span], t0, p)["p"]
+        step = _fit_leg_once(problem, track, idx[reach <= span], t0, p, budget)
+        p = step["p"]
+        if step["status"] not in ("converged", "evaluations"):
+            return step          # out of budget: the best so far, reported
         span *= 2.0
-    return _fit_leg_once(problem, track, idx, t0, p)
+    return _fit_leg_once(problem, track, idx, t0, p, budget)
 
 
-def _fit_leg_once(problem, track, idx, t0: float, p0) -> dict:
+def _fit_leg_once(problem, track, idx, t0: float, p0, budget: Budget | None = None) -> dict:
     """One least-squares fit of (state at t0, mu) to the frames ``idx`` (:func:`fit_leg`)."""
-    from scipy.optimize import least_squares
-
     te = track.t[idx]
     data = np.concatenate([track.x[idx], track.y[idx]])
 
     def run(P):
-        Y, _ = model_solve(problem, P[:, :4].T.copy(), P[:, 4], t0, te, rtol=FIT_RTOL)
+        Y, _ = model_solve(problem, P[:, :4].T.copy(), P[:, 4], t0, te, rtol=FIT_RTOL, budget=budget)
         return Y
 
     def fun(p):
@@ -336,18 +349,14 @@ def _fit_leg_once(problem, track, idx, t0: float, p0) -> dict:
         base = np.concatenate([Y[0, 0], Y[1, 0]])
         return np.column_stack([(np.concatenate([Y[0, j + 1], Y[1, j + 1]]) - base) / h[j] for j in range(5)])
 
-    res = least_squares(fun, p0, jac=jac, method="lm", xtol=1e-10, max_nfev=40)
-    r = res.fun
-    s2 = float(r @ r) / max(1, r.size - 5)
-    try:
-        err = np.sqrt(np.maximum(np.diag(np.linalg.inv(res.jac.T @ res.jac) * s2), 0.0))
-    except np.linalg.LinAlgError:
-        err = np.full(5, np.nan)
-    return {"t": t0, "state": res.x[:4], "error": err[:4], "damping": float(res.x[4]),
-            "damping_error": float(err[4]), "rms": float(math.sqrt(float(r @ r) / r.size)), "p": res.x}
+    x, r, J, nfev, status = least_squares_bounded(fun, jac, p0, budget, xtol=1e-10, max_nfev=40)
+    err = covariance_errors(J, r, 5)
+    return {"t": t0, "state": x[:4], "error": err[:4], "damping": float(x[4]),
+            "damping_error": float(err[4]), "rms": float(math.sqrt(float(r @ r) / r.size)), "p": x,
+            "status": status, "nfev": int(nfev)}
 
 
-def model_to_start(problem, t0: float, state, mu: float, t_limit: float = 30.0):
+def model_to_start(problem, t0: float, state, mu: float, t_limit: float = 30.0, budget: Budget | None = None):
     """Carry a state along the model to x = start, forward or backward in time, whichever
     way its velocity meets that line. Returns (t, x, y, vx, vy) at the crossing, or None
     if it does not get there within ``t_limit`` s."""
@@ -359,16 +368,28 @@ def model_to_start(problem, t0: float, state, mu: float, t_limit: float = 30.0):
     x_s = problem.start
     backward = (state[0] - x_s) * state[2] > 0
 
+    calls = [0]
+
     def f(t, Y):
+        calls[0] += 1
+        if calls[0] > fitting.MAX_RHS_CALLS:
+            raise FitStopped(f"carrying the state to x = start took more than {fitting.MAX_RHS_CALLS} evaluations")
+        if budget is not None and calls[0] % 64 == 0:
+            budget.check()
         return rhs(p, np.asarray(Y))
 
     def hit(t, Y):
         return Y[0] - x_s
     hit.terminal = True
-    with np.errstate(all="ignore"):
-        sol = solve_ivp(f, (t0, t0 - t_limit if backward else t0 + t_limit), list(state), method="DOP853",
-                        rtol=1e-10, atol=1e-10, events=[hit])
-    if not len(sol.t_events[0]):
+    try:
+        with np.errstate(all="ignore"):
+            sol = solve_ivp(f, (t0, t0 - t_limit if backward else t0 + t_limit), list(state), method="DOP853",
+                            rtol=1e-10, atol=1e-10, events=[hit])
+    except FitStopped as exc:
+        if budget is not None:
+            budget.stopped.append(exc.reason)
+        return None
+    if sol.t_events is None or not len(sol.t_events[0]):
         return None
     return (float(sol.t_events[0][0]), *map(float, sol.y_events[0][0]))
 
@@ -377,42 +398,6 @@ def well_bottom(problem) -> float:
     """x of the channel's lowest point on y = 0 within the footprint."""
     xs = np.linspace(problem.x_range[0], problem.x_range[1], 4001)
     return float(xs[int(np.argmin(problem.fns.h(xs, np.zeros_like(xs))))])
-
-
-# ----------------------------------------------------------------------------
-# model integration (for the fits): the spec's right-hand side, damping per lane
-# ----------------------------------------------------------------------------
-def model_solve(problem, S0: np.ndarray, mu: np.ndarray, t0: float, t_eval: np.ndarray,
-                rtol: float = FIT_RTOL, dense: bool = False):
-    """Integrate lanes of the spec's model from t0: S0 (4, m) states, mu (m,) viscous damping.
-
-    The conservative part (and any nonlinear damping) is ``models.rhs`` of the problem
-    with its viscous damping set to 0; -mu v is added per lane, exactly as the model
-    adds it. Returns (Y (4, m, len(t_eval)), sol)."""
-    from scipy.integrate import solve_ivp
-
-    from ..physics.models import fused
-
-    fn = fused(problem.with_(damping=0.0))   # the model's generated right-hand side
-    m = S0.shape[1]
-    mu = np.asarray(mu, dtype=float).reshape(m)
-    d = np.empty((4, m))
-
-    def f(t, Yf):
-        S = Yf.reshape(4, m)
-        ax, ay = fn(S[0], S[1], S[2], S[3])[:2]
-        d[0], d[1] = S[2], S[3]
-        d[2] = ax - mu * S[2]
-        d[3] = ay - mu * S[3]
-        return d.ravel().copy()
-
-    scale = max(1.0, float(np.max(np.abs(S0))))
-    with np.errstate(all="ignore"):
-        sol = solve_ivp(f, (t0, float(t_eval[-1])), S0.ravel(), method="DOP853", rtol=rtol,
-                        atol=rtol * scale, t_eval=t_eval, dense_output=dense)
-    if sol.status != 0 or sol.y.shape[1] != len(t_eval):
-        raise SpecError(f"the model cannot follow this track ({sol.message})", key="fit")
-    return sol.y.reshape(4, m, len(t_eval)), sol
 
 
 # ----------------------------------------------------------------------------
@@ -455,10 +440,8 @@ def _dense_extrema(sol, lane: int, m: int, t0: float, t1: float, n: int = 20000)
     return np.array(out), np.array(vals)
 
 
-def fit_release(problem, track, sigma: float, mu0: float) -> dict:
+def fit_release(problem, track, sigma: float, mu0: float, budget: Budget | None = None) -> dict:
     """Least-squares fit of (x0, y0, vx0, vy0, mu) to a release track (module doc)."""
-    from scipy.optimize import least_squares
-
     t = track.t
     st = edge_state(track)
     p0 = np.array([st[1], st[2], st[3], st[4], max(mu0, 1e-3)])
@@ -469,7 +452,7 @@ def fit_release(problem, track, sigma: float, mu0: float) -> dict:
 
     def run(P):
         S0 = np.array(P[:, :4]).T
-        Y, _ = model_solve(problem, S0, P[:, 4], t0, t)
+        Y, _ = model_solve(problem, S0, P[:, 4], t0, t, budget=budget)
         return Y
 
     def fun(p):
@@ -491,19 +474,18 @@ def fit_release(problem, track, sigma: float, mu0: float) -> dict:
         return J
 
     t_start = time.perf_counter()
-    res = least_squares(fun, p0, jac=jac, method="lm", xtol=1e-10, ftol=1e-12, max_nfev=60)
-    p = res.x
-    r = res.fun
-    dof = max(1, r.size - p.size)
-    s2 = float(r @ r) / dof
-    try:
-        cov = np.linalg.inv(res.jac.T @ res.jac) * s2
-        err = np.sqrt(np.maximum(np.diag(cov), 0.0))
-    except np.linalg.LinAlgError:
-        err = np.full(5, np.nan)
+    p, r, J, nfev, status = least_squares_bounded(fun, jac, p0, budget, xtol=1e-10, ftol=1e-12, max_nfev=60)
+    err = covariance_errors(J, r, 5)
     # omega and the model's own log-decrement on the fitted noise-free trajectory
-    _, sol = model_solve(problem, p[:4, None], p[4:5], t0, t, dense=True)
-    te, ve = _dense_extrema(sol, 0, 1, t0, float(t[-1]))
+    try:
+        _, sol = model_solve(problem, p[:4, None], p[4:5], t0, t, dense=True)
+    except FitStopped as exc:  # the best point of a stopped fit is not followed to the end
+        status = status if status != "converged" else exc.reason
+        sol = None
+    if sol is not None:
+        te, ve = _dense_extrema(sol, 0, 1, t0, float(t[-1]))
+    else:
+        te, ve = np.zeros(0), np.zeros(0)
     # the release itself is a turning point (at rest): whether the fitted yd puts it just
     # inside the track or not, turning points within two frames of either end are left out
     inner = (te > t0 + 2 * track.dt) & (te < t[-1] - 2 * track.dt)
@@ -516,7 +498,7 @@ def fit_release(problem, track, sigma: float, mu0: float) -> dict:
         model_ld = float(-2.0 * np.polyfit(tm, np.log(amp), 1)[0])
     # omega's error: the extrema spacing moves with the fitted state; propagate by the
     # fit's covariance through a finite difference of omega in mu and y0 (the dominant terms)
-    ys = sol.sol(t)
+    ys = sol.sol(t) if sol is not None else np.full((4, t.size), np.nan)
     return {
         "damping": float(p[4]), "damping_error": float(err[4]),
         "omega": float(omega),
@@ -524,7 +506,7 @@ def fit_release(problem, track, sigma: float, mu0: float) -> dict:
         "initial_state_error": {k: float(e) for k, e in zip(("x", "y", "vx", "vy"), err[:4])},
         "residual_rms": float(math.sqrt(float(r @ r) / r.size)),
         "noise_sigma": float(sigma),
-        "iterations": int(res.nfev), "fit_seconds": time.perf_counter() - t_start,
+        "iterations": int(nfev), "fit_seconds": time.perf_counter() - t_start, "fit_status": status,
         "model_logdec": model_ld,
         "_model": {"t": t, "x": ys[0], "y": ys[1]},
     }
@@ -533,13 +515,17 @@ def fit_release(problem, track, sigma: float, mu0: float) -> dict:
 # ----------------------------------------------------------------------------
 # launches
 # ----------------------------------------------------------------------------
-def simulate_launch(problem, v_in: float, y0: float, vy0: float, mu: float, t_shift: float) -> dict:
+def simulate_launch(problem, v_in: float, y0: float, vy0: float, mu: float, t_shift: float,
+                    crr: float | None = None) -> dict:
     """The same launch through fabkit's simulator (integrate.launch_batch), times shifted
-    to the track's clock (``t_shift`` = the track's time at x = start)."""
+    to the track's clock (``t_shift`` = the track's time at x = start); ``crr``: the
+    rolling resistance (None: the spec's)."""
     from ..physics.integrate import launch_batch
     from ..physics.models import OUTCOMES
 
     p = problem.with_(damping=float(mu))
+    if crr is not None:
+        p = p.with_(rolling_resistance=float(crr))
     r = launch_batch(p, [float(v_in)], [float(y0)], [float(vy0)], record=True, workers=1)
     nb = int(r.bounces[0])
     bt = [float(b) + t_shift for b in r.bounce_times[0][: min(nb, r.bounce_times.shape[1])]]
@@ -553,6 +539,82 @@ def simulate_launch(problem, v_in: float, y0: float, vy0: float, mu: float, t_sh
 
         d = hermite_samples(tr, n=3000)
         out["_model"] = {"t": d["t"] + t_shift, "x": d["x"], "y": d["y"]}
+    return out
+
+
+def _sg_derivatives(z, dt: float, w: int):
+    """Local cubic fits over w frames (w odd) at the interior frames [w//2, n - w//2):
+    (value, first, second derivative), and the second derivative's noise gain
+    (its standard deviation per unit noise sigma of z)."""
+    k = np.arange(w) - w // 2
+    P = np.linalg.pinv(np.vander(k, 4, increasing=True))
+    val = np.convolve(z, P[0][::-1], mode="valid")
+    d1 = np.convolve(z, P[1][::-1], mode="valid") / dt
+    d2 = np.convolve(z, 2.0 * P[2][::-1], mode="valid") / (dt * dt)
+    return val, d1, d2, float(np.linalg.norm(2.0 * P[2])) / (dt * dt)
+
+
+def screen_track(problem, track, sigma: float | None = None) -> dict:
+    """What a track can be, before any fit (bounded work: a few array passes).
+
+    * Refused (SpecError naming the file, exit 2): a point farther outside the spec's
+      footprint than the footprint's own size (a track in other units, or a wrong
+      ``--scale`` / ``--origin``), or accelerations far from the model's at the track's
+      own positions and speeds: the ratio lambda = sum(a_track . a_model) / sum(|a_model|^2)
+      (a_track from local cubic fits over ~0.1 s) outside ACCEL_RATIO by more than three
+      of its standard errors. A track in m for a cm spec reads about 0.01 (the
+      positions shrink 100 times, the slopes there do not); a frame rate wrong by a
+      factor f reads f^2.
+    * ``still``: the ball never moves: x and y smoothed over 25 frames move less than
+      STILL_SIGMA noise sigma + STILL_FRACTION of the footprint's size.
+
+    Returns {"kind": "still" | None, "accel_ratio", "accel_ratio_error", "motion"}."""
+    t, x, y = track.t, track.x, track.y
+    units = problem.units
+    (x0, x1), (y0, y1) = problem.x_range, problem.y_range
+    sx, sy = x1 - x0, y1 - y0
+    for name, z, lo, hi, span in (("x", x, x0, x1, sx), ("y", y, y0, y1, sy)):
+        far = (z < lo - span) | (z > hi + span)
+        if np.any(far):
+            v = float(z[np.flatnonzero(far)[0]])
+            raise SpecError(f"{name} = {v:.4g} {units} lies beyond the footprint ({name} from {lo:g} to {hi:g} "
+                            f"{units}) by more than its own size: is the track in the spec's unit ({units}) and "
+                            "frame? (check the file's units, --scale and --origin)", file=track.file)
+    if sigma is None:
+        sigma = max(noise_sigma(x), noise_sigma(y))
+    w = WIDE_WINDOW if len(t) >= 2 * WIDE_WINDOW else SG_WINDOW
+    motion = max(float(np.ptp(_savgol(x, w)[0])), float(np.ptp(_savgol(y, w)[0])))
+    size = max(sx, sy)
+    out = {"kind": None, "accel_ratio": None, "accel_ratio_error": None, "motion": motion}
+    if motion <= STILL_SIGMA * sigma + STILL_FRACTION * size:
+        out["kind"] = "still"
+        return out
+    dt = track.dt
+    wa = int(np.clip(round(0.1 / dt), SG_WINDOW, 51)) | 1
+    if len(t) < wa + 8 or problem.model not in ("full", "simplified"):
+        return out
+    from ..physics.models import accelerations
+
+    xs, vx, ax, gain = _sg_derivatives(x, dt, wa)
+    ys, vy, ay, _ = _sg_derivatives(y, dt, wa)
+    with np.errstate(all="ignore"):
+        mx, my, _ = accelerations(problem, xs, ys, vx, vy)
+    ok = np.isfinite(mx) & np.isfinite(my) & (xs >= x0) & (xs <= x1) & (ys >= y0) & (ys <= y1)
+    if ok.sum() < 8:
+        return out
+    norm2 = float(np.sum(mx[ok] ** 2 + my[ok] ** 2))
+    if not norm2 > 0:
+        return out
+    lam = float(np.sum(ax[ok] * mx[ok] + ay[ok] * my[ok]) / norm2)
+    # the fits' noise is correlated over the window: count one independent sample per window
+    err = sigma * gain * math.sqrt(wa) / math.sqrt(norm2)
+    out["accel_ratio"], out["accel_ratio_error"] = lam, err
+    lo, hi = ACCEL_RATIO
+    if lam + 3 * err < lo or lam - 3 * err > hi:
+        raise SpecError(f"the ball's accelerations are {lam:.3g} times the model's at the track's own positions "
+                        f"and speeds (expected near 1): is the track in the spec's unit ({units})? (a track in m "
+                        f"for a cm spec reads far below 1, one in mm far above); otherwise check --scale and "
+                        f"--fps (a frame rate off by a factor f reads f^2)", file=track.file)
     return out
 
 
@@ -571,7 +633,8 @@ def outcome_of(problem, track, bounces_t, exit_state):
     left of the well, and the model carries it back through x = start: ``exit_state``
     is that crossing), else captured (still on the surface when the track ends)."""
     m = problem.margin
-    z = problem.fns.h(track.x, track.y)
+    with np.errstate(all="ignore"):
+        z = problem.fns.h(track.x, track.y)
     if np.any(z > problem.top - m) or np.any(track.x < problem.x_range[0] + m) or \
             np.any(track.x > problem.x_range[1] - m) or np.any(track.y < problem.y_range[0] + m) or \
             np.any(track.y > problem.y_range[1] - m):
@@ -581,13 +644,13 @@ def outcome_of(problem, track, bounces_t, exit_state):
     return "captured", None
 
 
-def _launch_speeds(problem, track, bt, mu) -> dict:
+def _launch_speeds(problem, track, bt, mu, budget: Budget | None = None) -> dict:
     """v_in, v_out and the outcome of a launch by model fits of its two legs (module doc)."""
     t = track.t
     t_in_end = (bt[0] if bt.size else t[0] + 1.0)
     sel = np.flatnonzero(t <= t_in_end)
-    leg = fit_leg(problem, track, sel, False, mu)
-    entry = model_to_start(problem, leg["t"], leg["state"], leg["damping"])
+    leg = fit_leg(problem, track, sel, False, mu, budget)
+    entry = model_to_start(problem, leg["t"], leg["state"], leg["damping"], budget=budget)
     out = {"entry_fit": {"t": leg["t"], "state": leg["state"].tolist(), "error": leg["error"].tolist(),
                          "damping": leg["damping"], "damping_error": leg["damping_error"], "rms": leg["rms"]}}
     v_in = abs(entry[3]) if entry is not None else None
@@ -598,9 +661,17 @@ def _launch_speeds(problem, track, bt, mu) -> dict:
     exit_state = None
     if bt.size and t[-1] - bt[-1] > 0.1:
         sel = np.flatnonzero(t >= bt[-1])
-        leg2 = fit_leg(problem, track, sel, True, mu)
+        try:
+            leg2 = fit_leg(problem, track, sel, True, mu, budget)
+        except FitStopped as exc:      # not even the exit leg's first point: no v_out
+            if budget is not None:
+                budget.stopped.append(f"exit leg: {exc.reason}")
+            leg2 = None
+    else:
+        leg2 = None
+    if leg2 is not None:
         if leg2["state"][2] < 0:
-            exit_state = model_to_start(problem, leg2["t"], leg2["state"], leg2["damping"])
+            exit_state = model_to_start(problem, leg2["t"], leg2["state"], leg2["damping"], budget=budget)
         out["exit_fit"] = {"t": leg2["t"], "state": leg2["state"].tolist(), "error": leg2["error"].tolist(),
                            "damping": leg2["damping"], "damping_error": leg2["damping_error"], "rms": leg2["rms"]}
         out["v_out_error"] = float(leg2["error"][2])
@@ -611,12 +682,53 @@ def _launch_speeds(problem, track, bt, mu) -> dict:
     return out
 
 
-def analyze_track(problem, track, mu_launch: float | None = None) -> dict:
+def _still_row(problem, track, sigma, screen) -> dict:
+    """The result of a track whose ball never moves (:func:`screen_track`): nothing fitted."""
+    lim = STILL_SIGMA * sigma + STILL_FRACTION * max(np.ptp(problem.x_range), np.ptp(problem.y_range))
+    note = (f"the ball never moves: x and y move at most {screen['motion']:.3g} {problem.units} over "
+            f"{track.t[-1] - track.t[0]:.4g} s (less than {lim:.3g} {problem.units}, {STILL_SIGMA:g} noise sigma "
+            f"+ {STILL_FRACTION:g} of the footprint); no release or launch found, nothing fitted (if the ball "
+            f"does move, check the file's units and --scale)")
+    return {"file": track.file, "kind": "still", "format": track.format, "frames": len(track),
+            "fps": 1.0 / track.dt, "noise_sigma": sigma, "bounces": 0, "bounce_min_dip": None,
+            "bounce_times": [], "bounce_time_errors": [], "notes": [*track.notes, note],
+            "outcome": None, "v_in": None, "v_out": None, "motion": screen["motion"]}
+
+
+def analyze_track(problem, track, mu_launch: float | None = None, screen: dict | None = None) -> dict:
     """One track: kind, bounces, speeds; a release is fitted with the model, a launch is
-    simulated side by side (with ``mu_launch``, default the spec's damping)."""
+    simulated side by side (with ``mu_launch``, default the spec's damping). The fits
+    share one :class:`fitting.Budget`; a track the model cannot follow from its
+    first frames is refused (SpecError naming the file)."""
     t0c = time.perf_counter()
     sx, sy = noise_sigma(track.x), noise_sigma(track.y)
     sigma = max(sx, sy)
+    if screen is None:
+        screen = screen_track(problem, track, sigma)
+    if screen.get("kind") == "still":
+        out = _still_row(problem, track, sigma, screen)
+        out["seconds"] = time.perf_counter() - t0c
+        return out
+    budget = Budget()
+    try:
+        out = _analyze_moving(problem, track, mu_launch, sigma, sx, sy, budget)
+    except FitStopped as exc:
+        raise SpecError(f"the model cannot follow this track from its first frames ({exc.reason}): is it a "
+                        f"track of this surface, in the spec's unit ({problem.units})?", file=track.file) from None
+    if budget.stopped:
+        reasons = list(dict.fromkeys(budget.stopped))
+        out["fit_status"] = "; ".join(reasons)
+        out["notes"].append(f"fit stopped: {out['fit_status']}; the values are the best point reached, their "
+                            "error bars are not computed")
+    else:
+        out.setdefault("fit_status", "converged")
+    out["model_runs"] = budget.runs
+    out["accel_ratio"] = screen.get("accel_ratio")
+    out["seconds"] = time.perf_counter() - t0c
+    return out
+
+
+def _analyze_moving(problem, track, mu_launch, sigma, sx, sy, budget) -> dict:
     kind, _ = classify(track, sigma)
     bt, bx, _ = extrema(track.t, track.x, sigma, +1)
     out = {"file": track.file, "kind": kind, "format": track.format, "frames": len(track),
@@ -629,7 +741,7 @@ def analyze_track(problem, track, mu_launch: float | None = None) -> dict:
         out["particle"] = track.particle
     mu_spec = float(problem.damping)
     if kind == "release":
-        fit = fit_release(problem, track, sigma, mu_spec if mu_spec > 0 else 0.1)
+        fit = fit_release(problem, track, sigma, mu_spec if mu_spec > 0 else 0.1, budget)
         ld = logdec(track.t, track.y, sigma)
         out.update({k: v for k, v in fit.items()})
         out["damping_logdec"] = ld["damping"] if ld else None
@@ -646,12 +758,14 @@ def analyze_track(problem, track, mu_launch: float | None = None) -> dict:
                 f"{out['logdec_ratio']:.3f} x mu. The model fit has no such bias.")
         out["paper_form"] = (f"y'' + {fit['damping'] / fit['omega']:.4f} y' + y = 0 in a "
                              f"{1.0 / fit['omega']:.4f} s time unit") if fit["omega"] > 0 else None
+        if fit["fit_status"] == "converged":
+            out.pop("fit_status")
         out["outcome"] = outcome_of(problem, track, bt, None)[0]
         out["v_in"] = None
         out["v_out"] = None
     else:
         mu = mu_spec if mu_launch is None else float(mu_launch)
-        out.update(_launch_speeds(problem, track, bt, mu))
+        out.update(_launch_speeds(problem, track, bt, mu, budget))
         ent = out.get("_entry")
         if ent is not None:
             out["simulation"] = simulate_launch(problem, out["v_in"], ent[2], ent[4], mu, ent[0])
@@ -660,7 +774,6 @@ def analyze_track(problem, track, mu_launch: float | None = None) -> dict:
             ty, _, _ = extrema(track.t, track.y, sy, +1)
             out["T_n"] = float(bt[1] - bt[0])
             out["n"] = int(np.sum((ty > bt[0]) & (ty < bt[1])))
-    out["seconds"] = time.perf_counter() - t0c
     return out
 
 
@@ -684,21 +797,33 @@ def fit_tn(rows: list[dict]) -> dict | None:
     return out
 
 
-def analyze(problem, tracks: list) -> dict:
+def screen_tracks(problem, tracks: list) -> list[dict]:
+    """:func:`screen_track` of every track (refusals before any fit), with each one's
+    ``sigma`` and ``kind`` (still, release or launch)."""
+    out = []
+    for tr in tracks:
+        s = max(noise_sigma(tr.x), noise_sigma(tr.y))
+        sc = screen_track(problem, tr, s)
+        sc["kind"] = sc["kind"] or classify(tr, s)[0]
+        out.append(sc)
+    return out
+
+
+def analyze(problem, tracks: list, screens: list | None = None, compare_losses: bool = True) -> dict:
     """All tracks: releases first (their fitted damping, averaged with inverse-variance
     weights, is then used for the launches' simulations), then launches, then eq. (tn)."""
     t0 = time.perf_counter()
     rows: dict[int, dict] = {}
     # releases need no launch damping; classify first so their damping can serve the launches
-    kinds = []
-    for tr in tracks:
-        s = max(noise_sigma(tr.x), noise_sigma(tr.y))
-        kinds.append(classify(tr, s)[0])
+    # every track is screened before any fit: a refusal costs no fitting time
+    screens = screen_tracks(problem, tracks) if screens is None else screens
+    kinds = [sc["kind"] for sc in screens]
     for i, tr in enumerate(tracks):
-        if kinds[i] == "release":
-            rows[i] = analyze_track(problem, tr)
+        if kinds[i] in ("release", "still"):
+            rows[i] = analyze_track(problem, tr, screen=screens[i])
     fitted = [(r["damping"], r["damping_error"]) for r in rows.values()
-              if r.get("damping") is not None and r.get("damping_error")]
+              if r.get("damping") is not None and np.isfinite(r["damping"])
+              and r.get("damping_error") is not None and np.isfinite(r["damping_error"]) and r["damping_error"] > 0]
     mu_launch, mu_source = float(problem.damping), "spec"
     if fitted:
         w = np.array([1.0 / e ** 2 for _, e in fitted])
@@ -706,8 +831,25 @@ def analyze(problem, tracks: list) -> dict:
         mu_source = "fitted"
     for i, tr in enumerate(tracks):
         if kinds[i] == "launch":
-            rows[i] = analyze_track(problem, tr, mu_launch)
+            rows[i] = analyze_track(problem, tr, mu_launch, screen=screens[i])
     ordered = [rows[i] for i in range(len(tracks))]
-    return {"tracks": ordered, "tn_fit": fit_tn(ordered), "launch_damping": mu_launch,
+    losses = None
+    if compare_losses:
+        from .losses import compare_laws, segments_of
+
+        losses = compare_laws(problem, segments_of(tracks, ordered), mu_launch)
+        if losses and losses.get("chosen"):
+            # each launch again through the simulator with the law the data support
+            c = losses["laws"][losses["chosen"]]["coefficients"]
+            if c["damping"] >= 0 and c["rolling_resistance"] >= 0:
+                for r in ordered:
+                    ent = r.get("_entry")
+                    if r.get("kind") == "launch" and ent is not None:
+                        sim = simulate_launch(problem, r["v_in"], ent[2], ent[4], c["damping"], ent[0],
+                                              crr=c["rolling_resistance"])
+                        sim["law"] = losses["chosen"]
+                        sim["rolling_resistance"] = c["rolling_resistance"]
+                        r["simulation_fitted_losses"] = sim
+    return {"tracks": ordered, "tn_fit": fit_tn(ordered), "losses": losses, "launch_damping": mu_launch,
             "launch_damping_source": mu_source, "model": problem.model, "units": problem.units,
             "seconds": time.perf_counter() - t0}

@@ -11,6 +11,14 @@ Formats (detected from the first lines):
 * trackpy's CSV (``frame``, ``x``, ``y``, ``particle``, and trackpy's other columns,
   often a leading unnamed index): the particle with the most frames is kept; t = frame / fps.
 
+Headers may state units, as Logger Pro, PASCO Capstone and Kinovea export them:
+``Time (s)``, ``X (m)``, ``x [cm]``, ``t/ms``, ``Latest: Y (m)``, ``X Position (mm) Run #1``.
+A data-set prefix (``Latest:``, ``Run 1:``) and a run suffix (``Run #1``) are dropped;
+``position x`` / ``x position`` name x. The stated units are converted (:data:`TIME_UNITS`,
+:data:`LENGTH_UNITS`): times to s, lengths to the spec's design unit (``units``); a
+length in pixels (``px``) is a video unit and keeps ``--scale``. Giving ``--scale``
+with positions in a stated length unit is refused (the file says what its numbers are).
+
 Positions are in the spec's design units and frame unless a :class:`VideoMap` maps
 them: p_design = scale * R(rotate) * F (p_video - origin), where F flips y when
 ``flip_y`` (image rows grow downward) and R turns counterclockwise by ``rotate``
@@ -31,6 +39,20 @@ from ..errors import SpecError
 
 MAX_TRACK_BYTES = 64 * 1024 * 1024   # a 10 s video at 1000 frames/s is ~0.5 MB of CSV
 MIN_POINTS = 12                      # a track shorter than 0.1 s at 125 frames/s says nothing
+#: size guard, stated up front: at most this many rows a track (100 s at 1000 frames/s);
+#: longer tracks are refused before they are parsed (cut them to the launch or release)
+MAX_POINTS = 100_000
+#: the options' ranges (checked like spec keys: one line naming the option, exit 2)
+FPS_RANGE = (1.0, 1.0e7)             # frames/s: a phone's slow motion to a 10 MHz camera
+SCALE_RANGE = (1.0e-9, 1.0e9)        # design units per video unit
+ORIGIN_MAX = 1.0e12                  # |origin|, video units
+ROTATE_MAX = 360.0                   # |rotate|, degrees
+#: the time units a header may state, in s
+TIME_UNITS = {"s": 1.0, "sec": 1.0, "ms": 1e-3, "us": 1e-6, "\u00b5s": 1e-6, "\u03bcs": 1e-6, "min": 60.0}
+#: the length units a header may state, in mm (None: a video unit, pixels)
+LENGTH_UNITS = {"m": 1000.0, "cm": 10.0, "mm": 1.0, "um": 1e-3, "\u00b5m": 1e-3, "\u03bcm": 1e-3,
+                "in": 25.4, "inch": 25.4, "inches": 25.4, "ft": 304.8, "px": None, "pixel": None,
+                "pixels": None, "pix": None}
 
 
 @dataclass(frozen=True)
@@ -79,6 +101,26 @@ class Track:
         return float(np.median(np.diff(self.t)))
 
 
+def check_options(fps=None, scale=None, origin=None, rotate=None) -> None:
+    """Range checks of the track options (``--fps``, ``--scale``, ``--origin``, ``--rotate``):
+    SpecError naming the option (exit 2) before any file is read."""
+    def _in(name, v, lo, hi, unit):
+        if v is None:
+            return
+        if not (math.isfinite(v) and lo <= v <= hi):
+            raise SpecError(f"must be within {lo:g}..{hi:g} {unit}, got {v:g}", key=name)
+
+    if scale is not None and not (math.isfinite(scale) and scale > 0):
+        raise SpecError(f"must be > 0, got {scale:g}", key="--scale")
+    if fps is not None and not (math.isfinite(fps) and fps > 0):
+        raise SpecError(f"must be > 0, got {fps:g}", key="--fps")
+    _in("--fps", fps, *FPS_RANGE, "frames/s")
+    _in("--scale", scale, *SCALE_RANGE, "design units per video unit")
+    for v in (origin or ()):
+        _in("--origin", v, -ORIGIN_MAX, ORIGIN_MAX, "video units")
+    _in("--rotate", rotate, -ROTATE_MAX, ROTATE_MAX, "degrees")
+
+
 def _bad(path, line: int | None, what: str) -> SpecError:
     return SpecError(what, file=str(path), key=f"line {line}" if line else None)
 
@@ -110,18 +152,87 @@ def _delimiter(header: str) -> str | None:
     return None
 
 
-def _col(headers: list[str], *names: str) -> int | None:
-    low = [h.lower() for h in headers]
-    for n in names:
-        if n in low:
-            return low.index(n)
+_NAMES = {"t": "t", "time": "t", "x": "x", "y": "y", "frame": "frame", "frame number": "frame",
+          "frame #": "frame", "frame no.": "frame", "particle": "particle",
+          "x position": "x", "position x": "x", "x-position": "x", "pos x": "x",
+          "y position": "y", "position y": "y", "y-position": "y", "pos y": "y"}
+
+
+def parse_header_cell(cell: str) -> tuple[str, str | None]:
+    """(name, unit) of one header cell: ``"Latest: X (m)"`` -> ("x", "m"), ``"t/ms"`` ->
+    ("t", "ms"), ``"Time (s) Run #1"`` -> ("t", "s"), ``"x"`` -> ("x", None). The name
+    lower-cased and mapped to t, x, y, frame or particle when it is one of them."""
+    import re
+
+    c = cell.strip().strip('"').strip()
+    c = re.sub(r"\s+run\s*#?\s*\d+\s*$", "", c, flags=re.I)            # PASCO: "... Run #1"
+    m = re.match(r"^[^:()\[\]]*:\s*(\S.*)$", c)                           # "Latest: ...", "Run 1: ..."
+    if m:
+        c = m.group(1)
+    unit = None
+    m = re.match(r"^(.*?)\s*[(\[]\s*([^()\[\]]*?)\s*[)\]]\s*$", c)      # "X (m)", "x [cm]"
+    if m and m.group(1):
+        c, unit = m.group(1), m.group(2)
+    elif "/" in c:                                                       # "t/s" (ISO 80000)
+        a, b = c.rsplit("/", 1)
+        if a.strip() and b.strip().lower() in {**TIME_UNITS, **LENGTH_UNITS}:
+            c, unit = a, b.strip()
+    name = " ".join(c.lower().split())
+    return _NAMES.get(name, name), unit
+
+
+def _col(headers: list[tuple[str, str | None]], name: str) -> int | None:
+    for i, (n, _) in enumerate(headers):
+        if n == name:
+            return i
     return None
 
 
-def read_track(path, *, fps: float | None = None, video: VideoMap | None = None) -> Track:
-    """Read one track file (any of the module's formats) and map it to design coordinates."""
+def _unit_factors(path, hline, headers, cols, units, video):
+    """(time factor to s, x and y factors to design units or None, note) of the header's
+    stated units (module doc); SpecError for an unknown unit or a clash with --scale."""
+    it, ix, iy = cols
+    ft, fl = 1.0, [None, None]
+    stated = []
+    if it is not None and headers[it][1] is not None:
+        u = headers[it][1]
+        if u.lower() not in TIME_UNITS:
+            raise _bad(path, hline + 1, f"t: unknown time unit {u!r} (known: {', '.join(TIME_UNITS)})")
+        ft = TIME_UNITS[u.lower()]
+        if ft != 1.0:
+            stated.append(f"t in {u}")
+    for k, j in enumerate((ix, iy)):
+        u = headers[j][1]
+        if u is None:
+            continue
+        key = u.lower() if u.lower() in LENGTH_UNITS else u
+        if key not in LENGTH_UNITS:
+            raise _bad(path, hline + 1, f"{'xy'[k]}: unknown length unit {u!r} (known: {', '.join(LENGTH_UNITS)})")
+        mm = LENGTH_UNITS[key]
+        if mm is None:
+            continue                                # pixels: video units, --scale maps them
+        if units is None:
+            raise _bad(path, hline + 1, f"{'xy'[k]} is in {u}: the spec's unit is needed to convert it")
+        from ..units import mm_per
+
+        fl[k] = mm / mm_per(units)
+        stated.append(f"{'xy'[k]} in {u}")
+    if any(f is not None for f in fl) and video is not None and video.scale != 1.0:
+        raise SpecError(f"{path} states its positions in a length unit ({', '.join(stated)}), converted to the "
+                        "spec's unit: --scale is for video units (pixels), leave it out", key="--scale")
+    note = f"units converted: {', '.join(stated)} -> s, {units}" if stated else None
+    return ft, fl, note
+
+
+def read_track(path, *, fps: float | None = None, video: VideoMap | None = None,
+               units: str | None = None) -> Track:
+    """Read one track file (any of the module's formats) and map it to design coordinates.
+    ``units``: the spec's design unit, for a header that states its length unit."""
     text = _read_text(path)
     lines = text.splitlines()
+    if len(lines) > MAX_POINTS + 64:
+        raise SpecError(f"{len(lines)} lines: more than the {MAX_POINTS} rows a track may have "
+                        "(size guard): cut the track to the launch or release", file=str(path))
     first = next((i for i, ln in enumerate(lines) if ln.strip()), None)
     if first is None:
         raise SpecError("empty file", file=str(path))
@@ -135,21 +246,22 @@ def read_track(path, *, fps: float | None = None, video: VideoMap | None = None)
     else:
         fmt = None
     delim = _delimiter(head)
-    headers = _split(head, delim)
-    it, ix, iy = _col(headers, "t", "time", "t (s)"), _col(headers, "x"), _col(headers, "y")
+    headers = [parse_header_cell(h) for h in _split(head, delim)]
+    it, ix, iy = _col(headers, "t"), _col(headers, "x"), _col(headers, "y")
     iframe, ipart = _col(headers, "frame"), _col(headers, "particle")
     if ix is None or iy is None or (it is None and iframe is None):
         raise _bad(path, hline + 1, f"header {head.strip()[:80]!r}: need columns t, x, y (or frame, x, y; "
+                   "units may be stated, as in Time (s), X (m); "
                    "trackpy: frame, x, y, particle; Tracker: a name line, then tab-separated t x y)")
     if fmt is None:
         fmt = "trackpy" if (ipart is not None and iframe is not None) else (
             "csv" if it is not None else "frame-csv")
     use_frame = it is None
+    ft, fl, unit_note = _unit_factors(path, hline, headers, (it, ix, iy), units, video)
     if use_frame:
         if fps is None:
             raise _bad(path, hline + 1, "has a frame column and no time column: give --fps")
-        if not (math.isfinite(fps) and fps > 0):
-            raise SpecError(f"must be > 0, got {fps:g}", key="--fps")
+        check_options(fps=fps)
     want = [iframe if use_frame else it, ix, iy] + ([ipart] if ipart is not None else [])
     names = ["frame" if use_frame else "t", "x", "y", "particle"]
     rows, where, skipped = [], [], 0
@@ -180,7 +292,7 @@ def read_track(path, *, fps: float | None = None, video: VideoMap | None = None)
         raise SpecError("no complete rows (t, x, y) after the header", file=str(path))
     a = np.asarray(rows, dtype=float)
     where = np.asarray(where)
-    notes = []
+    notes = [unit_note] if unit_note else []
     particle = None
     if ipart is not None:
         ids, counts = np.unique(a[:, 3], return_counts=True)
@@ -193,7 +305,7 @@ def read_track(path, *, fps: float | None = None, video: VideoMap | None = None)
     if fmt == "trackpy":   # trackpy writes frames in any order
         order = np.argsort(a[:, 0], kind="stable")
         a, where = a[order], where[order]
-    t = a[:, 0] / fps if use_frame else a[:, 0]
+    t = a[:, 0] / fps if use_frame else a[:, 0] * ft
     d = np.diff(t)
     if np.any(d <= 0):
         i = int(np.flatnonzero(d <= 0)[0])
@@ -202,7 +314,17 @@ def read_track(path, *, fps: float | None = None, video: VideoMap | None = None)
                    f"({names[0]} = {a[i, 0]:g}): times must increase")
     if len(t) < MIN_POINTS:
         raise SpecError(f"only {len(t)} tracked points; at least {MIN_POINTS} are needed", file=str(path))
-    x, y = (video or VideoMap()).apply(a[:, 1], a[:, 2])
+    if not np.all(np.isfinite(t)):
+        i = int(np.flatnonzero(~np.isfinite(t))[0])
+        raise _bad(path, int(where[i]), f"frame {a[i, 0]:g} / --fps {fps:g} is not a finite time")
+    with np.errstate(all="ignore"):
+        px = a[:, 1] * fl[0] if fl[0] is not None else a[:, 1]
+        py = a[:, 2] * fl[1] if fl[1] is not None else a[:, 2]
+        x, y = (video or VideoMap()).apply(px, py)
+    if not (np.all(np.isfinite(x)) and np.all(np.isfinite(y))):
+        i = int(np.flatnonzero(~(np.isfinite(x) & np.isfinite(y)))[0])
+        raise _bad(path, int(where[i]), f"x, y = {a[i, 1]:g}, {a[i, 2]:g} map to a non-finite position "
+                   f"(--scale, --origin)")
     return Track(file=str(path), t=t, x=x, y=y, format=fmt, name=name, particle=particle,
                  skipped_rows=skipped, notes=notes)
 

@@ -18,7 +18,21 @@ Dissipation (section "Effects of dissipation"), added to both models:
   coefficient ``nonlinear_damping`` = mu_nl (1/(s length^2)): the y equation gets
   ``- mu_nl F(x)^2 y^2 yd`` with F(x) = h_y(x, 0), the coefficient of the term
   linear in y of h (for the paper's surface F(x) = eps exp(d x)); it acts only
-  where the coupling F is large and only on large transverse amplitude.
+  where the coupling F is large and only on large transverse amplitude;
+* rolling resistance ``ball.rolling_resistance`` = c_rr: a force c_rr N on the ball
+  opposing its velocity, N the normal force. The ball's tangential equation is
+  (1 + k) m a_t = m g_t + f_t (the friction carries the rest), and a tangent force f
+  per unit effective mass (1 + k) m enters the horizontal accelerations as its own
+  horizontal components (f = fx C_x + fy C_y with C_x = (1, 0, h_x), C_y = (0, 1, h_y):
+  G^-1 (C . f) = (fx, fy)), so
+
+      [xdd, ydd] += - c_rr / (1 + k) * max(N/m, 0) * [xd, yd] / sqrt(|v|^2 + v_s^2)
+
+  full: N/m = (g + Q) / sqrt(1 + h_x^2 + h_y^2), Q = h_xx xd^2 + 2 h_xy xd yd + h_yy yd^2
+  (the real normal force: g, not g~), |v|^2 = xd^2 + yd^2 + (h_x xd + h_y yd)^2;
+  simplified: N/m = g, |v|^2 = xd^2 + yd^2. v_s = 1e-3 sqrt(g max(r, 1e-3)) smooths the
+  direction at rest, as in the ball model (:mod:`fabkit.physics.ball`). On a flat floor
+  the speed falls at the constant rate c_rr g~ (c_rr g / (1 + k)), as the ball's does.
 
 State layout: ``state`` has shape (4, ...) = (x, y, xd, yd) along the first
 axis; any trailing shape (a scalar launch (4,), a batch (4, N)).
@@ -75,7 +89,7 @@ class Problem:
               escaped, flew_off and lost_contact results are unchanged
     radius    the ball's radius r (design units; the ``ball`` model only)
     friction  static friction coefficient (``ball`` model; inf: never slips)
-    rolling_resistance   coefficient c_rr of the rolling resistance c_rr N (``ball`` model)
+    rolling_resistance   coefficient c_rr of the rolling resistance c_rr N (every model; see the module doc)
     """
 
     fns: Any
@@ -177,8 +191,10 @@ def fused(problem: Problem):
     if problem.model not in ("full", "simplified"):
         raise ValueError(f"fused() is the point models' right-hand side; model {problem.model!r} has its own "
                          "(physics/ball.py)")
+    crr = float(problem.rolling_resistance)
     key = (problem.fns, problem.model, problem.g_tilde, float(problem.damping),
-           float(problem.nonlinear_damping))
+           float(problem.nonlinear_damping), crr / (1.0 + problem.k) if crr else 0.0,
+           rolling_smoothing_speed(problem) if crr else 0.0, float(problem.g) if crr else 0.0)
     fn = _FUSED.get(key)
     if fn is None:
         fn = _build_fused(*key)
@@ -188,7 +204,13 @@ def fused(problem: Problem):
     return fn
 
 
-def _build_fused(fns, model, gt, mu, mu_nl):
+def rolling_smoothing_speed(problem: Problem) -> float:
+    """v_s of the rolling resistance's direction v / sqrt(|v|^2 + v_s^2), design units/s:
+    1e-3 sqrt(g max(r, 1e-3)), the ball model's (:class:`fabkit.physics.ball.Params`)."""
+    return 1e-3 * float(np.sqrt(problem.g * max(problem.radius, 1e-3)))
+
+
+def _build_fused(fns, model, gt, mu, mu_nl, crr_k=0.0, vs=0.0, g=0.0):
     import sympy as sp
 
     from ..expr import _cse_unevaluated   # sympy's cse re-evaluates: exponential on nested functions
@@ -210,6 +232,16 @@ def _build_fused(fns, model, gt, mu, mu_nl):
     if mu_nl:
         F = hy.subs(y, 0)
         dy = dy - sp.Float(mu_nl, 17) * F**2 * y**2 * vy
+    if crr_k:   # rolling resistance (module doc); crr_k = c_rr / (1 + k)
+        if model == "full":
+            Nm = (sp.Float(g, 17) + B - gts) / sp.sqrt(1 + hx**2 + hy**2)
+            v2 = vx**2 + vy**2 + (hx * vx + hy * vy) ** 2
+        else:
+            Nm = sp.Float(g, 17)
+            v2 = vx**2 + vy**2
+        c = -sp.Float(crr_k, 17) * (Nm + sp.Abs(Nm)) / 2 / sp.sqrt(v2 + sp.Float(vs * vs, 17))
+        dx = dx + c * vx
+        dy = dy + c * vy
     ax = -q * hx + dx
     ay = -q * hy + dy
     if model == "full":
@@ -272,7 +304,25 @@ def accelerations(problem: Problem, x, y, vx, vy):
     if problem.nonlinear_damping:
         F = problem.fns.grad(x, np.zeros_like(y))[1]
         ay = ay - problem.nonlinear_damping * F * F * y * y * vy
+    if problem.rolling_resistance:
+        c = rolling_coefficient(problem, vx, vy, hx, hy, bracket)
+        ax = ax + c * vx
+        ay = ay + c * vy
     return ax, ay, (h, hx, hy, bracket)
+
+
+def rolling_coefficient(problem: Problem, vx, vy, hx, hy, bracket):
+    """c with the rolling resistance's accelerations c [xd, yd] (module doc), <= 0;
+    ``bracket`` = B of eq. (xyODE) (h_xx xd^2 + 2 h_xy xd yd + h_yy yd^2 + g~)."""
+    vs = rolling_smoothing_speed(problem)
+    if problem.model == "full":
+        Nm = (problem.g + bracket - problem.g_tilde) / np.sqrt(1.0 + hx * hx + hy * hy)
+        zd = hx * vx + hy * vy
+        v2 = vx * vx + vy * vy + zd * zd
+    else:
+        Nm = problem.g
+        v2 = vx * vx + vy * vy
+    return -problem.rolling_resistance / (1.0 + problem.k) * np.maximum(Nm, 0.0) / np.sqrt(v2 + vs * vs)
 
 
 def rhs(problem: Problem, state):
@@ -322,6 +372,10 @@ def dissipated_power(problem: Problem, x, y, vx, vy, hx, hy):
     if problem.nonlinear_damping:
         F = problem.fns.grad(x, np.zeros_like(y))[1]
         dy = dy - problem.nonlinear_damping * F * F * y * y * vy
+    if problem.rolling_resistance:
+        c = rolling_coefficient(problem, vx, vy, hx, hy, normal_bracket(problem, x, y, vx, vy))
+        dx = dx + c * vx
+        dy = dy + c * vy
     if problem.model == "full":
         zd = hx * vx + hy * vy
         return -(dx * (vx + zd * hx) + dy * (vy + zd * hy))

@@ -44,7 +44,9 @@ class Engine:
     def params(self, problem) -> tuple:
         """P: (Pa, surface functions...) with Pa the model's run-time parameters (see
         the template: point.py, ball.py), then the surface's."""
-        Pa = np.array([*MODEL_PARAMS[self.template.name](problem), *self.formula.values], dtype=float)
+        tail = MODEL_TAIL.get(self.template.name)
+        Pa = np.array([*MODEL_PARAMS[self.template.name](problem), *self.formula.values,
+                       *(tail(problem) if tail else ())], dtype=float)
         return (Pa, *self.params_functions())
 
     def params_functions(self) -> tuple:
@@ -65,8 +67,18 @@ def _ball_params(problem) -> list:
     return [b.g, b.k, b.r, b.mu, b.c_rr, b.friction, b.v_s, problem.g_tilde]
 
 
-#: each template's run-time model parameters from a problem
+def _point_tail(problem) -> list:
+    """point.py's Pa[-3:], after the surface's parameters: c_rr / (1 + k), v_s, g (the
+    rolling resistance; models.py's module doc)."""
+    from ..models import rolling_smoothing_speed
+
+    crr = float(problem.rolling_resistance)
+    return [crr / (1.0 + problem.k), rolling_smoothing_speed(problem), float(problem.g)]
+
+
+#: each template's run-time model parameters from a problem (MODEL_TAIL: after the surface's)
 MODEL_PARAMS = {"point": _point_params, "ball": _ball_params}
+MODEL_TAIL = {"point": _point_tail}
 
 
 def _formula(fns, template=codegen.POINT):

@@ -15,15 +15,19 @@ parameters Pa (so one compiled module serves every model variant and every value
 of ``surface.params``):
 
     Pa[0] g~ = g / (1 + k)    Pa[1] mu (1/s)    Pa[2] mu_nl    Pa[3] 1 full | 0 simplified
-    Pa[4:] the surface's parameters, in the order of ``codegen.Formula.names``
+    Pa[4:-3] the surface's parameters, in the order of ``codegen.Formula.names``
+    Pa[-3] c_rr / (1 + k)   Pa[-2] v_s   Pa[-1] g: the rolling resistance (models.py's
+    module doc), after the surface's parameters so that their offset stays N_MODEL_PARAMS
 
 State (NV = 5): x, y, xd, yd and W, the energy dissipated by damping (per unit
 (1 + k) m); the error norm runs over the first NE = 4. Equations: eq. (xyODE)
 
     [xdd, ydd] = - B / (1 + h_x^2 + h_y^2) [h_x, h_y],  B = h_xx xd^2 + 2 h_xy xd yd + h_yy yd^2 + g~
 
-or eq. (xyODE_simp) [xdd, ydd] = - g~ [h_x, h_y], plus the damping - mu [xd, yd] and
-- mu_nl F(x)^2 y^2 yd on y; dW/dt = - D . (v + zd grad h) (full) or - D . v.
+or eq. (xyODE_simp) [xdd, ydd] = - g~ [h_x, h_y], plus the damping - mu [xd, yd],
+- mu_nl F(x)^2 y^2 yd on y and the rolling resistance c [xd, yd],
+c = - c_rr / (1 + k) max(N/m, 0) / sqrt(|v|^2 + v_s^2); dW/dt = - D . (v + zd grad h)
+(full) or - D . v.
 """
 import math
 
@@ -65,6 +69,8 @@ def rhs(S, P, F, contact):
     mu = Pa[1]
     mu_nl = Pa[2]
     full = Pa[3] != 0.0
+    n_pa = Pa.shape[0]
+    crr_k = Pa[n_pa - 3]
     h, hx, hy, hxx, hxy, hyy, fy = surface(x, y, Pa.ctypes)
     if full:          # eq. (xyODE)
         B = hxx * vx * vx + 2.0 * hxy * vx * vy + hyy * vy * vy + gt
@@ -75,11 +81,23 @@ def rhs(S, P, F, contact):
     F[0] = vx
     F[1] = vy
     zd = hx * vx + hy * vy
-    if mu != 0.0 or mu_nl != 0.0:
+    if mu != 0.0 or mu_nl != 0.0 or crr_k != 0.0:
         dx = -mu * vx
         dy = -mu * vy
         if mu_nl != 0.0:
             dy = dy - mu_nl * fy * fy * y * y * vy
+        if crr_k != 0.0:   # rolling resistance: c_rr N opposing v (models.py's module doc)
+            vs = Pa[n_pa - 2]
+            g = Pa[n_pa - 1]
+            if full:
+                Nm = (g + B - gt) / math.sqrt(1.0 + hx * hx + hy * hy)
+                v2 = vx * vx + vy * vy + zd * zd
+            else:
+                Nm = g
+                v2 = vx * vx + vy * vy
+            c = -crr_k * max(Nm, 0.0) / math.sqrt(v2 + vs * vs)
+            dx = dx + c * vx
+            dy = dy + c * vy
         F[2] = -q * hx + dx
         F[3] = -q * hy + dy
         if full:

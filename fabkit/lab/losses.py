@@ -1,0 +1,218 @@
+"""Which loss law the tracks support: viscous damping, rolling resistance, or both.
+
+Pure functions on tracks and the spec's :class:`models.Problem`; no printing, no files.
+
+The laws (the spec's model, ``full`` or ``simplified``, with; models.py's module doc):
+
+* ``viscous``: - mu [xd, yd] (``simulation.damping`` = mu, 1/s);
+* ``rolling``: a force c_rr N opposing v (``ball.rolling_resistance`` = c_rr);
+* ``both``: the two together.
+
+Each law is fitted by least squares (Levenberg-Marquardt, Jacobian by finite differences
+with all perturbed lanes in one integration) to every segment at once: each release
+track whole, and each launch's legs before its first bounce and after its last (the
+segments :func:`fabkit.lab.analyze.analyze` fitted), each segment with its own state
+(x, y, xd, yd) at its anchor frame and the law's coefficients shared by all. The laws
+are compared by the Bayesian information criterion of Gaussian residuals of unknown
+variance,
+
+    BIC = N ln(RSS / N) + p ln N,
+
+N the residuals (x and y of every frame used), p the fitted parameters (4 a segment +
+the law's coefficients); the law with the least BIC is the one the data support, and
+the difference to the next (Kass & Raftery: above 10 very strong, 6-10 strong, 2-6
+positive, below 2 not worth more than a mention) says how strongly. AIC (N ln(RSS/N)
++ 2 p) is reported beside it. Errors: one standard deviation from the fit's covariance
+(J^T J)^-1 RSS / (N - p).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+LAWS = {"viscous": ("damping",), "rolling": ("rolling_resistance",), "both": ("damping", "rolling_resistance")}
+#: the information criterion that chooses the law
+CRITERION = "BIC"
+#: Kass & Raftery's scale for a BIC difference
+EVIDENCE = ((10.0, "very strong"), (6.0, "strong"), (2.0, "positive"), (0.0, "not worth more than a mention"))
+FIT_MAX_NFEV = 40
+
+
+@dataclass
+class Segment:
+    """Frames of one track the model follows without a break: ``idx`` frame indices in
+    integration order (from the anchor), ``state`` (4,) the start at the anchor."""
+
+    file: str
+    what: str           # "release", "entry leg", "exit leg"
+    t: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    state: np.ndarray
+
+    @property
+    def t0(self) -> float:
+        return float(self.t[0])
+
+
+@dataclass
+class LawFit:
+    """One law fitted to every segment: coefficients and their one-sigma errors."""
+
+    law: str
+    coefficients: dict
+    errors: dict
+    rss: float
+    n: int
+    p: int
+    status: str
+    rms: float
+    segment_rms: list = field(default_factory=list)
+
+    @property
+    def bic(self) -> float:
+        return self.n * math.log(self.rss / self.n) + self.p * math.log(self.n)
+
+    @property
+    def aic(self) -> float:
+        return self.n * math.log(self.rss / self.n) + 2.0 * self.p
+
+    def to_json(self) -> dict:
+        return {"coefficients": self.coefficients, "errors": self.errors, "rss": self.rss, "residuals": self.n,
+                "parameters": self.p, "residual_rms": self.rms, "bic": self.bic, "aic": self.aic,
+                "fit_status": self.status, "segment_rms": self.segment_rms}
+
+
+def segments_of(tracks, rows) -> list[Segment]:
+    """The segments of analyzed tracks (``rows`` from :func:`fabkit.lab.analyze.analyze`):
+    releases whole from their fitted initial state, launches' legs from their fitted
+    states (the exit leg backward from its last frame)."""
+    out = []
+    for tr, r in zip(tracks, rows):
+        if r.get("kind") == "release" and r.get("initial_state"):
+            s = r["initial_state"]
+            st = np.array([s["x"], s["y"], s["vx"], s["vy"]], dtype=float)
+            if np.all(np.isfinite(st)):
+                out.append(Segment(tr.file, "release", tr.t, tr.x, tr.y, st))
+        elif r.get("kind") == "launch":
+            bt = r.get("bounce_times") or []
+            for key, what in (("entry_fit", "entry leg"), ("exit_fit", "exit leg")):
+                leg = r.get(key)
+                if not leg or not np.all(np.isfinite(leg["state"])):
+                    continue
+                if what == "entry leg":
+                    sel = tr.t <= (bt[0] if bt else tr.t[0] + 1.0)
+                    sl = np.flatnonzero(sel)
+                else:
+                    sl = np.flatnonzero(tr.t >= bt[-1])[::-1]
+                if sl.size < 8:
+                    continue
+                out.append(Segment(tr.file, what, tr.t[sl], tr.x[sl], tr.y[sl], np.asarray(leg["state"], float)))
+    return out
+
+
+def _law_vectors(law: str, q: np.ndarray, m: int):
+    """(mu (m,), crr (m,)) of a law's coefficient vector ``q`` for m lanes; q (m, n_law)."""
+    names = LAWS[law]
+    mu = q[:, names.index("damping")] if "damping" in names else np.zeros(m)
+    crr = q[:, names.index("rolling_resistance")] if "rolling_resistance" in names else np.zeros(m)
+    return mu, crr
+
+
+def fit_law(problem, segments: list[Segment], law: str, q0, budget=None) -> LawFit:
+    """Least squares of every segment's state and the law's shared coefficients (module doc)."""
+    from .fitting import FIT_RTOL, covariance_errors, least_squares_bounded, model_solve
+
+    nl = len(LAWS[law])
+    S = len(segments)
+    data = np.concatenate([np.concatenate([s.x, s.y]) for s in segments])
+    p0 = np.concatenate([np.concatenate([s.state for s in segments]), np.asarray(q0, dtype=float)])
+
+    def lanes(seg_i, P):
+        """x, y of segment seg_i for each row of P (lanes, 4 + nl): (lanes, 2 n)."""
+        seg = segments[seg_i]
+        mu, crr = _law_vectors(law, P[:, 4:], P.shape[0])
+        Y, _ = model_solve(problem, P[:, :4].T.copy(), mu, seg.t0, seg.t, rtol=FIT_RTOL, budget=budget, crr=crr)
+        return np.concatenate([Y[0], Y[1]], axis=1)
+
+    def split(p):
+        return p[:4 * S].reshape(S, 4), p[4 * S:]
+
+    def fun(p):
+        st, q = split(p)
+        return np.concatenate([lanes(i, np.concatenate([st[i], q])[None, :])[0] for i in range(S)]) - data
+
+    def jac(p):
+        st, q = split(p)
+        J = np.zeros((data.size, p.size))
+        row = 0
+        for i, seg in enumerate(segments):
+            base = np.concatenate([st[i], q])
+            h = 1e-5 * np.maximum(1.0, np.abs(base))
+            h[4:] = 1e-6 * np.maximum(1e-2, np.abs(base[4:]))
+            P = np.vstack([base] + [base + np.eye(base.size)[j] * h[j] for j in range(base.size)])
+            Y = lanes(i, P)
+            D = (Y[1:] - Y[0]) / h[:, None]            # (4 + nl, 2 n)
+            n2 = Y.shape[1]
+            J[row:row + n2, 4 * i:4 * i + 4] = D[:4].T
+            J[row:row + n2, 4 * S:] = D[4:].T
+            row += n2
+        return J
+
+    x, r, J, nfev, status = least_squares_bounded(fun, jac, p0, budget, xtol=1e-10, max_nfev=FIT_MAX_NFEV)
+    err = covariance_errors(J, r, p0.size)
+    names = LAWS[law]
+    q = x[4 * S:]
+    coef = {"damping": 0.0, "rolling_resistance": 0.0}
+    errs = {"damping": 0.0, "rolling_resistance": 0.0}
+    for j, nm in enumerate(names):
+        coef[nm] = float(q[j])
+        errs[nm] = float(err[4 * S + j])
+    seg_rms, row = [], 0
+    for seg in segments:
+        n2 = 2 * seg.t.size
+        seg_rms.append({"file": seg.file, "segment": seg.what,
+                        "rms": float(math.sqrt(float(r[row:row + n2] @ r[row:row + n2]) / n2))})
+        row += n2
+    rss = float(r @ r)
+    return LawFit(law, coef, errs, rss, int(r.size), int(p0.size), status, math.sqrt(rss / r.size), seg_rms)
+
+
+def compare_laws(problem, segments: list[Segment], mu0: float, budget_factory=None) -> dict | None:
+    """Every law of :data:`LAWS` fitted to the segments and compared by BIC (module
+    doc): {"criterion", "chosen", "evidence", "delta_bic", "laws": {law: LawFit.to_json()}};
+    None without segments. ``mu0``: the viscous damping's start (the releases' fit or the
+    spec's); the rolling resistance starts where it removes the same power at the
+    segments' mean speed: c_rr = mu0 v_mean / g~."""
+    from .fitting import Budget, FitStopped
+
+    if not segments:
+        return None
+    v = np.concatenate([np.hypot(np.gradient(s.x, s.t), np.gradient(s.y, s.t)) for s in segments])
+    vmean = float(np.median(v)) if v.size else 10.0
+    mu0 = float(mu0) if math.isfinite(mu0) and mu0 > 1e-3 else 0.1
+    vmean = vmean if math.isfinite(vmean) and vmean > 0 else 10.0
+    c0 = mu0 * vmean / problem.g_tilde
+    starts = {"viscous": [mu0], "rolling": [c0], "both": [0.5 * mu0, 0.5 * c0]}
+    fits: dict[str, LawFit] = {}
+    stopped = {}
+    for law in LAWS:
+        budget = budget_factory() if budget_factory else Budget()
+        try:
+            fits[law] = fit_law(problem, segments, law, starts[law], budget)
+        except FitStopped as exc:
+            stopped[law] = exc.reason
+    if not fits:
+        return {"criterion": CRITERION, "chosen": None, "laws": {}, "stopped": stopped,
+                "segments": [f"{s.file}: {s.what}" for s in segments]}
+    order = sorted(fits, key=lambda k: fits[k].bic)
+    best = order[0]
+    delta = {k: fits[k].bic - fits[best].bic for k in order}
+    gap = delta[order[1]] if len(order) > 1 else math.inf
+    strength = next(name for lim, name in EVIDENCE if gap >= lim)
+    return {"criterion": CRITERION, "chosen": best, "evidence": strength, "delta_bic": delta,
+            "laws": {k: fits[k].to_json() for k in fits}, "stopped": stopped,
+            "segments": [f"{s.file}: {s.what}" for s in segments]}
