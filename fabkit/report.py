@@ -231,7 +231,10 @@ def _sheet_section(sheet: dict) -> str:
         return "<p class=missing>(setup sheet: not available)</p>"
     from .toolpath.setup import sheet_markdown
 
-    return f'<div id="setup-sheet">{markdown_html(sheet_markdown(sheet, None))}</div>'
+    refusals = (sheet.get("machine_check") or {}).get("refusals") or []
+    refused = ("".join(f"<p class=unsafe><b>The machine cannot run this program:</b> {_e(r)} "
+                       f"(<code>fabkit gcode</code> refuses it, exit 2)</p>" for r in refusals))
+    return f'<div id="setup-sheet">{refused}{markdown_html(sheet_markdown(sheet, None))}</div>'
 
 
 def render(results: dict) -> str:

@@ -119,7 +119,7 @@ def test_check_program_units():
 def test_report_sheet_shows_the_machine(tmp_path, plain_planner):
     from fabkit.commands.report import _toolpath
     from fabkit.machine.profile import load_machine
-    from fabkit.report import _sheet_table
+    from fabkit.report import _sheet_section
     from fabkit.spec import load_spec
     from fabkit.surface import Surface
 
@@ -128,4 +128,5 @@ def test_report_sheet_shows_the_machine(tmp_path, plain_planner):
     sheet = tool["sheet"]
     assert sheet["run_time"]["total_s"] > sheet["run_time"]["length_over_feed_s"] > 0
     assert not sheet["machine_check"]["ok"] and "X travel" in sheet["machine_check"]["refusals"][0]
-    assert "run_time" in _sheet_table(sheet) and "X travel" in _sheet_table(sheet)
+    html = _sheet_section(sheet)
+    assert "Run time on this machine" in html and "X travel" in html
