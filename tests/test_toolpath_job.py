@@ -14,7 +14,7 @@ import yaml
 from conftest import SPECS, write_spec
 
 
-def _bowl_tile_raw() -> dict:
+def _bowl_tile_raw() -> tuple[dict, dict]:
     """specs/bowl.yaml as ``fabkit precision --quick`` studies it: its 14 x 8 mm tile around
     the lowest point, scallop 0.2 mm, 4000 check points (the tile precision computes)."""
     from fabkit import precision as P
