@@ -32,10 +32,12 @@ the best of up to ``repeats`` runs (fewer when one run exceeds ``budget`` s).
 
 Toolpath and mesh
 -----------------
-The raster program is planned, written, read back and verified at each
-``machining.tolerance``; the row gives the verified largest gouge
-(``max_deviation``) and material left, the program lines and the time (plan and
-write; the verification separately). The mesh rows come from
+The toolpath job (:func:`fabkit.toolpath.job.run_job`, the one ``fabkit gcode``
+runs: planned, written, read back, verified, passes added where material is left)
+runs at each ``machining.tolerance``; the row gives the verified largest gouge
+(``max_deviation``) and material left of the program gcode would write, the
+program lines, the job's verdict (``ok``) and the time (plan and write; the
+verification with its added passes separately). The mesh rows come from
 :func:`fabkit.solid.mesh_precision`: chordal tolerance against the measured
 largest deviation, triangles and time.
 """
@@ -340,31 +342,24 @@ def tile_spec(spec, tile: dict | None):
 
 
 def toolpath_study(spec, tolerances) -> list[dict]:
-    """One row per ``machining.tolerance`` (mm): the verified cut and the cost."""
+    """One row per ``machining.tolerance`` (mm): the verified cut and the cost, from the
+    toolpath job :func:`fabkit.toolpath.job.run_job` (the same verification, added passes
+    included, as ``fabkit gcode``: the same program reports the same figures)."""
     from .surface import Surface
-    from .toolpath.gcode import profile_from_spec, write_program
-    from .toolpath.raster import plan_toolpath, scallop_normal
-    from .toolpath.verify import read_program, verify_cut
+    from .toolpath.job import run_job
 
     rows = []
     for tol_mm in tolerances:
         s = spec.with_overrides({"machining.tolerance": float(tol_mm)})
-        surface = Surface.from_spec(s)
-        t0 = time.perf_counter()
-        path = plan_toolpath(s, surface)
-        text = write_program(path, profile_from_spec(s, surface))
-        t_make = time.perf_counter() - t0
-        t0 = time.perf_counter()
-        check = verify_cut(surface, read_program(text), s.tool.diameter / 2.0, s.machining.verify_points,
-                           depth_limit=s.stock.depth_limit, reach=s.tool.reach,
-                           normal=scallop_normal(s))
-        t_verify = time.perf_counter() - t0
-        rows.append({"tolerance": float(tol_mm), "max_deviation": float(check["max_gouge"]),
-                     "material_left": float(check["max_material_left"]), "scallop": float(s.machining.scallop),
-                     "within_tolerance": bool(check["max_gouge"] <= tol_mm),
-                     "lines": text.count("\n"), "passes": int(path.passes),
-                     "checked_points": int(check["checked_points"]), "seconds": t_make,
-                     "verify_seconds": t_verify})
+        job = run_job(s, Surface.from_spec(s))
+        cut = job.cut
+        rows.append({"tolerance": float(tol_mm), "max_deviation": float(cut.max_gouge),
+                     "material_left": float(cut.max_material_left), "scallop": float(s.machining.scallop),
+                     "within_tolerance": bool(cut.max_gouge <= tol_mm),
+                     "lines": job.lines, "passes": int(job.toolpath.passes),
+                     "checked_points": int(cut.checked_points),
+                     "seconds": job.timings["plan"] + job.timings["write"],
+                     "verify_seconds": job.timings["verify"], "ok": job.ok})
     return rows
 
 

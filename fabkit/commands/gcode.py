@@ -10,25 +10,14 @@ tolerance; exit 2 on bad input (nothing written).
 
 from __future__ import annotations
 
-import os
-from datetime import datetime, timezone
-
 from ..errors import DesignError
 from ..io import atomic_outputs
 from ..spec import load_spec
 from ..surface import Surface, check_depth
+from ..toolpath.job import REPAIR_ROUNDS, generated_at as _generated_at  # noqa: F401  (kept names)
 from ._common import Timer, check_paths, default_output, emit, stage_bar, warn
 
 NEEDS = ("surface", "stock", "tool", "machining")
-REPAIR_ROUNDS = 2      # verify, add passes where material is left, verify again (at most twice)
-
-
-def _generated_at() -> str:
-    """UTC time for the setup sheet (SOURCE_DATE_EPOCH honoured for reproducible builds)."""
-    epoch = os.environ.get("SOURCE_DATE_EPOCH")
-    when = datetime.fromtimestamp(int(epoch), timezone.utc) if epoch and epoch.isdigit() \
-        else datetime.now(timezone.utc)
-    return when.isoformat(timespec="seconds")
 
 
 def _hm(seconds: float) -> str:
@@ -36,30 +25,10 @@ def _hm(seconds: float) -> str:
     return f"{m // 60} h {m % 60} min" if m >= 60 else f"{m} min"
 
 
-def failures(check: dict, spec) -> list[str]:
-    """The failed acceptance checks of a verification (empty: the cut is good)."""
-    m = spec.machining
-    bad = []
-    if check["max_gouge"] > m.tolerance:
-        x, y = check["gouge_at"]
-        bad.append(f"gouge {check['max_gouge']:.4f} mm > tolerance {m.tolerance:g} mm at X{x:.3f} Y{y:.3f}")
-    if check["max_material_left"] > m.scallop + m.tolerance:
-        x, y = check["material_at"]
-        bad.append(f"material left {check['max_material_left']:.4f} mm > scallop + tolerance "
-                   f"{m.scallop + m.tolerance:g} mm at X{x:.3f} Y{y:.3f}")
-    if check["rapid_clearance"] < -m.tolerance:
-        x, y = check["rapid_clearance_at"]
-        bad.append(f"a rapid passes {-check['rapid_clearance']:.4f} mm into material at X{x:.3f} Y{y:.3f}")
-    if not check["depth_ok"]:
-        bad.append(f"deepest cut {check['deepest_cut']:.3f} mm exceeds the depth limit or tool reach")
-    if not check["first_move_ok"]:
-        bad.append("the program does not start with a rapid up to the safe height")
-    return bad
-
-
 def run(args) -> int:
-    from ..toolpath.gcode import profile_from_spec, write_program
-    from ..toolpath.raster import plan_estimate, plan_toolpath
+    from ..machine.profile import machine_from_spec
+    from ..toolpath.job import run_job
+    from ..toolpath.raster import plan_estimate
     from ..toolpath.setup import sheet_paths
 
     total = Timer()
@@ -69,7 +38,8 @@ def run(args) -> int:
     # refuse now, not after minutes of planning
     check_paths(args, {"--output": out, **{f"--output (setup sheet .{k})": p for k, p in paths.items()}})
     surface = Surface.from_spec(spec)
-    _machine_precheck(args, spec, surface)     # the machine's travel, spindle, tool changer: before planning
+    machine = machine_from_spec(spec, getattr(args, "machine", None))    # a bad profile: exit 2 now
+    _machine_precheck(spec, surface, machine)  # the machine's travel, spindle, tool changer: before planning
     plan_estimate(spec, surface)        # the guards first: a refusal costs about a second
     check_depth(spec, surface)
     R = spec.tool.diameter / 2.0
@@ -80,121 +50,53 @@ def run(args) -> int:
 
     step, close = stage_bar(3 if args.no_verify else 4, getattr(args, "no_progress", False), "gcode")
     try:
-        step("planning the passes")
-        t = Timer()
-        toolpath = plan_toolpath(spec, surface)
-        t_plan = t.seconds
-        step("writing the program")
-        t = Timer()
-        profile = profile_from_spec(spec, surface)
-        text = write_program(toolpath, profile)
-        t_write = t.seconds
-        return _finish(args, spec, surface, toolpath, profile, text, out, paths, R, t_plan, t_write, total,
-                       step)
+        job = run_job(spec, surface, machine=machine, verify=not args.no_verify, progress=step, program_path=out)
+        return _finish(args, job, out, paths, total)
     finally:
         close()
 
 
-def _machine_precheck(args, spec, surface) -> None:
+def _machine_precheck(spec, surface, machine) -> None:
     """The machine profile (``--machine`` or the spec's section) against the stock,
     spindle and tool call, before any planning (SpecError, exit 2)."""
     from ..machine.limits import precheck
-    from ..machine.profile import machine_from_spec
 
-    machine = machine_from_spec(spec, getattr(args, "machine", None))
     if machine is not None:
         precheck(spec, surface, machine).raise_if_refused(machine.source)
 
 
-def machine_run(args, spec, program, text):
-    """(machine, run time, checks) of the program on the machine profile, or (None, None,
-    None) without one. Refuses (SpecError, exit 2) travel, spindle or tool change beyond
-    the machine; warns of feeds above its rates."""
-    from ..machine.limits import check_program
-    from ..machine.planner import run_time
-    from ..machine.profile import machine_from_spec
-
-    machine = machine_from_spec(spec, getattr(args, "machine", None))
-    if machine is None:
-        return None, None, None
-    run = run_time(text, machine, program, raster_axis=0 if spec.machining.direction == "x" else 1)
-    mcheck = check_program(program, text, machine, run)
-    mcheck.raise_if_refused(machine.source)
-    for w in mcheck.warnings:
+def _machine_verdict(job) -> None:
+    """Refuse (SpecError, exit 2, nothing written) travel, spindle or tool change beyond
+    the machine; warn of feeds above its rates."""
+    if job.machine_check is None:
+        return
+    job.machine_check.raise_if_refused(job.machine.source)
+    for w in job.machine_check.warnings:
         warn(w)
-    return machine, run, mcheck
 
 
-def verified_cut(spec, surface, toolpath, profile, text, program):
-    """Verify the program read back from ``text``; where the cut leaves more than
-    scallop + tolerance (and nothing else is wrong), add passes there and verify again
-    (at most REPAIR_ROUNDS times, kept only if it leaves less). Returns (toolpath, text,
-    program, check) of the program to write."""
-    from ..toolpath.gcode import write_program
-    from ..toolpath.raster import add_passes, scallop_normal
-    from ..toolpath.verify import read_program, verify_cut
+def _finish(args, job, out, paths, total) -> int:
+    """Write the program and its setup sheet (atomically, all or nothing), report."""
+    from ..toolpath.setup import sheet_json, sheet_markdown
 
-    m = spec.machining
-    cache = {}
-
-    def verify(program):
-        return verify_cut(surface, program, spec.tool.diameter / 2.0, m.verify_points,
-                          depth_limit=spec.stock.depth_limit, reach=spec.tool.reach,
-                          unreachable_min=m.tolerance, normal=scallop_normal(spec),
-                          over=m.scallop + m.tolerance, cache=cache)
-
-    check = verify(program)
-    for _ in range(REPAIR_ROUNDS):
-        bad = failures(check, spec)
-        if not bad or not all(b.startswith("material left") for b in bad):
-            break
-        over = check["over_at"]
-        tp2 = add_passes(spec, surface, toolpath, over[:, 1] if m.direction == "x" else over[:, 0])
-        if tp2 is None:
-            break
-        text2 = write_program(tp2, profile)
-        program2 = read_program(text2)
-        check2 = verify(program2)
-        if check2["max_material_left"] >= check["max_material_left"] or \
-                check2["max_gouge"] > max(check["max_gouge"], m.tolerance):
-            break
-        toolpath, text, program, check = tp2, text2, program2, check2
-    return toolpath, text, program, check
-
-
-def _finish(args, spec, surface, toolpath, profile, text, out, paths, R, t_plan, t_write, total, step) -> int:
-    """Read the program back, verify it, write the program and its setup sheet, report."""
-    from ..toolpath.setup import preview_png, setup_sheet, sheet_json, sheet_markdown
-    from ..toolpath.verify import estimate_time, read_program
-
+    _machine_verdict(job)          # refuses before anything is written
     t = Timer()
-    program = read_program(text)
-    check = None
-    if not args.no_verify:
-        step("verifying the cut")
-        toolpath, text, program, check = verified_cut(spec, surface, toolpath, profile, text, program)
-    est = estimate_time(program, profile.rapid)
-    t_verify = t.seconds
-    machine, run, mcheck = machine_run(args, spec, program, text)    # refuses before anything is written
-
-    step("setup sheet")
-    t = Timer()
-    lines = text.count("\n")
+    toolpath, text, profile, sheet, run, mcheck = (job.toolpath, job.text, job.profile, job.sheet, job.run,
+                                                    job.machine_check)
+    check = job.cut.as_dict() if job.cut is not None else None
+    est, lines = job.estimate_s, job.lines
+    t_plan, t_write, t_verify = job.timings["plan"], job.timings["write"], job.timings["verify"]
     timings = {"plan": t_plan, "write": t_write, "verify": t_verify}
-    sheet = setup_sheet(spec, surface, toolpath, profile, out, check, est, lines, timings=timings,
-                        generated_at=_generated_at(), program=program, machine=machine, run=run,
-                        machine_check=mcheck)
-    L, W = surface.stock_size_mm
-    png = preview_png(program, L, W, profile.units)
+    png = job.preview_png()
     md = sheet_markdown(sheet, paths["png"].name)
     with atomic_outputs() as files:
         files.write(out, text)
         files.write(paths["json"], sheet_json(sheet))
         files.write(paths["md"], md)
         files.write(paths["png"], png)
-    t_sheet = t.seconds
+    t_sheet = job.timings["sheet"] + t.seconds
 
-    bad = failures(check, spec) if check else []
+    bad = job.failures
     un = check.get("unreachable") if check else None
     if un:
         x, y = un["at"]
@@ -230,7 +132,6 @@ def _finish(args, spec, surface, toolpath, profile, text, out, paths, R, t_plan,
         payload["deepest_cut_mm"] = check["deepest_cut"]
         payload["rapids_checked"] = check["rapids_checked"]
     emit(summary, payload, args.json)
-    if bad:
-        raise DesignError("verification failed: " + "; ".join(bad) +
-                          f" (outputs written to {out} and its setup sheet for inspection)")
+    if not job.ok:
+        raise DesignError(job.message + f" (outputs written to {out} and its setup sheet for inspection)")
     return 0

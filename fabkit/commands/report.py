@@ -19,38 +19,14 @@ SURFACE_SAMPLES = (90, 46)   # the 3-D view's grid (x, y)
 
 
 def _toolpath(spec, surface, machine=None):
-    from ..toolpath.gcode import profile_from_spec, write_program
-    from ..toolpath.raster import plan_toolpath
-    from ..toolpath.setup import preview_png, setup_sheet
-    from ..toolpath.verify import estimate_time, read_program
-    from .gcode import _generated_at, verified_cut
+    """The toolpath job (as ``fabkit gcode``'s: the same verification and added passes); the
+    machine's run time and checks are shown in the sheet, not refused."""
+    from ..toolpath.job import run_job
 
-    t = Timer()
-    tp = plan_toolpath(spec, surface)
-    t_plan = t.seconds
-    t = Timer()
-    prof = profile_from_spec(spec, surface)
-    text = write_program(tp, prof)
-    program = read_program(text)
-    t_write = t.seconds
-    t = Timer()
-    tp, text, program, ver = verified_cut(spec, surface, tp, prof, text, program)   # as gcode's
-    est = estimate_time(program, prof.rapid)
-    t_verify = t.seconds
-    timings = {"plan": t_plan, "write": t_write, "verify": t_verify}
-    run = mcheck = None
-    if machine is not None:     # the machine's run time and checks, shown (not refused) in the sheet
-        from ..machine.limits import check_program
-        from ..machine.planner import run_time
-
-        run = run_time(text, machine, program, raster_axis=0 if spec.machining.direction == "x" else 1)
-        mcheck = check_program(program, text, machine, run)
-    sheet = setup_sheet(spec, surface, tp, prof, f"{spec.name}.ngc", ver, est, text.count("\n"),
-                        timings=timings, generated_at=_generated_at(), program=program, machine=machine,
-                        run=run, machine_check=mcheck)
-    L, W = surface.stock_size_mm
-    png = preview_png(program, L, W, prof.units)
-    return {"png": png, "sheet": sheet, "seconds": timings,
+    job = run_job(spec, surface, machine=machine)
+    ver = job.cut.to_json()
+    return {"png": job.preview_png(), "sheet": job.sheet,
+            "seconds": {k: job.timings[k] for k in ("plan", "write", "verify")},
             "verify": {k: ver[k] for k in ("max_gouge", "max_material_left", "checked_points") if k in ver}}
 
 
@@ -65,7 +41,7 @@ def run(args) -> int:
     from ..plots import sweep_figure
     from ..report import render
     from ..surface import Surface, check_depth
-    from .gcode import _generated_at
+    from ..toolpath.job import generated_at as _generated_at
 
     total = Timer()
     spec = load_spec(args.spec, need=NEEDS, command="report")

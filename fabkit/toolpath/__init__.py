@@ -6,4 +6,6 @@
     gcode.py        pure G-code writer (dialects as data)
     verify.py       read a program back, sweep the ball, measure gouge and material left
     setup.py        the setup sheet (JSON + Markdown)
+    job.py          the whole job once (plan, write, read back, verify, add passes, estimate,
+                    sheet): run_job -> JobResult with its verdict; gcode, report, precision call it
 """
