@@ -1,0 +1,352 @@
+"""From a video of the block to the ball's calibrated trajectory.
+
+The stages, each a function or a small class a test can call:
+
+1. :func:`sample` - a sample of grey frames spread over the video (its key frames
+   when there are enough, else every k-th frame of a full decode);
+2. :func:`find_markers` - ArUco markers 0-3 in the sample, each corner the median
+   over the frames it was found in (the camera stands still);
+3. the camera: :func:`fabkit.lab.camera.calibrate`;
+4. :class:`BallFinder` - the background (the sample's median: the ball moves) and,
+   per frame, the ball: the difference from the background, its peak at the ball's
+   scale on a 4x smaller image, then the disc at full resolution: pixels weighted by
+   their share of the contrast (clip(|d| / c, 0, 1): a pixel the ball's edge half
+   covers counts half), holes (a specular highlight) filled; the weighted centroid is
+   the centre, to a fraction of a pixel. Motion blur smears the disc along the path
+   symmetrically, so the centroid is the centre at mid-exposure. Its standard
+   deviation follows from the background's noise. A frame where no disc of the
+   ball's size stands out is a gap;
+5. :func:`fabkit.lab.camera.ball_centres` - each centre's ray met with the
+   ball-centre offset surface;
+6. :class:`VideoTrack` - the result: times from the presentation timestamps, the
+   centre's x, y in design units and their standard deviations, with its verdict.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import SpecError
+from . import camera as cam_mod
+from . import video
+
+SAMPLE_FRAMES = 24          # frames of the sample (background, markers)
+MIN_KEYFRAMES = 9           # fewer key frames than this: sample a full decode instead
+DOWN = 4                    # the coarse search's reduction
+MIN_CONTRAST = 12.0         # grey levels: a ball that differs less from the surface is not found
+AREA_RANGE = (0.35, 4.0)    # the disc's area against pi r^2 (blur lengthens it)
+SIGMA_FLOOR_PX = 0.03       # the centre's standard deviation is at least this (the model's own limit)
+
+
+@dataclass
+class Sample:
+    """Grey frames (k, h, w) uint8 spread over the video, and its size."""
+
+    frames: np.ndarray
+    width: int
+    height: int
+
+
+def sample(path, n: int = SAMPLE_FRAMES) -> Sample:
+    """A sample of up to ``n`` grey frames spread over the video (see the module doc)."""
+    keys = [g.copy() for _, g in video.frames(path, keyframes_only=True)]
+    if len(keys) >= MIN_KEYFRAMES:
+        idx = np.unique(np.linspace(0, len(keys) - 1, min(n, len(keys))).round().astype(int))
+        frames = [keys[i] for i in idx]
+    else:   # every frame decoded; the stride doubles whenever 2n are kept
+        frames, stride = [], 1
+        for i, (_, g) in enumerate(video.frames(path)):
+            if i % stride == 0:
+                frames.append(g.copy())
+                if len(frames) >= 2 * n:
+                    frames, stride = frames[::2], 2 * stride
+    if not frames:
+        raise SpecError("no frames could be decoded", file=str(path))
+    a = np.stack(frames)
+    return Sample(a, a.shape[2], a.shape[1])
+
+
+def _detector():
+    import cv2
+
+    d = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, cam_mod.DICTIONARY))
+    p = cv2.aruco.DetectorParameters()
+    p.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
+    p.cornerRefinementWinSize = 3
+    p.cornerRefinementMinAccuracy = 0.01
+    p.cornerRefinementMaxIterations = 60
+    p.minMarkerPerimeterRate = 0.01
+    return cv2.aruco.ArucoDetector(d, p)
+
+
+def find_markers(frames: np.ndarray, path: str = "<video>") -> dict:
+    """id -> (4, 2) px: each of markers 0-3's corners, the median over the frames of the
+    sample where it was found. SpecError naming the file when one is never found."""
+    det = _detector()
+    found: dict[int, list] = {i: [] for i in cam_mod.MARKER_IDS}
+    for g in frames:
+        corners, ids, _ = det.detectMarkers(np.ascontiguousarray(g))
+        if ids is None:
+            continue
+        for c, i in zip(corners, ids.ravel()):
+            if int(i) in found:
+                found[int(i)].append(np.asarray(c, dtype=float).reshape(4, 2))
+    missing = [i for i, v in found.items() if not v]
+    if missing:
+        which = ", ".join(str(i) for i in missing)
+        raise SpecError(f"ArUco marker{'s' if len(missing) > 1 else ''} {which} (DICT_4X4_50) not found in "
+                        f"{len(frames)} sampled frames: print them with `fabkit markers` and keep all four "
+                        "in view", file=str(path))
+    return {i: np.median(np.stack(v), axis=0) for i, v in found.items()}
+
+
+@dataclass
+class Ball:
+    """One frame's ball: its centre (u, v) px and standard deviations, the disc's area
+    px^2 and its contrast (grey levels)."""
+
+    u: float
+    v: float
+    su: float
+    sv: float
+    area: float
+    contrast: float
+
+
+class BallFinder:
+    """Finds the ball frame by frame against a background (see the module doc).
+
+    ``background`` (h, w) uint8; ``radius_px`` the ball's expected radius in px;
+    ``noise`` the background's noise, grey levels (1 sigma)."""
+
+    def __init__(self, background: np.ndarray, radius_px: float, noise: float, exclude=None):
+        import cv2
+
+        self.cv2 = cv2
+        self.bg = np.ascontiguousarray(background)
+        self.r = float(radius_px)
+        self.noise = max(float(noise), 0.5)
+        h, w = background.shape
+        self.small_size = (max(1, w // DOWN), max(1, h // DOWN))
+        k = max(1, int(round(self.r * 1.2 / DOWN)))
+        self.k = k | 1
+        self.exclude = None
+        if exclude is not None:       # (h, w) bool: pixels never searched (the markers' paper)
+            ex = cv2.resize(exclude.astype(np.uint8), self.small_size, interpolation=cv2.INTER_NEAREST)
+            self.exclude = ex.astype(bool)
+        self.half = int(math.ceil(2.5 * self.r)) + 2
+        self.threshold = max(MIN_CONTRAST, 6.0 * self.noise)
+        self.contrast = None          # the ball's typical contrast, learned from the frames found
+
+    def find(self, grey: np.ndarray, hint=None) -> Ball | None:
+        cv2 = self.cv2
+        d = cv2.absdiff(grey, self.bg)
+        small = cv2.resize(d, self.small_size, interpolation=cv2.INTER_AREA)
+        small = cv2.blur(small, (self.k, self.k))
+        if self.exclude is not None:
+            small[self.exclude] = 0
+        _, peak, _, loc = cv2.minMaxLoc(small)
+        if peak < 0.5 * self.threshold:
+            return None
+        u0, v0 = (loc[0] + 0.5) * DOWN - 0.5, (loc[1] + 0.5) * DOWN - 0.5
+        return self._refine(d, u0, v0, blur_extra=0)
+
+    def _refine(self, d: np.ndarray, u0: float, v0: float, blur_extra: int) -> Ball | None:
+        cv2 = self.cv2
+        h, w = d.shape
+        half = self.half + blur_extra
+        a0, a1 = max(0, int(u0) - half), min(w, int(u0) + half + 1)
+        b0, b1 = max(0, int(v0) - half), min(h, int(v0) + half + 1)
+        roi = d[b0:b1, a0:a1].astype(np.float32)
+        if roi.size == 0:
+            return None
+        mask = (roi > self.threshold).astype(np.uint8)
+        n, lab, stats, cent = cv2.connectedComponentsWithStats(mask, connectivity=8)
+        if n < 2:
+            return None
+        # the component nearest the peak, among the large ones
+        du = cent[1:, 0] + a0 - u0
+        dv = cent[1:, 1] + b0 - v0
+        score = stats[1:, cv2.CC_STAT_AREA] / (1.0 + (du * du + dv * dv) / (self.r * self.r))
+        j = 1 + int(np.argmax(score))
+        comp = (lab == j).astype(np.uint8)
+        # fill holes (a highlight inside the disc): the background reachable from the border
+        inv = 1 - comp
+        ff = np.zeros((comp.shape[0] + 2, comp.shape[1] + 2), np.uint8)
+        filled = comp.copy()
+        outside = inv.copy()
+        for y, x in ((0, 0), (0, comp.shape[1] - 1), (comp.shape[0] - 1, 0), (comp.shape[0] - 1, comp.shape[1] - 1)):
+            if outside[y, x] == 1:
+                cv2.floodFill(outside, ff, (x, y), 2)
+        filled[outside == 1] = 1              # holes: not reached from the border
+        area = float(filled.sum())
+        ra = math.pi * self.r * self.r
+        if not AREA_RANGE[0] * ra <= area <= AREA_RANGE[1] * ra:
+            return None
+        if filled[0, :].any() or filled[-1, :].any() or filled[:, 0].any() or filled[:, -1].any():
+            if blur_extra == 0 and (a0 > 0 and b0 > 0 and a1 < w and b1 < h):
+                ys, xs = np.nonzero(filled)      # a long blur: look again with a larger window
+                return self._refine(d, xs.mean() + a0, ys.mean() + b0, blur_extra=self.half)
+            return None
+        core = cv2.erode(filled, np.ones((3, 3), np.uint8))
+        c = float(np.median(roi[core == 1])) if core.any() else float(np.median(roi[filled == 1]))
+        if c < self.threshold:
+            return None
+        band = cv2.dilate(filled, np.ones((5, 5), np.uint8))
+        wgt = np.clip(roi / c, 0.0, 1.0)
+        wgt[(filled == 1) & (comp == 0)] = 1.0            # a highlight inside the disc
+        wgt[band == 0] = 0.0
+        wgt[(filled == 0) & (roi <= 2.0 * self.noise)] = 0.0
+        s = float(wgt.sum())
+        ys, xs = np.mgrid[b0:b1, a0:a1]
+        u = float((wgt * xs).sum() / s)
+        v = float((wgt * ys).sum() / s)
+        edge = (band == 1) & (core == 0)
+        sw = self.noise / c
+        su = math.sqrt(float(((xs[edge] - u) ** 2).sum())) * sw / s
+        sv = math.sqrt(float(((ys[edge] - v) ** 2).sum())) * sw / s
+        return Ball(u, v, max(su, SIGMA_FLOOR_PX), max(sv, SIGMA_FLOOR_PX), area, c)
+
+
+def background(frames: np.ndarray) -> tuple[np.ndarray, float]:
+    """The per-pixel median of the sample (uint8) and the noise about it (grey levels,
+    1 sigma, from the median absolute deviation)."""
+    bg = np.median(frames, axis=0).astype(np.uint8)
+    dev = np.abs(frames.astype(np.int16) - bg.astype(np.int16))
+    noise = 1.4826 * float(np.median(dev)) if dev.size else 1.0
+    return bg, max(noise, 0.5)
+
+
+@dataclass
+class VideoTrack:
+    """One video tracked: per frame t (s), the centre in px (nan: a gap), the ball's
+    centre x, y in design units and their standard deviations (nan: a gap)."""
+
+    path: str
+    t: np.ndarray
+    uv: np.ndarray
+    xy: np.ndarray
+    sigma: np.ndarray
+    calibration: cam_mod.Calibration
+    radius_px: float
+    units: str
+    notes: list = field(default_factory=list)
+
+    @property
+    def frames(self) -> int:
+        return int(len(self.t))
+
+    @property
+    def tracked(self) -> np.ndarray:
+        return np.all(np.isfinite(self.xy), axis=1)
+
+    @property
+    def fraction(self) -> float:
+        return float(self.tracked.mean()) if len(self.t) else 0.0
+
+    @property
+    def ok(self) -> bool:
+        return bool(self.tracked.any())
+
+    def to_json(self) -> dict:
+        k = self.tracked
+        sig = np.hypot(self.sigma[k, 0], self.sigma[k, 1]) if k.any() else np.array([np.nan])
+        dt = np.diff(self.t)
+        return {"file": self.path, "frames": self.frames, "tracked": int(k.sum()), "fraction_tracked": self.fraction,
+                "duration_s": float(self.t[-1] - self.t[0]) if len(self.t) > 1 else 0.0,
+                "frame_rate": float(1.0 / np.median(dt)) if dt.size else None,
+                "variable_frame_rate": bool(dt.size and (dt.max() - dt.min()) > 1e-3 * np.median(dt)),
+                "reprojection_rms_px": self.calibration.rms_px, "reprojection_max_px": self.calibration.max_px,
+                "reprojection_rms_mm": self.calibration.rms_mm,
+                "position_sigma_median": float(np.median(sig)), "position_sigma_max": float(np.max(sig)),
+                "position_units": self.units, "ball_radius_px": self.radius_px,
+                "camera": self.calibration.to_json(), "notes": self.notes + self.calibration.notes}
+
+    def csv_text(self) -> str:
+        """The track as ``t,x,y,sigma_x,sigma_y`` (s and design units); a gap keeps its time
+        with the other cells blank, which fabkit's track reader skips."""
+        out = ["t,x,y,sigma_x,sigma_y"]
+        for t, (x, y), (sx, sy) in zip(self.t, self.xy, self.sigma):
+            if math.isfinite(x) and math.isfinite(y):
+                out.append(f"{t:.7f},{x:.6f},{y:.6f},{sx:.3g},{sy:.3g}")
+            else:
+                out.append(f"{t:.7f},,,,")
+        return "\n".join(out) + "\n"
+
+
+def marker_mask(camera: cam_mod.Camera, layout: cam_mod.MarkerLayout, shape) -> np.ndarray:
+    """(h, w) bool: the image of each marker's paper (the square and its quiet zone, plus
+    a module more)."""
+    import cv2
+
+    m = np.zeros(shape, np.uint8)
+    pad = layout.size / 2 + 2 * layout.module
+    for c in layout.centres:
+        sq = np.array([[c[0] - pad, c[1] - pad, 0], [c[0] + pad, c[1] - pad, 0], [c[0] + pad, c[1] + pad, 0],
+                       [c[0] - pad, c[1] + pad, 0]])
+        cv2.fillConvexPoly(m, np.round(camera.project(sq)).astype(np.int32), 1)
+    return m.astype(bool)
+
+
+def track_video(spec, surface, path, progress=None) -> VideoTrack:
+    """Track the ball in one video (see the module doc). ``progress(done)`` is called
+    every few frames. SpecError (exit 2) naming the file: not a video, markers not
+    found, or the ball never found."""
+    info = video.info(path)
+    smp = sample(path)
+    corners = find_markers(smp.frames, str(path))
+    layout = cam_mod.marker_layout(spec, surface)
+    matched = cam_mod.match_corners(corners, layout)
+    height = spec.lab.camera_height if spec.has("lab") else None
+    calib = cam_mod.calibrate(matched, layout, (smp.width, smp.height), height)
+    cam = calib.camera
+    radius = float(spec.ball.diameter) / 2.0                      # design units
+    r_mm = radius * surface.scale
+    # the ball's radius in px where it is seen: about the footprint's middle, half the depth down
+    mid = np.array([[surface.length * surface.scale / 2, surface.width * surface.scale / 2, r_mm]])
+    dist = float(np.linalg.norm(mid[0] - cam.centre))
+    radius_px = cam.f * r_mm / dist
+    bg, noise = background(smp.frames)
+    finder = BallFinder(bg, radius_px, noise, exclude=marker_mask(cam, layout, bg.shape))
+    ts, uvs, sig = [], [], []
+    for i, (t, g) in enumerate(video.frames(path)):
+        b = finder.find(g)
+        ts.append(t)
+        if b is None:
+            uvs.append((math.nan, math.nan))
+            sig.append((math.nan, math.nan))
+        else:
+            uvs.append((b.u, b.v))
+            sig.append((b.su, b.sv))
+        if progress is not None and i % 16 == 0:
+            progress(i)
+    if not ts:
+        raise SpecError("no frames could be decoded", file=str(path))
+    t = np.asarray(ts)
+    uv = np.asarray(uvs, dtype=float)
+    su = np.asarray(sig, dtype=float)
+    ok = np.all(np.isfinite(uv), axis=1)
+    if not ok.any():
+        raise SpecError(f"the ball was not found in any of {len(t)} frames (a disc of about {radius_px:.0f} px "
+                        "radius, darker or lighter than the surface)", file=str(path))
+    xy = np.full((len(t), 2), np.nan)
+    sxy = np.full((len(t), 2), np.nan)
+    idx = np.flatnonzero(ok)
+    C = cam_mod.ball_centres(cam, surface, radius, uv[idx])
+    # the centre's standard deviation in design units: the Jacobian of the map px -> centre
+    Cu = cam_mod.ball_centres(cam, surface, radius, uv[idx] + [0.5, 0.0])
+    Cv = cam_mod.ball_centres(cam, surface, radius, uv[idx] + [0.0, 0.5])
+    Ju = (Cu[:, :2] - C[:, :2]) / 0.5
+    Jv = (Cv[:, :2] - C[:, :2]) / 0.5
+    xy[idx] = C[:, :2]
+    sxy[idx] = np.sqrt((Ju * su[idx, 0:1]) ** 2 + (Jv * su[idx, 1:2]) ** 2)
+    lost = ~np.all(np.isfinite(xy), axis=1)
+    uv[lost] = np.nan
+    notes = []
+    if info.width != smp.width or info.height != smp.height:  # pragma: no cover (a container's odd header)
+        notes.append(f"the container says {info.width}x{info.height}, the frames are {smp.width}x{smp.height}")
+    return VideoTrack(path=str(path), t=t, uv=uv, xy=xy, sigma=sxy, calibration=calib, radius_px=radius_px,
+                      units=spec.units, notes=notes)
