@@ -43,6 +43,7 @@ MODULES = 6                  # a 4x4 ArUco marker: 4 data modules and a black bo
 EDGE_GAP_MM = 5.0            # default: the black square this far from the two nearest block edges
 HEIGHT_SIGMA_MM = 10.0       # lab.camera_height: a tape measure, good to about 1 cm
 CORNER_SIGMA_PX = 0.2        # the weight of a corner in the fit (px); reported errors are measured
+FLAT_MM = 0.05               # a marker's paper may lie over a cut this shallow (mm)
 K1_SIGMA = 0.2               # a weak prior: the lenses meant here have |k1| well below 0.1
 
 
@@ -88,6 +89,19 @@ def marker_layout(spec, surface) -> MarkerLayout:
             raise SpecError(f"marker {i} at [{x:g}, {y:g}] ({size:g} mm square) does not lie on the "
                             f"block's top face [0, {L:g}] x [0, {W:g}] work mm", file=spec.path,
                             key="lab.markers" if lab is not None and lab.markers is not None else "lab.marker_size")
+    key = "lab.markers" if lab is not None and lab.markers is not None else "lab.markers (default placement)"
+    # the paper (the square and its quiet zone) must lie flat on the top face, not over the cut
+    q = size / 2.0 + size / MODULES
+    g = np.linspace(-q, q, 13)
+    for i, (x, y) in enumerate(centres):
+        X, Y = np.meshgrid(np.clip(x + g, 0, L), np.clip(y + g, 0, W))
+        xs, ys = surface.from_work(X, Y)
+        cut = (surface.top - surface.height(xs, ys)) * surface.scale > FLAT_MM
+        if np.any(cut):
+            j = np.argmax(cut.ravel())
+            raise SpecError(f"marker {i} at [{x:g}, {y:g}] work mm would lie over the milled surface (at "
+                            f"[{X.ravel()[j]:.4g}, {Y.ravel()[j]:.4g}] the surface is below the top face): "
+                            "give its centre on the flat top face in lab.markers", file=spec.path, key=key)
     d = np.hypot(*(centres[:, None, :] - centres[None, :, :]).transpose(2, 0, 1))
     np.fill_diagonal(d, np.inf)
     if d.min() < size * math.sqrt(2):
@@ -205,6 +219,7 @@ class Calibration:
     height_sigma_mm: float
     height_prior: float | None
     corners_px: np.ndarray = field(repr=False)
+    layout_corners: np.ndarray = field(repr=False, default=None)     # (4, 4, 3) work mm
     notes: list = field(default_factory=list)
 
     def to_json(self) -> dict:
@@ -331,7 +346,8 @@ def calibrate(corners_px: np.ndarray, layout: MarkerLayout, size: tuple[int, int
                      f"from lab.camera_height {camera_height:g} mm")
     return Calibration(camera=cam, rms_px=float(np.sqrt(np.mean(e * e))), max_px=float(e.max()),
                        rms_mm=float(np.sqrt(np.mean(e_mm * e_mm))), height_sigma_mm=hs,
-                       height_prior=camera_height, corners_px=np.asarray(corners_px, dtype=float), notes=notes)
+                       height_prior=camera_height, corners_px=np.asarray(corners_px, dtype=float),
+                       layout_corners=layout.corners(), notes=notes)
 
 
 # ----------------------------------------------------------------------------

@@ -82,12 +82,73 @@ def _detector():
     return cv2.aruco.ArucoDetector(d, p)
 
 
-def find_markers(frames: np.ndarray, path: str = "<video>") -> dict:
-    """id -> (4, 2) px: each of markers 0-3's corners, the median over the frames of the
-    sample where it was found. SpecError naming the file when one is never found."""
+def refine_square(img: np.ndarray, corners: np.ndarray) -> np.ndarray:
+    """A marker's 4 corners (4, 2) px refined on ``img``: each side of the black square is
+    a straight line through the sub-pixel points where the grey crosses halfway from the
+    square's black to the quiet zone's white (profiles across the side, its middle 70 %),
+    and each corner is where two sides meet. ``corners`` come back unchanged when a side
+    cannot be measured."""
+    import cv2
+
+    c = np.asarray(corners, dtype=float)
+    side = float(np.mean(np.linalg.norm(c - np.roll(c, -1, axis=0), axis=1)))
+    if side < 8:
+        return c
+    centre = c.mean(axis=0)
+    reach = max(2.0, side / 6.0)                 # one module: into the black and out into the quiet zone
+    img32 = img.astype(np.float32)
+    lines = []
+    for k in range(4):
+        a, b = c[k], c[(k + 1) % 4]
+        t = (b - a) / np.linalg.norm(b - a)
+        n = np.array([-t[1], t[0]])
+        if np.dot(n, centre - (a + b) / 2) > 0:
+            n = -n                                # the outward normal
+        m = max(8, int(side))
+        s = np.linspace(0.15, 0.85, m)
+        base = a[None, :] + s[:, None] * (b - a)[None, :]
+        off = np.linspace(-reach, reach, int(4 * reach) + 1)
+        pts = base[:, None, :] + off[None, :, None] * n[None, None, :]
+        prof = cv2.remap(img32, pts[..., 0].astype(np.float32), pts[..., 1].astype(np.float32),
+                         cv2.INTER_LINEAR)
+        lo, hi = np.median(prof[:, :3]), np.median(prof[:, -3:])
+        if not hi - lo > 20:
+            return c
+        half = 0.5 * (lo + hi)
+        found = []
+        for row, p0 in zip(prof, base):
+            j = np.flatnonzero((row[:-1] < half) & (row[1:] >= half))
+            if j.size != 1:
+                continue
+            j = int(j[0])
+            f = (half - row[j]) / (row[j + 1] - row[j])
+            found.append(p0 + (off[j] + f * (off[1] - off[0])) * n)
+        if len(found) < 5:
+            return c
+        P = np.asarray(found)
+        mu = P.mean(axis=0)
+        _, _, vt = np.linalg.svd(P - mu)
+        d = vt[0]
+        lines.append((mu, d))
+    out = np.empty((4, 2))
+    for k in range(4):
+        (p1, d1), (p2, d2) = lines[(k - 1) % 4], lines[k]
+        A = np.array([d1, -d2]).T
+        st = np.linalg.solve(A, p2 - p1)
+        out[k] = p1 + st[0] * d1
+    if np.max(np.linalg.norm(out - c, axis=1)) > 0.25 * side:
+        return c
+    return out
+
+
+def find_markers(frames: np.ndarray, path: str = "<video>", image: np.ndarray | None = None) -> dict:
+    """id -> (4, 2) px: markers 0-3's corners, found by OpenCV's ArUco detector in the
+    sample's frames (the median over the frames) and refined on ``image`` (the sample's
+    median image, its noise averaged out) by :func:`refine_square`. SpecError naming
+    the file when one is never found."""
     det = _detector()
     found: dict[int, list] = {i: [] for i in cam_mod.MARKER_IDS}
-    for g in frames:
+    for g in ([image] if image is not None else []) + list(frames):
         corners, ids, _ = det.detectMarkers(np.ascontiguousarray(g))
         if ids is None:
             continue
@@ -100,7 +161,10 @@ def find_markers(frames: np.ndarray, path: str = "<video>") -> dict:
         raise SpecError(f"ArUco marker{'s' if len(missing) > 1 else ''} {which} (DICT_4X4_50) not found in "
                         f"{len(frames)} sampled frames: print them with `fabkit markers` and keep all four "
                         "in view", file=str(path))
-    return {i: np.median(np.stack(v), axis=0) for i, v in found.items()}
+    out = {i: np.median(np.stack(v), axis=0) for i, v in found.items()}
+    if image is not None:
+        out = {i: refine_square(image, c) for i, c in out.items()}
+    return out
 
 
 @dataclass
@@ -152,9 +216,9 @@ class BallFinder:
         if peak < 0.5 * self.threshold:
             return None
         u0, v0 = (loc[0] + 0.5) * DOWN - 0.5, (loc[1] + 0.5) * DOWN - 0.5
-        return self._refine(d, u0, v0, blur_extra=0)
+        return self._refine(d, grey, u0, v0, blur_extra=0)
 
-    def _refine(self, d: np.ndarray, u0: float, v0: float, blur_extra: int) -> Ball | None:
+    def _refine(self, d: np.ndarray, grey: np.ndarray, u0: float, v0: float, blur_extra: int) -> Ball | None:
         cv2 = self.cv2
         h, w = d.shape
         half = self.half + blur_extra
@@ -189,15 +253,36 @@ class BallFinder:
         if filled[0, :].any() or filled[-1, :].any() or filled[:, 0].any() or filled[:, -1].any():
             if blur_extra == 0 and (a0 > 0 and b0 > 0 and a1 < w and b1 < h):
                 ys, xs = np.nonzero(filled)      # a long blur: look again with a larger window
-                return self._refine(d, xs.mean() + a0, ys.mean() + b0, blur_extra=self.half)
+                return self._refine(d, grey, xs.mean() + a0, ys.mean() + b0, blur_extra=self.half)
             return None
         core = cv2.erode(filled, np.ones((3, 3), np.uint8))
         c = float(np.median(roi[core == 1])) if core.any() else float(np.median(roi[filled == 1]))
         if c < self.threshold:
             return None
         band = cv2.dilate(filled, np.ones((5, 5), np.uint8))
-        wgt = np.clip(roi / c, 0.0, 1.0)
-        wgt[(filled == 1) & (comp == 0)] = 1.0            # a highlight inside the disc
+        inner = cv2.erode(filled, np.ones((5, 5), np.uint8))
+        # each rim pixel's share of the ball: g = a b + (1 - a) bg, with b the ball's own grey
+        # nearby (the inner disc's grey spread outward: the ball is shaded too)
+        g = grey[b0:b1, a0:a1].astype(np.float32)
+        gb = self.bg[b0:b1, a0:a1].astype(np.float32)
+        src = inner if inner.sum() >= 6 else core
+        k = max(3, int(round(0.6 * self.r)) | 1)
+        num = cv2.blur(g * src, (k, k))
+        den = cv2.blur(src.astype(np.float32), (k, k))
+        for _ in range(3):                       # spread the ball's grey outward to the rim
+            grow = den > 1e-6
+            bmap = np.where(grow, num / np.maximum(den, 1e-6), 0.0).astype(np.float32)
+            if grow[band == 1].all():
+                break
+            num = cv2.blur(bmap * grow, (k, k))
+            den = cv2.blur(grow.astype(np.float32), (k, k))
+        contrast = bmap - gb
+        sure = np.abs(contrast) > 4.0 * self.noise
+        with np.errstate(all="ignore"):
+            alpha = np.clip((g - gb) / np.where(sure, contrast, 1.0), 0.0, 1.0)
+        wgt = np.where(sure, alpha, np.clip(roi / c, 0.0, 1.0)).astype(np.float32)
+        wgt[inner == 1] = 1.0                     # inside: all ball (a highlight too)
+        wgt[(filled == 1) & (comp == 0)] = 1.0
         wgt[band == 0] = 0.0
         wgt[(filled == 0) & (roi <= 2.0 * self.noise)] = 0.0
         s = float(wgt.sum())
@@ -234,6 +319,8 @@ class VideoTrack:
     radius_px: float
     units: str
     notes: list = field(default_factory=list)
+    snapshot: np.ndarray | None = field(default=None, repr=False)    # a grey frame with the ball, for figures
+    corners_px: dict = field(default_factory=dict, repr=False)      # id -> (4, 2) px as found
 
     @property
     def frames(self) -> int:
@@ -296,8 +383,20 @@ def track_video(spec, surface, path, progress=None) -> VideoTrack:
     every few frames. SpecError (exit 2) naming the file: not a video, markers not
     found, or the ball never found."""
     info = video.info(path)
+    try:
+        return _track(spec, surface, path, info, progress)
+    except SpecError as exc:
+        if exc.file is None or exc.file == str(path):
+            raise exc.with_location(file=str(path)) from None
+        raise
+
+
+def _track(spec, surface, path, info, progress) -> VideoTrack:
     smp = sample(path)
-    corners = find_markers(smp.frames, str(path))
+    if len(smp.frames) < 2:
+        raise SpecError("a single frame (a still image), not a video", file=str(path))
+    bg, noise = background(smp.frames)
+    corners = find_markers(smp.frames, str(path), image=bg)
     layout = cam_mod.marker_layout(spec, surface)
     matched = cam_mod.match_corners(corners, layout)
     height = spec.lab.camera_height if spec.has("lab") else None
@@ -309,12 +408,14 @@ def track_video(spec, surface, path, progress=None) -> VideoTrack:
     mid = np.array([[surface.length * surface.scale / 2, surface.width * surface.scale / 2, r_mm]])
     dist = float(np.linalg.norm(mid[0] - cam.centre))
     radius_px = cam.f * r_mm / dist
-    bg, noise = background(smp.frames)
     finder = BallFinder(bg, radius_px, noise, exclude=marker_mask(cam, layout, bg.shape))
     ts, uvs, sig = [], [], []
+    snapshot, want = None, max(0, info.frames // 2)
     for i, (t, g) in enumerate(video.frames(path)):
         b = finder.find(g)
         ts.append(t)
+        if b is not None and (snapshot is None or i <= want):
+            snapshot = g.copy()
         if b is None:
             uvs.append((math.nan, math.nan))
             sig.append((math.nan, math.nan))
@@ -349,4 +450,4 @@ def track_video(spec, surface, path, progress=None) -> VideoTrack:
     if info.width != smp.width or info.height != smp.height:  # pragma: no cover (a container's odd header)
         notes.append(f"the container says {info.width}x{info.height}, the frames are {smp.width}x{smp.height}")
     return VideoTrack(path=str(path), t=t, uv=uv, xy=xy, sigma=sxy, calibration=calib, radius_px=radius_px,
-                      units=spec.units, notes=notes)
+                      units=spec.units, notes=notes, snapshot=snapshot, corners_px=corners)
