@@ -80,11 +80,13 @@ def centre_work(x, y):
     return np.stack([(C[0] - X_RANGE[0]) * SCALE, (C[1] - Y_RANGE[0]) * SCALE, (C[2] - TOP) * SCALE])
 
 
+#: marker centres (work mm) on the paper's block where its top face is flat (the default
+#: corner (L, 0) lies over the channel's rising end)
+MARKERS = [[20.0, 20.0], [330.0, 20.0], [480.0, 230.0], [20.0, 230.0]]
+
+
 def default_markers(size=30.0):
-    """Marker centres (work mm) where the paper's block keeps its top face: 5 mm from the
-    edges at x = 0, and at x = L's corners over the flat region."""
-    c = 5 + size / 2
-    return np.array([[c, c], [L - c, c], [L - c, W - c], [c, W - c]])
+    return np.array(MARKERS, dtype=float)
 
 
 @dataclass
@@ -160,8 +162,11 @@ class Renderer:
 
     SS = 2   # rays per pixel along each axis
 
-    def __init__(self, cam: Cam, markers=None, marker_size=30.0, ball_dark=True):
+    def __init__(self, cam: Cam, markers=None, marker_size=30.0, ball_dark=True, albedo=1.0):
+        """``ball_dark``: a dark ball (else a white one); ``albedo``: the block's
+        reflectance (1: white foam; a white ball wants a darker block, e.g. 0.5)."""
         self.cam = cam
+        self.albedo = albedo
         self.markers = default_markers(marker_size) if markers is None else np.asarray(markers, float)
         self.marker_size = marker_size
         self.ball_dark = ball_dark
@@ -186,7 +191,7 @@ class Renderer:
         inside = (X >= 0) & (X <= L) & (Y >= 0) & (Y <= W)
         Z, n = surface_work(np.clip(X, 0, L), np.clip(Y, 0, W))
         top = inside & (Z >= 0)
-        rad[top] = 0.25 + 0.75 * LIGHT[2]
+        rad[top] = self.albedo * (0.25 + 0.75 * LIGHT[2])
         depth[top] = s0[top]
         tex = marker_texture(X[top], Y[top], self.markers, self.marker_size)
         r_top = rad[top]
@@ -226,7 +231,7 @@ class Renderer:
         m = 0.5 * (lo + hi)
         Xs, Ys = O[0] + m * d[ii, 0], O[1] + m * d[ii, 1]
         _, n = surface_work(Xs, Ys)
-        rad[ii] = 0.25 + 0.75 * np.clip(n.T @ LIGHT, 0, 1)
+        rad[ii] = self.albedo * (0.25 + 0.75 * np.clip(n.T @ LIGHT, 0, 1))
         depth[ii] = m
         return depth, rad
 
@@ -267,7 +272,7 @@ class Renderer:
                 hv = LIGHT - d[hit]
                 hv /= np.linalg.norm(hv, axis=1, keepdims=True)
                 spec = np.clip(np.sum(n * hv, axis=1), 0, 1) ** 60
-                base = (0.05 + 0.12 * lam) if self.ball_dark else (0.45 + 0.5 * lam)
+                base = (0.05 + 0.12 * lam) if self.ball_dark else (0.7 + 0.3 * lam)
                 rad[hit] = np.minimum(1.0, base + 0.9 * spec)
             acc += rad
         acc /= len(centres)
@@ -299,26 +304,28 @@ class Launch:
         return C
 
 
-def render_video(path, cam: Cam, launch: Launch, times, *, codec="libx264", crf=18, noise=1.5, seed=0,
-                 exposure=0.5, markers=None, marker_size=30.0, ball_dark=True, hide=(), t_offset=0.0):
-    """Render and encode a video: frames at presentation ``times`` (s, increasing),
-    the ball at launch time t + ``t_offset``; ``hide``: frame indices without the ball
-    (it was taken away: a gap). Returns the true centres (n, 3) work mm (nan: none)."""
+def render_video(path, rend: Renderer, launch: Launch, times, *, codec="libx264", crf=18, noise=1.5, seed=0,
+                 exposure=0.5, hide=(), t_offset=0.0):
+    """Render and encode a video with ``rend`` (its camera and scene): frames at
+    presentation ``times`` (s, increasing), the ball at launch time t + ``t_offset``;
+    ``hide``: frame indices without the ball (taken away: a gap). Returns the frames'
+    times (s, as encoded: on the time base's grid) and the true centres (n, 3) work mm
+    at those times (nan: no ball)."""
     import av
 
-    rend = Renderer(cam, markers, marker_size, ball_dark)
+    cam = rend.cam
     rng = np.random.default_rng(seed)
     times = np.asarray(times, float)
     dt = float(np.median(np.diff(times))) if len(times) > 1 else 0.01
-    tb = Fraction(1, 90000)
+    tb = Fraction(1, 90000 if codec == "libx264" else 60000)   # MPEG-4 part 2: a denominator < 2^16
+    times = np.round(times / float(tb)) * float(tb)          # each frame's time exactly its timestamp
     out = av.open(str(path), "w")
     if codec == "libx264":
         st = out.add_stream("libx264", rate=max(1, round(1 / dt)))
         st.options = {"crf": str(crf), "preset": "veryfast", "bf": "0"}
     else:
         st = out.add_stream(codec, rate=max(1, round(1 / dt)))
-        st.options = {"qscale": "3"}
-        st.bit_rate = 8_000_000
+        st.bit_rate = 6_000_000
     st.width, st.height, st.pix_fmt = cam.w, cam.h, "yuv420p"
     st.time_base = tb
     st.codec_context.time_base = tb
@@ -343,4 +350,4 @@ def render_video(path, cam: Cam, launch: Launch, times, *, codec="libx264", crf=
     for pkt in st.encode():
         out.mux(pkt)
     out.close()
-    return truth, rend
+    return times, truth

@@ -378,6 +378,49 @@ def _offset_point(surface, radius, x, y):
     return C, Cx, Cy
 
 
+def _first_crossing(surface, radius, O, d, steps: int = 240):
+    """A start for Newton's method on each ray: the first point Q along it (from the
+    camera) where Q_Z - h(Q) <= r sqrt(1 + |grad h|^2) (a centre no higher than a ball
+    on the local tangent plane), bracketed on ``steps`` levels from top + r down to the
+    surface's lowest point and bisected; returns the contact point's estimate (x, y)
+    and the ray parameter s. This picks the visible centre, the nearest to the camera."""
+    xs, ys = np.meshgrid(np.linspace(*surface.x_range, 101), np.linspace(*surface.y_range, 101))
+    low = float(np.nanmin(np.minimum(surface.height(xs, ys), surface.top)))
+    z_hi, z_lo = surface.top + radius, low - radius
+
+    def phi(sv):
+        qx, qy, qz = O[0] + sv * d[:, 0], O[1] + sv * d[:, 1], O[2] + sv * d[:, 2]
+        h, hx, hy = (np.broadcast_to(np.asarray(a, dtype=float), qx.shape) for a in
+                     surface.derivatives(qx, qy)[:3])
+        top = h >= surface.top
+        h = np.where(top, surface.top, h)
+        hx, hy = np.where(top, 0.0, hx), np.where(top, 0.0, hy)
+        w = np.sqrt(1.0 + hx * hx + hy * hy)
+        return qz - h - radius * w, qx, qy, hx / w, hy / w
+
+    s_hi = (z_hi - O[2]) / d[:, 2]
+    s_lo = (z_lo - O[2]) / d[:, 2]
+    a = s_hi.copy()
+    b = np.full(len(d), np.nan)
+    prev = s_hi.copy()
+    for k in range(1, steps + 1):
+        sv = s_hi + (s_lo - s_hi) * k / steps
+        f = phi(sv)[0]
+        new = np.isnan(b) & (f <= 0)
+        b[new] = sv[new]
+        a[new] = prev[new]
+        prev = sv
+        if not np.isnan(b).any():
+            break
+    b = np.where(np.isnan(b), s_lo, b)
+    for _ in range(40):
+        m = 0.5 * (a + b)
+        f = phi(m)[0]
+        a, b = np.where(f > 0, m, a), np.where(f > 0, b, m)
+    _, qx, qy, gx, gy = phi(0.5 * (a + b))
+    return qx + radius * gx, qy + radius * gy, 0.5 * (a + b)
+
+
 def ray_offset_surface(surface, radius: float, origin, dirs, tol: float = 1e-9):
     """Where rays meet the ball-centre offset surface (see the module doc).
 
@@ -388,10 +431,7 @@ def ray_offset_surface(surface, radius: float, origin, dirs, tol: float = 1e-9):
     O = np.asarray(origin, dtype=float)
     d = np.asarray(dirs, dtype=float)
     n = len(d)
-    # start: the ray met with the plane of a ball resting on the top face
-    s = (surface.top + radius - O[2]) / d[:, 2]
-    x, y = O[0] + s * d[:, 0], O[1] + s * d[:, 1]
-    done = np.zeros(n, dtype=bool)
+    x, y, s = _first_crossing(surface, radius, O, d)
     x0, x1 = surface.x_range
     y0, y1 = surface.y_range
     span = max(x1 - x0, y1 - y0)
