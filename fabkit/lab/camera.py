@@ -44,7 +44,6 @@ EDGE_GAP_MM = 5.0            # default: the black square this far from the two n
 HEIGHT_SIGMA_MM = 10.0       # lab.camera_height: a tape measure, good to about 1 cm
 CORNER_SIGMA_PX = 0.2        # the weight of a corner in the fit (px); reported errors are measured
 FLAT_MM = 0.05               # a marker's paper may lie over a cut this shallow (mm)
-K1_SIGMA = 0.2               # a weak prior: the lenses meant here have |k1| well below 0.1
 
 
 # ----------------------------------------------------------------------------
@@ -300,7 +299,7 @@ def calibrate(corners_px: np.ndarray, layout: MarkerLayout, size: tuple[int, int
     def residuals(p):
         cam = _unpack(p, w, h)
         r = ((cam.project(obj) - img) / CORNER_SIGMA_PX).ravel()
-        extra = [p[1] / K1_SIGMA]
+        extra = []
         if camera_height is not None:
             extra.append((cam.centre[2] - camera_height) / HEIGHT_SIGMA_MM)
         return np.concatenate([r, extra])
