@@ -305,7 +305,7 @@ class Launch:
 
 
 def render_video(path, rend: Renderer, launch: Launch, times, *, codec="libx264", crf=18, noise=1.5, seed=0,
-                 exposure=0.5, hide=(), t_offset=0.0):
+                 exposure=0.5, hide=(), t_offset=0.0, gop=None):
     """Render and encode a video with ``rend`` (its camera and scene): frames at
     presentation ``times`` (s, increasing), the ball at launch time t + ``t_offset``;
     ``hide``: frame indices without the ball (taken away: a gap). Returns the frames'
@@ -327,6 +327,8 @@ def render_video(path, rend: Renderer, launch: Launch, times, *, codec="libx264"
         st = out.add_stream(codec, rate=max(1, round(1 / dt)))
         st.bit_rate = 6_000_000
     st.width, st.height, st.pix_fmt = cam.w, cam.h, "yuv420p"
+    if gop is not None:
+        st.codec_context.gop_size = int(gop)          # a key frame every gop frames
     st.time_base = tb
     st.codec_context.time_base = tb
     truth = np.full((len(times), 3), np.nan)

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import SpecError
-from ._common import Timer, check_paths, default_output, emit
+from ._common import Timer, check_paths, default_output, emit, warn
 
 FORMATS = {".pdf": "pdf", ".svg": "svg", ".png": "png"}
 A4 = (210.0, 297.0)
@@ -128,6 +128,8 @@ def run(args) -> int:
     check_paths(args, {"--output": path})
     surface = Surface.from_spec(spec)
     layout = marker_layout(spec, surface)
+    for n in layout.notes:
+        warn(n)
     L, W = surface.stock_size_mm
     height = spec.lab.camera_height if spec.has("lab") else None
     data = sheet(layout, L, W, spec.name, height, fmt)
@@ -135,7 +137,7 @@ def run(args) -> int:
         out.write(path, data)
     payload = {"path": str(path), "dictionary": "DICT_4X4_50", "ids": [0, 1, 2, 3], "marker_size_mm": layout.size,
                "quiet_zone_mm": layout.module, "centres_mm": layout.centres.tolist(), "block_mm": [L, W],
-               "camera_height_mm": height, "seconds": timer.seconds}
+               "camera_height_mm": height, "notes": list(layout.notes), "seconds": timer.seconds}
     where = "; ".join(f"{i}: [{c[0]:.1f}, {c[1]:.1f}]" for i, c in enumerate(layout.centres))
     emit([f"markers: {path}, 4 markers of {layout.size:g} mm (DICT_4X4_50), centres in work mm {where}"],
          payload, args.json)

@@ -56,6 +56,7 @@ class MarkerLayout:
 
     size: float
     centres: np.ndarray
+    notes: tuple = ()
 
     @property
     def module(self) -> float:
@@ -89,7 +90,8 @@ def marker_layout(spec, surface) -> MarkerLayout:
                             f"block's top face [0, {L:g}] x [0, {W:g}] work mm", file=spec.path,
                             key="lab.markers" if lab is not None and lab.markers is not None else "lab.marker_size")
     key = "lab.markers" if lab is not None and lab.markers is not None else "lab.markers (default placement)"
-    # the paper (the square and its quiet zone) must lie flat on the top face, not over the cut
+    # the paper (the square and its quiet zone) should lie flat on the top face, not over the cut
+    notes = []
     q = size / 2.0 + size / MODULES
     g = np.linspace(-q, q, 13)
     for i, (x, y) in enumerate(centres):
@@ -98,15 +100,16 @@ def marker_layout(spec, surface) -> MarkerLayout:
         cut = (surface.top - surface.height(xs, ys)) * surface.scale > FLAT_MM
         if np.any(cut):
             j = np.argmax(cut.ravel())
-            raise SpecError(f"marker {i} at [{x:g}, {y:g}] work mm would lie over the milled surface (at "
-                            f"[{X.ravel()[j]:.4g}, {Y.ravel()[j]:.4g}] the surface is below the top face): "
-                            "give its centre on the flat top face in lab.markers", file=spec.path, key=key)
+            notes.append(f"{spec.path}: {key}: marker {i} at [{x:g}, {y:g}] work mm lies partly over the milled "
+                         f"surface (at [{X.ravel()[j]:.4g}, {Y.ravel()[j]:.4g}] the surface is below the top face): "
+                         "it must still lie flat at the top face's level; better, give its centre on the flat "
+                         "top face in lab.markers")
     d = np.hypot(*(centres[:, None, :] - centres[None, :, :]).transpose(2, 0, 1))
     np.fill_diagonal(d, np.inf)
     if d.min() < size * math.sqrt(2):
         raise SpecError(f"markers overlap (two centres {d.min():.4g} mm apart, each square {size:g} mm)",
                         file=spec.path, key="lab.markers")
-    return MarkerLayout(size=size, centres=centres)
+    return MarkerLayout(size=size, centres=centres, notes=tuple(notes))
 
 
 # ----------------------------------------------------------------------------

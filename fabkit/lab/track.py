@@ -65,6 +65,8 @@ def sample(path, n: int = SAMPLE_FRAMES) -> Sample:
                     frames, stride = frames[::2], 2 * stride
     if not frames:
         raise SpecError("no frames could be decoded", file=str(path))
+    if len(frames) > n:
+        frames = [frames[i] for i in np.unique(np.linspace(0, len(frames) - 1, n).round().astype(int))]
     a = np.stack(frames)
     return Sample(a, a.shape[2], a.shape[1])
 
@@ -150,11 +152,12 @@ def find_markers(frames: np.ndarray, path: str = "<video>", image: np.ndarray | 
     found: dict[int, list] = {i: [] for i in cam_mod.MARKER_IDS}
     for g in ([image] if image is not None else []) + list(frames):
         corners, ids, _ = det.detectMarkers(np.ascontiguousarray(g))
-        if ids is None:
-            continue
-        for c, i in zip(corners, ids.ravel()):
-            if int(i) in found:
-                found[int(i)].append(np.asarray(c, dtype=float).reshape(4, 2))
+        if ids is not None:
+            for c, i in zip(corners, ids.ravel()):
+                if int(i) in found:
+                    found[int(i)].append(np.asarray(c, dtype=float).reshape(4, 2))
+        if image is not None and all(found.values()):
+            break              # all four on the median image: refined there anyway
     missing = [i for i, v in found.items() if not v]
     if missing:
         which = ", ".join(str(i) for i in missing)
@@ -193,32 +196,65 @@ class BallFinder:
         self.bg = np.ascontiguousarray(background)
         self.r = float(radius_px)
         self.noise = max(float(noise), 0.5)
-        h, w = background.shape
-        self.small_size = (max(1, w // DOWN), max(1, h // DOWN))
         k = max(1, int(round(self.r * 1.2 / DOWN)))
         self.k = k | 1
         self.exclude = None
         if exclude is not None:       # (h, w) bool: pixels never searched (the markers' paper)
-            ex = cv2.resize(exclude.astype(np.uint8), self.small_size, interpolation=cv2.INTER_NEAREST)
-            self.exclude = ex.astype(bool)
-        self.half = int(math.ceil(2.5 * self.r)) + 2
+            self.exclude = np.asarray(exclude, dtype=bool)
+        self.half = int(math.ceil(1.8 * self.r)) + 6
+        self.last: list = []          # the last two frames' centres, when both had the ball
         self.threshold = max(MIN_CONTRAST, 6.0 * self.noise)
-        self.contrast = None          # the ball's typical contrast, learned from the frames found
 
-    def find(self, grey: np.ndarray, hint=None) -> Ball | None:
+    def find(self, grey: np.ndarray) -> Ball | None:
+        """The ball in this frame, or None. Frames are expected in order: where the last
+        two frames had the ball, the search starts in a window around the position they
+        predict (the whole frame when it is not there)."""
+        b = None
+        if len(self.last) == 2:
+            (u1, v1), (u2, v2) = self.last
+            du, dv = u2 - u1, v2 - v1
+            half = int(3 * self.r + 2 * math.hypot(du, dv)) + 8
+            b = self._search(grey, (u2 + du, v2 + dv, half))
+        if b is None:
+            b = self._search(grey, None)
+        self.last = (self.last + [(b.u, b.v)])[-2:] if b is not None else []
+        return b
+
+    def _search(self, grey: np.ndarray, window) -> Ball | None:
         cv2 = self.cv2
-        d = cv2.absdiff(grey, self.bg)
-        small = cv2.resize(d, self.small_size, interpolation=cv2.INTER_AREA)
+        h, w = grey.shape
+        if window is None:
+            x0, y0, x1, y1 = 0, 0, w, h
+        else:
+            u, v, half = window
+            x0, y0 = max(0, int(u) - half), max(0, int(v) - half)
+            x1, y1 = min(w, int(u) + half + 1), min(h, int(v) + half + 1)
+            if x1 - x0 < 2 * DOWN or y1 - y0 < 2 * DOWN:
+                return None
+        g = grey[y0:y1, x0:x1]
+        bg = self.bg[y0:y1, x0:x1]
+        d = cv2.absdiff(g, bg)
+        sw, sh = (x1 - x0) // DOWN, (y1 - y0) // DOWN
+        small = cv2.resize(d[:sh * DOWN, :sw * DOWN], (sw, sh), interpolation=cv2.INTER_AREA)
         small = cv2.blur(small, (self.k, self.k))
         if self.exclude is not None:
-            small[self.exclude] = 0
+            ex = self.exclude[y0:y0 + sh * DOWN:DOWN, x0:x0 + sw * DOWN:DOWN]
+            small[ex[:sh, :sw]] = 0
         _, peak, _, loc = cv2.minMaxLoc(small)
         if peak < 0.5 * self.threshold:
             return None
         u0, v0 = (loc[0] + 0.5) * DOWN - 0.5, (loc[1] + 0.5) * DOWN - 0.5
-        return self._refine(d, grey, u0, v0, blur_extra=0)
+        b = self._refine(d, g, bg, u0, v0, blur_extra=0)
+        if b is None:
+            return None
+        b.u += x0
+        b.v += y0
+        return b
 
-    def _refine(self, d: np.ndarray, grey: np.ndarray, u0: float, v0: float, blur_extra: int) -> Ball | None:
+    def _refine(self, d: np.ndarray, grey: np.ndarray, bg: np.ndarray, u0: float, v0: float,
+                blur_extra: int) -> Ball | None:
+        """The disc around (u0, v0) in the crop ``d`` = |grey - bg| (see the module doc);
+        coordinates relative to the crop."""
         cv2 = self.cv2
         h, w = d.shape
         half = self.half + blur_extra
@@ -253,7 +289,7 @@ class BallFinder:
         if filled[0, :].any() or filled[-1, :].any() or filled[:, 0].any() or filled[:, -1].any():
             if blur_extra == 0 and (a0 > 0 and b0 > 0 and a1 < w and b1 < h):
                 ys, xs = np.nonzero(filled)      # a long blur: look again with a larger window
-                return self._refine(d, grey, xs.mean() + a0, ys.mean() + b0, blur_extra=self.half)
+                return self._refine(d, grey, bg, xs.mean() + a0, ys.mean() + b0, blur_extra=self.half)
             return None
         core = cv2.erode(filled, np.ones((3, 3), np.uint8))
         c = float(np.median(roi[core == 1])) if core.any() else float(np.median(roi[filled == 1]))
@@ -264,7 +300,7 @@ class BallFinder:
         # each rim pixel's share of the ball: g = a b + (1 - a) bg, with b the ball's own grey
         # nearby (the inner disc's grey spread outward: the ball is shaded too)
         g = grey[b0:b1, a0:a1].astype(np.float32)
-        gb = self.bg[b0:b1, a0:a1].astype(np.float32)
+        gb = bg[b0:b1, a0:a1].astype(np.float32)
         src = inner if inner.sum() >= 6 else core
         k = max(3, int(round(0.6 * self.r)) | 1)
         num = cv2.blur(g * src, (k, k))
@@ -286,13 +322,14 @@ class BallFinder:
         wgt[band == 0] = 0.0
         wgt[(filled == 0) & (roi <= 2.0 * self.noise)] = 0.0
         s = float(wgt.sum())
-        ys, xs = np.mgrid[b0:b1, a0:a1]
+        xs = np.arange(a0, a1, dtype=np.float64)[None, :]
+        ys = np.arange(b0, b1, dtype=np.float64)[:, None]
         u = float((wgt * xs).sum() / s)
         v = float((wgt * ys).sum() / s)
-        edge = (band == 1) & (core == 0)
+        edge = ((band == 1) & (core == 0)).astype(np.float64)
         sw = self.noise / c
-        su = math.sqrt(float(((xs[edge] - u) ** 2).sum())) * sw / s
-        sv = math.sqrt(float(((ys[edge] - v) ** 2).sum())) * sw / s
+        su = math.sqrt(float((edge * (xs - u) ** 2).sum())) * sw / s
+        sv = math.sqrt(float((edge * (ys - v) ** 2).sum())) * sw / s
         return Ball(u, v, max(su, SIGMA_FLOOR_PX), max(sv, SIGMA_FLOOR_PX), area, c)
 
 
@@ -300,7 +337,8 @@ def background(frames: np.ndarray) -> tuple[np.ndarray, float]:
     """The per-pixel median of the sample (uint8) and the noise about it (grey levels,
     1 sigma, from the median absolute deviation)."""
     bg = np.median(frames, axis=0).astype(np.uint8)
-    dev = np.abs(frames.astype(np.int16) - bg.astype(np.int16))
+    sub = frames[:, ::4, ::4].astype(np.int16)          # the noise from every 16th pixel is plenty
+    dev = np.abs(sub - bg[::4, ::4].astype(np.int16))
     noise = 1.4826 * float(np.median(dev)) if dev.size else 1.0
     return bg, max(noise, 0.5)
 
@@ -414,8 +452,8 @@ def _track(spec, surface, path, info, progress) -> VideoTrack:
     for i, (t, g) in enumerate(video.frames(path)):
         b = finder.find(g)
         ts.append(t)
-        if b is not None and (snapshot is None or i <= want):
-            snapshot = g.copy()
+        if b is not None and (snapshot is None or (i >= want and snapshot[0] < want)):
+            snapshot = (i, g.copy())
         if b is None:
             uvs.append((math.nan, math.nan))
             sig.append((math.nan, math.nan))
@@ -446,8 +484,8 @@ def _track(spec, surface, path, info, progress) -> VideoTrack:
     sxy[idx] = np.sqrt((Ju * su[idx, 0:1]) ** 2 + (Jv * su[idx, 1:2]) ** 2)
     lost = ~np.all(np.isfinite(xy), axis=1)
     uv[lost] = np.nan
-    notes = []
+    notes = list(layout.notes)
     if info.width != smp.width or info.height != smp.height:  # pragma: no cover (a container's odd header)
         notes.append(f"the container says {info.width}x{info.height}, the frames are {smp.width}x{smp.height}")
     return VideoTrack(path=str(path), t=t, uv=uv, xy=xy, sigma=sxy, calibration=calib, radius_px=radius_px,
-                      units=spec.units, notes=notes, snapshot=snapshot, corners_px=corners)
+                      units=spec.units, notes=notes, snapshot=snapshot[1], corners_px=corners)

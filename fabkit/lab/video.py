@@ -1,8 +1,9 @@
 """Decoding videos with PyAV: grey frames and their presentation times.
 
 Each frame's time is its presentation timestamp (pts x the stream's time base), never
-frame index / fps: phones record at a variable frame rate. Times are in seconds from
-the first decoded frame (t = 0 there). Grey is the decoder's luma plane (Y of YUV,
+frame index / fps: phones record at a variable frame rate. Times are in seconds as
+the container gives them (most recordings start at t = 0), computed exactly (a
+Fraction) before the one rounding to a float. Grey is the decoder's luma plane (Y of YUV,
 read in place without a colour conversion); other pixel formats are converted.
 
 A file PyAV cannot open, or one without a video stream, is a :class:`SpecError`
@@ -80,7 +81,7 @@ def frames(path, keyframes_only: bool = False):
         s.thread_type = "AUTO"
         if keyframes_only:
             s.codec_context.skip_frame = "NONKEY"
-        t0 = None
+        first = True
         last = None
         try:
             for frame in c.decode(s):
@@ -88,14 +89,13 @@ def frames(path, keyframes_only: bool = False):
                 if pts is None or frame.time_base is None:
                     raise SpecError(f"a frame without a presentation timestamp (after t = {last} s)",
                                     file=str(path))
-                if t0 is None:
-                    t0 = pts
-                t = float((pts - t0) * frame.time_base)     # exact: a Fraction until here
+                first = False
+                t = float(pts * frame.time_base)     # exact: a Fraction until here
                 if last is not None and t <= last:
                     continue      # a repeated or out-of-order timestamp: the frame is shown once
                 last = t
                 yield t, grey(frame)
         except av.FFmpegError as exc:
-            if t0 is None:
+            if first:
                 raise SpecError(f"not a video PyAV can decode ({type(exc).__name__})", file=str(path)) from None
             # a truncated file: the frames decoded so far stand
