@@ -380,10 +380,10 @@ def _offset_point(surface, radius, x, y):
     return C, Cx, Cy
 
 
-def _first_crossing(surface, radius, O, d, steps: int = 240):
+def _first_crossing(surface, radius, O, d):
     """A start for Newton's method on each ray: the first point Q along it (from the
     camera) where Q_Z - h(Q) <= r sqrt(1 + |grad h|^2) (a centre no higher than a ball
-    on the local tangent plane), bracketed on ``steps`` levels from top + r down to the
+    on the local tangent plane), bracketed on levels r/4 apart from top + r down to the
     surface's lowest point and bisected; returns the contact point's estimate (x, y)
     and the ray parameter s. This picks the visible centre, the nearest to the camera."""
     xs, ys = np.meshgrid(np.linspace(*surface.x_range, 101), np.linspace(*surface.y_range, 101))
@@ -400,6 +400,7 @@ def _first_crossing(surface, radius, O, d, steps: int = 240):
         w = np.sqrt(1.0 + hx * hx + hy * hy)
         return qz - h - radius * w, qx, qy, hx / w, hy / w
 
+    steps = int(min(4000, math.ceil((z_hi - z_lo) / (0.25 * radius))))
     s_hi = (z_hi - O[2]) / d[:, 2]
     s_lo = (z_lo - O[2]) / d[:, 2]
     a = s_hi.copy()
@@ -415,7 +416,7 @@ def _first_crossing(surface, radius, O, d, steps: int = 240):
         if not np.isnan(b).any():
             break
     b = np.where(np.isnan(b), s_lo, b)
-    for _ in range(40):
+    for _ in range(20):
         m = 0.5 * (a + b)
         f = phi(m)[0]
         a, b = np.where(f > 0, m, a), np.where(f > 0, b, m)
@@ -423,17 +424,19 @@ def _first_crossing(surface, radius, O, d, steps: int = 240):
     return qx + radius * gx, qy + radius * gy, 0.5 * (a + b)
 
 
-def ray_offset_surface(surface, radius: float, origin, dirs, tol: float = 1e-9):
+def ray_offset_surface(surface, radius: float, origin, dirs, tol: float = 1e-9, start=None):
     """Where rays meet the ball-centre offset surface (see the module doc).
 
     ``origin`` (3,) and ``dirs`` (n, 3) in design units (the camera's centre and the
     rays' directions); ``radius`` the ball's radius in design units. Returns the centres
     (n, 3) and the contact points' (x, y) (n, 2), design units; rows that do not
-    converge (a ray past the block) are nan."""
+    converge (a ray past the block) are nan. ``start``: (x, y, s) to begin Newton's
+    method from (a neighbouring ray's solution) instead of the bracketing search."""
     O = np.asarray(origin, dtype=float)
     d = np.asarray(dirs, dtype=float)
     n = len(d)
-    x, y, s = _first_crossing(surface, radius, O, d)
+    x, y, s = _first_crossing(surface, radius, O, d) if start is None else (np.array(a, dtype=float)
+                                                                           for a in start)
     x0, x1 = surface.x_range
     y0, y1 = surface.y_range
     span = max(x1 - x0, y1 - y0)
@@ -463,12 +466,26 @@ def ray_offset_surface(surface, radius: float, origin, dirs, tol: float = 1e-9):
     return Cc, P
 
 
-def ball_centres(camera: Camera, surface, radius: float, uv) -> np.ndarray:
+def ball_centres(camera: Camera, surface, radius: float, uv, jacobian: bool = False):
     """Pixels (n, 2) of the ball's centre -> its centre (n, 3) in design units, on the
-    offset surface (see :func:`ray_offset_surface`)."""
+    offset surface (see :func:`ray_offset_surface`). With ``jacobian``, also d(x, y)/du
+    and d(x, y)/dv (n, 2) each, design units per px (central differences of 0.25 px,
+    each started from the centre's own solution)."""
     uv = np.asarray(uv, dtype=float).reshape(-1, 2)
     Ow = camera.centre
     O = np.array(surface.from_work(Ow[0], Ow[1], Ow[2]), dtype=float)
-    d = camera.rays(uv) / surface.scale            # design units: the same direction
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
-    return ray_offset_surface(surface, radius, O, d)[0]
+
+    def dirs(p):
+        d = camera.rays(p)
+        return d / np.linalg.norm(d, axis=1, keepdims=True)      # design units: the same direction
+
+    C, P = ray_offset_surface(surface, radius, O, dirs(uv))
+    if not jacobian:
+        return C
+    start = (P[:, 0], P[:, 1], np.linalg.norm(C - O, axis=1))
+    J = []
+    for du in ([0.25, 0.0], [0.0, 0.25]):
+        Cp = ray_offset_surface(surface, radius, O, dirs(uv + du), start=start)[0]
+        Cm = ray_offset_surface(surface, radius, O, dirs(uv - np.asarray(du)), start=start)[0]
+        J.append((Cp[:, :2] - Cm[:, :2]) / 0.5)
+    return C, J[0], J[1]

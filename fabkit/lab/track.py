@@ -333,14 +333,49 @@ class BallFinder:
         return Ball(u, v, max(su, SIGMA_FLOOR_PX), max(sv, SIGMA_FLOOR_PX), area, c)
 
 
+_MED9 = ((1, 2), (4, 5), (7, 8), (0, 1), (3, 4), (6, 7), (1, 2), (4, 5), (7, 8), (0, 3), (5, 8), (4, 7),
+         (3, 6), (1, 4), (2, 5), (4, 7), (4, 2), (6, 4), (4, 2))     # Paeth's median-of-9 network
+
+
+def _median9(frames) -> np.ndarray:
+    """The per-pixel median of 9 uint8 images by a sorting network (19 min/max pairs)."""
+    import cv2
+
+    p = list(frames)
+    for i, j in _MED9:
+        lo, hi = cv2.min(p[i], p[j]), cv2.max(p[i], p[j])
+        p[i], p[j] = lo, hi
+    return p[4]
+
+
 def background(frames: np.ndarray) -> tuple[np.ndarray, float]:
-    """The per-pixel median of the sample (uint8) and the noise about it (grey levels,
-    1 sigma, from the median absolute deviation)."""
-    bg = np.median(frames, axis=0).astype(np.uint8)
-    sub = frames[:, ::4, ::4].astype(np.int16)          # the noise from every 16th pixel is plenty
-    dev = np.abs(sub - bg[::4, ::4].astype(np.int16))
-    noise = 1.4826 * float(np.median(dev)) if dev.size else 1.0
-    return bg, max(noise, 0.5)
+    """The background (h, w) uint8 and its noise (grey levels, 1 sigma).
+
+    A first estimate is the per-pixel median of 9 frames spread over the sample (the ball
+    moves: it covers a pixel in few of them); the noise is 1.4826 x the median absolute
+    deviation about it (every 16th pixel); the background is then the mean, per pixel, of
+    the sample's frames within max(6, 4 sigma) grey levels of that median (the ball
+    excluded), which averages the noise down with every frame."""
+    import cv2
+
+    k = len(frames)
+    if k >= 9:
+        pick = np.unique(np.linspace(0, k - 1, 9).round().astype(int))
+        med = _median9([np.ascontiguousarray(frames[i]) for i in pick]) if pick.size == 9 else \
+            np.median(frames, axis=0).astype(np.uint8)
+    else:
+        med = np.median(frames, axis=0).astype(np.uint8)
+    sub = frames[:, ::4, ::4].astype(np.int16)
+    noise = max(1.4826 * float(np.median(np.abs(sub - med[::4, ::4].astype(np.int16)))), 0.5)
+    tol = max(6.0, 4.0 * noise)
+    acc = np.zeros(med.shape, np.float32)
+    cnt = np.zeros(med.shape, np.float32)
+    for f in frames:
+        near = (cv2.absdiff(f, med) <= tol).astype(np.float32)
+        acc += near * f
+        cnt += near
+    bg = np.where(cnt > 0, acc / np.maximum(cnt, 1.0), med)
+    return np.clip(np.round(bg), 0, 255).astype(np.uint8), noise
 
 
 @dataclass
@@ -474,12 +509,8 @@ def _track(spec, surface, path, info, progress) -> VideoTrack:
     xy = np.full((len(t), 2), np.nan)
     sxy = np.full((len(t), 2), np.nan)
     idx = np.flatnonzero(ok)
-    C = cam_mod.ball_centres(cam, surface, radius, uv[idx])
-    # the centre's standard deviation in design units: the Jacobian of the map px -> centre
-    Cu = cam_mod.ball_centres(cam, surface, radius, uv[idx] + [0.5, 0.0])
-    Cv = cam_mod.ball_centres(cam, surface, radius, uv[idx] + [0.0, 0.5])
-    Ju = (Cu[:, :2] - C[:, :2]) / 0.5
-    Jv = (Cv[:, :2] - C[:, :2]) / 0.5
+    # the centre, and its standard deviation in design units through the Jacobian px -> centre
+    C, Ju, Jv = cam_mod.ball_centres(cam, surface, radius, uv[idx], jacobian=True)
     xy[idx] = C[:, :2]
     sxy[idx] = np.sqrt((Ju * su[idx, 0:1]) ** 2 + (Jv * su[idx, 1:2]) ** 2)
     lost = ~np.all(np.isfinite(xy), axis=1)
