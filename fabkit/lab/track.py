@@ -291,6 +291,14 @@ class BallFinder:
                 ys, xs = np.nonzero(filled)      # a long blur: look again with a larger window
                 return self._refine(d, grey, bg, xs.mean() + a0, ys.mean() + b0, blur_extra=self.half)
             return None
+        # from here on, the disc's bounding box and a margin of 4 px (the rim band's reach)
+        ys_, xs_ = np.nonzero(filled)
+        y0c, y1c = max(0, int(ys_.min()) - 4), min(filled.shape[0], int(ys_.max()) + 5)
+        x0c, x1c = max(0, int(xs_.min()) - 4), min(filled.shape[1], int(xs_.max()) + 5)
+        filled, comp = filled[y0c:y1c, x0c:x1c].copy(), comp[y0c:y1c, x0c:x1c]
+        roi = roi[y0c:y1c, x0c:x1c]
+        a0, b0 = a0 + x0c, b0 + y0c
+        a1, b1 = a0 + (x1c - x0c), b0 + (y1c - y0c)
         core = cv2.erode(filled, np.ones((3, 3), np.uint8))
         c = float(np.median(roi[core == 1])) if core.any() else float(np.median(roi[filled == 1]))
         if c < self.threshold:
@@ -484,11 +492,11 @@ def _track(spec, surface, path, info, progress) -> VideoTrack:
     finder = BallFinder(bg, radius_px, noise, exclude=marker_mask(cam, layout, bg.shape))
     ts, uvs, sig = [], [], []
     snapshot, want = None, max(0, info.frames // 2)
-    for i, (t, g) in enumerate(video.frames(path)):
+    for i, (t, g) in enumerate(video.frames_ahead(path)):
         b = finder.find(g)
         ts.append(t)
         if b is not None and (snapshot is None or (i >= want and snapshot[0] < want)):
-            snapshot = (i, g.copy())
+            snapshot = (i, g)
         if b is None:
             uvs.append((math.nan, math.nan))
             sig.append((math.nan, math.nan))

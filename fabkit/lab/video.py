@@ -99,3 +99,48 @@ def frames(path, keyframes_only: bool = False):
             if first:
                 raise SpecError(f"not a video PyAV can decode ({type(exc).__name__})", file=str(path)) from None
             # a truncated file: the frames decoded so far stand
+
+
+def frames_ahead(path, depth: int = 16):
+    """:func:`frames` decoded in a thread ahead of the caller (up to ``depth`` frames):
+    the decoder (PyAV, which releases the GIL) and the caller's work on the previous
+    frames overlap on two cores. Yields (t, grey) with grey a copy the caller may keep.
+    An error while decoding is raised here, in the caller's thread."""
+    import queue
+    import threading
+
+    q: queue.Queue = queue.Queue(maxsize=max(1, depth))
+    stop = threading.Event()
+    done = object()
+
+    def put(item) -> bool:
+        while not stop.is_set():
+            try:
+                q.put(item, timeout=0.1)
+                return True
+            except queue.Full:
+                continue
+        return False
+
+    def work():
+        try:
+            for t, g in frames(path):
+                if not put((t, g.copy())):
+                    return
+            put(done)
+        except BaseException as exc:  # handed to the caller's thread
+            put(exc)
+
+    th = threading.Thread(target=work, name="fabkit-decode", daemon=True)
+    th.start()
+    try:
+        while True:
+            item = q.get()
+            if item is done:
+                return
+            if isinstance(item, BaseException):
+                raise item
+            yield item
+    finally:
+        stop.set()
+        th.join(timeout=5)
