@@ -199,8 +199,10 @@ class BallFinder:
         k = max(1, int(round(self.r * 1.2 / DOWN)))
         self.k = k | 1
         self.exclude = None
+        self.bg_small = np.ascontiguousarray(self.bg[::DOWN, ::DOWN])
         if exclude is not None:       # (h, w) bool: pixels never searched (the markers' paper)
             self.exclude = np.asarray(exclude, dtype=bool)
+            self.exclude_small = np.ascontiguousarray(self.exclude[::DOWN, ::DOWN])
         self.half = int(math.ceil(1.8 * self.r)) + 6
         self.last: list = []          # the last two frames' centres, when both had the ball
         self.threshold = max(MIN_CONTRAST, 6.0 * self.noise)
@@ -231,24 +233,31 @@ class BallFinder:
             x1, y1 = min(w, int(u) + half + 1), min(h, int(v) + half + 1)
             if x1 - x0 < 2 * DOWN or y1 - y0 < 2 * DOWN:
                 return None
-        g = grey[y0:y1, x0:x1]
-        bg = self.bg[y0:y1, x0:x1]
-        d = cv2.absdiff(g, bg)
-        sw, sh = (x1 - x0) // DOWN, (y1 - y0) // DOWN
-        small = cv2.resize(d[:sh * DOWN, :sw * DOWN], (sw, sh), interpolation=cv2.INTER_AREA)
+        x0, y0 = (x0 // DOWN) * DOWN, (y0 // DOWN) * DOWN      # on the coarse grid
+        # the coarse search: every DOWN-th pixel of |grey - bg|, averaged at the ball's scale
+        gs = np.ascontiguousarray(grey[y0:y1:DOWN, x0:x1:DOWN])
+        small = cv2.absdiff(gs, self.bg_small[y0 // DOWN:y0 // DOWN + gs.shape[0],
+                                              x0 // DOWN:x0 // DOWN + gs.shape[1]])
         small = cv2.blur(small, (self.k, self.k))
         if self.exclude is not None:
-            ex = self.exclude[y0:y0 + sh * DOWN:DOWN, x0:x0 + sw * DOWN:DOWN]
-            small[ex[:sh, :sw]] = 0
+            small[self.exclude_small[y0 // DOWN:y0 // DOWN + gs.shape[0],
+                                     x0 // DOWN:x0 // DOWN + gs.shape[1]]] = 0
         _, peak, _, loc = cv2.minMaxLoc(small)
         if peak < 0.5 * self.threshold:
             return None
-        u0, v0 = (loc[0] + 0.5) * DOWN - 0.5, (loc[1] + 0.5) * DOWN - 0.5
-        b = self._refine(d, g, bg, u0, v0, blur_extra=0)
+        u0, v0 = x0 + loc[0] * DOWN, y0 + loc[1] * DOWN
+        # the fine step on a full-resolution crop (room for a long blur's second look)
+        reach = 3 * self.half + 4
+        cx0, cy0 = max(0, u0 - reach), max(0, v0 - reach)
+        cx1, cy1 = min(w, u0 + reach + 1), min(h, v0 + reach + 1)
+        g = grey[cy0:cy1, cx0:cx1]
+        bg = self.bg[cy0:cy1, cx0:cx1]
+        d = cv2.absdiff(g, bg)
+        b = self._refine(d, g, bg, u0 - cx0, v0 - cy0, blur_extra=0)
         if b is None:
             return None
-        b.u += x0
-        b.v += y0
+        b.u += cx0
+        b.v += cy0
         return b
 
     def _refine(self, d: np.ndarray, grey: np.ndarray, bg: np.ndarray, u0: float, v0: float,
