@@ -203,7 +203,7 @@ class BallFinder:
         if exclude is not None:       # (h, w) bool: pixels never searched (the markers' paper)
             self.exclude = np.asarray(exclude, dtype=bool)
             self.exclude_small = np.ascontiguousarray(self.exclude[::DOWN, ::DOWN])
-        self.half = int(math.ceil(1.8 * self.r)) + 6
+        self.half = int(math.ceil(1.4 * self.r)) + 6
         self.last: list = []          # the last two frames' centres, when both had the ball
         self.threshold = max(MIN_CONTRAST, 6.0 * self.noise)
 
@@ -269,10 +269,10 @@ class BallFinder:
         half = self.half + blur_extra
         a0, a1 = max(0, int(u0) - half), min(w, int(u0) + half + 1)
         b0, b1 = max(0, int(v0) - half), min(h, int(v0) + half + 1)
-        roi = d[b0:b1, a0:a1].astype(np.float32)
+        roi = d[b0:b1, a0:a1]
         if roi.size == 0:
             return None
-        mask = (roi > self.threshold).astype(np.uint8)
+        _, mask = cv2.threshold(roi, self.threshold, 1, cv2.THRESH_BINARY)
         n, lab, stats, cent = cv2.connectedComponentsWithStats(mask, connectivity=8)
         if n < 2:
             return None
@@ -305,7 +305,7 @@ class BallFinder:
         y0c, y1c = max(0, int(ys_.min()) - 4), min(filled.shape[0], int(ys_.max()) + 5)
         x0c, x1c = max(0, int(xs_.min()) - 4), min(filled.shape[1], int(xs_.max()) + 5)
         filled, comp = filled[y0c:y1c, x0c:x1c].copy(), comp[y0c:y1c, x0c:x1c]
-        roi = roi[y0c:y1c, x0c:x1c]
+        roi = roi[y0c:y1c, x0c:x1c].astype(np.float32)
         a0, b0 = a0 + x0c, b0 + y0c
         a1, b1 = a0 + (x1c - x0c), b0 + (y1c - y0c)
         core = cv2.erode(filled, np.ones((3, 3), np.uint8))
