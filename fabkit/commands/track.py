@@ -87,8 +87,9 @@ def _lines(results, outs, units, seconds):
         lines.append(f"  camera {cam['height_mm']:.0f} mm up (± {cam['height_sigma_mm']:.2g}), tilt "
                      f"{cam['tilt_deg']:.1f} deg, f {cam['focal_px']:.0f} px, k1 {cam['k1']:+.3f}; markers "
                      f"reprojected within {j['reprojection_rms_px']:.2f} px rms ({j['reprojection_rms_mm']:.2f} mm)")
-        lines.append(f"  ball centre ± {j['position_sigma_median']:.2g} {units} (median 1 sigma from the image "
-                     f"noise; max {j['position_sigma_max']:.2g})")
+        lines.append(f"  ball centre ± {j['position_sigma_median']:.2g} {units} (median 1 sigma; the image noise's "
+                     f"share {j['position_sigma_image_median']:.2g}, the calibration's "
+                     f"{j['position_sigma_calibration_median']:.2g}; max {j['position_sigma_max']:.2g})")
         for n in j["notes"]:
             lines.append(f"  note: {n}")
     lines.append(f"track: {len(results)} video(s), {seconds:.1f} s")

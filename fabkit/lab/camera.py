@@ -222,6 +222,8 @@ class Calibration:
     height_prior: float | None
     corners_px: np.ndarray = field(repr=False)
     layout_corners: np.ndarray = field(repr=False, default=None)     # (4, 4, 3) work mm
+    params: np.ndarray = field(repr=False, default=None)             # (log f, k1, rvec, tvec)
+    cov: np.ndarray | None = field(repr=False, default=None)         # their covariance (8, 8)
     notes: list = field(default_factory=list)
 
     def to_json(self) -> dict:
@@ -341,7 +343,7 @@ def calibrate(corners_px: np.ndarray, layout: MarkerLayout, size: tuple[int, int
             g[i] = (_unpack(fit.x + dp, w, h).centre[2] - _unpack(fit.x - dp, w, h).centre[2]) / (2 * eps)
         hs = float(math.sqrt(max(g @ cov @ g, 0.0)))
     except np.linalg.LinAlgError:
-        hs = math.inf
+        hs, cov = math.inf, None
     notes = []
     if camera_height is not None and abs(cam.centre[2] - camera_height) > 3 * HEIGHT_SIGMA_MM:
         notes.append(f"the fitted camera height {cam.centre[2]:.0f} mm is {cam.centre[2] - camera_height:+.0f} mm "
@@ -349,7 +351,8 @@ def calibrate(corners_px: np.ndarray, layout: MarkerLayout, size: tuple[int, int
     return Calibration(camera=cam, rms_px=float(np.sqrt(np.mean(e * e))), max_px=float(e.max()),
                        rms_mm=float(np.sqrt(np.mean(e_mm * e_mm))), height_sigma_mm=hs,
                        height_prior=camera_height, corners_px=np.asarray(corners_px, dtype=float),
-                       layout_corners=layout.corners(), notes=notes)
+                       layout_corners=layout.corners(), params=np.asarray(fit.x, dtype=float), cov=cov,
+                       notes=notes)
 
 
 # ----------------------------------------------------------------------------
@@ -489,3 +492,34 @@ def ball_centres(camera: Camera, surface, radius: float, uv, jacobian: bool = Fa
         Cm = ray_offset_surface(surface, radius, O, dirs(uv - np.asarray(du)), start=start)[0]
         J.append((Cp[:, :2] - Cm[:, :2]) / 0.5)
     return C, J[0], J[1]
+
+
+def calibration_covariance(cal: Calibration, surface, radius: float, uv, C, P) -> np.ndarray:
+    """(n, 2, 2) design units^2: the covariance of the centres' (x, y) that the camera's
+    uncertainty alone gives (the fit's covariance of its 8 unknowns, scaled by the corners'
+    measured scatter, carried through the ray to the offset surface by central differences
+    of half a standard deviation). Zero when the fit has no covariance. The error it
+    describes is common to neighbouring frames, not independent from frame to frame."""
+    n = len(uv)
+    if cal.cov is None or n == 0:
+        return np.zeros((n, 2, 2))
+    cam0 = cal.camera
+    start = (P[:, 0], P[:, 1], None)
+    J = np.zeros((n, 2, 8))
+    for i in range(8):
+        h = 0.5 * math.sqrt(max(float(cal.cov[i, i]), 0.0))
+        if not h > 0:
+            continue
+        out = []
+        for sgn in (1.0, -1.0):
+            p = cal.params.copy()
+            p[i] += sgn * h
+            cam = _unpack(p, cam0.width, cam0.height)
+            Ow = cam.centre
+            O = np.array(surface.from_work(Ow[0], Ow[1], Ow[2]), dtype=float)
+            d = cam.rays(uv)
+            s0 = np.linalg.norm(C - O, axis=1)
+            out.append(ray_offset_surface(surface, radius, O, d, start=(start[0], start[1], s0))[0][:, :2])
+        J[:, :, i] = (out[0] - out[1]) / (2 * h)
+    J = np.nan_to_num(J)
+    return np.einsum("nai,ij,nbj->nab", J, cal.cov, J)

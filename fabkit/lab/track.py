@@ -409,6 +409,8 @@ class VideoTrack:
     radius_px: float
     units: str
     notes: list = field(default_factory=list)
+    sigma_image: np.ndarray | None = field(default=None, repr=False)        # (n, 2) the image noise's share
+    sigma_calibration: np.ndarray | None = field(default=None, repr=False)  # (n, 2) the camera's share
     snapshot: np.ndarray | None = field(default=None, repr=False)    # a grey frame with the ball, for figures
     corners_px: dict = field(default_factory=dict, repr=False)      # id -> (4, 2) px as found
 
@@ -439,6 +441,8 @@ class VideoTrack:
                 "reprojection_rms_px": self.calibration.rms_px, "reprojection_max_px": self.calibration.max_px,
                 "reprojection_rms_mm": self.calibration.rms_mm,
                 "position_sigma_median": float(np.median(sig)), "position_sigma_max": float(np.max(sig)),
+                "position_sigma_image_median": _med_norm(self.sigma_image, k),
+                "position_sigma_calibration_median": _med_norm(self.sigma_calibration, k),
                 "position_units": self.units, "ball_radius_px": self.radius_px,
                 "camera": self.calibration.to_json(), "notes": self.notes + self.calibration.notes}
 
@@ -454,6 +458,13 @@ class VideoTrack:
         return "\n".join(out) + "\n"
 
 
+def _med_norm(a, keep) -> float | None:
+    """The median over the kept rows of |a| (rows of 2), or None."""
+    if a is None or not keep.any():
+        return None
+    return float(np.median(np.hypot(a[keep, 0], a[keep, 1])))
+
+
 def marker_mask(camera: cam_mod.Camera, layout: cam_mod.MarkerLayout, shape) -> np.ndarray:
     """(h, w) bool: the image of each marker's paper (the square and its quiet zone, plus
     a module more)."""
@@ -466,6 +477,14 @@ def marker_mask(camera: cam_mod.Camera, layout: cam_mod.MarkerLayout, shape) -> 
                        [c[0] - pad, c[1] + pad, 0]])
         cv2.fillConvexPoly(m, np.round(camera.project(sq)).astype(np.int32), 1)
     return m.astype(bool)
+
+
+def _contact_points(surface, radius, C) -> np.ndarray:
+    """(n, 2): a start near each centre's contact point, (x, y) = C_xy + r grad h / w at C_xy."""
+    _, hx, hy = (np.broadcast_to(np.asarray(a, dtype=float), (len(C),)) for a in
+                 surface.derivatives(C[:, 0], C[:, 1])[:3])
+    w = np.sqrt(1.0 + hx * hx + hy * hy)
+    return np.c_[C[:, 0] + radius * hx / w, C[:, 1] + radius * hy / w]
 
 
 def track_video(spec, surface, path, progress=None) -> VideoTrack:
@@ -529,11 +548,19 @@ def _track(spec, surface, path, info, progress) -> VideoTrack:
     # the centre, and its standard deviation in design units through the Jacobian px -> centre
     C, Ju, Jv = cam_mod.ball_centres(cam, surface, radius, uv[idx], jacobian=True)
     xy[idx] = C[:, :2]
-    sxy[idx] = np.sqrt((Ju * su[idx, 0:1]) ** 2 + (Jv * su[idx, 1:2]) ** 2)
+    s_img = np.sqrt((Ju * su[idx, 0:1]) ** 2 + (Jv * su[idx, 1:2]) ** 2)
+    cov = cam_mod.calibration_covariance(calib, surface, radius, uv[idx], C,
+                                         _contact_points(surface, radius, C))
+    s_cal = np.sqrt(np.maximum(np.stack([cov[:, 0, 0], cov[:, 1, 1]], axis=1), 0.0))
+    sxy[idx] = np.hypot(s_img, s_cal)
+    sig_img = np.full((len(t), 2), np.nan)
+    sig_cal = np.full((len(t), 2), np.nan)
+    sig_img[idx], sig_cal[idx] = s_img, s_cal
     lost = ~np.all(np.isfinite(xy), axis=1)
     uv[lost] = np.nan
     notes = list(layout.notes)
     if info.width != smp.width or info.height != smp.height:  # pragma: no cover (a container's odd header)
         notes.append(f"the container says {info.width}x{info.height}, the frames are {smp.width}x{smp.height}")
     return VideoTrack(path=str(path), t=t, uv=uv, xy=xy, sigma=sxy, calibration=calib, radius_px=radius_px,
-                      units=spec.units, notes=notes, snapshot=snapshot[1], corners_px=corners)
+                      units=spec.units, notes=notes, sigma_image=sig_img, sigma_calibration=sig_cal,
+                      snapshot=snapshot[1], corners_px=corners)
