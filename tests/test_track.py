@@ -259,3 +259,15 @@ def test_markers_page_true_size(tmp_path, capsys):
     for ext, head in ((".pdf", b"%PDF"), (".svg", b"<?xml")):
         assert main(["markers", str(spec), "-o", str(tmp_path / f"m{ext}")]) == 0
         assert (tmp_path / f"m{ext}").read_bytes()[:5].startswith(head)
+
+
+def test_corners_matched_whatever_the_markers_turn():
+    """A marker stuck down turned by 90, 180 or 270 degrees: OpenCV lists its corners from
+    the printed top-left; matched by position they come back in the layout's order."""
+    from fabkit.lab.camera import MarkerLayout, match_corners
+
+    cam = _camera(1300.0, 5.0, 10.0, 0.0)
+    lay = MarkerLayout(30.0, np.array(vr.MARKERS))
+    exact = cam.project(lay.corners().reshape(-1, 3)).reshape(4, 4, 2)
+    turned = {i: np.roll(exact[i], -i, axis=0) for i in range(4)}      # marker i turned i quarter turns
+    assert np.array_equal(match_corners(turned, lay), exact)
