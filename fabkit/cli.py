@@ -170,6 +170,23 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("-o", "--output", metavar="PATH", help="write the spec with the losses of the law the tracks "
                    "support (simulation.damping, ball.rolling_resistance) to PATH (YAML)")
 
+    c = cmd("markers", "the ArUco markers for `fabkit track`, at true size, with where each goes on the block")
+    c.add_argument("-o", "--output", metavar="PATH", help="the page to print (default toolpaths/<name>.markers.pdf; "
+                   ".pdf, .svg or .png at 600 dpi)")
+    c.add_argument("--json", action="store_true", help="print JSON")
+
+    c = cmd("track", "videos of the block -> the ball centre's calibrated trajectory per video (for analyze)")
+    c.add_argument("videos", nargs="+", metavar="VIDEO", help="mp4, mov, avi, mkv, ... (PyAV); times from each "
+                   "frame's presentation timestamp")
+    c.add_argument("-o", "--output", metavar="OUT", help="the track file for one video (t,x,y,sigma_x,sigma_y: "
+                   "s and design units)")
+    c.add_argument("--out-dir", metavar="DIR", dest="out_dir",
+                   help="folder for the tracks, <video name>.track.csv each (default toolpaths)")
+    c.add_argument("--json", action="store_true", help="print JSON")
+    c.add_argument("--plot", metavar="FILE", help="the first video's frame with the track and the markers "
+                   "overlaid: " + PLOT)
+    c.add_argument("--no-progress", action="store_true", help="no progress bar")
+
     c = cmd("ramp", "the launch ramp as a watertight solid, with release marks at calibrated heights")
     c.add_argument("-o", "--output", metavar="PATH", help="output file (default toolpaths/<name>.ramp.stl; "
                    "other mesh formats by extension)")

@@ -97,6 +97,16 @@ class Flag:
 
 
 @dataclass(frozen=True)
+class Points:
+    """A list of [X, Y] points (exactly ``count`` of them when given)."""
+
+    default: Any = REQUIRED
+    count: int | None = None
+    length: str | None = None
+    doc: str = ""
+
+
+@dataclass(frozen=True)
 class Params:
     default: Any = dataclasses.field(default_factory=dict)
     doc: str = ""
@@ -207,6 +217,17 @@ SCHEMA: dict[str, dict[str, Any]] = {
                     doc="integrator relative tolerance (below 1e-13 double precision cannot follow)"),
         "atol": Num(default=1e-12, gt=0, le=1.0, doc="integrator absolute tolerance (design units)"),
         "method": Choice(("fabkit", "DOP853", "RK45", "Radau", "LSODA"), default="fabkit"),
+    },
+    "lab": {
+        "marker_size": Num(default=30.0, gt=0, le=1000, length="mm",
+                           doc="side of each ArUco marker's black square, mm (printed with a white quiet "
+                               "zone one module wide)"),
+        "markers": Points(default=None, count=4, length="mm",
+                          doc="[[X, Y], ...] work mm: the centres of markers 0-3 on the top face, in id "
+                              "order (default: each square 5 mm from the two nearest block edges, at the "
+                              "corners (0, 0), (L, 0), (L, W), (0, W))"),
+        "camera_height": Num(default=None, gt=0, le=100_000, length="mm",
+                             doc="the camera's height above the top face, mm (a tape measure; optional)"),
     },
 }
 TOP_KEYS = {"name": Text(default=None), "units": Choice(("mm", "cm", "in"), default="mm")}
@@ -532,6 +553,22 @@ def _field(f: Any, value: Any, key: str, file: str, unit: str) -> Any:
         if not isinstance(value, bool):
             raise SpecError(f"must be true | false, got {_show(value)}", file=file, key=key)
         return value
+    if isinstance(f, Points):
+        if value is None and f.default is None:
+            return None
+        if not isinstance(value, (list, tuple)) or (f.count is not None and len(value) != f.count):
+            n = f"{f.count} " if f.count is not None else ""
+            raise SpecError(f"must be a list of {n}points [X, Y], got {_show(value)}"
+                            + (f" of {len(value)}" if isinstance(value, (list, tuple)) else ""), file=file, key=key)
+        pts = []
+        for i, item in enumerate(value):
+            if not isinstance(item, (list, tuple)) or len(item) != 2:
+                raise SpecError(f"must be a point [X, Y], got {_show(item)}", file=file, key=f"{key}[{i}]")
+            pt = tuple(_number(c, f"{key}[{i}]", file, f.length, unit) for c in item)
+            if max(abs(c) for c in pt) > 1e9:
+                raise SpecError("out of range (|value| <= 1e9)", file=file, key=f"{key}[{i}]")
+            pts.append(pt)
+        return tuple(pts)
     if isinstance(f, Params):
         if value is None:
             return {}
