@@ -591,7 +591,7 @@ def evaluate_design(spec, v_grid, engine: Engine, *, rel_tol: float = 1e-6, heig
             raise SpecError(f"{np.size(v_grid)} launches exceed the limit {tol.max_launches}", key="--v-in")
         sweep_v = None if v_grid is None else np.sort(np.asarray(v_grid, dtype=float))
         rep = check(spec, launcher=launch, sweep_v=sweep_v, problem=problem, rel_tol=height_rel_tol,
-                    v_rel_tol=rel_tol, edge_rel_tol=rel_tol, tol=tol)
+                    v_rel_tol=rel_tol, edge_rel_tol=rel_tol, tol=tol, window_bounces=None)   # every n-bounce window
         out: dict = {"v_critical": rep.v_critical, "v_critical_error": rep.v_critical_error,
                      "v_critical_reason": rep.v_critical_reason, "windows": rep.windows, "safe_over": "ramp",
                      "highest_safe_height": rep.highest_safe_height, "first_failure": rep.first_failure}

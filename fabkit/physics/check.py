@@ -246,9 +246,11 @@ def _take(r, sl):
 def check(spec, *, launcher=None, heights=None, sweep_v=None, progress=None, problem=None, machining_report=None,
           refine: bool = True, rel_tol: float = TOLERANCES["rel_tol"], v_rel_tol: float = TOLERANCES["v_rel_tol"],
           edge_rel_tol: float = TOLERANCES["edge_rel_tol"], gap_rel_tol: float = TOLERANCES["gap_rel_tol"],
-          tol=None) -> CheckReport:
+          tol=None, window_bounces: tuple | None = (2,)) -> CheckReport:
     """The pre-fabrication check of ``spec`` (sections surface, ball, ramp, simulation;
-    stock and tool optional), on the spec's model (module doc). Returns a
+    stock and tool optional), on the spec's model (module doc). ``window_bounces``: the
+    bounce counts whose windows are resolved and reported (default the two-bounce ones the
+    check judges; None: every n, as explore reports them). Returns a
     :class:`CheckReport`; raises nothing for an unsafe design.
 
     ``launcher``: ``v_in (M,) -> Launches`` running the spec's problem (default: the
@@ -316,7 +318,7 @@ def check(spec, *, launcher=None, heights=None, sweep_v=None, progress=None, pro
     # v_critical and windows over the swept speeds (reusing these launches)
     sw = sweep(problem, vs, launcher=launches_of, initial=grid, rel_tol=v_rel_tol, error_samples=0, tn=False,
                k=1, k_edge=1, edge_rel_tol=edge_rel_tol, gap_rel_tol=gap_rel_tol, refine=refine, tol=tol,
-               bounces=(2,))
+               bounces=window_bounces)
     vc = sw["v_critical"]
     windows = sw["windows"] if refine else _midpoint_windows(vs, grid)
     vmin, vmax = float(v[0]), float(v[-1])
