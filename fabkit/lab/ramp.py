@@ -113,6 +113,11 @@ class RampProfile:
     kink_angle = 0.0
 
     @property
+    def breaks(self) -> tuple:
+        """Where the line's curvature has a kink: the end of the lift's transition."""
+        return (self.L,)
+
+    @property
     def top(self) -> float:
         """The highest release height the ramp offers (the ball's contact at its far end)."""
         return float(self.drop(self.u_end))
@@ -190,6 +195,8 @@ class StraightRamp:
     @property
     def u_stop(self) -> float:
         return self.d_star * math.cos(math.radians(self.angle))
+
+    breaks = ()
 
     def dlift(self, u):
         return np.full_like(np.asarray(u, dtype=float), self.tan)

@@ -266,44 +266,60 @@ def _descend(prof, H, g, k, mu, c, straight, spec) -> Entry:
                    f"whose {path:.4g} {spec.units} take at least {path / vmax:.3g} s")
             return Entry(H, v, reached, g, k, mu, c, name, False, 0.0, top, why, method)
         idx = np.flatnonzero(live)
-        a, span = ur[idx], ur[idx] - u0
         count = [0]
+        # the line's curvature has a kink at each of prof.breaks (the lift's third derivative
+        # jumps at the end of its transition): the descent is integrated piecewise between them,
+        # every lane crossing a break at the end of a piece, so each piece is smooth
+        cuts = sorted({u0, *[float(b) for b in getattr(prof, "breaks", ()) if b > u0]}, reverse=True)
+        uri = ur[idx]
+        E = np.zeros(len(idx))
+        stopped = np.zeros(len(idx), bool)
+        lifted = np.zeros(len(idx), bool)
+        for j, lo_u in enumerate(cuts):
+            hi_u = cuts[j - 1] if j > 0 else math.inf
+            on = uri > lo_u
+            if not on.any():
+                continue
+            a = np.minimum(uri[on], hi_u)
+            span = a - lo_u
+            E0 = E[on]
 
-        # tau = sigma^2: near the release E grows like the distance (tau), sqrt(E) like sigma,
-        # so the integrand is smooth in sigma
-        def rhs(sig, E):
-            count[0] += 1
-            if count[0] > RAMP_EVAL_BUDGET:
-                raise _Budget
-            u = a - span * sig * sig
+            # u = a - span sigma^2: where a lane starts from rest E grows like the distance, sqrt(E)
+            # like sigma, so the integrand is smooth in sigma
+            def rhs(sig, E, a=a, span=span):
+                count[0] += 1
+                if count[0] > RAMP_EVAL_BUDGET:
+                    raise _Budget
+                u = a - span * sig * sig
+                sn, cs, kap, w = geo(u)
+                Ep = np.maximum(E, 0.0)
+                N = g * cs + 2.0 * Ep * kap / (1.0 - r * kap)
+                f = gt * sn - mu * np.sqrt(2.0 * Ep) - cp * np.maximum(N, 0.0)
+                dS = 2.0 * sig * span * (1.0 - r * kap) * w          # centre path per unit sigma
+                return np.where((E <= 0) & (f <= 0), 0.0, dS * f)
+
+            try:
+                sol = solve_ivp(rhs, (0.0, 1.0), E0, method="DOP853", rtol=RAMP_RTOL,
+                                atol=1e-14 * gt * max(top, 1e-300), dense_output=True)
+            except _Budget:
+                raise DesignError(f"the descent of the ramp was not integrated within {RAMP_EVAL_BUDGET} "
+                                  f"evaluations (simulation.damping = {mu:g} 1/s, ball.rolling_resistance = "
+                                  f"{c:g}): the losses make it too stiff") from None
+            if not sol.success:
+                raise DesignError(f"the descent of the ramp failed: {sol.message}")
+            # the normal force and the speed along the way (sampled): a ball whose speed falls to
+            # zero stops on the ramp; one whose normal force falls to zero leaves it
+            sig = np.linspace(0.0, 1.0, 201)
+            Es = np.atleast_2d(sol.sol(sig))                         # (lanes, 201)
+            u = a[:, None] - span[:, None] * sig[None, :] ** 2
             sn, cs, kap, w = geo(u)
-            Ep = np.maximum(E, 0.0)
-            N = g * cs + 2.0 * Ep * kap / (1.0 - r * kap)
-            f = gt * sn - mu * np.sqrt(2.0 * Ep) - cp * np.maximum(N, 0.0)
-            dS = 2.0 * sig * span * (1.0 - r * kap) * w          # centre path per unit sigma
-            return np.where((E <= 0) & (f <= 0), 0.0, dS * f)
-
-        try:
-            sol = solve_ivp(rhs, (0.0, 1.0), np.zeros(len(idx)), method="DOP853", rtol=RAMP_RTOL,
-                            atol=1e-14 * gt * max(top, 1e-300), vectorized=False, dense_output=True)
-            evals = count[0]
-        except _Budget:
-            raise DesignError(f"the descent of the ramp was not integrated within {RAMP_EVAL_BUDGET} steps "
-                              f"(simulation.damping = {mu:g} 1/s, ball.rolling_resistance = {c:g}): the "
-                              "losses make it too stiff") from None
-        if not sol.success:
-            raise DesignError(f"the descent of the ramp failed: {sol.message}")
-        # the normal force and the speed along the way (sampled): a ball whose speed falls to
-        # zero stops on the ramp; one whose normal force falls to zero leaves it
-        sig = np.linspace(0.0, 1.0, 401)
-        Es = sol.sol(sig)                                    # (lanes, 401)
-        u = a[:, None] - span[:, None] * sig[None, :] ** 2
-        sn, cs, kap, w = geo(u)
-        N = g * cs + 2.0 * np.maximum(Es, 0.0) * kap / (1.0 - r * kap)
-        Ef = sol.y[:, -1]
+            N = g * cs + 2.0 * np.maximum(Es, 0.0) * kap / (1.0 - r * kap)
+            stopped[on] |= np.any(Es[:, 1:] <= 0, axis=1)
+            lifted[on] |= np.any(N < 0, axis=1)
+            E[on] = sol.y[:, -1]
+        Ef = E
         lossless = gt * (H[idx] - float(prof.drop(u0)))
-        stopped = (Ef <= 1e-9 * np.maximum(lossless, 0.0)) | np.any(Es[:, 1:] <= 0, axis=1)
-        lifted = np.any(N < 0, axis=1)
+        stopped |= Ef <= 1e-9 * np.maximum(lossless, 0.0)
         ok = ~stopped & ~lifted
         v[idx] = np.where(ok, np.sqrt(2.0 * np.maximum(Ef, 0.0)) * kink, np.nan)
         reached[idx] = ok
