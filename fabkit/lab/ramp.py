@@ -407,21 +407,27 @@ def build_ramp(spec, prof: RampProfile, marks: list[dict]) -> RampSolid:
 # ----------------------------------------------------------------------------
 # marks
 # ----------------------------------------------------------------------------
-def mark_targets(check_result: dict, g: float, k: float) -> list[dict]:
+def mark_targets(check_result: dict, g: float, k: float, spec=None) -> list[dict]:
     """{height, v_in, label, double} for the reachable two-bounce window centres (centre
-    in v_in) and v_critical, from a ``physics.check.check`` result."""
-    from ..physics.calibrate import height_from_v_in
+    in v_in) and v_critical, from a ``physics.check.check`` result. The heights come from
+    :func:`fabkit.physics.calibrate.release_height` (the ramp's losses included) when
+    ``spec`` is given, else from the lossless closed form; nan where the speed is beyond
+    the ramp's reach."""
+    from ..physics.calibrate import height_from_v_in, release_height
 
     out = []
     for i, w in enumerate(check_result.get("reachable_windows") or [], start=1):
         v = 0.5 * (w["lo"] + w["hi"])
-        out.append({"height": float(height_from_v_in(v, g, k)), "v_in": float(v),
-                    "label": f"2-bounce window {i} centre ({w['lo']:.2f}..{w['hi']:.2f})", "double": False})
+        out.append({"v_in": float(v), "label": f"2-bounce window {i} centre ({w['lo']:.2f}..{w['hi']:.2f})",
+                    "double": False})
     vc = check_result.get("v_critical")
     if vc is not None:
-        out.append({"height": float(height_from_v_in(vc, g, k)), "v_in": float(vc), "label": "v_critical",
-                    "double": True})
-    return sorted(out, key=lambda m: m["height"])
+        out.append({"v_in": float(vc), "label": "v_critical", "double": True})
+    v = np.array([m["v_in"] for m in out], dtype=float)
+    hs = (release_height(spec, v) if spec is not None else height_from_v_in(v, g, k)) if len(v) else v
+    for m, h in zip(out, hs):
+        m["height"] = float(h)
+    return sorted(out, key=lambda m: (not math.isfinite(m["height"]), m["height"]))
 
 
 def place_marks(spec, prof: RampProfile, targets: list[dict]) -> list[dict]:

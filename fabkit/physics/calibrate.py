@@ -56,8 +56,9 @@ from ..units import gravity
 #: relative tolerance of the descent's integration (DOP853); the entry speeds it gives
 #: agree with an independent integration to ~1e-10 relative (tests/test_calibrate.py)
 RAMP_RTOL = 1e-11
-#: right-hand-side evaluations allowed to one descent (all heights together)
-RAMP_EVAL_BUDGET = 200_000
+#: right-hand-side evaluations allowed to each piece of one descent (all heights together),
+#: to each of the explicit and the stiff integrator
+RAMP_EVAL_BUDGET = 20_000
 #: secant steps allowed to the inverse (release_height)
 INVERSE_ITERATIONS = 60
 
@@ -240,6 +241,8 @@ def _descend(prof, H, g, k, mu, c, straight, spec) -> Entry:
     method = (f"descent integrated along the {name} ramp's line (DOP853, rtol {RAMP_RTOL:g}), "
               f"damping {mu:g} 1/s, rolling resistance {c:g}" + (f", kink factor {kink:.6f}" if straight else ""))
 
+    t_max = float(spec.simulation.t_max) if spec.has("simulation") else 60.0
+
     def geo(u):
         zp = prof.slope(u)
         zpp = prof.curvature(u)
@@ -257,7 +260,6 @@ def _descend(prof, H, g, k, mu, c, straight, spec) -> Entry:
                             "points", file=spec.path, key="ramp")
         A = (1.0 - r * kap) * w
         path = float(np.sum(0.5 * (A[1:] + A[:-1]) * np.diff(ug)))
-        t_max = float(spec.simulation.t_max) if spec.has("simulation") else 60.0
         vmax = gt * float(np.max(np.abs(sn))) / mu if mu > 0 else math.inf
         if mu > 0 and path / vmax > t_max:
             reached = reached & ~live          # only those already in the corner "arrive" (at rest)
@@ -266,15 +268,16 @@ def _descend(prof, H, g, k, mu, c, straight, spec) -> Entry:
                    f"whose {path:.4g} {spec.units} take at least {path / vmax:.3g} s")
             return Entry(H, v, reached, g, k, mu, c, name, False, 0.0, top, why, method)
         idx = np.flatnonzero(live)
-        count = [0]
         # the line's curvature has a kink at each of prof.breaks (the lift's third derivative
         # jumps at the end of its transition): the descent is integrated piecewise between them,
         # every lane crossing a break at the end of a piece, so each piece is smooth
         cuts = sorted({u0, *[float(b) for b in getattr(prof, "breaks", ()) if b > u0]}, reverse=True)
         uri = ur[idx]
-        E = np.zeros(len(idx))
-        stopped = np.zeros(len(idx), bool)
-        lifted = np.zeros(len(idx), bool)
+        n = len(idx)
+        E, T = np.zeros(n), np.zeros(n)
+        stopped = np.zeros(n, bool)
+        lifted = np.zeros(n, bool)
+        stiff = [False]
         for j, lo_u in enumerate(cuts):
             hi_u = cuts[j - 1] if j > 0 else math.inf
             on = uri > lo_u
@@ -282,58 +285,98 @@ def _descend(prof, H, g, k, mu, c, straight, spec) -> Entry:
                 continue
             a = np.minimum(uri[on], hi_u)
             span = a - lo_u
-            E0 = E[on]
-
-            # u = a - span sigma^2: where a lane starts from rest E grows like the distance, sqrt(E)
-            # like sigma, so the integrand is smooth in sigma
-            def rhs(sig, E, a=a, span=span):
-                count[0] += 1
-                if count[0] > RAMP_EVAL_BUDGET:
-                    raise _Budget
-                u = a - span * sig * sig
-                sn, cs, kap, w = geo(u)
-                Ep = np.maximum(E, 0.0)
-                N = g * cs + 2.0 * Ep * kap / (1.0 - r * kap)
-                f = gt * sn - mu * np.sqrt(2.0 * Ep) - cp * np.maximum(N, 0.0)
-                dS = 2.0 * sig * span * (1.0 - r * kap) * w          # centre path per unit sigma
-                return np.where((E <= 0) & (f <= 0), 0.0, dS * f)
-
-            try:
-                sol = solve_ivp(rhs, (0.0, 1.0), E0, method="DOP853", rtol=RAMP_RTOL,
-                                atol=1e-14 * gt * max(top, 1e-300), dense_output=True)
-            except _Budget:
-                raise DesignError(f"the descent of the ramp was not integrated within {RAMP_EVAL_BUDGET} "
-                                  f"evaluations (simulation.damping = {mu:g} 1/s, ball.rolling_resistance = "
-                                  f"{c:g}): the losses make it too stiff") from None
-            if not sol.success:
-                raise DesignError(f"the descent of the ramp failed: {sol.message}")
+            sol = _piece(geo, a, span, E[on], T[on], g, gt, mu, cp, r, t_max, top, stiff, spec, c)
             # the normal force and the speed along the way (sampled): a ball whose speed falls to
             # zero stops on the ramp; one whose normal force falls to zero leaves it
             sig = np.linspace(0.0, 1.0, 201)
-            Es = np.atleast_2d(sol.sol(sig))                         # (lanes, 201)
+            Es = np.atleast_2d(sol.sol(sig))[: int(on.sum())]          # (lanes, 201)
             u = a[:, None] - span[:, None] * sig[None, :] ** 2
             sn, cs, kap, w = geo(u)
             N = g * cs + 2.0 * np.maximum(Es, 0.0) * kap / (1.0 - r * kap)
             stopped[on] |= np.any(Es[:, 1:] <= 0, axis=1)
             lifted[on] |= np.any(N < 0, axis=1)
-            E[on] = sol.y[:, -1]
-        Ef = E
-        lossless = gt * (H[idx] - float(prof.drop(u0)))
-        stopped |= Ef <= 1e-9 * np.maximum(lossless, 0.0)
-        ok = ~stopped & ~lifted
-        v[idx] = np.where(ok, np.sqrt(2.0 * np.maximum(Ef, 0.0)) * kink, np.nan)
+            m = int(on.sum())
+            E[on], T[on] = sol.y[:m, -1], sol.y[m:, -1]
+        stopped |= E <= 0
+        late = ~stopped & ~lifted & (T > t_max)
+        ok = ~stopped & ~lifted & ~late
+        v[idx] = np.where(ok, np.sqrt(2.0 * np.maximum(E, 0.0)) * kink, np.nan)
         reached[idx] = ok
+        notes = [why] if why else []
         if stopped.any():
-            why = (f"the ball stops on the ramp (rolling resistance {c:g}) from release heights "
-                   f"{_ranges(H[idx][stopped])}")
+            notes.append(f"the ball stops on the ramp (simulation.damping {mu:g} 1/s, ball.rolling_resistance "
+                         f"{c:g}) from release heights {_ranges(H[idx][stopped])}")
         if lifted.any():
-            why = ((why + "; ") if why else "") + (f"the ball leaves the ramp's surface (its normal force falls to "
-                                                   f"zero) from release heights {_ranges(H[idx][lifted])}")
+            notes.append(f"the ball leaves the ramp's surface (its normal force falls to zero) from release "
+                         f"heights {_ranges(H[idx][lifted])}")
+        if late.any():
+            notes.append(f"the ball takes longer than simulation.t_max = {t_max:g} s to roll down the ramp "
+                         f"(simulation.damping {mu:g} 1/s, ball.rolling_resistance {c:g}) from release heights "
+                         f"{_ranges(H[idx][late])}")
+        why = "; ".join(notes) or None
+        if stiff[0]:
+            method = method.replace("DOP853", "Radau: stiff")
     return Entry(H, v, reached, g, k, mu, c, name, False, 1e-9, top, why, method)
 
 
 class _Budget(Exception):
     pass
+
+
+def _piece(geo, a, span, E0, T0, g, gt, mu, cp, r, t_max, top, stiff, spec, c):
+    """One smooth piece of the descent for the lanes released at or passing through ``a``
+    (design units) down to ``a - span``: state (E, t) per lane, E the kinetic energy per
+    unit (1 + k) m, t the time (s), against sigma in [0, 1] with u = a - span sigma^2
+    (where a lane starts from rest E grows like the distance, sqrt(E) like sigma: smooth in
+    sigma; dt/dsigma stays finite). A lane past t_max is frozen (it does not reach in time).
+    DOP853 within a budget of evaluations; a problem too stiff for it (large damping) goes
+    to Radau, whose Jacobian is block-diagonal across lanes."""
+    from scipy.integrate import solve_ivp
+
+    m = len(a)
+    count = [0]
+    budget = [RAMP_EVAL_BUDGET]
+
+    def rhs(sig, y):
+        count[0] += 1
+        if count[0] > budget[0]:
+            raise _Budget
+        E, t = y[:m], y[m:]
+        u = a - span * sig * sig
+        sn, cs, kap, w = geo(u)
+        Ep = np.maximum(E, 0.0)
+        N = g * cs + 2.0 * Ep * kap / (1.0 - r * kap)
+        f = gt * sn - mu * np.sqrt(2.0 * Ep) - cp * np.maximum(N, 0.0)
+        dSu = span * (1.0 - r * kap) * w                 # centre path per unit sigma, over 2 sigma
+        dE = 2.0 * sig * dSu * f
+        with np.errstate(divide="ignore", invalid="ignore"):
+            # dt/dsigma = dS/dsigma / V; from rest (E = 0, sigma = 0) its limit sqrt(2 dSu / f)
+            dt = np.where(Ep > 0, 2.0 * sig * dSu / np.sqrt(2.0 * Ep), np.sqrt(2.0 * dSu / np.maximum(f, 1e-300)))
+        dead = ((E <= 0) & (f <= 0)) | (t > t_max)
+        return np.concatenate([np.where(dead, 0.0, dE), np.where(dead, 0.0, dt)])
+
+    y0 = np.concatenate([E0, T0])
+    atol = np.concatenate([np.full(m, 1e-14 * gt * max(top, 1e-300)), np.full(m, 1e-6 * t_max)])        # t decides only "within t_max"
+    try:
+        sol = solve_ivp(rhs, (0.0, 1.0), y0, method="DOP853", rtol=RAMP_RTOL, atol=atol, dense_output=True)
+    except _Budget:
+        from scipy.sparse import eye, hstack, vstack
+
+        stiff[0] = True
+        count[0], budget[0] = 0, RAMP_EVAL_BUDGET
+        blk = eye(m, format="csr")
+        sparsity = vstack([hstack([blk, blk * 0]), hstack([blk, blk])]).tocsr()
+        try:
+            sol = solve_ivp(rhs, (0.0, 1.0), y0, method="Radau", rtol=max(RAMP_RTOL, 1e-9), atol=atol,
+                            dense_output=True, jac_sparsity=sparsity)
+        except _Budget:
+            raise DesignError(f"{spec.path}: the ball's descent of the ramp ran out of its budget "
+                              f"({RAMP_EVAL_BUDGET} evaluations of the explicit and of the stiff integrator): "
+                              f"simulation.damping = {mu:g} 1/s makes it crawl (its decay time 1/mu is "
+                              f"{1 / mu if mu else math.inf:.3g} s); lower it") from None
+    if not sol.success:
+        raise DesignError(f"{spec.path}: the descent of the ramp failed: {sol.message}")
+    return sol
 
 
 def _ranges(h) -> str:
