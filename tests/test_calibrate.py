@@ -237,3 +237,39 @@ def test_rolling_resistance_stops_the_ball(tmp_path):
     assert e.reached.tolist() == [False, True] and "stops" in e.why
     # energy: the resistance's work c N s at least c g cos(phi) per unit path, so v^2 is below the closed form's
     assert e.v_in[1] < math.sqrt(2 * G_CM * 4.5 / 1.4) * 0.99
+
+
+@pytest.mark.parametrize("changes,key", [
+    ({"ramp.length": 10}, "ramp.length"),                                  # fabkit's ramp is sized from heights
+    ({"ramp.profile": "straight", "ramp.length": 10}, "ramp.angle"),       # straight needs both
+    ({"ramp.profile": "straight", "ramp.angle": 20}, "ramp.length"),
+    ({"ramp.profile": "straight", "ramp.angle": 95, "ramp.length": 10}, "ramp.angle"),
+    ({"ramp.profile": "curved"}, "ramp.profile"),
+])
+def test_ramp_keys_refused(cli, tmp_path, changes, key):
+    code, out, err = cli("calibrate", write_spec(tmp_path, mutated(changes)))
+    assert code == 2 and key in err and err.count("\n") == 1 and out == ""
+
+
+@pytest.mark.parametrize("units,scale", [("mm", 10.0), ("in", 1 / 2.54)])
+def test_entry_speed_is_the_same_in_every_unit(tmp_path, units, scale):
+    """The paper's spec written in mm or inches (every design length scaled, damping in 1/s
+    unchanged): the same ball on the same ramp, the same speeds in the new unit."""
+    from fabkit.physics.calibrate import entry_speed
+
+    raw = mutated({"simulation.damping": 0.127})
+    ref = entry_speed(load_spec(write_spec(tmp_path, raw, "cm.yaml")), np.array([0.5, 2.5, 4.5]))
+    a, b, c_, d, eta = (raw["surface"]["params"][k] for k in ("a", "b", "c", "d", "eta"))
+    raw["units"] = units
+    raw["surface"]["params"].update(a=a / scale, b=b / scale, d=d / scale, c=c_ / scale, eta=eta * scale,
+                                    eps=raw["surface"]["params"]["eps"])
+    raw["surface"]["height"] = "eta*(exp(a*x) - exp(b*x)) + c*y**2 + eps*y*exp(d*x)"
+    for key in ("x", "y"):
+        raw["surface"][key] = [v * scale for v in raw["surface"][key]]
+    raw["surface"]["top"] *= scale
+    raw["ball"]["diameter"] *= scale
+    raw["ramp"]["heights"] = [h * scale for h in raw["ramp"]["heights"]]
+    for key in ("start", "margin"):
+        raw["simulation"][key] *= scale
+    v = entry_speed(load_spec(write_spec(tmp_path, raw, f"{units}.yaml")), np.array([0.5, 2.5, 4.5]) * scale)
+    np.testing.assert_allclose(v, ref * scale, rtol=1e-8)
