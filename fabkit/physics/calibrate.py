@@ -251,21 +251,28 @@ def _descend(prof, H, g, k, mu, c, straight, spec) -> Entry:
         return zp / w, 1.0 / w, kap, w
 
     if live.any():
-        # a quick bound before integrating: the speed never exceeds g~ sin(phi)_max / mu (from rest),
-        # so a ramp longer than that speed times simulation.t_max is not descended within it
-        ug = np.linspace(u0, float(np.nanmax(ur[live])), 2001)
+        # a quick bound before integrating: from rest the speed never exceeds g~ max sin(phi) / mu,
+        # so a ball whose centre's path is longer than that speed times simulation.t_max does not
+        # reach the block within it
+        ug = np.linspace(u0, float(np.nanmax(ur[live])), 4001)
         sn, cs, kap, w = geo(ug)
         if np.any(1.0 - r * kap <= 0):
             raise SpecError(f"the ramp's line is tighter than the ball (radius {r:g}): it would touch at two "
-                            "points", file=spec.path, key="ramp")
+                            "points (a steeper ramp has a tighter transition)", file=spec.path, key="ramp.angle")
         A = (1.0 - r * kap) * w
-        path = float(np.sum(0.5 * (A[1:] + A[:-1]) * np.diff(ug)))
+        path = np.concatenate([[0.0], np.cumsum(0.5 * (A[1:] + A[:-1]) * np.diff(ug))])
         vmax = gt * float(np.max(np.abs(sn))) / mu if mu > 0 else math.inf
-        if mu > 0 and path / vmax > t_max:
-            reached = reached & ~live          # only those already in the corner "arrive" (at rest)
-            why = (f"the ball does not reach the block within simulation.t_max = {t_max:g} s: with "
-                   f"simulation.damping = {mu:g} 1/s it rolls at most {vmax:.3g} {spec.units}/s on the ramp, "
-                   f"whose {path:.4g} {spec.units} take at least {path / vmax:.3g} s")
+        slow = np.zeros(H.shape, bool)
+        slow[live] = np.interp(ur[live], ug, path) / vmax > t_max
+        if slow.any():
+            p_slow = float(np.interp(float(np.min(ur[slow])), ug, path))
+            why = ((why + "; ") if why else "") + (
+                f"the ball does not reach the block within simulation.t_max = {t_max:g} s from release heights "
+                f"{_ranges(H[slow])}: with simulation.damping = {mu:g} 1/s it rolls at most {vmax:.3g} "
+                f"{spec.units}/s on the ramp, and its path from there is {p_slow:.4g} {spec.units} or more")
+            reached &= ~slow
+            live &= ~slow
+        if not live.any():
             return Entry(H, v, reached, g, k, mu, c, name, False, 0.0, top, why, method)
         idx = np.flatnonzero(live)
         # the line's curvature has a kink at each of prof.breaks (the lift's third derivative
