@@ -216,10 +216,12 @@ def test_straight_ramp_against_its_closed_form(tmp_path, mu, c):
     H = np.array([0.5, 2.0, 4.5])
     ref = [_straight_closed_form(h, 20.0, 1.25, math.atan(hx), mu, c) for h in H]
     np.testing.assert_allclose(entry_speed(spec, H), ref, rtol=1e-9)
-    # a kink of 20 degrees costs 2.5 % of the speed even without losses
+    # a kink of 20 degrees costs 4.3 % of the speed even without losses
     if mu == 0 and c == 0:
         lossless = np.sqrt(2 * G_CM * H / 1.4)
-        assert np.all(np.abs(entry_speed(spec, H) / lossless - (0.4 + math.cos(math.radians(20))) / 1.4) < 1e-4)
+        ratio = entry_speed(spec, H) / lossless
+        assert np.all(np.abs(ratio - (0.4 + math.cos(math.radians(20))) / 1.4) < 1e-4)
+        assert np.all(np.abs(ratio - 0.957) < 1e-3)
 
 
 def test_rolling_resistance_stops_the_ball(tmp_path):
