@@ -302,8 +302,6 @@ def test_the_crawl_bound_is_a_lower_bound(tmp_path, mu):
     for i, h in enumerate(H):
         v, t = _reference_descent(spec, h, mu, 0.0, want_time=True)
         assert 0 <= bound[i] <= t
-        if mu == 10.0 and h == 4.5:    # not trivial from the incline: within a factor 2 of the time
-            assert bound[i] > 0.5 * t, (bound[i], t)
         assert e.v_in[i] == pytest.approx(v, rel=1e-6)
 
 
