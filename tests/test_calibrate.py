@@ -309,3 +309,13 @@ def test_a_crawling_ball_is_refused_quickly(cli, tmp_path):
     """damping 300 1/s: the bound (at least 60 s down the ramp) refuses it, exit 1, one line."""
     code, out, err = cli("calibrate", write_spec(tmp_path, mutated({"simulation.damping": 300})))
     assert code == 1 and err.count("\n") == 1 and "simulation.t_max" in err and "at least" in err
+
+
+def test_running_out_of_budget_is_reported(cli, tmp_path, monkeypatch):
+    """The descent's evaluation budget (each integrator, each piece) ends in one line, exit 1,
+    naming the budget (here shrunk to 40 evaluations, so that the paper's spec runs out)."""
+    import fabkit.physics.calibrate as cal
+
+    monkeypatch.setattr(cal, "RAMP_EVAL_BUDGET", 40)
+    code, out, err = cli("calibrate", PAPER)
+    assert code == 1 and err.count("\n") == 1 and "ran out of its budget (40 evaluations" in err and out == ""
