@@ -319,3 +319,16 @@ def test_running_out_of_budget_is_reported(cli, tmp_path, monkeypatch):
     monkeypatch.setattr(cal, "RAMP_EVAL_BUDGET", 40)
     code, out, err = cli("calibrate", PAPER)
     assert code == 1 and err.count("\n") == 1 and "ran out of its budget (40 evaluations" in err and out == ""
+
+
+def test_heights_below_the_lines_resolution_are_refused(cli, tmp_path):
+    """H is a difference of the centre's heights (~2.5 cm here): below 1e-7 of that rounding
+    would decide the release point. --height and ramp.heights name themselves; without losses
+    the closed form takes any height."""
+    code, out, err = cli("calibrate", PAPER, "--height", "1e-300")
+    assert code == 2 and "--height" in err and "resolves" in err and err.count("\n") == 1
+    code, out, err = cli("calibrate", write_spec(tmp_path, mutated({"ramp.heights": [1e-9, 1e-6]})))
+    assert code == 2 and "ramp.heights" in err and "resolves" in err
+    code, out, err = cli("calibrate", write_spec(tmp_path, mutated({"simulation.damping": 0}), "z.yaml"),
+                         "--height", "1e-300")
+    assert code == 0 and f"{math.sqrt(2 * G_CM * 1e-300 / 1.4):.8g}" in out

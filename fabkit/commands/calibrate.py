@@ -38,7 +38,7 @@ def _row(h, v) -> str:
 
 def run(args) -> int:
     from ..errors import DesignError
-    from ..physics.calibrate import calibration_table, entry, release_height
+    from ..physics.calibrate import calibration_table, entry, height_resolution, release_height
 
     timer = Timer()
     spec = load_spec(args.spec, need=("ball", "ramp"), command="calibrate")
@@ -51,6 +51,10 @@ def run(args) -> int:
         if np.any(heights > ent.top):
             raise SpecError(f"{float(np.max(heights)):g} is above the ramp's top ({ent.top:.6g} {units}; the ramp "
                             "is sized from ramp.heights)", key="--height")
+        res = height_resolution(spec)
+        if np.any((heights > 0) & (heights < res)):
+            raise SpecError(f"{float(np.min(heights[heights > 0])):.3g} is below what the ramp's line resolves "
+                            f"({res:.3g} {units})", key="--height")
         ent = entry(spec, heights)
         _finite(ent.v_in[ent.reached], "--height", "entry speed")
         v_in = ent.v_in
@@ -80,7 +84,8 @@ def run(args) -> int:
     lines.append(f"range: H {float(np.min(heights)):.6g} .. {float(np.max(heights)):.6g} {units}, v_in "
                  f"{float(np.min(v_in[ok])):.8g} .. {float(np.max(v_in[ok])):.8g} {units}/s, {len(rows)} rows")
     if not ent.closed_form:
-        rel = (v_in[ok] / ent.lossless[ok]) - 1.0
+        both = ok & (ent.lossless > 0)
+        rel = (v_in[both] / ent.lossless[both]) - 1.0 if both.any() else np.zeros(1)
         lines.append(f"losses: v_in {100 * float(np.max(rel)):+.3f} .. {100 * float(np.min(rel)):+.3f} % against "
                      "the lossless closed form")
     if ent.why:

@@ -118,6 +118,13 @@ class RampProfile:
         return (self.L,)
 
     @property
+    def resolution(self) -> float:
+        """The smallest release height the line resolves: H is a difference of the centre's
+        heights (|centre| + r in size), which rounding knows to ~2e-16 of that; below 1e-7 of
+        it the release point (and v_in to ~1e-9) cannot be placed."""
+        return 1e-7 * (abs(float(self.centre(0.0))) + self.radius)
+
+    @property
     def top(self) -> float:
         """The highest release height the ramp offers (the ball's contact at its far end)."""
         return float(self.drop(self.u_end))
@@ -125,7 +132,7 @@ class RampProfile:
     def u_release(self, H) -> np.ndarray:
         """Release points u (design units) for heights ``H`` (array): the first u from the
         launch point where the centre stands H above its height at the launch point (so the
-        ball, released there, has the line below it), to 1e-13 of the ramp's length; nan
+        ball, released there, has the line below it), to 1e-13 relative; nan
         beyond the top, 0 for H <= 0."""
         H = np.atleast_1d(np.asarray(H, dtype=float))
         grid = np.linspace(0.0, self.u_end, 4001)
@@ -134,10 +141,14 @@ class RampProfile:
         ok = (H > 0) & (i < len(grid)) & np.isfinite(H)
         j = np.clip(i, 1, len(grid) - 1)
         lo, hi = grid[j - 1], grid[j]
-        for _ in range(60):
+        # to 1e-13 relative to u (a tiny height's release point is a tiny u; at most 1100 halvings
+        # reach the smallest double from the first node)
+        for _ in range(1100):
             mid = 0.5 * (lo + hi)
             above = self.drop(mid) >= H
             hi, lo = np.where(above, mid, hi), np.where(above, lo, mid)
+            if not np.any(ok & (hi - lo > 1e-13 * hi)):
+                break
         u = np.where(ok, hi, np.nan)
         return np.where(H <= 0, 0.0, u)
 
@@ -197,6 +208,7 @@ class StraightRamp:
         return self.d_star * math.cos(math.radians(self.angle))
 
     breaks = ()
+    resolution = 0.0          # the drop is linear in u: no cancellation
 
     def dlift(self, u):
         return np.full_like(np.asarray(u, dtype=float), self.tan)

@@ -162,7 +162,23 @@ def entry(spec, heights) -> Entry:
     if not straight and not (spec.has("surface") and spec.has("simulation")):
         spec.require("surface", "simulation")
     prof = ramp_profile(spec)
+    res = float(prof.resolution)
+    if np.any((H > 0) & (H < res)):
+        raise SpecError(f"a release height of {float(np.min(H[H > 0])):.3g} {spec.units} is below what the ramp's "
+                        f"line resolves ({res:.3g} {spec.units}: the centre's drop is a difference of heights)",
+                        file=spec.path, key="ramp.heights")
     return _descend(prof, H, g, k, mu, c, straight, spec)
+
+
+def height_resolution(spec) -> float:
+    """The smallest release height (design units) :func:`entry` accepts on the spec's ramp
+    (0 when the closed form applies)."""
+    mu, c = ramp_losses(spec)
+    if getattr(spec.ramp, "profile", "fabkit") != "straight" and mu == 0 and c == 0:
+        return 0.0
+    from ..lab.ramp import ramp_profile
+
+    return float(ramp_profile(spec).resolution)
 
 
 def entry_speed(spec, heights) -> np.ndarray:
@@ -294,7 +310,7 @@ def _descend(prof, H, g, k, mu, c, straight, spec) -> Entry:
                 continue
             a = np.minimum(uri[on], hi_u)
             span = a - lo_u
-            sol = _piece(geo, a, span, E[on], T[on], g, gt, mu, cp, r, t_max, top, stiff, spec, c)
+            sol = _piece(geo, a, span, E[on], T[on], g, gt, mu, cp, r, t_max, H[idx][on], stiff, spec, c)
             # the normal force and the speed along the way (sampled): a ball whose speed falls to
             # zero stops on the ramp; one whose normal force falls to zero leaves it
             sig = np.linspace(0.0, 1.0, 201)
@@ -348,7 +364,7 @@ def _crawl_bound(ug, sn, path, ur, H, gt, mu) -> np.ndarray:
     return np.maximum(np.max(np.where(on, t, 0.0), axis=1), 0.0)
 
 
-def _piece(geo, a, span, E0, T0, g, gt, mu, cp, r, t_max, top, stiff, spec, c):
+def _piece(geo, a, span, E0, T0, g, gt, mu, cp, r, t_max, H, stiff, spec, c):
     """One smooth piece of the descent for the lanes released at or passing through ``a``
     (design units) down to ``a - span``: state (E, t) per lane, E the kinetic energy per
     unit (1 + k) m, t the time (s), against sigma in [0, 1] with u = a - span sigma^2
@@ -381,7 +397,9 @@ def _piece(geo, a, span, E0, T0, g, gt, mu, cp, r, t_max, top, stiff, spec, c):
         return np.concatenate([np.where(dead, 0.0, dE), np.where(dead, 0.0, dt)])
 
     y0 = np.concatenate([E0, T0])
-    atol = np.concatenate([np.full(m, 1e-14 * gt * max(top, 1e-300)), np.full(m, 1e-6 * t_max)])        # t decides only "within t_max"
+    # E's absolute tolerance per lane from its own scale g~ H (a tiny height keeps its digits)
+    # (floored at 1e-150: the error norm squares err / atol)
+    atol = np.concatenate([np.maximum(1e-16 * gt * H, 1e-150), np.full(m, 1e-6 * t_max)])        # t decides only "within t_max"
     try:
         sol = solve_ivp(rhs, (0.0, 1.0), y0, method="DOP853", rtol=RAMP_RTOL, atol=atol, dense_output=True)
     except _Budget:
