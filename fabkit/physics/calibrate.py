@@ -340,7 +340,7 @@ def _descend(prof, H, g, k, mu, c, straight, spec) -> Entry:
                          f"{_ranges(H[idx][late])}")
         why = "; ".join(notes) or None
         if stiff[0]:
-            method = method.replace("DOP853", "Radau: stiff")
+            method = method.replace("DOP853", "LSODA: stiff")
     return Entry(H, v, reached, g, k, mu, c, name, False, 1e-9, top, why, method)
 
 
@@ -371,7 +371,7 @@ def _piece(geo, a, span, E0, T0, g, gt, mu, cp, r, t_max, H, stiff, spec, c):
     (where a lane starts from rest E grows like the distance, sqrt(E) like sigma: smooth in
     sigma; dt/dsigma stays finite). A lane past t_max is frozen (it does not reach in time).
     DOP853 within a budget of evaluations; a problem too stiff for it (large damping) goes
-    to Radau, whose Jacobian is block-diagonal across lanes."""
+    to LSODA, whose Jacobian is banded (the state interleaved per lane)."""
     from scipy.integrate import solve_ivp
 
     m = len(a)
@@ -403,20 +403,28 @@ def _piece(geo, a, span, E0, T0, g, gt, mu, cp, r, t_max, H, stiff, spec, c):
     try:
         sol = solve_ivp(rhs, (0.0, 1.0), y0, method="DOP853", rtol=RAMP_RTOL, atol=atol, dense_output=True)
     except _Budget:
-        from scipy.sparse import eye, hstack, vstack
-
+        # stiff: LSODA on the state interleaved per lane (E_i, t_i), whose Jacobian is then
+        # banded (lower bandwidth 1: t depends on E, nothing across lanes)
         stiff[0] = True
         count[0], budget[0] = 0, RAMP_EVAL_BUDGET
-        blk = eye(m, format="csr")
-        sparsity = vstack([hstack([blk, blk * 0]), hstack([blk, blk])]).tocsr()
+        perm = np.arange(2 * m).reshape(2, m).T.ravel()          # interleaved -> [E..., t...] order
+        inv = np.argsort(perm)
+
+        def rhs_i(sig, yi):
+            return rhs(sig, yi[inv])[perm]
+
         try:
-            sol = solve_ivp(rhs, (0.0, 1.0), y0, method="Radau", rtol=max(RAMP_RTOL, 1e-9), atol=atol,
-                            dense_output=True, jac_sparsity=sparsity)
+            sol = solve_ivp(rhs_i, (0.0, 1.0), y0[perm], method="LSODA", rtol=max(RAMP_RTOL, 1e-9),
+                            atol=atol[perm], dense_output=True, lband=1, uband=0)
         except _Budget:
             raise DesignError(f"{spec.path}: the ball's descent of the ramp ran out of its budget "
                               f"({RAMP_EVAL_BUDGET} evaluations of the explicit and of the stiff integrator): "
                               f"simulation.damping = {mu:g} 1/s makes it crawl (its decay time 1/mu is "
                               f"{1 / mu if mu else math.inf:.3g} s); lower it") from None
+        if sol.success:
+            dense = sol.sol
+            sol.y = sol.y[inv]
+            sol.sol = lambda s_, dense=dense: dense(s_)[inv]
     if not sol.success:
         raise DesignError(f"{spec.path}: the descent of the ramp failed: {sol.message}")
     return sol
