@@ -202,6 +202,13 @@ SCHEMA: dict[str, dict[str, Any]] = {
                            hint="a release height of 0 gives the ball no entry speed"),
         "samples": Num(default=400, ge=2, le=10_000, integer=True,
                        doc="heights sampled in [min, max] (each is a full simulation: at most 10000)"),
+        "profile": Choice(("fabkit", "straight"), default="fabkit",
+                          doc="fabkit: the curvature-continuous ramp `fabkit ramp` builds; straight: your own "
+                              "incline, described by ramp.angle and ramp.length"),
+        "angle": Num(default=None, ge=1, le=80,
+                     doc="the incline's angle to the horizontal, degrees (fabkit's ramp: 30 unless given)"),
+        "length": Num(default=None, gt=0, le=1e6, length="design",
+                      doc="a straight ramp's length along its surface, from its edge on the block"),
     },
     "simulation": {
         "model": Choice(("full", "simplified", "ball"), default="ball"),
@@ -695,6 +702,15 @@ def _cross_checks(s: dict[str, Section], file: str, units: str = "mm") -> None:
         if len(h) == 2 and not h[0] < h[1]:
             raise SpecError(f"a range [min, max] needs min < max, got [{h[0]:g}, {h[1]:g}]",
                             file=file, key="ramp.heights")
+        rp = s["ramp"]
+        if rp.profile == "straight":
+            for key in ("angle", "length"):
+                if getattr(rp, key) is None:
+                    raise SpecError("a straight ramp needs ramp.angle (degrees) and ramp.length (along its "
+                                    "surface)", file=file, key=f"ramp.{key}")
+        elif rp.length is not None:
+            raise SpecError("describes a straight ramp: fabkit's own ramp is sized from ramp.heights (set "
+                            "ramp.profile: straight for your own incline)", file=file, key="ramp.length")
     if "simulation" in s and "surface" in s:
         sim, sur = s["simulation"], s["surface"]
         x0, x1 = sur.x

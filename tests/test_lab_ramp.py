@@ -98,3 +98,44 @@ def test_curvature_continuous_join():
     u = np.linspace(0.1, 1.4 * L, 7)
     num = (prof.lift(u + 1e-5) - prof.lift(u - 1e-5)) / 2e-5
     np.testing.assert_allclose(num, prof.dlift(u), atol=1e-8)
+
+
+def test_marks_agree_with_an_independent_descent(ramp_run):
+    """Each mark's height, descended by the reference integration of tests/test_calibrate.py
+    (time domain, its own line and release point) with the spec's damping, enters at the
+    mark's v_in (1e-3 asked)."""
+    from test_calibrate import _reference_descent
+
+    from fabkit.spec import load_spec
+
+    spec_path, _, res = ramp_run
+    spec = load_spec(spec_path)
+    mu = float(spec.simulation.damping)
+    assert mu > 0
+    for m in res["marks"]:
+        v = _reference_descent(spec, m["height"], mu, 0.0)
+        assert v == pytest.approx(m["v_in"], rel=1e-6), m
+
+
+@pytest.mark.parametrize("changes,words", [
+    ({"simulation.damping": 1e9}, "simulation.t_max"),
+    ({"ball.rolling_resistance": 0.7}, "stops on the ramp"),
+])
+def test_a_ball_that_cannot_reach_the_block_is_refused(cli, tmp_path, changes, words):
+    """Damping 1e9 1/s (the ball crawls at 3.5e-7 cm/s: issue 29's hang) or a rolling
+    resistance above tan(30 deg): exit 1, one line naming why, nothing written, before
+    the block is simulated."""
+    spec = write_spec(tmp_path, mutated(changes))
+    code, out, err = cli("ramp", spec, "-o", tmp_path / "r.stl", "--json")
+    assert code == 1 and out == "" and err.count("\n") == 1 and words in err, err
+    assert not (tmp_path / "r.stl").exists()
+    code, out, err = cli("calibrate", spec)
+    assert code == 1 and err.count("\n") == 1 and words in err
+
+
+def test_straight_profile_is_not_built(cli, tmp_path):
+    spec = write_spec(tmp_path, mutated({"ramp.profile": "straight", "ramp.angle": 20, "ramp.length": 12}))
+    code, out, err = cli("ramp", spec, "-o", tmp_path / "r.stl")
+    assert code == 2 and "ramp.profile" in err and err.count("\n") == 1
+    code, out, err = cli("calibrate", spec, "--v-in", "50")
+    assert code == 0 and "straight" in out

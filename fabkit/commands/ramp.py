@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 from ..errors import SpecError
@@ -10,15 +11,19 @@ from ._common import Timer, check_paths, default_output, emit, prepare_simulator
 
 
 def run(args) -> int:
+    from ..errors import DesignError
     from ..io import atomic_outputs
-    from ..lab.ramp import build_ramp, design_profile, mark_targets, place_marks
-    from ..physics.calibrate import ball_k, ramp_heights
+    from ..lab.ramp import build_ramp, mark_targets, place_marks, ramp_angle, ramp_profile
+    from ..physics.calibrate import ball_k, entry, ramp_heights
     from ..physics.check import check
     from ..solid import EXPORT_FORMATS, export_bytes
     from ..units import gravity
 
     timer = Timer()
     spec = load_spec(args.spec, need=("surface", "stock", "ball", "ramp", "simulation"), command="ramp")
+    if spec.ramp.profile != "fabkit":
+        raise SpecError("fabkit ramp builds fabkit's own ramp; for your straight ramp, fabkit calibrate gives "
+                        "the release heights (--v-in) to mark on it", file=spec.path, key="ramp.profile")
     path = default_output(spec, ".ramp.stl", args.output)
     check_paths(args, {"--output": path})
     fmt = path.suffix.lower().lstrip(".") or "stl"
@@ -26,12 +31,18 @@ def run(args) -> int:
         raise SpecError(f"unknown mesh format '{path.suffix}' (use one of: "
                         f"{', '.join('.' + f for f in EXPORT_FORMATS)})", key="--output")
     g, k = gravity(spec.units), ball_k(spec)
+    # the ball must reach the block from the ramp before the block is worth simulating
+    ent = entry(spec, ramp_heights(spec))
+    if not ent.reached.any():
+        raise DesignError(f"{spec.path}: no release height on the ramp reaches the block: {ent.why}")
+    prof = ramp_profile(spec)
     prepare_simulator(spec)
     chk = check(spec).to_json()
     t_check = timer.seconds
-    targets = mark_targets(chk, g, k)
-    h_max = max([float(max(ramp_heights(spec)))] + [t["height"] for t in targets])
-    prof = design_profile(spec, h_max)
+    targets = mark_targets(chk, g, k, spec=spec)
+    reach = [math.isfinite(t["height"]) and t["height"] <= prof.top for t in targets]
+    beyond = [t for t, ok in zip(targets, reach) if not ok]
+    targets = [t for t, ok in zip(targets, reach) if ok]
     marks = place_marks(spec, prof, targets)
     solid = build_ramp(spec, prof, marks)
     if solid.bodies != 1:
@@ -46,26 +57,36 @@ def run(args) -> int:
     payload = {
         "path": str(path), "marks": pub, "triangles": int(len(solid.faces)), "volume_mm3": solid.volume_mm3,
         "bodies": solid.bodies, "genus": solid.genus, "watertight": True,
-        "angle_deg": 30.0, "transition_length": prof.L, "length": prof.u_end,
+        "angle_deg": ramp_angle(spec), "transition_length": prof.L, "length": prof.u_end,
+        "damping": ent.mu, "rolling_resistance": ent.c, "calibration": ent.method,
+        "beyond_reach": [{"v_in": t["v_in"], "label": t["label"]} for t in beyond],
         "top_height": float(prof.drop(prof.u_end)), "profile_error_mm": solid.profile_error_mm,
         "extent_mm": solid.extent_mm, "safe": chk["safe"], "highest_safe_height": chk["highest_safe_height"], "model": chk["model"],
         "units": u, "seconds": timer.seconds, "check_seconds": t_check,
     }
     lines = [f"ramp: {Path(path)}, one watertight body ({len(solid.faces)} triangles, volume "
              f"{solid.volume_mm3:.6e} mm^3), {prof.u_end:.4g} {u} long, rises to release height "
-             f"{payload['top_height']:.4g} {u}, incline {30:g} deg, curvature-continuous at the launch point "
-             f"(work X {solid.extent_mm['launch_point'][0]:.2f} mm)",
+             f"{payload['top_height']:.4g} {u}, incline {ramp_angle(spec):g} deg, curvature-continuous at the "
+             f"launch point (work X {solid.extent_mm['launch_point'][0]:.2f} mm)",
              f"{'mark':<44} {'H (' + u + ')':>10} {'v_in (' + u + '/s)':>14} {'X (mm)':>9} {'along (mm)':>11}"]
     lines += [f"{m['label']:<44} {m['height']:10.5f} {m['v_in']:14.5f} {m['X']:9.2f} {m['along_mm']:11.2f}"
               for m in pub]
     if not pub:
         lines.append("no marks: the ramp reaches no two-bounce window and not v_critical")
+    for t in beyond:
+        lines.append(f"not marked: {t['label']} at {t['v_in']:.5f} {u}/s is beyond the ramp's reach (its top, "
+                     f"H = {payload['top_height']:.4g} {u}, gives less with the ramp's losses)")
+    if ent.why:
+        lines.append(f"note: {ent.why}")
     if not chk["safe"]:
         hs = chk['highest_safe_height']
         lines.append(f"warning: UNSAFE above release height {hs:.5g} {u} (fabkit check)" if hs is not None else
                      "warning: UNSAFE at every release height (fabkit check)")
-    lines.append(f"ramp: marks from fabkit check on the {chk['model']} model; mark heights exact (closed-form calibration, contact point by root finding to "
-                 f"1e-12), running surface within {solid.profile_error_mm:.1g} mm of the profile, "
+    cal = ("exact (closed-form calibration, no losses)" if ent.closed_form else
+           f"from the ball's descent of this ramp with damping {ent.mu:g} 1/s and rolling resistance {ent.c:g} "
+           f"(to ~{ent.error:.0e} relative)")
+    lines.append(f"ramp: marks from fabkit check on the {chk['model']} model; mark heights {cal}, contact point "
+                 f"by root finding to 1e-12, running surface within {solid.profile_error_mm:.1g} mm of the profile, "
                  f"{timer.seconds:.1f} s (check {t_check:.1f} s)")
     emit(lines, payload, args.json)
     return 0

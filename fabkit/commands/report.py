@@ -65,6 +65,7 @@ def run(args) -> int:
     t = Timer()
     problem = problem_from_spec(spec)
     v = np.unique(np.asarray(cal["v_in"], dtype=float))
+    v = v[np.isfinite(v)]                 # nan: heights from which the ball does not reach the block
     sw = sweep(problem, v, error_samples=24)
     sw_png = sweep_figure(sw, f"{spec.name}: {problem.model} model, damping {problem.damping:g} 1/s",
                           units=spec.units)
@@ -82,7 +83,7 @@ def run(args) -> int:
     surf = {"x": xs, "y": ys, "z": surface.clipped(GX, GY), "top": surface.top,
             "start": float(spec.simulation.start), "y0": float(spec.simulation.y0)}
 
-    marks = mark_targets(chk, cal["g"], cal["k"])
+    marks = mark_targets(chk, cal["g"], cal["k"], spec=spec)
     results = {"name": spec.name, "units": spec.units, "spec_path": str(args.spec), "version": __version__,
                "generated_at": _generated_at(), "check": chk, "surface": surf, "sweep": sweep_res,
                "toolpath": tool, "calibration": cal, "ramp_marks": marks}
