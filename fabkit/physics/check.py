@@ -91,24 +91,31 @@ def _why(problem, outcome: int, x: float, y: float) -> str:
 # the ramp: release height <-> entry speed, in one place
 # ----------------------------------------------------------------------------
 def entry_speeds(spec, heights) -> np.ndarray:
-    """The entry speeds (design units/s) of release heights ``heights`` (design units)
-    on the spec's ramp: the one place every command turns heights into speeds (today
-    the closed form of :func:`calibrate.v_in_from_height`)."""
-    from ..units import gravity
-    from .calibrate import ball_k, v_in_from_height
+    """The entry speeds (design units/s) of release heights ``heights`` (design units, the
+    drop of the ball's centre) on the spec's ramp, with the ramp's own losses
+    (:func:`calibrate.entry`: the ball's descent of fabkit's ramp or the user's straight one;
+    the closed form sqrt(2 g H / (1 + k)) without losses): the one place every command
+    turns heights into speeds. A height from which the ball does not reach the block is a
+    :class:`DesignError` that says why."""
+    from ..errors import DesignError
+    from .calibrate import entry
 
-    return np.asarray(v_in_from_height(np.asarray(heights, dtype=float), gravity(spec.units), ball_k(spec)),
-                      dtype=float)
+    H = np.asarray(heights, dtype=float)
+    e = entry(spec, H)
+    if not np.all(e.reached):
+        bad = float(np.atleast_1d(H)[~np.asarray(e.reached)][0])
+        raise DesignError(f"{spec.path}: a ball released from {bad:.6g} {spec.units} does not reach the block: {e.why}")
+    return np.asarray(e.v_in, dtype=float).reshape(H.shape)
 
 
 def release_heights(spec, v_in) -> np.ndarray:
     """The release heights (design units) that give entry speeds ``v_in`` (design
-    units/s): the inverse of :func:`entry_speeds`."""
-    from ..units import gravity
-    from .calibrate import ball_k, height_from_v_in
+    units/s): the inverse of :func:`entry_speeds` (:func:`calibrate.release_height`, to
+    1e-10 relative; nan beyond the ramp's reach). One call for many speeds: each call
+    integrates the descent."""
+    from .calibrate import release_height
 
-    return np.asarray(height_from_v_in(np.asarray(v_in, dtype=float), gravity(spec.units), ball_k(spec)),
-                      dtype=float)
+    return np.asarray(release_height(spec, np.asarray(v_in, dtype=float)), dtype=float)
 
 
 # ----------------------------------------------------------------------------
@@ -322,12 +329,12 @@ def check(spec, *, launcher=None, heights=None, sweep_v=None, progress=None, pro
     vc = sw["v_critical"]
     windows = sw["windows"] if refine else _midpoint_windows(vs, grid)
     vmin, vmax = float(v[0]), float(v[-1])
-    reach = []
-    for w in windows:
-        if w["bounces"] == 2 and vmin < w["lo"] and w["hi"] < vmax:
-            reach.append({"lo": w["lo"], "hi": w["hi"], "height_lo": float(release_heights(spec, w["lo"])),
-                          "height_hi": float(release_heights(spec, w["hi"])),
-                          "v_out_max": w.get("v_out_max"), "edge_error": w.get("edge_error")})
+    inside = [w for w in windows if w["bounces"] == 2 and vmin < w["lo"] and w["hi"] < vmax]
+    # every height this report states, in one inverse calibration (each call integrates the descent)
+    speeds = [s for w in inside for s in (w["lo"], w["hi"])] + ([vc] if vc is not None else [])
+    hs = release_heights(spec, np.asarray(speeds, dtype=float)) if speeds else np.zeros(0)
+    reach = [{"lo": w["lo"], "hi": w["hi"], "height_lo": float(hs[2 * i]), "height_hi": float(hs[2 * i + 1]),
+              "v_out_max": w.get("v_out_max"), "edge_error": w.get("edge_error")} for i, w in enumerate(inside)]
     m = machining(spec) if machining_report is None else machining_report
     ball = _ball_summary(problem, H, lr) if problem.model == "ball" else None
     return CheckReport(
@@ -335,7 +342,7 @@ def check(spec, *, launcher=None, heights=None, sweep_v=None, progress=None, pro
         outcome=np.asarray(ramp.outcome, dtype=np.int8), bounces=np.asarray(ramp.bounces, dtype=int),
         v_out=np.asarray(ramp.v_out, dtype=float), first_failure=first, highest_safe_height=highest,
         v_critical=vc, v_critical_error=sw["v_critical_error"], v_critical_reason=sw["v_critical_reason"],
-        critical_height=None if vc is None else float(release_heights(spec, vc)), windows=windows,
+        critical_height=None if vc is None else float(hs[-1]), windows=windows,
         reachable_windows=reach, machining=m, ball=ball, grid=grid,
         tolerances={"rel_tol": rel_tol, "v_rel_tol": v_rel_tol, "edge_rel_tol": edge_rel_tol,
                     "gap_rel_tol": gap_rel_tol},
