@@ -476,13 +476,13 @@ def verify_cut(surface, program: Program, R: float, points: int = 40000, *, seed
 
 
 #: where the ball cannot reach the design (a valley, a crease or a wall's foot tighter than
-#: it), the floor counts balls centred over the stock (OVERHANG x R beyond it at most): at
-#: such a region's open end on the stock edge a ball hanging off the edge reaches deeper, but
-#: only in a sliver at the edge line (on the edge of 3*abs(x): 0.5 mm deeper on the line,
-#: 0.02 mm at 0.03 mm in); the fillet the operator sees runs on to the edge unchanged.
-#: Where the ball reaches the design (its normal position is free, overhanging or not) the
-#: design itself is the floor, edges included.
-OVERHANG = 0.0
+#: it), the floor counts the balls centred up to OVERHANG x R beyond the footprint (the
+#: planner's edge passes stand up to 0.999 R out): at such a region's open end on a stock
+#: edge a ball hanging off the edge reaches deeper than any ball over the stock (a 45-degree
+#: V groove under a 6 mm ball: 0.49 mm deeper 0.1 mm from the edge, 1.19 mm on the edge
+#: line). Where the ball reaches the design (its normal position is free, overhanging or
+#: not) the design itself is the floor, edges included.
+OVERHANG = 0.999
 REACH_GRID = 1.0 / 8.0                              # x R: the grid of start centres
 REACH_SEARCH = 24                                   # compass steps from the best coarse centre
 REACH_DIRS = 8          # compass directions (4 ended up to 0.045 mm higher on 2*sin(x) + 2*sin(y))
@@ -555,7 +555,7 @@ def reachable_height(ws, px, py, R: float, chunk: int = 20000, overhang: float |
         j = np.argmin(G, axis=1)
         r = np.arange(bad.size)
         best, bo_x, bo_y = G[r, j], OX[r, j], OY[r, j]
-        gb, gx_, gy_ = _grid_starts(ws, bx, by, R, drop)
+        gb, gx_, gy_ = _grid_starts(ws, bx, by, R, drop, overhang)
         lower = gb < best
         best, bo_x, bo_y = np.where(lower, gb, best), np.where(lower, gx_, bo_x), np.where(lower, gy_, bo_y)
         dirs = 2 * np.pi * np.arange(REACH_DIRS) / REACH_DIRS
@@ -585,18 +585,28 @@ def reachable_height(ws, px, py, R: float, chunk: int = 20000, overhang: float |
     return (out, ok, scale) if return_scale else (out, ok)
 
 
-def _grid_starts(ws, bx, by, R, drop):
+def _grid_starts(ws, bx, by, R, drop, overhang=0.0):
     """Per point (bx, by), the lowest surface above it of the balls centred on a grid of
-    spacing REACH_GRID x R over the stock (exact drop-cutter heights; only the nodes
-    within R of some point are dropped): (g, centre offset x, y), +inf where none."""
+    spacing REACH_GRID x R over the stock and up to ``overhang`` beyond it (the last
+    node of each side at ``overhang``; exact drop-cutter heights; only the nodes within R
+    of some point are dropped): (g, centre offset x, y), +inf where none."""
     from scipy.ndimage import binary_dilation
 
     h = REACH_GRID * R
-    nx, ny = int(math.ceil(ws.L / h)) + 1, int(math.ceil(ws.W / h)) + 1
-    xs, ys = np.linspace(0.0, ws.L, nx), np.linspace(0.0, ws.W, ny)
-    hx, hy = xs[1] - xs[0] if nx > 1 else h, ys[1] - ys[0] if ny > 1 else h
-    ix = np.clip(np.rint(bx / hx).astype(int), 0, nx - 1)
-    iy = np.clip(np.rint(by / hy).astype(int), 0, ny - 1)
+
+    def axis(length):
+        n = int(math.ceil(length / h)) + 1
+        g = np.linspace(0.0, length, n)
+        st = g[1] - g[0] if n > 1 else h
+        k = int(math.ceil(overhang / st - 1e-9)) if overhang > 0 else 0
+        out = np.minimum(st * np.arange(1, k + 1), overhang)
+        return np.r_[-out[::-1], g, length + out], st, k
+
+    xs, hx, kx = axis(ws.L)
+    ys, hy, ky = axis(ws.W)
+    nx, ny = xs.size, ys.size
+    ix = np.clip(np.rint(bx / hx).astype(int) + kx, 0, nx - 1)
+    iy = np.clip(np.rint(by / hy).astype(int) + ky, 0, ny - 1)
     rx, ry = int(math.ceil(R / hx)) + 1, int(math.ceil(R / hy)) + 1
     near = np.zeros((nx, ny), bool)
     near[ix, iy] = True
