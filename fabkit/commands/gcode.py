@@ -110,7 +110,7 @@ def verified_cut(spec, surface, toolpath, profile, text, program):
         return verify_cut(surface, program, spec.tool.diameter / 2.0, m.verify_points,
                           depth_limit=spec.stock.depth_limit, reach=spec.tool.reach,
                           unreachable_min=m.tolerance, normal=scallop_normal(spec),
-                          over=m.scallop + m.tolerance, cache=cache)
+                          over=m.scallop + m.tolerance, cache=cache, along=m.direction)
 
     check = verify(program)
     for _ in range(REPAIR_ROUNDS):

@@ -330,7 +330,7 @@ def _crease_points(ws, gx, gy):
 def verify_cut(surface, program: Program, R: float, points: int = 40000, *, seed: int = 0,
                depth_limit: float = np.inf, reach: float = np.inf, tol: Tolerances = DEFAULT,
                detail: bool = False, unreachable_min: float = 1e-3, normal: bool = True,
-               over: float | None = None, cache: dict | None = None) -> dict:
+               over: float | None = None, cache: dict | None = None, along: str | None = None) -> dict:
     """Sweep a ball-end tool of radius ``R`` mm along every move of ``program`` and
     compare the cut with the design (``surface``: a Surface or WorkSurface).
 
@@ -357,7 +357,9 @@ def verify_cut(surface, program: Program, R: float, points: int = 40000, *, seed
       deepest_cut        deepest tip position below the top face, and the limits
       first_move_ok      the first move is a Z-only rapid up to the top face or above
     ``cache``: a dict kept between verifications of programs for the same surface, R,
-    points and seed (the reachable height is computed once).
+    points and seed (the reachable height is computed once). ``along``: the raster's
+    direction ('x' or 'y'): the reachable height counts balls hanging off the edges up to
+    OVERHANG x R across the passes and OVERHANG_ALONG x R along them (None: OVERHANG both).
     With ``detail`` also the arrays ``X``, ``Y``, ``design``, ``cut`` (per sample point).
     """
     from .compensate import WorkSurface
@@ -394,11 +396,13 @@ def verify_cut(surface, program: Program, R: float, points: int = 40000, *, seed
     # separated from the material the program leaves where the ball can reach
     # what the ball can reach depends on the design and the sample points, not on the
     # program: a ``cache`` dict keeps it for the next verification of the same block
-    key = ("reach", len(px), float(R), seed)
+    key = ("reach", len(px), float(R), seed, along)
+    hang = (OVERHANG_ALONG * R if along == "x" else OVERHANG * R,
+            OVERHANG_ALONG * R if along == "y" else OVERHANG * R)
     if cache is not None and key in cache:
         reach_z, scale = cache[key]
     else:
-        reach_z, _, scale = reachable_height(ws, px, py, R, return_scale=True)
+        reach_z, _, scale = reachable_height(ws, px, py, R, overhang=hang, return_scale=True)
         if cache is not None:
             cache[key] = (reach_z, scale)
     unreach = reach_z - design
@@ -483,6 +487,10 @@ def verify_cut(surface, program: Program, R: float, points: int = 40000, *, seed
 #: line). Where the ball reaches the design (its normal position is free, overhanging or
 #: not) the design itself is the floor, edges included.
 OVERHANG = 0.999
+#: along the passes (``along``: their direction) the balls hang off the pass ends up to the
+#: planner's last node, 0.99 R out (a ball further out touches the edge with a tip path of
+#: nearly vertical tangent, which no chord of the program follows without gouging)
+OVERHANG_ALONG = 0.99
 REACH_GRID = 1.0 / 8.0                              # x R: the grid of start centres
 REACH_SEARCH = 24                                   # compass steps from the best coarse centre
 REACH_DIRS = 8          # compass directions (4 ended up to 0.045 mm higher on 2*sin(x) + 2*sin(y))
@@ -502,8 +510,8 @@ def reachable_height(ws, px, py, R: float, chunk: int = 20000, overhang: float |
     centre tried is a real ball position, so the height is an upper bound of the lowest one (the material it calls unreachable is
     never less than there is); on a parabolic valley tighter than the ball it is within
     3e-4 mm of the centred ball's closed form (tested). Centres farther than
-    ``overhang`` (default :data:`OVERHANG` x R) beyond the footprint are not tried (see
-    :data:`OVERHANG`). Returns (height, reachable), and with ``return_scale`` the
+    ``overhang`` (mm, default :data:`OVERHANG` x R; a pair: beyond the x and the y edges)
+    beyond the footprint are not tried (see :data:`OVERHANG`). Returns (height, reachable), and with ``return_scale`` the
     normal scale of the reachable surface: 1 / sqrt(1 + slope^2) of the design where the
     ball reaches it, and where it cannot, of the lowest ball's surface above the point
     (the surface the ball leaves there is that ball's: d from its centre, the scale is
@@ -511,6 +519,7 @@ def reachable_height(ws, px, py, R: float, chunk: int = 20000, overhang: float |
     from .compensate import compensate
 
     overhang = OVERHANG * R if overhang is None else overhang
+    ox_, oy_ = (overhang, overhang) if np.isscalar(overhang) else (float(overhang[0]), float(overhang[1]))
 
     def drop(qx, qy):
         shape = qx.shape
@@ -543,8 +552,9 @@ def reachable_height(ws, px, py, R: float, chunk: int = 20000, overhang: float |
             zq = drop(qx, qy)
             with np.errstate(invalid="ignore"):
                 low = zq + R - np.sqrt(R * R - ox * ox - oy * oy)
-            over = (np.maximum(np.maximum(-qx, qx - ws.L), 0.0) ** 2
-                    + np.maximum(np.maximum(-qy, qy - ws.W), 0.0) ** 2) > overhang ** 2
+            ex = np.maximum(np.maximum(-qx, qx - ws.L), 0.0)
+            ey = np.maximum(np.maximum(-qy, qy - ws.W), 0.0)
+            over = (ex > ox_) | (ey > oy_) | (ex * ex + ey * ey > max(ox_, oy_) ** 2)
             return np.where(np.isfinite(low) & (ox * ox + oy * oy <= R * R) & ~over, low, np.inf)
 
         # starts: the centre above the point, the normal-offset centre, and the lowest of
@@ -555,7 +565,7 @@ def reachable_height(ws, px, py, R: float, chunk: int = 20000, overhang: float |
         j = np.argmin(G, axis=1)
         r = np.arange(bad.size)
         best, bo_x, bo_y = G[r, j], OX[r, j], OY[r, j]
-        gb, gx_, gy_ = _grid_starts(ws, bx, by, R, drop, overhang)
+        gb, gx_, gy_ = _grid_starts(ws, bx, by, R, drop, (ox_, oy_))
         lower = gb < best
         best, bo_x, bo_y = np.where(lower, gb, best), np.where(lower, gx_, bo_x), np.where(lower, gy_, bo_y)
         dirs = 2 * np.pi * np.arange(REACH_DIRS) / REACH_DIRS
@@ -585,16 +595,16 @@ def reachable_height(ws, px, py, R: float, chunk: int = 20000, overhang: float |
     return (out, ok, scale) if return_scale else (out, ok)
 
 
-def _grid_starts(ws, bx, by, R, drop, overhang=0.0):
+def _grid_starts(ws, bx, by, R, drop, overhang=(0.0, 0.0)):
     """Per point (bx, by), the lowest surface above it of the balls centred on a grid of
-    spacing REACH_GRID x R over the stock and up to ``overhang`` beyond it (the last
+    spacing REACH_GRID x R over the stock and up to ``overhang`` (x, y) beyond it (the last
     node of each side at ``overhang``; exact drop-cutter heights; only the nodes within R
     of some point are dropped): (g, centre offset x, y), +inf where none."""
     from scipy.ndimage import binary_dilation
 
     h = REACH_GRID * R
 
-    def axis(length):
+    def axis(length, overhang):
         n = int(math.ceil(length / h)) + 1
         g = np.linspace(0.0, length, n)
         st = g[1] - g[0] if n > 1 else h
@@ -602,8 +612,8 @@ def _grid_starts(ws, bx, by, R, drop, overhang=0.0):
         out = np.minimum(st * np.arange(1, k + 1), overhang)
         return np.r_[-out[::-1], g, length + out], st, k
 
-    xs, hx, kx = axis(ws.L)
-    ys, hy, ky = axis(ws.W)
+    xs, hx, kx = axis(ws.L, overhang[0])
+    ys, hy, ky = axis(ws.W, overhang[1])
     nx, ny = xs.size, ys.size
     ix = np.clip(np.rint(bx / hx).astype(int) + kx, 0, nx - 1)
     iy = np.clip(np.rint(by / hy).astype(int) + ky, 0, ny - 1)
