@@ -130,6 +130,8 @@ class _Pass:
     """One pass: v, exact tip heights Z and slopes dZ/du at the grid ug, the nodes
     kept, and the profile on a fine grid uf (Hermite; +inf where not machined)."""
 
+    comb = False        # a pass of an edge comb (:func:`edge_comb`), run over a stretch only
+
     def __init__(self, fr, R, ug, uf, v, X, Y, Z, ci, depth_lim=math.inf, contact_top=None):
         pu = ci.contact_x if fr.direction == "x" else ci.contact_y
         d2 = (ci.contact_x - X) ** 2 + (ci.contact_y - Y) ** 2
@@ -740,6 +742,7 @@ def edge_comb(ws, fr, R, ug, uf, passes, target, chord, normal, make, deep):
         span = (ug >= uq[cols].min() - R) & (ug <= uq[cols].max() + R)
         for c in comb:
             c.keep = c.keep & span
+            c.comb = True
             if c.keep.any():
                 added.append(c)
     return added

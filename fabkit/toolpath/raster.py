@@ -336,6 +336,7 @@ def summarize(fr, plan, V, passes_cut, points, kinds, zmin, n_rough, bridged, ke
         "stepover_min": float(steps.min()) if steps.size else 0.0,
         "stepover_flat": plan.s_flat,
         "edge_pass_gap_max": float(beyond.max()) if beyond.size else 0.0,
+        "edge_comb_passes": sum(1 for p in passes_cut if plan.passes[p].comb),
         "points": int(len(points)),
         "cutting_length_mm": float(seglen[feed].sum()),
         "rapid_length_mm": float(seglen[~feed].sum()),
