@@ -211,3 +211,30 @@ def test_header_speaks_the_program_units():
     assert "cut 50, plunge 10 in/min" in header and "safe height: Z0.2 in" in header
     assert "stepover: 0.0486 in" in header                 # 1.234567 mm
     assert "mm" not in header
+
+
+def test_header_names_the_gap_to_passes_beyond_the_edges():
+    """The stepover line gives the stepover between passes over the stock; where the gap to
+    a pass beyond a stock edge is larger, the header names it for what it is (1.234567 mm
+    stepover, a 2.69 mm gap: 0.0486 and 0.1059 in)."""
+    from types import SimpleNamespace
+
+    from fabkit.toolpath.gcode import profile_from_spec
+
+    spec = SimpleNamespace(
+        path="specs/x.yaml", name="x", units="mm",
+        tool=SimpleNamespace(shape="ball", diameter=6.35, number=None),
+        stock=SimpleNamespace(thickness=50.8),
+        machining=SimpleNamespace(dialect="grbl", units="in", feed=1270, plunge=254, spindle=18000,
+                                  safe_height=5.08, tolerance=0.0254, scallop=0.127, park=(0.0, 0.0)))
+    surface = SimpleNamespace(stock_size_mm=(127.0, 76.2))
+    tp = wavy_toolpath()
+    plain = write_program(tp, profile_from_spec(spec, surface))
+    tp.info["edge_pass_gap_max"] = 2.69
+    text = write_program(tp, profile_from_spec(spec, surface))
+    header = " ".join(" ".join(ln.strip("()") for ln in text.splitlines() if ln.startswith("(")).split())
+    assert "stepover: 0.0486 in" in header
+    assert "edge pass gap: up to 0.1059 in from the passes over the stock to those beyond its edges" in header
+    assert "edge pass gap" not in plain
+    tp.info["edge_pass_gap_max"] = 1.0                     # smaller than the stepover: not named
+    assert write_program(tp, profile_from_spec(spec, surface)) == plain

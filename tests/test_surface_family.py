@@ -228,3 +228,130 @@ def test_reachable_height_in_a_valley_tighter_than_the_ball_closed_form():
     xw = np.array([-1.9, 1.8])                               # beyond the contacts: reachable
     zw, okw = reachable_height(ws, xw + 2.4, np.full(2, 3.0), R)
     assert okw.all() and np.allclose(zw, 2 * xw * xw - 12)
+
+
+# ---------------------------------------------------------------------------------------
+# The open ends of a groove tighter than the ball: a 45-degree V abs(x) under a 6 mm ball,
+# passes across the crease. A ball hanging off the stock edge reaches deeper there than any
+# ball over the stock; the passes missed a band 0.1-0.3 mm from the last edge (0.90 mm left
+# vertically by the cut below, 0.14 mm normal to the lowest ball) and the setup sheet said
+# 0.042 mm. An independent reachable height (closed-form drop cutter of the two flanks,
+# every ball centre within R, off the stock included) and a brute cut of rs274's moves.
+VR, VD, VTOP = 3.0, 8.0, 6.0                    # ball radius, groove depth below 0, top face
+VX, VY = (-8.0, 8.0), (-5.0, 5.0)
+
+
+def _flank_tip(cx, cy, s):
+    """Tip height (design units) of a ball of radius VR centred at (cx, cy) on the plane
+    z = s x - VD over the footprint only (nothing beyond it): the largest of
+    s x + sqrt(R^2 - |p - c|^2) over the footprint, a concave maximum, so the interior
+    contact (p = c + s R / sqrt(1 + s^2) e_x) where it lies on the footprint, else the
+    best point of its edges (1-D closed forms, clipped)."""
+    R, k = VR, math.sqrt(1.0 + s * s)
+    (x0, x1), (y0, y1) = VX, VY
+    px = cx + s * R / k
+    best = np.where((px >= x0) & (px <= x1) & (cy >= y0) & (cy <= y1), s * cx + R * k, -np.inf)
+    for ye in (y0, y1):                         # edges y = const: x free
+        r2 = R * R - (cy - ye) ** 2
+        x = np.clip(cx + s * np.sqrt(np.maximum(r2, 0.0)) / k, x0, x1)
+        q = r2 - (x - cx) ** 2
+        best = np.maximum(best, np.where(q >= 0, s * x + np.sqrt(np.maximum(q, 0.0)), -np.inf))
+    for xe in (x0, x1):                         # edges x = const: the plane is level along y
+        q = R * R - (cx - xe) ** 2 - (np.clip(cy, y0, y1) - cy) ** 2
+        best = np.maximum(best, np.where(q >= 0, s * xe + np.sqrt(np.maximum(q, 0.0)), -np.inf))
+    return best - VD - R
+
+
+def _v_floor(px, py):
+    """Lowest surface above each point of the balls resting on abs(x) - VD (exact tips),
+    over every centre within R of it, beyond the footprint included: a grid of centre
+    offsets (R/75), then two finer grids around the best. Returns (height, offset of the
+    best centre from the point)."""
+    R = VR
+
+    def g(ox, oy):
+        d2 = ox * ox + oy * oy
+        cx, cy = px[:, None] + ox, py[:, None] + oy
+        tip = np.maximum(_flank_tip(cx, cy, 1.0), _flank_tip(cx, cy, -1.0))
+        with np.errstate(invalid="ignore"):
+            z = tip + R - np.sqrt(R * R - d2)
+        return np.where((d2 < R * R) & np.isfinite(z), z, np.inf)
+
+    o = np.arange(-R, R + 1e-9, R / 75)
+    OX, OY = (a.ravel()[None, :] for a in np.meshgrid(o, o, indexing="ij"))
+    z = g(OX + 0 * px[:, None], OY + 0 * px[:, None])
+    j = np.argmin(z, axis=1)
+    bx, by = OX[0, j], OY[0, j]
+    for h in (R / 75 / 20, R / 75 / 400):
+        f = np.arange(-20, 21) * h
+        FX, FY = (a.ravel()[None, :] for a in np.meshgrid(f, f, indexing="ij"))
+        tx, ty = bx[:, None] + FX, by[:, None] + FY
+        z = g(tx, ty)
+        j = np.argmin(z, axis=1)
+        r = np.arange(px.size)
+        bx, by = tx[r, j], ty[r, j]
+    zb = z[np.arange(px.size), j]
+    return np.maximum(zb, np.abs(px) - VD), np.hypot(bx, by)
+
+
+def test_v_groove_floor_closed_form_on_the_edge_line():
+    """The floor on the edge line at the crease: a ball d out meets the stock only on the
+    edge, its cross-section there a disc of radius sqrt(R^2 - d^2) resting in the V, its
+    lowest point sqrt(R^2 - d^2) (sqrt(2) - 1) above the crease: 0 as d -> R. 0.1 mm in,
+    min over d of sqrt(2) sqrt(R^2 - d^2) - sqrt(R^2 - (d + 0.1)^2) (the ball hangs off)."""
+    z, off = _v_floor(np.array([0.0, 0.0, 0.0]), np.array([VY[1], VY[1] - 0.1, 0.0]))
+    d = np.linspace(0.0, VR - 0.1, 200001)
+    inner = np.min(math.sqrt(2) * np.sqrt(VR ** 2 - d ** 2) - np.sqrt(VR ** 2 - (d + 0.1) ** 2))
+    # on the line: the ball the search found, as far out as its grid allows (R - 1e-4)
+    assert off[0] > 0.9999 * VR and z[0] < -VD + 0.015
+    assert z[0] == pytest.approx(-VD + math.sqrt(VR ** 2 - off[0] ** 2) * (math.sqrt(2) - 1), abs=1e-9)
+    assert z[1] == pytest.approx(-VD + inner, abs=1e-4)
+    assert z[2] == pytest.approx(-VD + VR * (math.sqrt(2) - 1), abs=1e-6)     # centred ball
+
+
+@pytest.mark.rs274
+def test_v_groove_open_ends_finished_to_what_the_ball_reaches(cli, tmp_path):
+    import yaml
+    from conftest import SPECS
+
+    raw = yaml.safe_load((SPECS / "bowl.yaml").read_text())
+    raw["surface"] = {"height": f"abs(x) - {VD:g}", "x": list(VX), "y": list(VY), "top": VTOP}
+    raw["tool"]["diameter"] = 2 * VR
+    raw["machining"]["direction"] = "x"                     # passes across the crease
+    raw["simulation"]["start"] = -7.0                       # must lie on the smaller block
+    raw.pop("ramp")
+    spec = write_spec(tmp_path, raw)
+    code, out, err = cli("gcode", spec, "-o", tmp_path / "p.ngc", "--json")
+    assert code == 0, err
+    s = json.loads(out)
+    k = 25.4                                                # inch program
+    sheet = json.loads((tmp_path / "p.setup.json").read_text())
+    # the stepover between passes over the stock never exceeds the flat-ground one (the gap
+    # to the passes beyond the edges has its own key)
+    flat = 2 * math.sqrt(2 * VR * 0.05 - 0.05 ** 2)
+    assert s["stepover"] * k <= flat + 1e-3 and "edge_pass_gap" in sheet
+    assert s["max_gouge"] * k <= 0.01
+    assert s["max_material_left"] * k <= 0.05 + 0.01
+    if RS274 is None:
+        pytest.skip("LinuxCNC rs274 not installed")
+    from test_verify import brute_cut, rs274_moves
+    pts, _ = rs274_moves(tmp_path / "p.ngc")
+    pts = pts * k + np.array([VX[0], VY[0], 0.0])           # work X, Y -> design x, y
+    # the crease and its unreachable band (|x| < R sin 45 deg), 0 to 0.7 mm from both edges
+    d = np.r_[0.0, 0.02, 0.05, 0.1, 0.15, 0.2, 0.3, 0.45, 0.7]
+    X, D = np.meshgrid(np.linspace(-2.4, 2.4, 13), d, indexing="ij")
+    px, py = np.r_[X.ravel(), X.ravel()], np.r_[VY[0] + D.ravel(), VY[1] - D.ravel()]
+    # the brute cut clips at the top face, work Z = 0; design z = work Z + top
+    cut = brute_cut(px, py, pts[:-1], pts[1:], VR, step=0.01) + VTOP
+    design = np.abs(px) - VD
+    floor, off = _v_floor(px, py)
+    assert np.max(design - cut) <= 0.01 + 3e-3           # no gouge (rs274's 1e-4 in grid)
+    # material above what the ball can reach, measured along the normal of the design or of
+    # the lowest ball's surface there (sqrt(R^2 - d^2) / R), the larger (as the sheet's)
+    scale = np.where(floor > design + 1e-9,
+                     np.maximum(np.sqrt(np.maximum(VR * VR - off * off, 0.0)) / VR, 1 / math.sqrt(2)),
+                     1 / math.sqrt(2))
+    left = (cut - floor) * scale
+    assert left.max() <= 0.05 + 0.01 + 2e-4
+    # the setup sheet's figure is honest: not below the independent one (different points)
+    assert left.max() <= sheet["max_material_left"] * k + 0.005

@@ -106,6 +106,8 @@ def _finish(args, job, out, paths, total) -> int:
     seconds = total.seconds
     so = (f"{toolpath.stepover_min:.2f}-{toolpath.stepover:.2f}" if toolpath.stepover_min < toolpath.stepover
           else f"{toolpath.stepover:.2f}")
+    gap = toolpath.info.get("edge_pass_gap_max", 0.0)
+    so += f" (edge pass gap {gap:.2f})" if gap > toolpath.stepover else ""
     head = f"gcode: {out}, {toolpath.passes} passes, stepover {so} mm, {lines} lines; "
     if check:
         meas = "normal to the surface" if check.get("material_left_measure", "normal") == "normal" else "vertically"

@@ -283,9 +283,13 @@ def write_program(toolpath: Toolpath, profile: MachineProfile) -> str:
     items += [("work zero (G54)", "X0 Y0 at the footprint corner of smallest x, y,"),
               ("", "Z0 on the stock top face"),
               ("scallop", _length(profile.scallop, u)), ("tolerance", _length(profile.tolerance, u))]
+    gap = float(toolpath.info.get("edge_pass_gap_max", 0.0))
     items += [("passes", f"{toolpath.passes}"),
               ("stepover", (f"{toolpath.stepover_min * k:.4g}-" if toolpath.stepover_min < toolpath.stepover
                             else "") + f"{toolpath.stepover * k:.4g} {u.name}"),
+              *([("edge pass gap", f"up to {gap * k:.4g} {u.name} from the passes over the stock "
+                                   "to those beyond its edges")]
+                if gap > toolpath.stepover else []),
               ("units", f"{u.name} ({units_word}), feeds {u.name}/min, absolute (G90)"),
               ("feeds", f"cut {num(profile.feed * k, fdec)}, plunge {num(profile.plunge * k, fdec)} "
                         f"{u.name}/min, spindle {profile.spindle:.0f} rpm"),

@@ -133,7 +133,7 @@ def verify_program(spec, surface, program, cache: dict | None = None) -> CutRepo
     return CutReport.from_dict(verify_cut(surface, program, spec.tool.diameter / 2.0, m.verify_points,
                                           depth_limit=spec.stock.depth_limit, reach=spec.tool.reach,
                                           unreachable_min=m.tolerance, normal=scallop_normal(spec),
-                                          over=m.scallop + m.tolerance, cache=cache))
+                                          over=m.scallop + m.tolerance, cache=cache, along=m.direction))
 
 
 def repair(spec, surface, toolpath, profile, text, program, cut: CutReport, cache: dict | None = None):

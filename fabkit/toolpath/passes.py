@@ -26,6 +26,13 @@ Work coordinates, mm. A pass runs along ``u`` (X for ``direction: x``, Y for
 * Edges: across, the first and last passes lie on the footprint edges or beyond
   them (up to 0.999 R out: a steep wall at the edge is reached only by a ball
   almost wholly outside), until the edge is milled.
+* Open ends of unreachable regions (:func:`edge_comb`): within R of an edge across, a
+  ball hanging off the edge reaches deeper into a groove tighter than itself than any
+  ball over the stock (a 45-degree V under a 6 mm ball: 0.49 mm deeper 0.1 mm from the
+  edge). Where the placed passes leave more than the target in that band and a comb of
+  passes hanging off the edge (:func:`comb_offsets`) leaves less, the comb's passes are
+  added over that stretch along the pass (before, a band 0.1-0.3 mm wide at the last
+  edge was left up to 0.9 mm higher than the tool can cut).
 """
 
 from __future__ import annotations
@@ -48,6 +55,21 @@ GROWTH = 1.5            # the next stepover grows at most by this factor (cusp ~
 STEEP_ALONG = 1.5       # the material bound's stage 3 runs where the slope along the pass exceeds this
 EDGE_NODES = (0.95, 0.99)   # extra nodes along the passes beyond the edges, x R out
 EDGE_OUT = (0.0, 0.125, 0.25, 0.375, 0.5, 0.625, 0.75, 0.875, 0.95, 0.99, 0.999)  # edge passes, x R out
+COMB_EVEN, COMB_RIM = 60, 20    # the comb hanging off an edge: passes evenly to 0.9 R out, then toward 0.999 R
+COMB_GAIN = 0.25        # comb passes run where they lower the edge band by this share of the target
+
+
+def comb_offsets() -> np.ndarray:
+    """Offsets beyond an edge (x R) of the comb of passes whose balls, hanging off the edge,
+    cut the open end of a groove tighter than the tool: COMB_EVEN evenly from 0 to 0.9 R,
+    COMB_RIM geometrically from 0.9 to 0.999 R (the balls' cross-sections on the edge shrink
+    fast there, and the deepest ball for a point d from the edge stands ~R - d out). On a
+    45-degree V under a 6 mm ball the lowest of these balls lies at most 0.0025 mm above the
+    lowest of all balls up to 0.999 R out, 0 to 1.5 mm from the edge (closed form of the
+    cross-section at the crease; 0.007 mm with 20 even ones). In a 2 mm groove with tanh
+    walls under a 1/8 in ball 20 even ones (0.075 mm apart) left 0.10 mm more than the
+    lowest ball 0.2 mm from the edge."""
+    return np.unique(np.r_[np.linspace(0.0, 0.9, COMB_EVEN), 1.0 - np.geomspace(1e-3, 0.1, COMB_RIM)])
 
 
 def flat_stepover(R: float, scallop: float) -> float:
@@ -107,6 +129,8 @@ def _hermite(ug, Z, dZ, uf, kink=None, rows=None):
 class _Pass:
     """One pass: v, exact tip heights Z and slopes dZ/du at the grid ug, the nodes
     kept, and the profile on a fine grid uf (Hermite; +inf where not machined)."""
+
+    comb = False        # a pass of an edge comb (:func:`edge_comb`), run over a stretch only
 
     def __init__(self, fr, R, ug, uf, v, X, Y, Z, ci, depth_lim=math.inf, contact_top=None):
         pu = ci.contact_x if fr.direction == "x" else ci.contact_y
@@ -675,4 +699,50 @@ def place_passes(ws, fr, R: float, scallop: float, depth_lim: float, max_passes:
                             file=spec_path, key="machining.scallop")
         # predict the next stepover from this one's margin (cusp ~ s^2)
         s_next = max(pb.v - pa.v, s_min) * min(GROWTH, 0.97 / math.sqrt(max(ratio, 1e-12)))
+    comb = edge_comb(ws, fr, R, ug, uf, passes, target, chord, normal, make, deep)
+    if comb:
+        passes = sorted(passes + comb, key=lambda p: p.v)
     return PassPlan(passes, ug, uf, s_flat, tuple(unreach), relaxed)
+
+
+def edge_comb(ws, fr, R, ug, uf, passes, target, chord, normal, make, deep):
+    """Passes hanging off the edges across, at :func:`comb_offsets`, each kept over the
+    stretch along u (columns where the comb lowers the material in the band within R of
+    the edge by more than COMB_GAIN x target, where the placed passes leave more than the
+    target, plus R either side). The band is sampled at 16 distances from the edge (0 and
+    0.005 R to R, geometric); the material is bounded as in :func:`sweep_material`.
+    ``make`` computes passes at given v, ``deep`` tells a pass below the depth limit.
+    Returns the passes to add (none on a block whose bands the placed passes finish)."""
+    Lv = fr.Lv
+    uq = ug[(ug >= 0) & (ug <= fr.Lu)]
+    dist = np.r_[0.0, np.geomspace(0.005, 1.0, 15)] * R
+    added = []
+    for edge, sign in ((0.0, -1.0), (Lv, 1.0)):
+        vrow = np.clip(edge - sign * dist, 0.0, Lv)
+        vs = np.repeat(vrow[:, None], uq.size, axis=1)
+        near = [p for p in passes if abs(p.v - edge) <= 2.0 * R]
+        if not near or not uq.size:
+            continue
+
+        def left(cutters):
+            ml = sweep_material(ws, fr, R, uq, vs, cutters, uf, 0.5 * target, chord, normal)
+            return np.nan_to_num(ml, nan=np.inf, posinf=np.inf)
+
+        m0 = left(near)
+        if not (m0 > target).any():
+            continue
+        comb = [c for c in make([edge + sign * f * R for f in comb_offsets()])
+                if c.keep.any() and not deep(c) and all(abs(c.v - p.v) > 1e-9 for p in near)]
+        if not comb:
+            continue
+        m1 = left(near + comb)
+        cols = np.nonzero(((m0 - m1 > COMB_GAIN * target) & (m0 > target)).any(axis=0))[0]
+        if not cols.size:
+            continue
+        span = (ug >= uq[cols].min() - R) & (ug <= uq[cols].max() + R)
+        for c in comb:
+            c.keep = c.keep & span
+            c.comb = True
+            if c.keep.any():
+                added.append(c)
+    return added

@@ -113,6 +113,7 @@ def setup_sheet(spec, surface, toolpath, profile, program_path, check: dict | No
         "passes_added_after_verification": int(toolpath.info.get("passes_added_after_verification", 0)),
         "stepover": _r(toolpath.stepover * k),
         "stepover_min": _r(toolpath.stepover_min * k),
+        "edge_pass_gap": _r(toolpath.info.get("edge_pass_gap_max", 0.0) * k),
         "direction": m.direction,
         "scallop": _r(m.scallop * k),
         "scallop_measure": getattr(m, "scallop_measure", "normal"),
@@ -298,7 +299,9 @@ def sheet_markdown(sheet: dict, png_name: str | None) -> str:
         "## Passes",
         "",
         f"- {sheet['passes']} raster passes along {sheet['direction']}, stepover "
-        f"{sheet['stepover_min']:g} to {sheet['stepover']:g} {u}"
+        f"{sheet['stepover_min']:g} to {sheet['stepover']:g} {u} between passes over the stock"
+        + (f" (up to {sheet['edge_pass_gap']:g} {u} from them to the passes beyond its edges)"
+           if (sheet.get("edge_pass_gap") or 0) > sheet["stepover"] else "")
         + (f" ({sheet['passes_added_after_verification']} of them added where the first verified "
            "cut left more than scallop + tolerance)" if sheet.get("passes_added_after_verification") else ""),
         f"- Scallop {sheet['scallop']:g} {u} (measured {_MEASURE[sheet.get('scallop_measure', 'normal')]}), "

@@ -330,7 +330,7 @@ def _crease_points(ws, gx, gy):
 def verify_cut(surface, program: Program, R: float, points: int = 40000, *, seed: int = 0,
                depth_limit: float = np.inf, reach: float = np.inf, tol: Tolerances = DEFAULT,
                detail: bool = False, unreachable_min: float = 1e-3, normal: bool = True,
-               over: float | None = None, cache: dict | None = None) -> dict:
+               over: float | None = None, cache: dict | None = None, along: str | None = None) -> dict:
     """Sweep a ball-end tool of radius ``R`` mm along every move of ``program`` and
     compare the cut with the design (``surface``: a Surface or WorkSurface).
 
@@ -357,7 +357,9 @@ def verify_cut(surface, program: Program, R: float, points: int = 40000, *, seed
       deepest_cut        deepest tip position below the top face, and the limits
       first_move_ok      the first move is a Z-only rapid up to the top face or above
     ``cache``: a dict kept between verifications of programs for the same surface, R,
-    points and seed (the reachable height is computed once).
+    points and seed (the reachable height is computed once). ``along``: the raster's
+    direction ('x' or 'y'): the reachable height counts balls hanging off the edges up to
+    OVERHANG x R across the passes and OVERHANG_ALONG x R along them (None: OVERHANG both).
     With ``detail`` also the arrays ``X``, ``Y``, ``design``, ``cut`` (per sample point).
     """
     from .compensate import WorkSurface
@@ -394,11 +396,13 @@ def verify_cut(surface, program: Program, R: float, points: int = 40000, *, seed
     # separated from the material the program leaves where the ball can reach
     # what the ball can reach depends on the design and the sample points, not on the
     # program: a ``cache`` dict keeps it for the next verification of the same block
-    key = ("reach", len(px), float(R), seed)
+    key = ("reach", len(px), float(R), seed, along)
+    hang = (OVERHANG_ALONG * R if along == "x" else OVERHANG * R,
+            OVERHANG_ALONG * R if along == "y" else OVERHANG * R)
     if cache is not None and key in cache:
         reach_z, scale = cache[key]
     else:
-        reach_z, _, scale = reachable_height(ws, px, py, R, return_scale=True)
+        reach_z, _, scale = reachable_height(ws, px, py, R, overhang=hang, return_scale=True)
         if cache is not None:
             cache[key] = (reach_z, scale)
     unreach = reach_z - design
@@ -476,13 +480,17 @@ def verify_cut(surface, program: Program, R: float, points: int = 40000, *, seed
 
 
 #: where the ball cannot reach the design (a valley, a crease or a wall's foot tighter than
-#: it), the floor counts balls centred over the stock (OVERHANG x R beyond it at most): at
-#: such a region's open end on the stock edge a ball hanging off the edge reaches deeper, but
-#: only in a sliver at the edge line (on the edge of 3*abs(x): 0.5 mm deeper on the line,
-#: 0.02 mm at 0.03 mm in); the fillet the operator sees runs on to the edge unchanged.
-#: Where the ball reaches the design (its normal position is free, overhanging or not) the
-#: design itself is the floor, edges included.
-OVERHANG = 0.0
+#: it), the floor counts the balls centred up to OVERHANG x R beyond the footprint (the
+#: planner's edge passes stand up to 0.999 R out): at such a region's open end on a stock
+#: edge a ball hanging off the edge reaches deeper than any ball over the stock (a 45-degree
+#: V groove under a 6 mm ball: 0.49 mm deeper 0.1 mm from the edge, 1.19 mm on the edge
+#: line). Where the ball reaches the design (its normal position is free, overhanging or
+#: not) the design itself is the floor, edges included.
+OVERHANG = 0.999
+#: along the passes (``along``: their direction) the balls hang off the pass ends up to the
+#: planner's last node, 0.99 R out (a ball further out touches the edge with a tip path of
+#: nearly vertical tangent, which no chord of the program follows without gouging)
+OVERHANG_ALONG = 0.99
 REACH_GRID = 1.0 / 8.0                              # x R: the grid of start centres
 REACH_SEARCH = 24                                   # compass steps from the best coarse centre
 REACH_DIRS = 8          # compass directions (4 ended up to 0.045 mm higher on 2*sin(x) + 2*sin(y))
@@ -502,8 +510,8 @@ def reachable_height(ws, px, py, R: float, chunk: int = 20000, overhang: float |
     centre tried is a real ball position, so the height is an upper bound of the lowest one (the material it calls unreachable is
     never less than there is); on a parabolic valley tighter than the ball it is within
     3e-4 mm of the centred ball's closed form (tested). Centres farther than
-    ``overhang`` (default :data:`OVERHANG` x R) beyond the footprint are not tried (see
-    :data:`OVERHANG`). Returns (height, reachable), and with ``return_scale`` the
+    ``overhang`` (mm, default :data:`OVERHANG` x R; a pair: beyond the x and the y edges)
+    beyond the footprint are not tried (see :data:`OVERHANG`). Returns (height, reachable), and with ``return_scale`` the
     normal scale of the reachable surface: 1 / sqrt(1 + slope^2) of the design where the
     ball reaches it, and where it cannot, of the lowest ball's surface above the point
     (the surface the ball leaves there is that ball's: d from its centre, the scale is
@@ -511,6 +519,7 @@ def reachable_height(ws, px, py, R: float, chunk: int = 20000, overhang: float |
     from .compensate import compensate
 
     overhang = OVERHANG * R if overhang is None else overhang
+    ox_, oy_ = (overhang, overhang) if np.isscalar(overhang) else (float(overhang[0]), float(overhang[1]))
 
     def drop(qx, qy):
         shape = qx.shape
@@ -543,8 +552,9 @@ def reachable_height(ws, px, py, R: float, chunk: int = 20000, overhang: float |
             zq = drop(qx, qy)
             with np.errstate(invalid="ignore"):
                 low = zq + R - np.sqrt(R * R - ox * ox - oy * oy)
-            over = (np.maximum(np.maximum(-qx, qx - ws.L), 0.0) ** 2
-                    + np.maximum(np.maximum(-qy, qy - ws.W), 0.0) ** 2) > overhang ** 2
+            ex = np.maximum(np.maximum(-qx, qx - ws.L), 0.0)
+            ey = np.maximum(np.maximum(-qy, qy - ws.W), 0.0)
+            over = (ex > ox_) | (ey > oy_) | (ex * ex + ey * ey > max(ox_, oy_) ** 2)
             return np.where(np.isfinite(low) & (ox * ox + oy * oy <= R * R) & ~over, low, np.inf)
 
         # starts: the centre above the point, the normal-offset centre, and the lowest of
@@ -555,7 +565,7 @@ def reachable_height(ws, px, py, R: float, chunk: int = 20000, overhang: float |
         j = np.argmin(G, axis=1)
         r = np.arange(bad.size)
         best, bo_x, bo_y = G[r, j], OX[r, j], OY[r, j]
-        gb, gx_, gy_ = _grid_starts(ws, bx, by, R, drop)
+        gb, gx_, gy_ = _grid_starts(ws, bx, by, R, drop, (ox_, oy_))
         lower = gb < best
         best, bo_x, bo_y = np.where(lower, gb, best), np.where(lower, gx_, bo_x), np.where(lower, gy_, bo_y)
         dirs = 2 * np.pi * np.arange(REACH_DIRS) / REACH_DIRS
@@ -585,18 +595,28 @@ def reachable_height(ws, px, py, R: float, chunk: int = 20000, overhang: float |
     return (out, ok, scale) if return_scale else (out, ok)
 
 
-def _grid_starts(ws, bx, by, R, drop):
+def _grid_starts(ws, bx, by, R, drop, overhang=(0.0, 0.0)):
     """Per point (bx, by), the lowest surface above it of the balls centred on a grid of
-    spacing REACH_GRID x R over the stock (exact drop-cutter heights; only the nodes
-    within R of some point are dropped): (g, centre offset x, y), +inf where none."""
+    spacing REACH_GRID x R over the stock and up to ``overhang`` (x, y) beyond it (the last
+    node of each side at ``overhang``; exact drop-cutter heights; only the nodes within R
+    of some point are dropped): (g, centre offset x, y), +inf where none."""
     from scipy.ndimage import binary_dilation
 
     h = REACH_GRID * R
-    nx, ny = int(math.ceil(ws.L / h)) + 1, int(math.ceil(ws.W / h)) + 1
-    xs, ys = np.linspace(0.0, ws.L, nx), np.linspace(0.0, ws.W, ny)
-    hx, hy = xs[1] - xs[0] if nx > 1 else h, ys[1] - ys[0] if ny > 1 else h
-    ix = np.clip(np.rint(bx / hx).astype(int), 0, nx - 1)
-    iy = np.clip(np.rint(by / hy).astype(int), 0, ny - 1)
+
+    def axis(length, overhang):
+        n = int(math.ceil(length / h)) + 1
+        g = np.linspace(0.0, length, n)
+        st = g[1] - g[0] if n > 1 else h
+        k = int(math.ceil(overhang / st - 1e-9)) if overhang > 0 else 0
+        out = np.minimum(st * np.arange(1, k + 1), overhang)
+        return np.r_[-out[::-1], g, length + out], st, k
+
+    xs, hx, kx = axis(ws.L, overhang[0])
+    ys, hy, ky = axis(ws.W, overhang[1])
+    nx, ny = xs.size, ys.size
+    ix = np.clip(np.rint(bx / hx).astype(int) + kx, 0, nx - 1)
+    iy = np.clip(np.rint(by / hy).astype(int) + ky, 0, ny - 1)
     rx, ry = int(math.ceil(R / hx)) + 1, int(math.ceil(R / hy)) + 1
     near = np.zeros((nx, ny), bool)
     near[ix, iy] = True
