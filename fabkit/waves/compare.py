@@ -1,7 +1,7 @@
 """The seed paper's Fig. 1 for an apparatus: v_out(v_in) of four models side by side.
 
 Panels (each a dict: name, params, v_in, v_out, bounces, outcome, v_critical,
-v_critical_note, units, seconds):
+v_critical_note, units, seconds; the apparatus also model, windows, tn_fit, length_unit):
 
 1. ``pde``: phi^4 kink-antikink collisions (:mod:`fabkit.waves.phi4`); v_critical from
    a phi^4 sweep's bisection (:func:`fabkit.waves.sweep.phi4_sweep`).
