@@ -71,6 +71,8 @@ def test_compare_json_sets_the_labs_published_fit_beside_the_sweeps_own(cli, tmp
     assert code == 0, err
     assert "T_n, the lab (published): 0.961 n + 0.755 s, n = 2..6" in out
     assert f"T_n, fabkit (full model, lengths in cm): {T:.3f} n + {delta:.3f} s" in out
+    # the lab's n = 2 lies below fabkit's first window (n = 3): its line is extrapolated there
+    assert n[0] == 3 and f"n=2: {T * 2 + delta:.3f} vs 2.677 (" in out and "%, extrapolated), n=3:" in out
 
 
 def test_lab_comparison_fits_the_labs_n_alone():

@@ -36,8 +36,9 @@ def _paper_lines(paper: dict) -> list[str]:
     out.append(f"compare: T_n, fabkit ({fab['model']} model, lengths in {fab['length_unit']}): "
                f"{fab['T']:.3f} n + {fab['delta']:.3f} s over n = {','.join(str(n) for n in fab['n'])} "
                f"(T_shape {fab['T_shape']:.3f} s)")
-    cells = ", ".join(f"n={r['n']}: {r['fabkit']:.3f} vs {r['lab']:.3f} ({100 * r['rel_diff']:+.1f} %)"
-                      for r in paper["by_n"])
+    lo, hi = min(fab["n"]), max(fab["n"])
+    cells = ", ".join(f"n={r['n']}: {r['fabkit']:.3f} vs {r['lab']:.3f} ({100 * r['rel_diff']:+.1f} %"
+                      + ("" if lo <= r["n"] <= hi else ", extrapolated") + ")" for r in paper["by_n"])
     out.append(f"  fabkit's line vs the lab's: {cells}")
     return out
 
