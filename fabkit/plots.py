@@ -415,11 +415,21 @@ def phi4_trajectory_png(record: dict, summary: dict, *, fmt: str = "png") -> byt
     return _png(plt, fig, fmt)
 
 
-def compare_figure(panels: list[dict], *, title: str = "", fmt: str = "png") -> bytes:
+def compare_figure(panels: list[dict], *, title: str = "", span: tuple[float, float] | None = (0.65, 1.25),
+                   fmt: str = "png") -> bytes:
     """The seed paper's Fig. 1 for an apparatus: one panel per model, v_out / v_c against
     v_in / v_c, coloured by the number of collisions (one black, two blue, three green,
     four red; more and captured in grey ticks on the axis). ``panels``: dicts with
-    name, params (text), v_in, v_out, bounces, outcome, v_critical, units."""
+    name, params (text), v_in, v_out, bounces, outcome, v_critical, units. ``span``: the
+    x range (v_in / v_c) every panel shares (None: each its own); launches outside it
+    are not drawn, and a panel that has some says how many it shows. A panel without a
+    v_critical is drawn in its own units over its own range."""
+    plt, fig = compare_axes(panels, title=title, span=span)
+    return _png(plt, fig, fmt)
+
+
+def compare_axes(panels: list[dict], *, title: str = "", span: tuple[float, float] | None = (0.65, 1.25)):
+    """(pyplot, Figure) of :func:`compare_figure`, not yet rendered (tests read its axes)."""
     plt, fig = _figure(figsize=(11, 8.5))
     for p_i, p in enumerate(panels):
         ax = fig.add_subplot(2, 2, p_i + 1)
@@ -429,21 +439,31 @@ def compare_figure(panels: list[dict], *, title: str = "", fmt: str = "png") -> 
         vo = np.asarray([np.nan if x is None else x for x in p["v_out"]], dtype=float) / scale
         nb = np.asarray(p["bounces"])
         esc = np.array([o == "escaped" for o in p["outcome"]])
+        shown = np.ones(v.size, dtype=bool)
+        if vc and span is not None:
+            # a sample a hair outside (a panel sampled around a nominal v_critical) is drawn, clipped
+            pad = 0.01 * (span[1] - span[0])
+            shown = (v >= span[0] - pad) & (v <= span[1] + pad)
         for n in (1, 2, 3, 4):
-            m = esc & (nb == n)
+            m = esc & (nb == n) & shown
             if m.any():
                 ax.plot(v[m], vo[m], ".", ms=2.5, color=BOUNCE_COLOURS[n])
-        rest = ~(esc & (nb >= 1) & (nb <= 4))
+        rest = ~(esc & (nb >= 1) & (nb <= 4)) & shown
         if rest.any():
             ax.plot(v[rest], np.zeros(rest.sum()), "|", ms=5, color=CAPTURED_COLOUR)
         if vc:
             ax.axvline(1.0, color="tab:orange", lw=0.8, ls="--")
         u = p.get("units", "")
         vc_txt = f"v_critical = {vc:.5g} {u}" if vc else "v_critical: none in range"
+        if not shown.all():
+            vc_txt += (f"\n{int(shown.sum())} of {v.size} launches in this range "
+                       f"(sampled {v.min():.3g}..{v.max():.3g} x v_critical)")
         ax.set_title(f"{p['name']}\n{p.get('params', '')}\n{vc_txt}", fontsize=8.5)
         ax.set_xlabel("v_in / v_critical" if vc else f"v_in ({u})")
         ax.set_ylabel("v_out / v_critical" if vc else f"v_out ({u})")
         ax.grid(alpha=0.3)
+        if vc and span is not None:
+            ax.set_xlim(*span)
         ax.set_ylim(bottom=-0.03)
     from matplotlib.lines import Line2D
 
@@ -455,7 +475,7 @@ def compare_figure(panels: list[dict], *, title: str = "", fmt: str = "png") -> 
     if title:
         fig.suptitle(title, fontsize=11)
     fig.tight_layout(rect=(0, 0.04, 1, 1))
-    return _png(plt, fig, fmt)
+    return plt, fig
 
 
 def design_figure(result: dict, bounds, *, title: str = "", units: str = "", fmt: str = "png") -> bytes:
