@@ -59,11 +59,13 @@ def failures(check: dict, spec) -> list[str]:
 
 def run(args) -> int:
     from ..toolpath.gcode import profile_from_spec, write_program
+    from ..toolpath.guards import with_time_budget
     from ..toolpath.raster import plan_estimate, plan_toolpath
     from ..toolpath.setup import sheet_paths
 
     total = Timer()
     spec = load_spec(args.spec, need=NEEDS, command="gcode")
+    spec = with_time_budget(spec, getattr(args, "max_time", None))     # --max-time over machining.max_time
     out = default_output(spec, ".ngc", args.output)
     paths = sheet_paths(out)
     # refuse now, not after minutes of planning

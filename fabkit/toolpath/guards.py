@@ -99,7 +99,8 @@ def estimate(spec, ws, fr, R: float, target: float, tolerance: float, depth_mm: 
     per_pass = 1.6 * float(np.trapezoid(dens, u, axis=1).mean()) + 20.0
     points = passes * per_pass
     out = {"passes": passes, "points": points, "nodes": passes * n_nodes,
-           "roughing_levels": 0, "roughing_points": 0.0}
+           "roughing_levels": 0, "roughing_points": 0.0,
+           "max_time": getattr(spec.machining, "max_time", None)}
     step = getattr(spec.machining, "stepdown", None)
     if step:
         leave = float(spec.machining.leave)
@@ -158,11 +159,23 @@ def guard(est: dict, tol, spec_path=None, scallop=None, tolerance=None) -> None:
                         f"({est['passes']:.3g} passes, {est['points'] + est['roughing_points']:.3g} "
                         f"program points; limit {MAX_BYTES / 1e9:g} GB); raise {key.split('.')[1]}",
                         file=spec_path, key=key)
-    if est["seconds"] > tol.max_plan_seconds:
+    budget = est.get("max_time") or tol.max_plan_seconds
+    if est["seconds"] > budget:
         key = "machining.scallop" if est["place_seconds"] >= \
             SEC_PER_POINT * (est["points"] + est["roughing_points"]) else \
             ("machining.stepdown" if est["roughing_points"] > est["points"] else "machining.tolerance")
-        raise SpecError(f"planning would take about {est['seconds']:.0f} s ({est['passes']:.3g} "
+        raise SpecError(f"the job would take about {est['seconds']:.0f} s of CPU time ({est['passes']:.3g} "
                         f"passes, {est['points'] + est['roughing_points']:.3g} program points; "
-                        f"limit {tol.max_plan_seconds:g} s); raise {key.split('.')[1]}",
+                        f"limit {budget:g} s): raise the limit with --max-time SECONDS or the spec key "
+                        f"machining.max_time, or raise {key.split('.')[1]}",
                         file=spec_path, key=key)
+
+
+def with_time_budget(spec, seconds):
+    """The spec with ``machining.max_time`` set to ``seconds`` (the ``--max-time``
+    option; None: the spec unchanged). SpecError naming the option when not > 0."""
+    if seconds is None:
+        return spec
+    if not seconds > 0:
+        raise SpecError(f"must be > 0 seconds, got {seconds:g}", key="--max-time")
+    return spec.with_overrides({"machining.max_time": float(seconds)})
