@@ -5,6 +5,9 @@ it, nothing written); a raised budget lets the same job run."""
 
 from __future__ import annotations
 
+import math
+
+import numpy as np
 import pytest
 from conftest import write_spec
 
@@ -77,3 +80,35 @@ def test_report_takes_the_option(tmp_path):
 
     args = build_parser().parse_args(["report", "s.yaml", "--max-time", "300"])
     assert args.max_time == 300.0
+
+
+# ----------------------------------------------------------------------------
+# the estimate's share of the footprint where the verification's compass search runs
+# ----------------------------------------------------------------------------
+def _fraction(slope_u, R, L=10.0, W=20.0, n=201):
+    from fabkit.toolpath.guards import _tight_fraction
+
+    u, v = np.linspace(-L / 2, L / 2, n), np.linspace(0.0, W, n)
+    UU, _ = np.meshgrid(u, v)
+    Hu = slope_u(UU)
+    return _tight_fraction(None, R, Hu, np.zeros_like(Hu), np.ones_like(Hu, bool), u, v), u[1] - u[0]
+
+
+def test_tight_fraction_of_a_v_crease_is_the_band_within_r():
+    """3|x| on 10 mm: concave only at the crease, so the band within R of it: 2R / L
+    (to a few grid cells)."""
+    R = 1.5875
+    f, du = _fraction(lambda x: 3.0 * np.sign(x), R)
+    assert abs(f - 2 * R / 10.0) <= 4 * du / 10.0
+
+
+def test_tight_fraction_of_a_parabolic_valley():
+    """c x^2: curvature 2c / (1 + 4c^2 x^2)^1.5 exceeds 1/R for |x| < x0 =
+    sqrt((2cR)^(2/3) - 1) / (2c); the band is that, widened by R each side. A wide
+    valley (2c < 1/R) and a plane have none."""
+    R, c = 1.5875, 1.0
+    x0 = math.sqrt((2 * c * R) ** (2 / 3) - 1) / (2 * c)
+    f, du = _fraction(lambda x: 2 * c * x, R)
+    assert abs(f - 2 * (x0 + R) / 10.0) <= 4 * du / 10.0
+    assert _fraction(lambda x: 2 * 0.02 * x, R)[0] == 0.0
+    assert _fraction(lambda x: 4.0 + 0 * x, R)[0] == 0.0

@@ -334,6 +334,9 @@ def sheet_markdown(sheet: dict, png_name: str | None) -> str:
 _MEASURE = {"normal": "normal to the surface", "vertical": "vertically"}
 
 
+PREVIEW_MAX_ASPECT = 2.0     # the preview's figure height over width, at most (the axes keep equal scales)
+
+
 def preview_png(program, L: float, W: float, units: str = "mm", max_segments: int = 400_000) -> bytes:
     """Top view of the feed moves coloured by tip depth (work mm shown in program
     units), stock outline dashed. Returns PNG bytes (matplotlib Agg, lazily imported)."""
@@ -350,7 +353,9 @@ def preview_png(program, L: float, W: float, units: str = "mm", max_segments: in
     if len(a) > max_segments:
         step = int(math.ceil(len(a) / max_segments))
         a, b = a[::step], b[::step]
-    fig = Figure(figsize=(8, 8 * max(W / L, 0.3) + 1.0), dpi=110)
+    # a block much longer in Y than in X is drawn no taller than twice its width: the
+    # figure (and the PNG's encoding, most of the sheet's time) stays bounded
+    fig = Figure(figsize=(8, 8 * min(max(W / L, 0.3), PREVIEW_MAX_ASPECT) + 1.0), dpi=110)
     ax = fig.add_subplot(111)
     segs = np.stack([a[:, :2], b[:, :2]], axis=1)
     lc = LineCollection(segs, linewidths=0.5, cmap="viridis", rasterized=True)
