@@ -112,3 +112,32 @@ def test_tight_fraction_of_a_parabolic_valley():
     assert abs(f - 2 * (x0 + R) / 10.0) <= 4 * du / 10.0
     assert _fraction(lambda x: 2 * 0.02 * x, R)[0] == 0.0
     assert _fraction(lambda x: 4.0 + 0 * x, R)[0] == 0.0
+
+
+def test_preview_draws_each_feed_move_at_its_place_in_its_colour():
+    """Two feed moves across a 10 x 10 mm block, at Y = 2 (Z -1) and Y = 8 (Z -3): the
+    deeper is drawn in the colour map's lowest colour (viridis 0: 68, 1, 84), the other
+    in its highest (253, 231, 37), each a horizontal line 8 mm long at the plot's scale,
+    the deeper above the other (Y up) by 6 mm."""
+    import io
+
+    from PIL import Image
+
+    from fabkit.toolpath.setup import preview_png
+    from fabkit.toolpath.verify import read_program
+
+    text = ("G21 G90\nG0 Z5\nG0 X1 Y2\nG0 Z-1\nG1 X9 Y2 F100\nG0 Z5\nG0 X1 Y8\nG0 Z-3\n"
+            "G1 X9 Y8\nG0 Z5\nM2\n")
+    img = np.asarray(Image.open(io.BytesIO(preview_png(read_program(text), 10.0, 10.0))).convert("RGB"))
+    plot = img[:, :780]                                       # left of the colour bar
+    dark = np.argwhere((plot == (68, 1, 84)).all(axis=2))
+    light = np.argwhere((plot == (253, 231, 37)).all(axis=2))
+    assert len(dark) and len(light)
+    # the moves: one row each
+    assert np.ptp(dark[:, 0]) == 0 and np.ptp(light[:, 0]) == 0
+    assert dark[0, 0] < light[0, 0]                          # Y = 8 above Y = 2
+    # the plot is 700 px wide for 1.06 x the stock's length (equal scales): 66.04 px/mm;
+    # each move is 8 mm long, and they are 6 mm apart
+    px_mm = 700 / (1.06 * 10.0)
+    assert abs(np.ptp(dark[:, 1]) - 8 * px_mm) <= 2 and abs(np.ptp(light[:, 1]) - 8 * px_mm) <= 2
+    assert abs((light[0, 0] - dark[0, 0]) - 6 * px_mm) <= 2
