@@ -11,7 +11,8 @@ spacing the curvature along the passes needs, roughing levels from the depth and
 setup sheet, start-up) from those counts, the verify points and the share of the
 footprint near a concave crease tighter than the ball, with per-unit costs measured
 on the 2-core reference machine (a model, not a measurement: the measured CPU time
-was 0.76-1.43 of it on the jobs it was fitted to, see the constants). The time guard is
+was 0.76-1.43 of it on the jobs it was fitted to, up to 2.3 on a plane steep along
+the passes, see the constants). The time guard is
 a budget: ``machining.max_time`` or ``--max-time`` (default
 :attr:`fabkit.tolerances.Tolerances.max_plan_seconds`).
 """
@@ -35,8 +36,10 @@ from ..errors import SpecError
 # whole command on seven jobs at load 6-12: specs/surface.yaml, specs/bowl.yaml, the
 # paper's surface with a 1/8 in ball at scallop 0.02 mm, a 5 x 40 mm plane of slope 4
 # and a 10 x 20 mm block of 3*abs(x) (bowl's tool), a 3 x 30 mm plane of slope 8 along
-# the passes and an oblique V crease: measured / estimated 0.76-1.43 there
-# (benchmarks/notes_gcode_profile.md)
+# the passes and an oblique V crease: measured / estimated 0.76-1.43 there, except the
+# plane steep along the passes in a second run (2.28: its CPU time varied 10.1-14.9 s
+# between runs, and its per-pass cost is not explained by these terms; see
+# benchmarks/notes_gcode_profile.md)
 SEC_PER_PASS = 4.8e-3          # pass placement, per pass: fixed cost (two bounds, a few calls)
 SEC_PER_PASS_NODE = 1.2e-5     # per node along a pass: exact tip heights (incl. trial passes)
 SEC_PER_BALL = 9e-7            # per column and fine ball position within R along the pass
