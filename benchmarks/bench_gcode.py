@@ -2,9 +2,19 @@
 verify split, program lines and the verified gouge and material left.
 
     python benchmarks/bench_gcode.py [SPEC] [--repeat 3]
+    python benchmarks/bench_gcode.py --floor [SPEC ...] [--repeat 3] [--max-time S]
 
 Outputs go to a scratch folder. Target: specs/surface.yaml in under 20 s on the
 2-core reference machine.
+
+``--floor``: each SPEC (default specs/surface.yaml) is run as ``fabkit gcode SPEC
+--no-progress --json`` in a fresh process, alternated with the import floor
+(``python -c "import numpy, scipy.integrate, sympy"``) in the same run, and each is
+reported as CPU time (user + sys of the child, resource.getrusage: not wall time,
+which a loaded machine inflates), peak resident memory, the ratio to the floor's
+CPU time (best of --repeat each), the load average at each run, and the stages'
+CPU seconds (the command's timers read time.process_time in the child) beside
+the time guard's estimate (toolpath.guards; its ratio measured / estimated).
 """
 
 from __future__ import annotations
@@ -22,11 +32,88 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 
 
+FLOOR = "import numpy, scipy.integrate, sympy"
+# the child: fabkit's stage timers read CPU time; prints the guard's estimate on stderr
+CHILD = """
+import json, sys, time
+time.perf_counter = time.process_time
+from fabkit.toolpath import guards
+_estimate = guards.estimate
+def estimate(*a, **k):
+    est = _estimate(*a, **k)
+    print("ESTIMATE " + json.dumps({k: v for k, v in est.items() if isinstance(v, (int, float))}), file=sys.stderr)
+    return est
+guards.estimate = estimate
+from fabkit.toolpath import raster
+raster.estimate = estimate
+from fabkit.cli import main
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+def _child(argv, cwd) -> dict:
+    """CPU seconds (user + sys), peak RSS (MB), load average, stdout/stderr of one child
+    (its own rusage, from os.wait4)."""
+    import subprocess
+
+    load = os.getloadavg()[0]
+    with tempfile.TemporaryFile("w+") as fo, tempfile.TemporaryFile("w+") as fe:
+        p = subprocess.Popen([sys.executable, *argv], cwd=cwd, stdout=fo, stderr=fe, text=True)
+        _, status, ru = os.wait4(p.pid, 0)
+        p.returncode = os.waitstatus_to_exitcode(status)
+        fo.seek(0)
+        fe.seek(0)
+        out, err = fo.read(), fe.read()
+    return {"cpu": ru.ru_utime + ru.ru_stime, "rss_mb": ru.ru_maxrss / 1024.0, "load": load,
+            "code": p.returncode, "out": out, "err": err}
+
+
+def floor_main(a) -> int:
+    """The --floor mode: CPU-time ratios to the import floor, measured in the same run."""
+    specs = [str(Path(s).resolve()) for s in (a.spec or [str(ROOT / "specs" / "surface.yaml")])]
+    extra = ["--max-time", str(a.max_time)] if a.max_time else []
+    floors = []
+    rows = {s: [] for s in specs}
+    with tempfile.TemporaryDirectory() as tmp:
+        for _ in range(a.repeat):
+            floors.append(_child(["-c", FLOOR], tmp))
+            for s in specs:
+                r = _child(["-c", CHILD, "gcode", s, "--no-progress", "--json", "-o",
+                            str(Path(tmp) / (Path(s).stem + ".ngc")), *extra], tmp)
+                if r["code"] not in (0, 1):
+                    print(f"{s}: exit {r['code']}: {r['err'].strip().splitlines()[-1:]}", file=sys.stderr)
+                    return r["code"]
+                rows[s].append(r)
+    floor = min(f["cpu"] for f in floors)
+    fl = ", ".join(f"{f['cpu']:.2f}" for f in floors)
+    ld = ", ".join(f"{f['load']:.1f}" for f in floors)
+    print(f"import floor ({FLOOR}): {floor:.2f} s CPU (best of {a.repeat}; {fl}; load {ld})")
+    for s in specs:
+        best = min(rows[s], key=lambda r: r["cpu"])
+        j = json.loads(best["out"])
+        t = j["timings_s"]
+        est = next((json.loads(line[9:]) for line in best["err"].splitlines() if line.startswith("ESTIMATE ")), {})
+        runs = ", ".join(f"{r['cpu']:.2f}" for r in rows[s])
+        print(f"{Path(s).name}: {best['cpu']:.2f} s CPU = {best['cpu'] / floor:.2f}x the floor, peak "
+              f"{best['rss_mb']:.0f} MB, load {best['load']:.1f} (runs {runs} s); stages CPU: plan "
+              f"{t['plan']:.2f}, write {t['write']:.2f}, verify {t['verify']:.2f}, sheet {t['sheet']:.2f}; "
+              f"{j['passes']} passes, {j['lines']} lines")
+        if est:
+            print(f"    guard's estimate {est['seconds']:.2f} s, {est['bytes'] / 1e6:.0f} MB: measured / estimated "
+                  f"{best['cpu'] / est['seconds']:.2f} (time), {best['rss_mb'] * 1e6 / est['bytes']:.2f} (memory)")
+    return 0
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("spec", nargs="?", default=str(ROOT / "specs" / "surface.yaml"))
+    ap.add_argument("spec", nargs="*" if "--floor" in sys.argv else "?",
+                    default=None if "--floor" in sys.argv else str(ROOT / "specs" / "surface.yaml"))
     ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--floor", action="store_true", help="CPU-time ratios to the import floor, in subprocesses")
+    ap.add_argument("--max-time", type=float, default=None, help="passed to fabkit gcode (--floor)")
     a = ap.parse_args()
+    if a.floor:
+        return floor_main(a)
     from fabkit.cli import main as fabkit
 
     spec = str(Path(a.spec).resolve())

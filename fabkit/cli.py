@@ -81,6 +81,9 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--machine", metavar="FILE", help="machine profile (YAML; `fabkit machine import`): the "
                    "controller's run time and the checks before cutting (default: the spec's machine section)")
     c.add_argument("--no-progress", action="store_true", help="no progress bar")
+    c.add_argument("--max-time", type=float, default=None, metavar="SECONDS", dest="max_time",
+                   help="CPU seconds the toolpath job may take, estimated before planning (default: the spec's "
+                   "machining.max_time, else 60); a longer job is refused")
 
     c = cmd("calibrate", "map ramp release height to entry speed v_in (rolling, energy)")
     c.add_argument("--height", type=float, nargs="+", metavar="H", help="heights to convert (design units)")
@@ -197,6 +200,9 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--json", action="store_true", help="print JSON")
     c.add_argument("--machine", metavar="FILE", help="machine profile: the setup sheet shows the controller's run "
                    "time and the checks (default: the spec's machine section)")
+    c.add_argument("--max-time", type=float, default=None, metavar="SECONDS", dest="max_time",
+                   help="CPU seconds the toolpath job may take, estimated before planning (default: the spec's "
+                   "machining.max_time, else 60); a longer job is refused")
 
     h = "machine profiles: `import FILE` reads a grbl $$ dump or a LinuxCNC INI into a profile (YAML)"
     c = sub.add_parser("machine", help=h, description=h)

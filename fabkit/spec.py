@@ -162,6 +162,10 @@ SCHEMA: dict[str, dict[str, Any]] = {
                              doc="points at which the cut is verified"),
         "park": NumList(default=(0.0, 0.0), min_len=2, max_len=2, length="mm",
                         doc="[X, Y] work mm where the program ends, at the safe height"),
+        "max_time": Num(default=None, gt=0, le=1e6,
+                        doc="seconds of CPU time the toolpath job may take (planning, verification, "
+                            "setup sheet), estimated before planning; a longer job is refused. Default: "
+                            "fabkit.tolerances max_plan_seconds (60); `--max-time` overrides it"),
     },
     # the machine that runs the program (fabkit/machine): also a profile file of the same
     # keys (`--machine FILE`, `fabkit machine import`). Rates mm/min, accelerations mm/s^2.

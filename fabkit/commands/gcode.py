@@ -27,12 +27,14 @@ def _hm(seconds: float) -> str:
 
 def run(args) -> int:
     from ..machine.profile import machine_from_spec
+    from ..toolpath.guards import with_time_budget
     from ..toolpath.job import run_job
     from ..toolpath.raster import plan_estimate
     from ..toolpath.setup import sheet_paths
 
     total = Timer()
     spec = load_spec(args.spec, need=NEEDS, command="gcode")
+    spec = with_time_budget(spec, getattr(args, "max_time", None))     # --max-time over machining.max_time
     out = default_output(spec, ".ngc", args.output)
     paths = sheet_paths(out)
     # refuse now, not after minutes of planning

@@ -41,10 +41,12 @@ def run(args) -> int:
     from ..plots import sweep_figure
     from ..report import render
     from ..surface import Surface, check_depth
+    from ..toolpath.guards import with_time_budget
     from ..toolpath.job import generated_at as _generated_at
 
     total = Timer()
     spec = load_spec(args.spec, need=NEEDS, command="report")
+    spec = with_time_budget(spec, getattr(args, "max_time", None))     # --max-time over machining.max_time
     path = default_output(spec, ".report.html", args.output)
     check_paths(args, {"--output": path})
     if path.suffix.lower() not in ("", ".html", ".htm", ".xhtml"):

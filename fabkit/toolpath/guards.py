@@ -7,9 +7,14 @@ drop cutter): passes from the stepover the worst point of each strip across
 needs (slopes along and across the passes and convex curvature across: closed
 form of the cusp between two passes' swept cylinders), program points from the chord
 spacing the curvature along the passes needs, roughing levels from the depth and
-``machining.stepdown``, and the planning time from those counts with per-unit
-costs measured on the 2-core reference machine (a model, not a measurement: within
-about x2 of the planner on the surfaces it was fitted to, see the constants).
+``machining.stepdown``, and the CPU time of the whole job (planning, verification,
+setup sheet, start-up) from those counts, the verify points and the share of the
+footprint near a concave crease tighter than the ball, with per-unit costs measured
+on the 2-core reference machine (a model, not a measurement: the measured CPU time
+was 0.76-1.43 of it on the jobs it was fitted to, up to 2.3 on a plane steep along
+the passes, see the constants). The time guard is
+a budget: ``machining.max_time`` or ``--max-time`` (default
+:attr:`fabkit.tolerances.Tolerances.max_plan_seconds`).
 """
 
 from __future__ import annotations
@@ -20,26 +25,43 @@ import numpy as np
 
 from ..errors import SpecError
 
-# per-unit costs of the planner on the 2-core reference machine, seconds, fitted to
-# the stage times of place_passes and space_points on a near-flat bowl (three sizes,
-# scallops 0.002-0.05 mm), planes of slope 4 and 8 in both raster directions, a V crease
-# in both directions, an exponential wall, a valley and the paper's surface (the
-# estimates in seconds are within about x2 of the measured ones there)
-SEC_PER_PASS = 8e-3            # pass placement, per pass: fixed cost (two bounds, a few calls)
-SEC_PER_PASS_NODE = 2e-5       # per node along a pass: exact tip heights (incl. trial passes)
-SEC_PER_BALL = 1.5e-6          # per column and fine ball position within R along the pass
+# per-unit CPU costs of the whole `fabkit gcode` job on the 2-core reference machine,
+# seconds. The planner's per-pass terms were fitted to the stage times of place_passes
+# and space_points on a near-flat bowl (three sizes, scallops 0.002-0.05 mm), planes of
+# slope 4 and 8 in both raster directions, a V crease in both directions, an exponential
+# wall, a valley and the paper's surface, then rescaled (x0.6 but the steep terms, and
+# 1.6e-4 s per program point for planning, writing and the setup sheet), with the fixed
+# cost (process, imports, spec, the surface's compiled derivatives, the depth search,
+# the sheet's figure) and the verification, to the measured CPU time (user + sys) of the
+# whole command on seven jobs at load 6-12: specs/surface.yaml, specs/bowl.yaml, the
+# paper's surface with a 1/8 in ball at scallop 0.02 mm, a 5 x 40 mm plane of slope 4
+# and a 10 x 20 mm block of 3*abs(x) (bowl's tool), a 3 x 30 mm plane of slope 8 along
+# the passes and an oblique V crease: measured / estimated 0.76-1.43 there, except the
+# plane steep along the passes in a second run (2.28: its CPU time varied 10.1-14.9 s
+# between runs, and its per-pass cost is not explained by these terms; see
+# benchmarks/notes_gcode_profile.md)
+SEC_PER_PASS = 4.8e-3          # pass placement, per pass: fixed cost (two bounds, a few calls)
+SEC_PER_PASS_NODE = 1.2e-5     # per node along a pass: exact tip heights (incl. trial passes)
+SEC_PER_BALL = 9e-7            # per column and fine ball position within R along the pass
 SEC_STEEP_PASS = 3e-2          # passes over ground steep along the pass: the bound's stage 3
 SEC_STEEP_COLUMN = 1e-4        # and per steep column
-SEC_PER_POINT = 6e-5           # point spacing, links and roughing, per program point
-SEC_FIXED = 1.0
+SEC_PER_POINT = 1.75e-4        # point spacing, links, roughing, writing, the sheet, per program point
+SEC_FIXED = 3.75               # start-up, spec, derivatives, depth, the planner's and the sheet's fixed costs (4.25
+                               # measured with the matplotlib preview, 0.8 s dearer)
+SEC_PER_VERIFY_POINT = 2.75e-5  # verification per verify point: swept cut and reachable height
+SEC_PER_TIGHT_POINT = 1.2e-3   # per verify point within R of a concave crease or valley tighter
+                               # than the ball: the reachable height's compass search (8.9e-4
+                               # on the 3*abs(x) block, 1.6e-3 on the oblique V: between)
 STEEP_ALONG = 1.5              # as fabkit.toolpath.passes.STEEP_ALONG
 # memory (peak resident, bytes): the process with the verification and the setup sheet
-# (measured 180-530 MB end to end on the surfaces above, programs of 3 000-52 000 points),
-# what the planner holds per pass (fine profile and nodes) and per program point (~6
-# evaluated samples per point, each ~0.8 kB at the peak of the point spacing's batched
-# drop cutter)
-BYTES_BASE = 600e6
-BYTES_PER_POINT = 6000.0
+# (measured 470-810 MB end to end on the jobs above, programs of 900-91 000 lines;
+# the small blocks' peak is the verification's chunk of segment-point pairs), what the
+# planner holds per pass (fine profile and nodes) and per program point (~6 evaluated
+# samples per point at the peak of the point spacing's batched drop cutter): measured /
+# estimated 0.72-1.44 on those jobs (1.15 GB measured, 0.95 GB estimated on the 1/8 in
+# ball at scallop 0.02 mm)
+BYTES_BASE = 560e6
+BYTES_PER_POINT = 5000.0
 MAX_BYTES = 1.8e9              # refused beyond this (the process stays under 2 GB)
 MAX_SLOPE = 20.0               # slopes beyond this count as this (the wall is cut by the rim)
 
@@ -99,7 +121,8 @@ def estimate(spec, ws, fr, R: float, target: float, tolerance: float, depth_mm: 
     per_pass = 1.6 * float(np.trapezoid(dens, u, axis=1).mean()) + 20.0
     points = passes * per_pass
     out = {"passes": passes, "points": points, "nodes": passes * n_nodes,
-           "roughing_levels": 0, "roughing_points": 0.0}
+           "roughing_levels": 0, "roughing_points": 0.0,
+           "max_time": getattr(spec.machining, "max_time", None)}
     step = getattr(spec.machining, "stepdown", None)
     if step:
         leave = float(spec.machining.leave)
@@ -120,11 +143,49 @@ def estimate(spec, ws, fr, R: float, target: float, tolerance: float, depth_mm: 
     per_pass_s = SEC_PER_PASS + SEC_PER_PASS_NODE * n_nodes + SEC_PER_BALL * cols * balls + \
         ((SEC_STEEP_PASS + SEC_STEEP_COLUMN * steep_cols) if steep_cols else 0.0)
     out["place_seconds"] = passes * per_pass_s
-    out["seconds"] = SEC_FIXED + out["place_seconds"] + \
-        SEC_PER_POINT * (points + out["roughing_points"])
+    out["plan_seconds"] = out["place_seconds"] + SEC_PER_POINT * (points + out["roughing_points"])
+    # the verification: the swept cut and the reachable height at each verify point (one
+    # drop cutter), and where a ball touching the design there is not free (a V crease,
+    # a valley tighter than the ball: within R of where the concave curvature exceeds
+    # 1/R) a compass search of a few hundred drop cutters per point
+    vp = float(getattr(spec.machining, "verify_points", 40000))
+    out["tight_fraction"] = tight = _tight_fraction(fr, R, Hu, Hv, cut, u, v)
+    out["verify_seconds"] = vp * (SEC_PER_VERIFY_POINT + SEC_PER_TIGHT_POINT * tight)
+    out["seconds"] = SEC_FIXED + out["plan_seconds"] + out["verify_seconds"]
     out["bytes"] = BYTES_BASE + passes * (16.0 * n_fine + 80.0 * n_nodes) + \
         BYTES_PER_POINT * (points + out["roughing_points"])
     return out
+
+
+def _dilate(mask: np.ndarray, r: int, axis: int) -> np.ndarray:
+    """True within r cells of a True cell along ``axis`` (a moving-window count)."""
+    if r <= 0:
+        return mask
+    m = np.moveaxis(mask, axis, -1).astype(np.int64)
+    c = np.concatenate([np.zeros(m.shape[:-1] + (1,), np.int64), np.cumsum(m, axis=-1)], axis=-1)
+    n = m.shape[-1]
+    i = np.arange(n)
+    hi, lo = np.minimum(i + r + 1, n), np.maximum(i - r, 0)
+    return np.moveaxis((c[..., hi] - c[..., lo]) > 0, -1, axis)
+
+
+def _tight_fraction(fr, R: float, Hu, Hv, cut, u, v) -> float:
+    """Fraction of the footprint within R of where the surface is concave tighter than
+    the ball (curvature along u or v above 1/R, from differences of the exact slopes on
+    the grid, so that a V crease counts too): where the verification's reachable height
+    needs its compass search."""
+    with np.errstate(all="ignore"):
+        du = u[1] - u[0] if len(u) > 1 else 1.0
+        dv = v[1] - v[0] if len(v) > 1 else 1.0
+        su = np.where(np.isfinite(Hu), Hu, 0.0)
+        sv = np.where(np.isfinite(Hv), Hv, 0.0)
+        ku = np.gradient(su, du, axis=1) / (1.0 + su * su) ** 1.5
+        kv = np.gradient(sv, dv, axis=0) / (1.0 + sv * sv) ** 1.5
+        tight = cut & ((ku > 1.0 / R) | (kv > 1.0 / R))
+    if not tight.any():
+        return 0.0
+    near = _dilate(_dilate(tight, int(math.ceil(R / du)), 1), int(math.ceil(R / dv)), 0)
+    return float((near & cut).mean())
 
 
 MIN_LENGTH_MM = 1e-4   # scallop and tolerance below this are below any machine's resolution
@@ -158,11 +219,23 @@ def guard(est: dict, tol, spec_path=None, scallop=None, tolerance=None) -> None:
                         f"({est['passes']:.3g} passes, {est['points'] + est['roughing_points']:.3g} "
                         f"program points; limit {MAX_BYTES / 1e9:g} GB); raise {key.split('.')[1]}",
                         file=spec_path, key=key)
-    if est["seconds"] > tol.max_plan_seconds:
+    budget = est.get("max_time") or tol.max_plan_seconds
+    if est["seconds"] > budget:
         key = "machining.scallop" if est["place_seconds"] >= \
             SEC_PER_POINT * (est["points"] + est["roughing_points"]) else \
             ("machining.stepdown" if est["roughing_points"] > est["points"] else "machining.tolerance")
-        raise SpecError(f"planning would take about {est['seconds']:.0f} s ({est['passes']:.3g} "
+        raise SpecError(f"the job would take about {est['seconds']:.0f} s of CPU time ({est['passes']:.3g} "
                         f"passes, {est['points'] + est['roughing_points']:.3g} program points; "
-                        f"limit {tol.max_plan_seconds:g} s); raise {key.split('.')[1]}",
+                        f"limit {budget:g} s): raise the limit with --max-time SECONDS or the spec key "
+                        f"machining.max_time, or raise {key.split('.')[1]}",
                         file=spec_path, key=key)
+
+
+def with_time_budget(spec, seconds):
+    """The spec with ``machining.max_time`` set to ``seconds`` (the ``--max-time``
+    option; None: the spec unchanged). SpecError naming the option when not > 0."""
+    if seconds is None:
+        return spec
+    if not seconds > 0:
+        raise SpecError(f"must be > 0 seconds, got {seconds:g}", key="--max-time")
+    return spec.with_overrides({"machining.max_time": float(seconds)})

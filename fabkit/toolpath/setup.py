@@ -337,14 +337,26 @@ def sheet_markdown(sheet: dict, png_name: str | None) -> str:
 _MEASURE = {"normal": "normal to the surface", "vertical": "vertically"}
 
 
+PREVIEW_MAX_ASPECT = 2.0     # the preview's plot height over width, at most (equal scales kept)
+# viridis at 0, 1/8, ..., 1 (matplotlib's table), interpolated linearly between
+_VIRIDIS = np.array([[68, 1, 84], [71, 44, 122], [59, 81, 139], [44, 113, 142], [33, 144, 141],
+                     [39, 173, 129], [92, 200, 99], [170, 220, 50], [253, 231, 37]], float)
+
+
+def _viridis(t: np.ndarray) -> np.ndarray:
+    """(n, 3) uint8 colours of t in [0, 1]."""
+    x = np.clip(t, 0.0, 1.0) * (len(_VIRIDIS) - 1)
+    i = np.minimum(x.astype(int), len(_VIRIDIS) - 2)
+    f = (x - i)[:, None]
+    return np.rint(_VIRIDIS[i] * (1.0 - f) + _VIRIDIS[i + 1] * f).astype(np.uint8)
+
+
 def preview_png(program, L: float, W: float, units: str = "mm", max_segments: int = 400_000) -> bytes:
     """Top view of the feed moves coloured by tip depth (work mm shown in program
-    units), stock outline dashed. Returns PNG bytes (matplotlib Agg, lazily imported)."""
-    import matplotlib
-
-    matplotlib.use("Agg", force=False)
-    from matplotlib.collections import LineCollection
-    from matplotlib.figure import Figure
+    units), stock outline dashed, with a colour bar. Returns PNG bytes, drawn with
+    numpy and Pillow (no plotting library: the preview costs a few hundredths of a
+    second, not the second matplotlib's import and render took)."""
+    from PIL import Image, ImageDraw, ImageFont
 
     k = 1.0 / (MM_PER_INCH if units == "in" else 1.0)
     a, b = program.segments()
@@ -353,22 +365,58 @@ def preview_png(program, L: float, W: float, units: str = "mm", max_segments: in
     if len(a) > max_segments:
         step = int(math.ceil(len(a) / max_segments))
         a, b = a[::step], b[::step]
-    fig = Figure(figsize=(8, 8 * max(W / L, 0.3) + 1.0), dpi=110)
-    ax = fig.add_subplot(111)
-    segs = np.stack([a[:, :2], b[:, :2]], axis=1)
-    lc = LineCollection(segs, linewidths=0.5, cmap="viridis", rasterized=True)
-    lc.set_array(0.5 * (a[:, 2] + b[:, 2]))
-    ax.add_collection(lc)
-    ax.plot([0, L * k, L * k, 0, 0], [0, 0, W * k, W * k, 0], "k--", lw=0.8)
-    ax.set_xlim(-0.03 * L * k, 1.03 * L * k)
-    ax.set_ylim(-0.03 * W * k, 1.03 * W * k)
-    ax.set_aspect("equal")
-    ax.set_xlabel(f"X ({units})")
-    ax.set_ylabel(f"Y ({units})")
-    ax.set_title("toolpath, top view (feed moves coloured by tip Z)")
-    fig.colorbar(lc, ax=ax, label=f"tip Z ({units})", shrink=0.8)
+    Lk, Wk = L * k, W * k
+    left, right, top, bottom, pw = 70, 130, 40, 50, 700      # margins and plot width, pixels
+    s = pw / (1.06 * Lk)                                       # pixels per program unit
+    ph = int(round(min(1.06 * Wk * s, PREVIEW_MAX_ASPECT * pw, max(0.3 * pw, 1.06 * Wk * s))))
+    s = min(s, ph / (1.06 * Wk)) if Wk > 0 else s
+    img = np.full((top + ph + bottom, left + pw + right, 3), 255, np.uint8)
+    ox, oy = left + 0.5 * (pw - Lk * s), top + 0.5 * (ph + Wk * s)   # pixel of work (0, 0)
+
+    def px(x, y):
+        return ox + x * s, oy - y * s
+
+    if len(a):
+        z = 0.5 * (a[:, 2] + b[:, 2])
+        zlo, zhi = float(z.min()), float(z.max())
+        col = _viridis((z - zlo) / (zhi - zlo) if zhi > zlo else np.zeros_like(z))
+        (x0, y0), (x1, y1) = px(a[:, 0], a[:, 1]), px(b[:, 0], b[:, 1])
+        n = np.ceil(np.maximum(np.abs(x1 - x0), np.abs(y1 - y0))).astype(np.int64) + 1
+        seg = np.repeat(np.arange(len(n)), n)
+        t = (np.arange(int(n.sum())) - np.repeat(np.cumsum(n) - n, n)) / np.maximum(np.repeat(n, n) - 1, 1)
+        xi = np.rint(x0[seg] + t * (x1 - x0)[seg]).astype(np.int64)
+        yi = np.rint(y0[seg] + t * (y1 - y0)[seg]).astype(np.int64)
+        ok = (xi > left) & (xi < left + pw) & (yi > top) & (yi < top + ph)     # inside the plot
+        img[yi[ok], xi[ok]] = col[seg[ok]]
+    else:
+        zlo = zhi = 0.0
+    bar = np.linspace(1.0, 0.0, ph)                           # the colour bar, top = highest
+    bx = left + pw + 30
+    img[top:top + ph, bx:bx + 18] = _viridis(bar)[:, None, :]
+    im = Image.fromarray(img)
+    d = ImageDraw.Draw(im)
+    font = ImageFont.load_default()
+    (sx0, sy0), (sx1, sy1) = px(0.0, 0.0), px(Lk, Wk)
+    for (u0, v0), (u1, v1) in (((sx0, sy0), (sx1, sy0)), ((sx1, sy0), (sx1, sy1)),
+                               ((sx1, sy1), (sx0, sy1)), ((sx0, sy1), (sx0, sy0))):
+        m = max(1, int(math.hypot(u1 - u0, v1 - v0) // 12))
+        for i in range(m):                                     # dashed stock outline
+            f0, f1 = i / m, (i + 0.5) / m
+            d.line([(u0 + f0 * (u1 - u0), v0 + f0 * (v1 - v0)), (u0 + f1 * (u1 - u0), v0 + f1 * (v1 - v0))],
+                   fill=(0, 0, 0), width=1)
+    d.rectangle([left, top, left + pw, top + ph], outline=(0, 0, 0))
+    d.text((left, 12), "toolpath, top view (feed moves coloured by tip Z)", fill=(0, 0, 0), font=font)
+    d.text((left + pw // 2 - 20, top + ph + 28), f"X ({units})", fill=(0, 0, 0), font=font)
+    d.text((8, top + ph // 2), f"Y ({units})", fill=(0, 0, 0), font=font)
+    for val, (u, v) in ((0.0, (sx0, top + ph + 6)), (Lk, (sx1 - 20, top + ph + 6))):
+        d.text((u, v), f"{val:.4g}", fill=(0, 0, 0), font=font)
+    for val, (u, v) in ((0.0, (left - 40, sy0 - 6)), (Wk, (left - 40, sy1 - 6))):
+        d.text((u, v), f"{val:.4g}", fill=(0, 0, 0), font=font)
+    d.text((bx + 22, top - 4), f"{zhi:.4g}", fill=(0, 0, 0), font=font)
+    d.text((bx + 22, top + ph - 8), f"{zlo:.4g}", fill=(0, 0, 0), font=font)
+    d.text((bx - 6, top + ph + 8), f"tip Z ({units})", fill=(0, 0, 0), font=font)
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", metadata={"Software": None})
+    im.save(buf, format="PNG", optimize=False)
     return buf.getvalue()
 
 
