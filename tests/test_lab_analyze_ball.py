@@ -87,3 +87,74 @@ def test_centre_and_contact_map_exactly():
     px, py = contact_of(p, X, Y)
     np.testing.assert_allclose(px, x, rtol=0, atol=1e-10)
     np.testing.assert_allclose(py, y, rtol=0, atol=1e-10)
+
+
+def _release(tmp_path, mu, crr, seed):
+    """A 1.5 s release from rest, contact point at (-28, 5) cm (6 cm up the channel's side)."""
+    ne = RollingNewtonEuler(_problem(), mu, crr)
+    t, X, Y, _ = centre_track(ne, np.array([-28.0, 5.0, 0.0, 0.0, 0.0]), 1.5, seed)
+    return _write(tmp_path, "release.csv", t, X, Y)
+
+
+def test_ball_release_damping_fitted_from_the_centre(cli, tmp_path):
+    """Viscous damping alone (0.15 1/s; the spec says 0.127): the release fit and the
+    viscous law's fit within 5 %, their error bars honest (the truth within 4 sigma)."""
+    mu = 0.15
+    f = _release(tmp_path, mu, 0.0, seed=1)
+    code, out, err = cli("analyze", SURFACE, f, "--json")
+    assert code == 0, err
+    res = json.loads(out)
+    assert res["model"] == "ball"
+    r = res["tracks"][0]
+    assert r["kind"] == "release" and r["bounces"] == 0
+    assert set(r["initial_state"]) == {"t", "x", "y", "vx", "vy", "u"}
+    assert abs(r["damping"] / mu - 1) < 0.05
+    assert abs(r["damping"] - mu) < 4 * r["damping_error"] + 1e-4
+    # the model follows the centre to the noise: residual rms within 20 % of 0.3 mm
+    assert abs(r["residual_rms"] / NOISE - 1) < 0.2
+    v = res["losses"]["laws"]["viscous"]
+    assert abs(v["coefficients"]["damping"] / mu - 1) < 0.05
+    assert abs(v["coefficients"]["damping"] - mu) < 4 * v["errors"]["damping"] + 1e-4
+
+
+def test_ball_release_rolling_resistance_fitted_from_the_centre(cli, tmp_path):
+    """Rolling resistance alone (c_rr 0.004): the rolling law's fit within 5 %, its error
+    bar honest, and the fitted spec (-o) names the ball model with it."""
+    import yaml
+
+    crr = 0.004
+    f = _release(tmp_path, 0.0, crr, seed=2)
+    code, out, err = cli("analyze", SURFACE, f, "--json", "-o", "fitted.yaml")
+    assert code == 0, err
+    lo = json.loads(out)["losses"]
+    c = lo["laws"]["rolling"]
+    assert abs(c["coefficients"]["rolling_resistance"] / crr - 1) < 0.05
+    assert abs(c["coefficients"]["rolling_resistance"] - crr) < 4 * c["errors"]["rolling_resistance"]
+    assert c["coefficients"]["damping"] == 0.0
+    raw = yaml.safe_load((tmp_path / "fitted.yaml").read_text())
+    assert raw["simulation"]["model"] == "ball"
+
+
+def test_ball_launch_on_the_shipped_spec_true_bounces_and_speeds(cli, tmp_path):
+    """specs/surface.yaml (model ball, damping 0.127) on a centre track of a launch at
+    45 cm/s with damping 0.15: the independent ball bounces twice and escapes; analyze
+    counts both bounces (times within 2 frames: the centre's turn and the contact point's
+    differ by a few ms), measures v_in within 1 %, and its own ball simulation of the
+    measured launch bounces twice too. The track ends 0.5 s after the second bounce."""
+    ne = RollingNewtonEuler(_problem(), 0.15, 0.0)
+    truth = ne.launch(45.0, t_max=8.0, rtol=1e-10, atol=1e-12)
+    assert truth["outcome"] == "escaped" and truth["bounces"] == 2
+    tb = np.asarray(truth["bounce_times"])
+    t, X, Y, _ = centre_track(ne, ne.initial(45.0), float(tb[-1]) + 0.5, seed=3)
+    f = _write(tmp_path, "launch.csv", t, X, Y)
+    code, out, err = cli("analyze", SURFACE, f, "--json", "--plot", "fig.png")
+    assert code == 0, err
+    res = json.loads(out)
+    assert res["model"] == "ball"
+    assert (tmp_path / "fig.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    r = res["tracks"][0]
+    assert r["kind"] == "launch" and r["bounces"] == 2
+    assert np.all(np.abs(np.asarray(r["bounce_times"]) - tb) < 2.0 / FPS)
+    assert abs(r["v_in"] / 45.0 - 1) < 0.01
+    assert len(r["entry_fit"]["state"]) == 5
+    assert r["simulation"]["bounces"] == 2

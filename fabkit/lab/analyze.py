@@ -42,6 +42,15 @@ track ends moving toward -x, left of the well, after a bounce, and that the mode
 carries back to x = start has ``escaped``; one with a point beyond top - margin or
 outside the footprint shrunk by the margin ``flew_off``; else ``captured``.
 
+The ball model
+--------------
+A track is of the ball's centre C = P + r n(P). The ball model's state is the contact
+point's (x, y, xd, yd) and its spin u: the fits integrate that state and compare the
+model's centre (:func:`fitting.centre_of`) with the track; their start is the contact
+point under the seen centre (Newton, :func:`fitting.contact_of`) with u = 0. ``v_in`` and
+``v_out`` are the centre's horizontal speed where the contact point crosses x = start,
+as the simulator launches the ball.
+
 Budgets and screen
 ------------------
 Every fit is bounded (:mod:`fabkit.lab.fitting`: wall time, model runs, evaluations an

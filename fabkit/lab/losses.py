@@ -2,7 +2,8 @@
 
 Pure functions on tracks and the spec's :class:`models.Problem`; no printing, no files.
 
-The laws (the spec's model, ``full`` or ``simplified``, with; models.py's module doc):
+The laws (the spec's model, ``full``, ``simplified`` or ``ball``, with; the module docs of
+models.py and ball.py):
 
 * ``viscous``: - mu [xd, yd] (``simulation.damping`` = mu, 1/s);
 * ``rolling``: a force c_rr N opposing v (``ball.rolling_resistance`` = c_rr);
@@ -12,7 +13,7 @@ Each law is fitted by least squares (Levenberg-Marquardt, Jacobian by finite dif
 with all perturbed lanes in one integration) to every segment at once: each release
 track whole, and each launch's legs before its first bounce and after its last (the
 segments :func:`fabkit.lab.analyze.analyze` fitted), each segment with its own state
-(x, y, xd, yd) at its anchor frame and the law's coefficients shared by all. The laws
+(x, y, xd, yd; the ball's adds its spin u) at its anchor frame and the law's coefficients shared by all. The laws
 are compared by the Bayesian information criterion of Gaussian residuals of unknown
 variance,
 
