@@ -148,9 +148,6 @@ def run(args) -> int:
     vm = _video_map(args)
     tracks = [read_track(p, fps=args.fps, video=vm, units=spec.units) for p in args.tracks]
     problem = problem_from_spec(spec)
-    if problem.model == "ball":
-        raise SpecError("analyze fits the point models (full, simplified); the ball model is not "
-                        "supported by the track analysis", file=spec.path, key="simulation.model")
     screens = screen_tracks(problem, tracks)     # refusals before the simulator loads
     if any(sc["kind"] == "launch" for sc in screens):
         prepare_simulator(problem)
@@ -165,7 +162,7 @@ def run(args) -> int:
         from ..io import write_atomic
         from ..plots import analyze_figure
 
-        png = analyze_figure(res["tracks"], title=f"{spec.name}: tracks and model", units=spec.units,
+        png = analyze_figure(res["tracks"], title=f"{spec.name}: tracks and the {problem.model} model", units=spec.units,
                              fmt=plot_format(args.plot))
         write_atomic(args.plot, png)
         payload["plot"] = str(args.plot)

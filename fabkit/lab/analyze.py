@@ -42,6 +42,15 @@ track ends moving toward -x, left of the well, after a bounce, and that the mode
 carries back to x = start has ``escaped``; one with a point beyond top - margin or
 outside the footprint shrunk by the margin ``flew_off``; else ``captured``.
 
+The ball model
+--------------
+A track is of the ball's centre C = P + r n(P). The ball model's state is the contact
+point's (x, y, xd, yd) and its spin u: the fits integrate that state and compare the
+model's centre (:func:`fitting.centre_of`) with the track; their start is the contact
+point under the seen centre (Newton, :func:`fitting.contact_of`) with u = 0. ``v_in`` and
+``v_out`` are the centre's horizontal speed where the contact point crosses x = start,
+as the simulator launches the ball.
+
 Budgets and screen
 ------------------
 Every fit is bounded (:mod:`fabkit.lab.fitting`: wall time, model runs, evaluations an
@@ -77,7 +86,8 @@ import numpy as np
 
 from ..errors import SpecError
 from . import fitting
-from .fitting import FIT_RTOL, Budget, FitStopped, covariance_errors, least_squares_bounded, model_solve
+from .fitting import (FIT_RTOL, Budget, FitStopped, centre_of, contact_of, covariance_errors,
+                      least_squares_bounded, model_solve, state_size)
 
 SG_WINDOW = 9          # frames of the local cubic fits (noise and smoothing)
 PROMINENCE_SIGMA = 8.0
@@ -302,6 +312,19 @@ def edge_state(track, end: bool = False, seconds: float = EDGE_SECONDS):
     return (out[0], pos[0], pos[1], vel[0], vel[1])
 
 
+def start_state(problem, st) -> list:
+    """The model's starting state from an edge state (t, X, Y, VX, VY) of the track: the
+    point models' (x, y, xd, yd) are the track's; the ball's contact point and its
+    velocity under the seen centre (:func:`fitting.contact_of`) and u = 0."""
+    if problem.model != "ball":
+        return list(st[1:5])
+    try:
+        x, y, xd, yd = contact_of(problem, *st[1:5])
+    except ValueError as exc:
+        raise FitStopped(str(exc)) from None
+    return [float(x), float(y), float(xd), float(yd), 0.0]
+
+
 def fit_leg(problem, track, sel: np.ndarray, end: bool, mu: float, budget: Budget | None = None) -> dict:
     """The model's state at the first (``end``: last) frame and the viscous damping, fitted
     by least squares to the frames ``sel`` (a leg of a launch: before its first bounce, or
@@ -313,7 +336,7 @@ def fit_leg(problem, track, sel: np.ndarray, end: bool, mu: float, budget: Budge
     if end:
         idx = idx[::-1]
     st = edge_state(track, end=end)
-    p = np.array([*st[1:5], max(float(mu), 1e-3)])
+    p = np.array([*start_state(problem, st), max(float(mu), 1e-3)])
     t0 = float(t[anchor])
     # continuation: a long leg is fitted over LEG_START s from the anchor first, then over
     # twice that, ... each from the last fit, so the start (the edge state, a few percent
@@ -333,9 +356,11 @@ def _fit_leg_once(problem, track, idx, t0: float, p0, budget: Budget | None = No
     """One least-squares fit of (state at t0, mu) to the frames ``idx`` (:func:`fit_leg`)."""
     te = track.t[idx]
     data = np.concatenate([track.x[idx], track.y[idx]])
+    ns = state_size(problem)
+    npar = ns + 1
 
     def run(P):
-        Y, _ = model_solve(problem, P[:, :4].T.copy(), P[:, 4], t0, te, rtol=FIT_RTOL, budget=budget)
+        Y, _ = model_solve(problem, P[:, :ns].T.copy(), P[:, ns], t0, te, rtol=FIT_RTOL, budget=budget)
         return Y
 
     def fun(p):
@@ -344,22 +369,25 @@ def _fit_leg_once(problem, track, idx, t0: float, p0, budget: Budget | None = No
 
     def jac(p):
         h = 1e-5 * np.maximum(1.0, np.abs(p))
-        P = np.vstack([p] + [p + np.eye(5)[j] * h[j] for j in range(5)])
+        P = np.vstack([p] + [p + np.eye(npar)[j] * h[j] for j in range(npar)])
         Y = run(P)
         base = np.concatenate([Y[0, 0], Y[1, 0]])
-        return np.column_stack([(np.concatenate([Y[0, j + 1], Y[1, j + 1]]) - base) / h[j] for j in range(5)])
+        return np.column_stack([(np.concatenate([Y[0, j + 1], Y[1, j + 1]]) - base) / h[j]
+                                for j in range(npar)])
 
     x, r, J, nfev, status = least_squares_bounded(fun, jac, p0, budget, xtol=1e-10, max_nfev=40)
-    err = covariance_errors(J, r, 5)
-    return {"t": t0, "state": x[:4], "error": err[:4], "damping": float(x[4]),
-            "damping_error": float(err[4]), "rms": float(math.sqrt(float(r @ r) / r.size)), "p": x,
+    err = covariance_errors(J, r, npar)
+    return {"t": t0, "state": x[:ns], "error": err[:ns], "damping": float(x[ns]),
+            "damping_error": float(err[ns]), "rms": float(math.sqrt(float(r @ r) / r.size)), "p": x,
             "status": status, "nfev": int(nfev)}
 
 
 def model_to_start(problem, t0: float, state, mu: float, t_limit: float = 30.0, budget: Budget | None = None):
     """Carry a state along the model to x = start, forward or backward in time, whichever
     way its velocity meets that line. Returns (t, x, y, vx, vy) at the crossing, or None
-    if it does not get there within ``t_limit`` s."""
+    if it does not get there within ``t_limit`` s. The ball: ``state`` (5,) the contact
+    point's, the crossing that of the contact point (where the simulator launches it), and
+    (vx, vy) the centre's horizontal velocity there (the simulator's launch velocity)."""
     from scipy.integrate import solve_ivp
 
     from ..physics.models import rhs
@@ -391,7 +419,12 @@ def model_to_start(problem, t0: float, state, mu: float, t_limit: float = 30.0, 
         return None
     if sol.t_events is None or not len(sol.t_events[0]):
         return None
-    return (float(sol.t_events[0][0]), *map(float, sol.y_events[0][0]))
+    s = sol.y_events[0][0]
+    if problem.model == "ball":
+        # the launch's velocity is the centre's (the compiled engine's INIT), its x, y the contact point's
+        _, _, vx, vy = centre_of(problem, s[0], s[1], s[2], s[3])
+        return (float(sol.t_events[0][0]), float(s[0]), float(s[1]), float(vx), float(vy))
+    return (float(sol.t_events[0][0]), *map(float, s[:4]))
 
 
 def well_bottom(problem) -> float:
@@ -430,13 +463,14 @@ def _dense_extrema(sol, lane: int, m: int, t0: float, t1: float, n: int = 20000)
     from scipy.optimize import brentq
 
     ts = np.linspace(t0, t1, n)
-    Y = sol.sol(ts).reshape(4, m, n)
+    ns = sol.y.shape[0] // m
+    Y = sol.sol(ts).reshape(ns, m, n)
     vy = Y[3, lane]
     out, vals = [], []
     for i in np.flatnonzero(np.sign(vy[:-1]) * np.sign(vy[1:]) < 0):
-        r = brentq(lambda s: sol.sol(s).reshape(4, m)[3, lane], ts[i], ts[i + 1], xtol=1e-12)
+        r = brentq(lambda s: sol.sol(s).reshape(ns, m)[3, lane], ts[i], ts[i + 1], xtol=1e-12)
         out.append(r)
-        vals.append(float(sol.sol(r).reshape(4, m)[1, lane]))
+        vals.append(float(sol.sol(r).reshape(ns, m)[1, lane]))
     return np.array(out), np.array(vals)
 
 
@@ -444,15 +478,17 @@ def fit_release(problem, track, sigma: float, mu0: float, budget: Budget | None 
     """Least-squares fit of (x0, y0, vx0, vy0, mu) to a release track (module doc)."""
     t = track.t
     st = edge_state(track)
-    p0 = np.array([st[1], st[2], st[3], st[4], max(mu0, 1e-3)])
+    ns = state_size(problem)
+    npar = ns + 1
+    p0 = np.array([*start_state(problem, st), max(mu0, 1e-3)])
     t0 = float(t[0])
     data = np.concatenate([track.x, track.y])
-    steps = np.full(5, 1e-5)
+    steps = np.full(npar, 1e-5)
     cache = {}
 
     def run(P):
-        S0 = np.array(P[:, :4]).T
-        Y, _ = model_solve(problem, S0, P[:, 4], t0, t, budget=budget)
+        S0 = np.array(P[:, :ns]).T
+        Y, _ = model_solve(problem, S0, P[:, ns], t0, t, budget=budget)
         return Y
 
     def fun(p):
@@ -465,20 +501,20 @@ def fit_release(problem, track, sigma: float, mu0: float, budget: Budget | None 
 
     def jac(p):
         h = steps * np.maximum(1.0, np.abs(p))
-        P = np.vstack([p] + [p + np.eye(5)[j] * h[j] for j in range(5)])
+        P = np.vstack([p] + [p + np.eye(npar)[j] * h[j] for j in range(npar)])
         Y = run(P)
         base = np.concatenate([Y[0, 0], Y[1, 0]])
-        J = np.empty((base.size, 5))
-        for j in range(5):
+        J = np.empty((base.size, npar))
+        for j in range(npar):
             J[:, j] = (np.concatenate([Y[0, j + 1], Y[1, j + 1]]) - base) / h[j]
         return J
 
     t_start = time.perf_counter()
     p, r, J, nfev, status = least_squares_bounded(fun, jac, p0, budget, xtol=1e-10, ftol=1e-12, max_nfev=60)
-    err = covariance_errors(J, r, 5)
+    err = covariance_errors(J, r, npar)
     # omega and the model's own log-decrement on the fitted noise-free trajectory
     try:
-        _, sol = model_solve(problem, p[:4, None], p[4:5], t0, t, dense=True)
+        _, sol = model_solve(problem, p[:ns, None], p[ns:ns + 1], t0, t, dense=True)
     except FitStopped as exc:  # the best point of a stopped fit is not followed to the end
         status = status if status != "converged" else exc.reason
         sol = None
@@ -498,12 +534,15 @@ def fit_release(problem, track, sigma: float, mu0: float, budget: Budget | None 
         model_ld = float(-2.0 * np.polyfit(tm, np.log(amp), 1)[0])
     # omega's error: the extrema spacing moves with the fitted state; propagate by the
     # fit's covariance through a finite difference of omega in mu and y0 (the dominant terms)
-    ys = sol.sol(t) if sol is not None else np.full((4, t.size), np.nan)
+    ys = sol.sol(t) if sol is not None else np.full((ns, t.size), np.nan)
+    if ns == 5:       # the ball: the centre, what the track shows
+        ys = np.stack(centre_of(problem, ys[0], ys[1]))
+    keys = ("x", "y", "vx", "vy", "u")[:ns]
     return {
-        "damping": float(p[4]), "damping_error": float(err[4]),
+        "damping": float(p[ns]), "damping_error": float(err[ns]),
         "omega": float(omega),
-        "initial_state": {"t": t0, "x": float(p[0]), "y": float(p[1]), "vx": float(p[2]), "vy": float(p[3])},
-        "initial_state_error": {k: float(e) for k, e in zip(("x", "y", "vx", "vy"), err[:4])},
+        "initial_state": {"t": t0, **{k: float(v) for k, v in zip(keys, p[:ns])}},
+        "initial_state_error": {k: float(e) for k, e in zip(keys, err[:ns])},
         "residual_rms": float(math.sqrt(float(r @ r) / r.size)),
         "noise_sigma": float(sigma),
         "iterations": int(nfev), "fit_seconds": time.perf_counter() - t_start, "fit_status": status,
@@ -538,6 +577,8 @@ def simulate_launch(problem, v_in: float, y0: float, vy0: float, mu: float, t_sh
         from ..plots import hermite_samples  # numpy only; plots imports matplotlib lazily
 
         d = hermite_samples(tr, n=3000)
+        if problem.model == "ball":     # the contact point's: the track shows the centre
+            d["x"], d["y"] = centre_of(problem, d["x"], d["y"])
         out["_model"] = {"t": d["t"] + t_shift, "x": d["x"], "y": d["y"]}
     return out
 
@@ -591,14 +632,17 @@ def screen_track(problem, track, sigma: float | None = None) -> dict:
         return out
     dt = track.dt
     wa = int(np.clip(round(0.1 / dt), SG_WINDOW, 51)) | 1
-    if len(t) < wa + 8 or problem.model not in ("full", "simplified"):
+    if len(t) < wa + 8:
         return out
     from ..physics.models import accelerations
 
     xs, vx, ax, gain = _sg_derivatives(x, dt, wa)
     ys, vy, ay, _ = _sg_derivatives(y, dt, wa)
+    # the ball is screened with the full point model's accelerations at its centre (the
+    # two differ by O(r kappa), far inside the accepted ratio; a wrong unit is a factor 10+)
+    pscr = problem.with_(model="full") if problem.model == "ball" else problem
     with np.errstate(all="ignore"):
-        mx, my, _ = accelerations(problem, xs, ys, vx, vy)
+        mx, my, _ = accelerations(pscr, xs, ys, vx, vy)
     ok = np.isfinite(mx) & np.isfinite(my) & (xs >= x0) & (xs <= x1) & (ys >= y0) & (ys <= y1)
     if ok.sum() < 8:
         return out

@@ -124,7 +124,8 @@ def covariance_errors(jac, r, n_par):
 # ----------------------------------------------------------------------------
 def model_solve(problem, S0: np.ndarray, mu: np.ndarray, t0: float, t_eval: np.ndarray,
                 rtol: float = FIT_RTOL, dense: bool = False, budget: Budget | None = None, crr=None):
-    """Integrate lanes of the spec's model from t0: S0 (4, m) states, mu (m,) viscous damping,
+    """Integrate lanes of the spec's model from t0: S0 (4, m) states (the ball: (5, m), see
+    :func:`_ball_solve`), mu (m,) viscous damping,
     ``crr`` (m,) rolling resistance (None: the spec's; models.py's module doc, the same
     terms as :func:`fabkit.physics.models.rolling_coefficient`).
 
@@ -142,6 +143,8 @@ def model_solve(problem, S0: np.ndarray, mu: np.ndarray, t0: float, t_eval: np.n
     mu = np.asarray(mu, dtype=float).reshape(m)
     crr = np.full(m, float(problem.rolling_resistance)) if crr is None else \
         np.asarray(crr, dtype=float).reshape(m)
+    if problem.model == "ball":
+        return _ball_solve(problem, S0, mu, crr, t0, t_eval, rtol, dense, budget)
     rolling = bool(np.any(crr != 0))
     p1 = problem.with_(rolling_resistance=1.0)
     fn = fused(problem.with_(damping=0.0, rolling_resistance=0.0))   # the model's generated right-hand side
@@ -172,3 +175,110 @@ def model_solve(problem, S0: np.ndarray, mu: np.ndarray, t0: float, t_eval: np.n
     if sol.status != 0 or sol.y.shape[1] != len(t_eval) or not np.all(np.isfinite(sol.y)):
         raise FitStopped(f"the model cannot follow this track ({sol.message})")
     return sol.y.reshape(4, m, len(t_eval)), sol
+
+
+# ----------------------------------------------------------------------------
+# the ball model: its state is the contact point's, a camera sees the centre
+# ----------------------------------------------------------------------------
+def state_size(problem) -> int:
+    """Rows of a fitted state: 4 (x, y, xd, yd) for the point models; 5 for the ball
+    (the contact point, its velocity, and u, the spin about the normal)."""
+    return 5 if problem.model == "ball" else 4
+
+
+def _ball_geometry(problem, x, y):
+    from ..physics import ball
+
+    return ball.geometry(ball.jet_function(problem.fns)(x, y), float(problem.radius))
+
+
+def centre_of(problem, x, y, xd=None, yd=None):
+    """The ball's centre C = P + r n(P) seen from above: (X, Y) of contact points (x, y),
+    and with (xd, yd) also the centre's horizontal velocity (VX, VY). Exact (the
+    surface's derivatives are sympy's)."""
+    geo = _ball_geometry(problem, np.asarray(x, dtype=float), np.asarray(y, dtype=float))
+    r = float(problem.radius)
+    X, Y = x + r * geo["n"][0], y + r * geo["n"][1]
+    if xd is None:
+        return X, Y
+    Cx, Cy = geo["Cx"], geo["Cy"]
+    return X, Y, Cx[0] * xd + Cy[0] * yd, Cx[1] * xd + Cy[1] * yd
+
+
+#: Newton on the contact point of a seen centre: stop when a step is below this
+#: fraction of the ball's radius (quadratic convergence: 3-5 steps)
+CONTACT_NEWTON_TOL = 1e-13
+CONTACT_NEWTON_ITERS = 50
+
+
+def contact_of(problem, X, Y, VX=None, VY=None):
+    """The contact point P whose centre P + r n(P) has the horizontal position (X, Y):
+    C_xy(P) = (X, Y) solved by Newton on P, the Jacobian d C_xy / d P the horizontal
+    rows of the offset surface's tangents C_x, C_y (regular until the ball bridges).
+    With the centre's horizontal velocity (VX, VY) also the contact point's (xd, yd)
+    (``ball.contact_velocity``). Raises ValueError if Newton does not converge."""
+    from ..physics import ball
+
+    X = np.asarray(X, dtype=float)
+    Y = np.asarray(Y, dtype=float)
+    r = float(problem.radius)
+    x, y = X.copy(), Y.copy()
+    for _ in range(CONTACT_NEWTON_ITERS):
+        geo = _ball_geometry(problem, x, y)
+        fx = x + r * geo["n"][0] - X
+        fy = y + r * geo["n"][1] - Y
+        a, b, c, d = geo["Cx"][0], geo["Cy"][0], geo["Cx"][1], geo["Cy"][1]
+        det = a * d - b * c
+        dx = (d * fx - b * fy) / det
+        dy = (a * fy - c * fx) / det
+        x, y = x - dx, y - dy
+        step = float(np.max(np.abs(np.concatenate([np.ravel(dx), np.ravel(dy)]))))
+        if not math.isfinite(step):
+            break
+        if step <= CONTACT_NEWTON_TOL * max(r, 1.0):
+            if VX is None:
+                return x, y
+            geo = _ball_geometry(problem, x, y)
+            xd, yd = ball.contact_velocity(geo, np.asarray(VX, dtype=float), np.asarray(VY, dtype=float))
+            return x, y, xd, yd
+    raise ValueError("no contact point under this centre (off the surface, or where the ball bridges)")
+
+
+def _ball_solve(problem, S0, mu, crr, t0, t_eval, rtol, dense, budget):
+    """:func:`model_solve` of the ball (fabkit.physics.ball.evaluate, each lane with its
+    own mu and c_rr): S0 (5, m) = the contact point (x, y), its velocity (xd, yd) and the
+    spin u; returns Y (4, m, len(t_eval)) of what a camera sees, the centre's (X, Y, VX,
+    VY) (:func:`centre_of`), and the solution of the contact state (``sol``)."""
+    from scipy.integrate import solve_ivp
+
+    from ..physics import ball
+
+    m = S0.shape[1]
+    P = ball.Params.of(problem)
+    P.mu, P.c_rr = mu, crr
+    jet = ball.jet_function(problem.fns)
+    calls = [0]
+
+    def f(t, Yf):
+        calls[0] += 1
+        if calls[0] > MAX_RHS_CALLS:
+            raise FitStopped(f"an integration of the model took more than {MAX_RHS_CALLS} evaluations "
+                             "(a stiff trial: the fit wandered far from the track)")
+        if budget is not None and calls[0] % 64 == 0:
+            budget.check()
+        S = Yf.reshape(5, m)
+        ev = ball.evaluate(jet(S[0], S[1]), S[2], S[3], S[4], P, contact=False)
+        return np.concatenate([S[2], S[3], ev["xdd"], ev["ydd"], ev["ud"]])
+
+    scale = max(1.0, float(np.max(np.abs(S0[:4]))))
+    with np.errstate(all="ignore"):
+        sol = solve_ivp(f, (t0, float(t_eval[-1])), np.asarray(S0, dtype=float).ravel(), method="DOP853",
+                        rtol=rtol, atol=rtol * scale, t_eval=t_eval, dense_output=dense)
+    if sol.status != 0 or sol.y.shape[1] != len(t_eval) or not np.all(np.isfinite(sol.y)):
+        raise FitStopped(f"the model cannot follow this track ({sol.message})")
+    S = sol.y.reshape(5, m, len(t_eval))
+    with np.errstate(all="ignore"):
+        out = np.stack(centre_of(problem, S[0], S[1], S[2], S[3]))
+    if not np.all(np.isfinite(out)):
+        raise FitStopped("the model left the surface's finite values")
+    return out, sol

@@ -2,7 +2,8 @@
 
 Pure functions on tracks and the spec's :class:`models.Problem`; no printing, no files.
 
-The laws (the spec's model, ``full`` or ``simplified``, with; models.py's module doc):
+The laws (the spec's model, ``full``, ``simplified`` or ``ball``, with; the module docs of
+models.py and ball.py):
 
 * ``viscous``: - mu [xd, yd] (``simulation.damping`` = mu, 1/s);
 * ``rolling``: a force c_rr N opposing v (``ball.rolling_resistance`` = c_rr);
@@ -12,7 +13,7 @@ Each law is fitted by least squares (Levenberg-Marquardt, Jacobian by finite dif
 with all perturbed lanes in one integration) to every segment at once: each release
 track whole, and each launch's legs before its first bounce and after its last (the
 segments :func:`fabkit.lab.analyze.analyze` fitted), each segment with its own state
-(x, y, xd, yd) at its anchor frame and the law's coefficients shared by all. The laws
+(x, y, xd, yd; the ball's adds its spin u) at its anchor frame and the law's coefficients shared by all. The laws
 are compared by the Bayesian information criterion of Gaussian residuals of unknown
 variance,
 
@@ -94,7 +95,7 @@ def segments_of(tracks, rows) -> list[Segment]:
     for tr, r in zip(tracks, rows):
         if r.get("kind") == "release" and r.get("initial_state"):
             s = r["initial_state"]
-            st = np.array([s["x"], s["y"], s["vx"], s["vy"]], dtype=float)
+            st = np.array([s[k] for k in ("x", "y", "vx", "vy", "u") if k in s], dtype=float)
             if np.all(np.isfinite(st)):
                 out.append(Segment(tr.file, "release", tr.t, tr.x, tr.y, st))
         elif r.get("kind") == "launch":
@@ -124,9 +125,10 @@ def _law_vectors(law: str, q: np.ndarray, m: int):
 
 def fit_law(problem, segments: list[Segment], law: str, q0, budget=None) -> LawFit:
     """Least squares of every segment's state and the law's shared coefficients (module doc)."""
-    from .fitting import FIT_RTOL, covariance_errors, least_squares_bounded, model_solve
+    from .fitting import FIT_RTOL, covariance_errors, least_squares_bounded, model_solve, state_size
 
     nl = len(LAWS[law])
+    ns = state_size(problem)
     S = len(segments)
     data = np.concatenate([np.concatenate([s.x, s.y]) for s in segments])
     p0 = np.concatenate([np.concatenate([s.state for s in segments]), np.asarray(q0, dtype=float)])
@@ -134,12 +136,12 @@ def fit_law(problem, segments: list[Segment], law: str, q0, budget=None) -> LawF
     def lanes(seg_i, P):
         """x, y of segment seg_i for each row of P (lanes, 4 + nl): (lanes, 2 n)."""
         seg = segments[seg_i]
-        mu, crr = _law_vectors(law, P[:, 4:], P.shape[0])
-        Y, _ = model_solve(problem, P[:, :4].T.copy(), mu, seg.t0, seg.t, rtol=FIT_RTOL, budget=budget, crr=crr)
+        mu, crr = _law_vectors(law, P[:, ns:], P.shape[0])
+        Y, _ = model_solve(problem, P[:, :ns].T.copy(), mu, seg.t0, seg.t, rtol=FIT_RTOL, budget=budget, crr=crr)
         return np.concatenate([Y[0], Y[1]], axis=1)
 
     def split(p):
-        return p[:4 * S].reshape(S, 4), p[4 * S:]
+        return p[:ns * S].reshape(S, ns), p[ns * S:]
 
     def fun(p):
         st, q = split(p)
@@ -152,25 +154,25 @@ def fit_law(problem, segments: list[Segment], law: str, q0, budget=None) -> LawF
         for i, seg in enumerate(segments):
             base = np.concatenate([st[i], q])
             h = 1e-5 * np.maximum(1.0, np.abs(base))
-            h[4:] = 1e-6 * np.maximum(1e-2, np.abs(base[4:]))
+            h[ns:] = 1e-6 * np.maximum(1e-2, np.abs(base[ns:]))
             P = np.vstack([base] + [base + np.eye(base.size)[j] * h[j] for j in range(base.size)])
             Y = lanes(i, P)
-            D = (Y[1:] - Y[0]) / h[:, None]            # (4 + nl, 2 n)
+            D = (Y[1:] - Y[0]) / h[:, None]            # (ns + nl, 2 n)
             n2 = Y.shape[1]
-            J[row:row + n2, 4 * i:4 * i + 4] = D[:4].T
-            J[row:row + n2, 4 * S:] = D[4:].T
+            J[row:row + n2, ns * i:ns * i + ns] = D[:ns].T
+            J[row:row + n2, ns * S:] = D[ns:].T
             row += n2
         return J
 
     x, r, J, nfev, status = least_squares_bounded(fun, jac, p0, budget, xtol=1e-10, max_nfev=FIT_MAX_NFEV)
     err = covariance_errors(J, r, p0.size)
     names = LAWS[law]
-    q = x[4 * S:]
+    q = x[ns * S:]
     coef = {"damping": 0.0, "rolling_resistance": 0.0}
     errs = {"damping": 0.0, "rolling_resistance": 0.0}
     for j, nm in enumerate(names):
         coef[nm] = float(q[j])
-        errs[nm] = float(err[4 * S + j])
+        errs[nm] = float(err[ns * S + j])
     seg_rms, row = [], 0
     for seg in segments:
         n2 = 2 * seg.t.size

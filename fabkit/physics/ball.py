@@ -187,10 +187,10 @@ def evaluate(j, xd, yd, u, P: Params, contact: bool = True):
     # the force per unit mass on the centre besides gravity and contact
     vv = _dot(v, v)
     f = (0.0, 0.0, 0.0)
-    if P.mu:
+    if np.any(P.mu):      # (arrays: one coefficient per lane, fabkit.lab.fitting)
         c = -(1.0 + k) * P.mu
         f = (c * v[0], c * v[1], c * v[2])
-    if P.c_rr:
+    if np.any(P.c_rr):
         # c N opposing v; below the speed scale v_s the direction is smoothed (a ball at
         # rest would otherwise chatter: the force flips with v)
         c = -P.c_rr * np.maximum(Nm, 0.0) / np.sqrt(vv + P.v_s * P.v_s)
