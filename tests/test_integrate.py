@@ -177,3 +177,26 @@ def test_guards():
         launch_batch(paper(), [-1.0])
     r = launch_batch(paper(), [40.0], tol=Tolerances(max_sim_steps=20))
     assert r.status[0] == 1 and r.outcome[0] == CAPTURED
+
+
+def test_a_stiff_batch_over_its_budget_is_refused_after_its_first_launch(tmp_path, monkeypatch):
+    """simulation.nonlinear_damping 1e9 (the hostile round's hang: 400 implicit launches of
+    about 5 s each): the batch is refused after its first launch, with the evaluations it
+    would take, naming the keys that make it stiff, instead of running for half an hour."""
+    from conftest import mutated, write_spec
+    from fabkit.errors import DesignError
+    from fabkit.physics import integrate
+    from fabkit.physics.models import problem_from_spec
+    from fabkit.spec import load_spec
+
+    spec = load_spec(write_spec(tmp_path, mutated({"simulation.nonlinear_damping": 1e9, "simulation.t_max": 2.0})))
+    problem = problem_from_spec(spec)
+    assert integrate.is_stiff(problem, problem.t_max)
+    first = integrate.launch_batch(problem, [40.0])          # one launch is never refused
+    budget = int(first.steps[0]) * 3                           # room for three such launches, not four
+    monkeypatch.setattr(integrate, "STIFF_EVALUATIONS", budget)
+    with pytest.raises(DesignError) as e:
+        integrate.launch_batch(problem, [40.0, 41.0, 42.0, 43.0])
+    msg = str(e.value)
+    assert "simulation.nonlinear_damping 1e+09" in msg and f"took {int(first.steps[0])} evaluations" in msg
+    assert integrate.launch_batch(problem, [40.0, 41.0, 42.0]).outcome.shape == (3,)

@@ -71,6 +71,10 @@ from .trap import trap_energy
 CHUNK = 16384         # launches per chunk of launch_stream (memory bound; results do not depend on it)
 K_BOUNCES = 16        # bounce times kept per launch
 STIFF_STEPS = 2_000   # stability-bound explicit steps beyond which a damped problem goes to Radau
+#: right-hand-side evaluations one batch of implicit (Radau) launches may take, about 10 minutes
+#: of CPU at the ~3600 evaluations/s measured on the paper's surface; a batch whose first launch
+#: says it would take more is refused up front (deterministic: it counts evaluations, not time)
+STIFF_EVALUATIONS = 2_000_000
 
 
 # ----------------------------------------------------------------------------
@@ -176,6 +180,15 @@ def _run_stiff(problem, v_in, y0, vy0, rtol, atol, t_max, k_keep):
     for i in range(n):
         r = solve_launch(problem, float(v_in[i]), float(y0[i]), float(vy0[i]), method="Radau",
                          rtol=max(rtol, 1e-10), atol=max(atol, 1e-12), t_max=t_max)
+        if i == 0 and n > 1 and r["nfev"] * n > STIFF_EVALUATIONS:
+            from ..errors import DesignError
+
+            raise DesignError(
+                f"the damping makes every launch stiff (simulation.damping {problem.damping:g} 1/s, "
+                f"simulation.nonlinear_damping {problem.nonlinear_damping:g}): the first launch took {r['nfev']} "
+                f"evaluations of the implicit solver, so {n} launches would take about {r['nfev'] * n:.2g}, over "
+                f"the budget of {STIFF_EVALUATIONS:.2g} (about 10 minutes); lower the damping or the number of "
+                f"launches (ramp.samples, --v-in N)")
         out["outcome"][i] = OUTCOMES.index(r["outcome"])
         out["bounces"][i] = r["bounces"]
         tb = np.asarray(r["bounce_times"])[:k_keep]
