@@ -223,6 +223,23 @@ def atomic_outputs():
         raise
 
 
+def text_of(data: bytes, path, limit: int) -> str:
+    """``data`` (the bytes :func:`read_regular` read from ``path``) as text: SpecError (exit
+    2, naming the file) for more than ``limit`` bytes, invalid UTF-8 or NUL bytes."""
+    from .errors import SpecError
+
+    p = str(path)
+    if len(data) > limit:
+        raise SpecError(f"file too large (limit {limit} bytes)", file=p)
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError:
+        raise SpecError("not a text file (invalid UTF-8)", file=p) from None
+    if "\x00" in text:
+        raise SpecError("not a text file (NUL bytes)", file=p)
+    return text
+
+
 def read_regular(path, limit: int, noun: str = "input") -> bytes:
     """The first ``limit + 1`` bytes of the regular file ``path`` (the caller refuses more).
 

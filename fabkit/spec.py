@@ -336,15 +336,9 @@ def load_spec(path: str | Path, need: tuple[str, ...] = (), command: str | None 
     import yaml
 
     p = str(path)
-    data = _read_spec_bytes(p)
-    if len(data) > MAX_SPEC_BYTES:
-        raise SpecError(f"file too large (limit {MAX_SPEC_BYTES} bytes)", file=p)
-    try:
-        text = data.decode("utf-8")
-    except UnicodeDecodeError:
-        raise SpecError("not a text file (invalid UTF-8)", file=p) from None
-    if "\x00" in text:
-        raise SpecError("not a text file (NUL bytes)", file=p)
+    from .io import text_of
+
+    text = text_of(_read_spec_bytes(p), p, MAX_SPEC_BYTES)
     try:
         raw = yaml.load(text, Loader=_SafeLoader)
     except yaml.YAMLError as exc:

@@ -122,6 +122,17 @@ def covariance_errors(jac, r, n_par):
 # ----------------------------------------------------------------------------
 # model integration (for the fits): the spec's right-hand side, damping per lane
 # ----------------------------------------------------------------------------
+def _count(calls: list, budget) -> None:
+    """One evaluation of a fit's right-hand side: FitStopped past MAX_RHS_CALLS in one
+    integration, and the fit's budget checked every 64 evaluations."""
+    calls[0] += 1
+    if calls[0] > MAX_RHS_CALLS:
+        raise FitStopped(f"an integration of the model took more than {MAX_RHS_CALLS} evaluations "
+                         "(a stiff trial: the fit wandered far from the track)")
+    if budget is not None and calls[0] % 64 == 0:
+        budget.check()
+
+
 def model_solve(problem, S0: np.ndarray, mu: np.ndarray, t0: float, t_eval: np.ndarray,
                 rtol: float = FIT_RTOL, dense: bool = False, budget: Budget | None = None, crr=None):
     """Integrate lanes of the spec's model from t0: S0 (4, m) states (the ball: (5, m), see
@@ -152,12 +163,7 @@ def model_solve(problem, S0: np.ndarray, mu: np.ndarray, t0: float, t_eval: np.n
     calls = [0]
 
     def f(t, Yf):
-        calls[0] += 1
-        if calls[0] > MAX_RHS_CALLS:
-            raise FitStopped(f"an integration of the model took more than {MAX_RHS_CALLS} evaluations "
-                             "(a stiff trial: the fit wandered far from the track)")
-        if budget is not None and calls[0] % 64 == 0:
-            budget.check()
+        _count(calls, budget)
         S = Yf.reshape(4, m)
         ax, ay, _, hx, hy, B, _ = fn(S[0], S[1], S[2], S[3])
         d[0], d[1] = S[2], S[3]
@@ -260,12 +266,7 @@ def _ball_solve(problem, S0, mu, crr, t0, t_eval, rtol, dense, budget):
     calls = [0]
 
     def f(t, Yf):
-        calls[0] += 1
-        if calls[0] > MAX_RHS_CALLS:
-            raise FitStopped(f"an integration of the model took more than {MAX_RHS_CALLS} evaluations "
-                             "(a stiff trial: the fit wandered far from the track)")
-        if budget is not None and calls[0] % 64 == 0:
-            budget.check()
+        _count(calls, budget)
         S = Yf.reshape(5, m)
         ev = ball.evaluate(jet(S[0], S[1]), S[2], S[3], S[4], P, contact=False)
         return np.concatenate([S[2], S[3], ev["xdd"], ev["ydd"], ev["ud"]])

@@ -118,19 +118,10 @@ def from_mapping(body, file: str, flat: bool = True) -> Machine:
 
 
 def _read_text(path, noun: str) -> str:
-    from ..io import read_regular
+    from ..io import read_regular, text_of
 
     p = str(path)
-    data = read_regular(p, MAX_PROFILE_BYTES, noun)
-    if len(data) > MAX_PROFILE_BYTES:
-        raise SpecError(f"file too large (limit {MAX_PROFILE_BYTES} bytes)", file=p)
-    try:
-        text = data.decode("utf-8")
-    except UnicodeDecodeError:
-        raise SpecError("not a text file (invalid UTF-8)", file=p) from None
-    if "\x00" in text:
-        raise SpecError("not a text file (NUL bytes)", file=p)
-    return text
+    return text_of(read_regular(p, MAX_PROFILE_BYTES, noun), p, MAX_PROFILE_BYTES)
 
 
 def load_machine(path) -> Machine:
