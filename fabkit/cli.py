@@ -198,6 +198,7 @@ def build_parser() -> argparse.ArgumentParser:
     c = cmd("report", "the whole design on one self-contained HTML page (verdict, surface, toolpath, sweep, ...)")
     c.add_argument("-o", "--output", metavar="PATH", help="output page (default toolpaths/<name>.report.html)")
     c.add_argument("--json", action="store_true", help="print JSON")
+    c.add_argument("--no-progress", action="store_true", help="no progress bar")
     c.add_argument("--machine", metavar="FILE", help="machine profile: the setup sheet shows the controller's run "
                    "time and the checks (default: the spec's machine section)")
     c.add_argument("--max-time", type=float, default=None, metavar="SECONDS", dest="max_time",

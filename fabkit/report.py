@@ -180,8 +180,19 @@ def _calibration_table(cal: dict, marks: list | None, units: str, every: int) ->
         mk = "<h3>Release marks</h3><table><tr><th class=l>mark</th><th>H</th><th>v_in</th></tr>" + "".join(
             f"<tr><td class=l>{_e(m['label'])}</td><td>{_n(m['height'], '.6g')}</td><td>{_n(m['v_in'], '.7g')}</td></tr>"
             for m in marks) + "</table>"
-    return (f"<p class=meta>v_in = sqrt(2 g H / (1 + k)), g = {_n(cal['g'], '.7g')} {units}/s², k = {_n(cal['k'], '.4g')}; "
-            f"H above the entry level. Exact closed form (rounding only, ~1e-16 relative); "
+    e = cal.get("entry")
+    if e is None or getattr(e, "closed_form", True):
+        how = (f"v_in = sqrt(2 g H / (1 + k)), g = {_n(cal['g'], '.7g')} {units}/s², k = {_n(cal['k'], '.4g')}; "
+               f"H the drop of the ball's centre. Exact closed form (no losses on the ramp; rounding only, "
+               f"~1e-16 relative); ")
+    else:
+        how = (f"v_in from the ball's descent of the ramp with its losses ({_e(e.method)}), "
+               f"g = {_n(cal['g'], '.7g')} {units}/s², " if e.method else
+               f"v_in from the ball's descent of the ramp ({_e(e.profile)}) with damping {_n(e.mu, 'g')} 1/s and "
+               f"rolling resistance {_n(e.c, 'g')}, g = {_n(cal['g'], '.7g')} {units}/s², ")
+        how += (f"k = {_n(cal['k'], '.4g')}; H the drop of the ball's centre; to ~{_n(e.error, '.0e')} relative "
+                f"(the lossless closed form sqrt(2 g H / (1 + k)) would say more); ")
+    return (f"<p class=meta>{how}"
             f"{len(H)} heights" + (f", every {every}th shown" if every > 1 else "") + f"; {_n(cal.get('seconds'), '.2g')} s.</p>"
             f"<div class=grid2><table><tr><th>H ({units})</th><th>v_in ({units}/s)</th></tr>{rows}</table>"
             f"<div>{mk}</div></div>")

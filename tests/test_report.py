@@ -140,3 +140,17 @@ def test_bad_spec_exit_2_nothing_written(cli, tmp_path):
     code, out, err = cli("report", spec, "-o", "r.html")
     assert code == 2 and "tool: missing section (needed by report)" in err
     assert not (tmp_path / "r.html").exists()
+
+
+def test_calibration_caption_says_how_the_speeds_were_made():
+    """With the ramp's losses the page names the descent and its accuracy, not the closed
+    form; without them it gives the closed form."""
+    from types import SimpleNamespace
+
+    res = _results(True)
+    assert "Exact closed form" in render(res)
+    res["calibration"]["entry"] = SimpleNamespace(closed_form=False, method="descent along the ramp, damping 0.127 1/s",
+                                                  profile="fabkit", mu=0.127, c=0.0, error=1e-9)
+    page = render(res)
+    assert "descent of the ramp with its losses (descent along the ramp, damping 0.127 1/s)" in page
+    assert "to ~1e-09 relative" in page and "Exact closed form" not in page

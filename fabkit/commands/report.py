@@ -12,7 +12,7 @@ import numpy as np
 
 from ..errors import SpecError
 from ..spec import load_spec
-from ._common import Timer, check_paths, default_output, emit, prepare_simulator
+from ._common import Timer, check_paths, default_output, emit, prepare_simulator, stage_bar
 
 NEEDS = ("surface", "stock", "tool", "machining", "ball", "ramp", "simulation")
 SURFACE_SAMPLES = (90, 46)   # the 3-D view's grid (x, y)
@@ -30,15 +30,31 @@ def _toolpath(spec, surface, machine=None):
             "verify": {k: ver[k] for k in ("max_gouge", "max_material_left", "checked_points") if k in ver}}
 
 
+def _sweep(spec, cal) -> dict:
+    """The sweep over the ramp's entry speeds and its figure, for the page."""
+    from ..physics.models import problem_from_spec
+    from ..physics.sweep import sweep
+    from ..plots import sweep_figure
+
+    t = Timer()
+    problem = problem_from_spec(spec)
+    v = np.unique(np.asarray(cal["v_in"], dtype=float))
+    v = v[np.isfinite(v)]                 # nan: heights from which the ball does not reach the block
+    sw = sweep(problem, v, error_samples=24)
+    sw_png = sweep_figure(sw, f"{spec.name}: {problem.model} model, damping {problem.damping:g} 1/s",
+                          units=spec.units)
+    return {"png": sw_png, "v_critical": sw["v_critical"], "v_critical_error": sw["v_critical_error"],
+            "v_critical_reason": sw.get("v_critical_reason"),
+            "windows": sw["windows"], "error_estimate": sw["error_estimate"], "launches": sw["launches"],
+            "seconds": t.seconds}
+
+
 def run(args) -> int:
     from .. import __version__
     from ..io import write_atomic
     from ..lab.ramp import mark_targets
     from ..physics.calibrate import calibration_table
     from ..physics.check import check
-    from ..physics.models import problem_from_spec
-    from ..physics.sweep import sweep
-    from ..plots import sweep_figure
     from ..report import render
     from ..surface import Surface, check_depth
     from ..toolpath.guards import with_time_budget
@@ -57,26 +73,25 @@ def run(args) -> int:
 
     machine = machine_from_spec(spec, getattr(args, "machine", None))    # a bad profile: exit 2 now
 
-    t = Timer()
-    cal = calibration_table(spec)
-    cal["seconds"] = t.seconds
+    step, close = stage_bar(5, getattr(args, "no_progress", False), "report")
+    try:
+        step("calibrating the ramp")
+        t = Timer()
+        cal = calibration_table(spec)
+        cal["seconds"] = t.seconds
 
-    prepare_simulator(spec)
-    chk = check(spec).to_json()
+        step("compiling or loading the simulator")
+        prepare_simulator(spec)
+        step("checking")
+        chk = check(spec).to_json()
+        step("sweeping")
+        sw_part = _sweep(spec, cal)
+        step("planning and verifying the toolpath")
+        tool = _toolpath(spec, surface, machine)
+    finally:
+        close()
+    sweep_res = sw_part
 
-    t = Timer()
-    problem = problem_from_spec(spec)
-    v = np.unique(np.asarray(cal["v_in"], dtype=float))
-    v = v[np.isfinite(v)]                 # nan: heights from which the ball does not reach the block
-    sw = sweep(problem, v, error_samples=24)
-    sw_png = sweep_figure(sw, f"{spec.name}: {problem.model} model, damping {problem.damping:g} 1/s",
-                          units=spec.units)
-    sweep_res = {"png": sw_png, "v_critical": sw["v_critical"], "v_critical_error": sw["v_critical_error"],
-                 "v_critical_reason": sw.get("v_critical_reason"),
-                 "windows": sw["windows"], "error_estimate": sw["error_estimate"], "launches": sw["launches"],
-                 "seconds": t.seconds}
-
-    tool = _toolpath(spec, surface, machine)
 
     nx, ny = SURFACE_SAMPLES
     xs = np.linspace(surface.x_range[0], surface.x_range[1], nx)
