@@ -331,25 +331,31 @@ class Spec:
 # ----------------------------------------------------------------------------
 # loading and validation
 # ----------------------------------------------------------------------------
-def load_spec(path: str | Path, need: tuple[str, ...] = (), command: str | None = None) -> Spec:
-    """Read, parse and validate a spec file. ``need``: sections the caller requires."""
+def parse_yaml(text: str, path: str):
+    """``text`` parsed as safe YAML (no tags, no aliases bombs: :class:`_SafeLoader`);
+    SpecError naming ``path`` and the line for a syntax error or an unreadable value."""
     import yaml
 
-    p = str(path)
-    from .io import text_of
-
-    text = text_of(_read_spec_bytes(p), p, MAX_SPEC_BYTES)
     try:
-        raw = yaml.load(text, Loader=_SafeLoader)
+        return yaml.load(text, Loader=_SafeLoader)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f"line {mark.line + 1}: " if mark is not None else ""
         problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
-        raise SpecError(f"YAML error: {where}{problem}", file=p) from None
+        raise SpecError(f"YAML error: {where}{problem}", file=path) from None
     except RecursionError:
-        raise SpecError("YAML nested too deeply", file=p) from None
+        raise SpecError("YAML nested too deeply", file=path) from None
     except (ValueError, OverflowError) as exc:  # e.g. a 5000-digit integer, a date 2001-02-30
-        raise SpecError(f"YAML error: unreadable value ({str(exc).split(':')[0]})", file=p) from None
+        raise SpecError(f"YAML error: unreadable value ({str(exc).split(':')[0]})", file=path) from None
+
+
+def load_spec(path: str | Path, need: tuple[str, ...] = (), command: str | None = None) -> Spec:
+    """Read, parse and validate a spec file. ``need``: sections the caller requires."""
+    from .io import text_of
+
+    p = str(path)
+    text = text_of(_read_spec_bytes(p), p, MAX_SPEC_BYTES)
+    raw = parse_yaml(text, p)
     spec = validate(raw, p)
     spec.require(*need, command=command)
     return spec

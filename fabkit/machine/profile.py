@@ -128,24 +128,14 @@ def load_machine(path) -> Machine:
     """A profile file: a YAML mapping of the ``machine`` keys, a spec with a
     ``machine`` section, or the controller's own settings (a grbl ``$$`` dump, a
     LinuxCNC INI). Bad files raise SpecError naming the file and key."""
-    import yaml
-
-    from ..spec import _SafeLoader
+    from ..spec import parse_yaml
 
     p = str(path)
     text = _read_text(p, "machine profile")
     native = _native(text, p)
     if native is not None:
         return native
-    try:
-        raw = yaml.load(text, Loader=_SafeLoader)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f"line {mark.line + 1}: " if mark is not None else ""
-        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
-        raise SpecError(f"YAML error: {where}{problem}", file=p) from None
-    except (RecursionError, ValueError, OverflowError):
-        raise SpecError("YAML error: unreadable value", file=p) from None
+    raw = parse_yaml(text, p)
     if not isinstance(raw, dict):
         raise SpecError("a machine profile must be a mapping of keys (controller, max_rate, ...); "
                         "`fabkit machine import` writes one from a grbl $$ dump or a LinuxCNC INI", file=p)
