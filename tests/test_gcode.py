@@ -189,12 +189,9 @@ def test_linuxcnc_tool_call_work_offset_and_park(tmp_path, units):
     assert float(moves[-2][3]) * k == pytest.approx(5.0, abs=atol)
 
 
-def test_header_speaks_the_program_units():
-    """A G20 program's comments give tool, stock, scallop and tolerance in inches,
-    computed here from the millimetre inputs."""
+def _inch_grbl_job():
+    """A grbl inch job on a 5 x 3 x 2 in stock, 1/4 in ball (work mm inside): (spec, surface)."""
     from types import SimpleNamespace
-
-    from fabkit.toolpath.gcode import profile_from_spec
 
     spec = SimpleNamespace(
         path="specs/x.yaml", name="x", units="mm",
@@ -202,7 +199,15 @@ def test_header_speaks_the_program_units():
         stock=SimpleNamespace(thickness=50.8),
         machining=SimpleNamespace(dialect="grbl", units="in", feed=1270, plunge=254, spindle=18000,
                                   safe_height=5.08, tolerance=0.0254, scallop=0.127, park=(0.0, 0.0)))
-    surface = SimpleNamespace(stock_size_mm=(127.0, 76.2))
+    return spec, SimpleNamespace(stock_size_mm=(127.0, 76.2))
+
+
+def test_header_speaks_the_program_units():
+    """A G20 program's comments give tool, stock, scallop and tolerance in inches,
+    computed here from the millimetre inputs."""
+    from fabkit.toolpath.gcode import profile_from_spec
+
+    spec, surface = _inch_grbl_job()
     text = write_program(wavy_toolpath(), profile_from_spec(spec, surface))
     header = " ".join(ln.strip("()") for ln in text.splitlines() if ln.startswith("("))
     assert "diameter 0.25 in" in header
@@ -217,17 +222,9 @@ def test_header_names_the_gap_to_passes_beyond_the_edges():
     """The stepover line gives the stepover between passes over the stock; where the gap to
     a pass beyond a stock edge is larger, the header names it for what it is (1.234567 mm
     stepover, a 2.69 mm gap: 0.0486 and 0.1059 in)."""
-    from types import SimpleNamespace
-
     from fabkit.toolpath.gcode import profile_from_spec
 
-    spec = SimpleNamespace(
-        path="specs/x.yaml", name="x", units="mm",
-        tool=SimpleNamespace(shape="ball", diameter=6.35, number=None),
-        stock=SimpleNamespace(thickness=50.8),
-        machining=SimpleNamespace(dialect="grbl", units="in", feed=1270, plunge=254, spindle=18000,
-                                  safe_height=5.08, tolerance=0.0254, scallop=0.127, park=(0.0, 0.0)))
-    surface = SimpleNamespace(stock_size_mm=(127.0, 76.2))
+    spec, surface = _inch_grbl_job()
     tp = wavy_toolpath()
     plain = write_program(tp, profile_from_spec(spec, surface))
     tp.info["edge_pass_gap_max"] = 2.69
