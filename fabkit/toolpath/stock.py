@@ -460,3 +460,101 @@ def verify_job(surface, operations, tolerance: float, *, spacing: float | None =
             failures.append(f"{name}: {rep.unlocated_low} move(s) below the top face from an unknown position")
     return JobCut(operations=reports, snapshots=snaps, design=dz, spacing=(stock.hx, stock.hy),
                   tolerance=tol, seconds=time.perf_counter() - t0, failures=failures)
+
+
+# ----------------------------------------------------------------------------
+# the picture
+# ----------------------------------------------------------------------------
+#: diverging colours: deep blue (gouge) - white (on the design) - deep orange (material left)
+_GOUGE = np.array([33.0, 102.0, 172.0])
+_LEFT = np.array([202.0, 86.0, 0.0])
+_ZERO = np.array([247.0, 247.0, 247.0])
+
+
+def _pool(a: np.ndarray, k: int, signed: bool):
+    """Blocks of k x k nodes to one pixel: the value of largest magnitude (signed) or
+    the mean (heights)."""
+    nx, ny = a.shape
+    mx, my = nx // k * k, ny // k * k
+    if k == 1:
+        return a
+    b = a[:mx, :my].reshape(mx // k, k, my // k, k)
+    if not signed:
+        return b.mean(axis=(1, 3))
+    hi, lo = b.max(axis=(1, 3)), b.min(axis=(1, 3))
+    return np.where(-lo > hi, lo, hi)
+
+
+def stock_png(stock: Stock, design: np.ndarray, *, title: str = "", tolerance: float = 0.0,
+              left_max: float | None = None, gouge_max: float | None = None, width: int = 900) -> bytes:
+    """Top view of the simulated stock: the height field hill-shaded (light from the
+    upper left, 45 degrees up) and coloured by its deviation from the design, blue where
+    the stock is below it (gouge), orange where material is left, white on it, with a
+    scale in mm. Each side of the scale is linear up to ``gouge_max`` / ``left_max``
+    (default: the largest gouge, at least 2 x tolerance; the 99.5th percentile of the
+    material left); a pixel shows the deviation of largest magnitude among the nodes it
+    covers, so an isolated gouge stays visible. PNG bytes (numpy + Pillow)."""
+    from PIL import Image, ImageDraw, ImageFont
+
+    z = stock.z
+    dev = z - np.asarray(design, dtype=float)
+    nx, ny = z.shape
+    k = max(1, int(math.ceil(max(nx / width, ny / (0.75 * width)))))
+    dv = _pool(dev, k, True)
+    zz = _pool(z, k, False)
+    hx, hy = stock.hx * k, stock.hy * k
+    up = max(1, min(width // nx, int(0.75 * width) // ny)) if k == 1 else 1   # small grids: enlarged
+    if up > 1:
+        dv = np.repeat(np.repeat(dv, up, axis=0), up, axis=1)
+        zz = np.repeat(np.repeat(zz, up, axis=0), up, axis=1)
+        hx, hy = hx / up, hy / up
+    # hill shade of the height field (exaggerated x2 so shallow scallops show)
+    gx, gy = np.gradient(2.0 * zz, hx, hy)
+    nrm = np.sqrt(1.0 + gx * gx + gy * gy)
+    lx, ly, lz = -0.5, 0.5, math.sqrt(0.5)                     # from -X, +Y (upper left), 45 deg up
+    shade = np.clip((-gx * lx - gy * ly + lz) / nrm, 0.0, 1.0)
+    shade = 0.35 + 0.65 * shade
+    gmax = gouge_max if gouge_max is not None else max(2.0 * tolerance, float(max(-dev.min(), 0.0)), 1e-6)
+    pos = dev[dev > tolerance]
+    lmax = left_max if left_max is not None else (float(np.percentile(pos, 99.5)) if pos.size else
+                                                  max(2.0 * tolerance, 1e-6))
+    lmax = max(lmax, 1e-6)
+
+    def colour(d):
+        d = np.asarray(d, float)
+        tg = np.clip(-d / gmax, 0.0, 1.0)[..., None]
+        tl = np.clip(d / lmax, 0.0, 1.0)[..., None]
+        return np.where(d[..., None] < 0, _ZERO + (_GOUGE - _ZERO) * tg, _ZERO + (_LEFT - _ZERO) * tl)
+
+    rgb = colour(dv) * shade[..., None]
+    plot = np.clip(np.rint(rgb), 0, 255).astype(np.uint8).transpose(1, 0, 2)[::-1]  # rows: +Y up
+    ph, pw = plot.shape[:2]
+    left, top, bottom, right = 60, 34, 86, 30
+    img = np.full((top + ph + bottom, left + pw + right, 3), 255, np.uint8)
+    img[top:top + ph, left:left + pw] = plot
+    # the scale: gouge_max ... 0 ... left_max
+    bw = min(pw, 520)
+    bx0, by0 = left + (pw - bw) // 2, top + ph + 34
+    half = bw // 2
+    tb = np.concatenate([-np.linspace(1, 0, half) * gmax, np.linspace(0, 1, bw - half) * lmax])
+    img[by0:by0 + 14, bx0:bx0 + bw] = np.clip(np.rint(colour(tb)), 0, 255).astype(np.uint8)[None, :, :]
+    im = Image.fromarray(img)
+    dr = ImageDraw.Draw(im)
+    font = ImageFont.load_default()
+    dr.rectangle([left - 1, top - 1, left + pw, top + ph], outline=(0, 0, 0))
+    dr.rectangle([bx0 - 1, by0 - 1, bx0 + bw, by0 + 14], outline=(0, 0, 0))
+    head = (f"{title}: " if title else "") + "simulated stock, coloured by deviation from the design"
+    dr.text((left, 10), head, fill=(0, 0, 0), font=font)
+    dr.text((left, top + ph + 4), f"X 0 .. {stock.L:g} mm, Y 0 .. {stock.W:g} mm; grid {nx} x {ny} at "
+            f"{stock.hx:.3g} mm; largest gouge {max(-dev.min(), 0.0):.4f} mm, most material left "
+            f"{max(dev.max(), 0.0):.4f} mm", fill=(0, 0, 0), font=font)
+    for val, u in ((-gmax, bx0), (0.0, bx0 + half), (lmax, bx0 + bw)):
+        dr.line([(u, by0 + 14), (u, by0 + 18)], fill=(0, 0, 0))
+        label = f"{val:+.3g}" if val else "0"
+        dr.text((u - 3 * len(label), by0 + 20), label, fill=(0, 0, 0), font=font)
+    dr.text((bx0 - 2 - 6 * 20, by0 + 2), "below design (gouge)", fill=(0, 0, 0), font=font)
+    dr.text((bx0 + bw + 6, by0 + 2), "material left", fill=(0, 0, 0), font=font)
+    dr.text((bx0 + half - 60, by0 + 32), "stock - design (mm)", fill=(0, 0, 0), font=font)
+    buf = io.BytesIO()
+    im.save(buf, format="PNG", optimize=False)
+    return buf.getvalue()

@@ -75,8 +75,12 @@ class Program:
             self.offset = np.full(n, -1, dtype=int)
 
     def segments(self):
-        """(a, b): (n, 3) start and end points of every move, mm."""
+        """(a, b): (n, 3) start and end points of every move, mm (a's Z is nan for the
+        first move after a tool change, as for the first move of a program)."""
         a = np.vstack([self.start[None, :], self.points[:-1]]) if len(self.points) else self.points
+        for i, _, _ in self.tool_changes:
+            if 0 < i < len(a):
+                a[i, 2] = np.nan      # after a tool change the tip's Z is unknown until set
         return a, self.points
 
     def __len__(self) -> int:
@@ -121,7 +125,9 @@ def read_program(text: str) -> Program:
     (the tool call: the moves are of the tool tip either way; ``Program.tool`` and
     ``Program.offset`` record, per move, the tool M6 loaded and the G43 H offset in
     effect, so a multi-tool program splits by tool; a T word selects the tool the next
-    M6 loads, on the same line or before it), G49 (offset cancelled), M3 S, M5,
+    M6 loads, on the same line or before it; after M6, or a G43/G49 that changes the
+    offset, the tip's Z is unknown (nan) until a move sets it, as the new tool's length
+    moves the program's Z), G49 (offset cancelled), M3 S, M5,
     M2/M30 (end: later lines ignored), F (modal feed), X Y Z. Anything else raises
     DesignError naming the line (a program the reader cannot follow is not verified).
     """
@@ -168,6 +174,8 @@ def read_program(text: str) -> Program:
                 elif v == 43:
                     g43 = True
                 elif v == 49:
+                    if offset != -1:
+                        pos = np.array([pos[0], pos[1], np.nan])
                     offset = -1
                 elif v not in (17, 90, 94, 54, 64):
                     raise DesignError(f"program line {ln}: unexpected G{value}")
@@ -197,8 +205,12 @@ def read_program(text: str) -> Program:
                 raise DesignError(f"program line {ln}: M6 without a T word before it")
             spindle_tool = selected
             changes.append((len(pts), spindle_tool, ln))
+            pos = np.array([pos[0], pos[1], np.nan])       # the tip's Z now depends on the new tool's length
         if g43:
-            offset = h_word if h_word is not None else spindle_tool
+            new_offset = h_word if h_word is not None else spindle_tool
+            if new_offset != offset:
+                pos = np.array([pos[0], pos[1], np.nan])   # the offset moves the program's Z, not the tool
+            offset = new_offset
         if axes:
             if motion is None:
                 raise DesignError(f"program line {ln}: axis words before any G0/G1")
