@@ -6,11 +6,13 @@ lowers it to the lower envelope of a tool (:class:`~fabkit.toolpath.tools.Tool`:
 end mill, bull nose or ball) swept along straight moves. The envelope is EXACT at the
 nodes (closed forms for the flat end mill and the ball, a bisection to ~1e-12 mm for
 the bull nose; see :mod:`fabkit.toolpath.stock_kernels`); between nodes nothing is
-checked, so the grid spacing sets the sharpness: a feature narrower than the spacing
-(a ridge between two nodes) is missed, and a smooth cut surface of curvature radius
-rho is sampled with a chordal error below h^2 / (8 rho) (h the spacing).
-:func:`grid_spacing` picks h so that error is at most the tolerance for the tools'
-smallest corner radius (a 6.35 mm ball at 0.01 mm: 0.50 mm).
+checked, so the grid spacing h sets the sharpness: a smooth cut surface of curvature
+radius rho is sampled with a chordal error below h^2 / (8 rho), a feature narrower than
+h can fall between nodes, and a ridge (a scallop's crest, flanks of slope m) between
+two nodes is under-read by up to m h / 2 (the paper's 6.35 mm ball at its largest
+stepover, 1.09 mm: m = 0.17, 0.02 mm at h = 0.25 mm). :func:`grid_spacing` picks h so
+that the chordal error is at most the tolerance for the tools' smallest corner radius,
+and at most :data:`SPACING_MAX` (the paper's block: 0.25 mm, 2001 x 1001 nodes).
 
 Rapids never cut: a rapid whose tool would pass below the stock present at that moment
 (by more than :data:`RAPID_TOL`) is reported, and the stock is left as it was.
@@ -56,7 +58,7 @@ RAPID_TOL = 1e-6
 #: grid nodes at most (a 500 x 250 mm block at 0.1 mm: 12.5 million, 100 MB a snapshot)
 MAX_NODES = 20_000_000
 #: grid spacing bounds, mm
-SPACING_MIN, SPACING_MAX = 0.05, 1.0
+SPACING_MIN, SPACING_MAX = 0.05, 0.25
 
 
 # ----------------------------------------------------------------------------
@@ -429,7 +431,7 @@ def verify_job(surface, operations, tolerance: float, *, spacing: float | None =
         elif "depth_of_cut" in op.info:
             limit = float(op.info["depth_of_cut"])
         rep = OperationCut(
-            kind=op.kind, tool=op.tool.describe(), max_gouge=max(gouge, 0.0), gouge_at=_at(stock, ig),
+            kind=op.kind, tool=op.tool.describe(), max_gouge=max(gouge, 0.0) + 0.0, gouge_at=_at(stock, ig),
             min_left=min_left, max_left=max_left, left_at=_at(stock, il), bounds=(lo, hi),
             over_reachable=float(excess[over].max()) if over.any() else 0.0,
             over_area=float(over.sum() * area),
@@ -486,34 +488,45 @@ def _pool(a: np.ndarray, k: int, signed: bool):
 
 
 def stock_png(stock: Stock, design: np.ndarray, *, title: str = "", tolerance: float = 0.0,
-              left_max: float | None = None, gouge_max: float | None = None, width: int = 900) -> bytes:
+              left_max: float | None = None, gouge_max: float | None = None, width: int = 900,
+              envelope: float = 1.5) -> bytes:
     """Top view of the simulated stock: the height field hill-shaded (light from the
     upper left, 45 degrees up) and coloured by its deviation from the design, blue where
     the stock is below it (gouge), orange where material is left, white on it, with a
     scale in mm. Each side of the scale is linear up to ``gouge_max`` / ``left_max``
     (default: the largest gouge, at least 2 x tolerance; the 99.5th percentile of the
-    material left); a pixel shows the deviation of largest magnitude among the nodes it
-    covers, so an isolated gouge stays visible. PNG bytes (numpy + Pillow)."""
+    material left); a pixel shows the deviation of largest magnitude within ``envelope``
+    mm of it (the height of the scallops there rather than stripes aliased from them; an
+    isolated gouge stays visible). PNG bytes (numpy, scipy.ndimage and Pillow)."""
     from PIL import Image, ImageDraw, ImageFont
+
+    from scipy.ndimage import maximum_filter, minimum_filter, uniform_filter
 
     z = stock.z
     dev = z - np.asarray(design, dtype=float)
     nx, ny = z.shape
     k = max(1, int(math.ceil(max(nx / width, ny / (0.75 * width)))))
-    dv = _pool(dev, k, True)
-    zz = _pool(z, k, False)
+    # the colour is the local envelope of the deviation over ``envelope`` mm (scallops
+    # finer than a pixel would alias into stripes): the highest material and the deepest
+    # gouge within it, whichever is larger
+    w = (max(1, int(round(envelope / stock.hx))) | 1, max(1, int(round(envelope / stock.hy))) | 1)
+    env = dev if w == (1, 1) else np.where(
+        -minimum_filter(dev, size=w, mode="nearest") > maximum_filter(dev, size=w, mode="nearest"),
+        minimum_filter(dev, size=w, mode="nearest"), maximum_filter(dev, size=w, mode="nearest"))
+    dv = _pool(env, k, True)
+    zz = _pool(z if w == (1, 1) else uniform_filter(z, size=w, mode="nearest"), k, False)
     hx, hy = stock.hx * k, stock.hy * k
     up = max(1, min(width // nx, int(0.75 * width) // ny)) if k == 1 else 1   # small grids: enlarged
     if up > 1:
         dv = np.repeat(np.repeat(dv, up, axis=0), up, axis=1)
         zz = np.repeat(np.repeat(zz, up, axis=0), up, axis=1)
         hx, hy = hx / up, hy / up
-    # hill shade of the height field (exaggerated x2 so shallow scallops show)
-    gx, gy = np.gradient(2.0 * zz, hx, hy)
+    # hill shade of the height field (smoothed over the envelope: the shape, not the scallops)
+    gx, gy = np.gradient(zz, hx, hy)
     nrm = np.sqrt(1.0 + gx * gx + gy * gy)
     lx, ly, lz = -0.5, 0.5, math.sqrt(0.5)                     # from -X, +Y (upper left), 45 deg up
     shade = np.clip((-gx * lx - gy * ly + lz) / nrm, 0.0, 1.0)
-    shade = 0.35 + 0.65 * shade
+    shade = 0.5 + 0.5 * shade
     gmax = gouge_max if gouge_max is not None else max(2.0 * tolerance, float(max(-dev.min(), 0.0)), 1e-6)
     pos = dev[dev > tolerance]
     lmax = left_max if left_max is not None else (float(np.percentile(pos, 99.5)) if pos.size else
@@ -546,8 +559,8 @@ def stock_png(stock: Stock, design: np.ndarray, *, title: str = "", tolerance: f
     head = (f"{title}: " if title else "") + "simulated stock, coloured by deviation from the design"
     dr.text((left, 10), head, fill=(0, 0, 0), font=font)
     dr.text((left, top + ph + 4), f"X 0 .. {stock.L:g} mm, Y 0 .. {stock.W:g} mm; grid {nx} x {ny} at "
-            f"{stock.hx:.3g} mm; largest gouge {max(-dev.min(), 0.0):.4f} mm, most material left "
-            f"{max(dev.max(), 0.0):.4f} mm", fill=(0, 0, 0), font=font)
+            f"{stock.hx:.3g} mm; largest gouge {max(-dev.min(), 0.0) + 0.0:.4f} mm, most material left "
+            f"{max(dev.max(), 0.0) + 0.0:.4f} mm (vertical)", fill=(0, 0, 0), font=font)
     for val, u in ((-gmax, bx0), (0.0, bx0 + half), (lmax, bx0 + bw)):
         dr.line([(u, by0 + 14), (u, by0 + 18)], fill=(0, 0, 0))
         label = f"{val:+.3g}" if val else "0"
