@@ -94,11 +94,10 @@ def main():
         print("  failure:", f)
     if args.png:
         t = time.perf_counter()
-        png = st.stock_png(job.snapshots[-1], design, title="after finishing", tolerance=tol)
-        Path(args.png).write_bytes(png)
-        if args.rough:
-            png = st.stock_png(job.snapshots[0], design, title="after roughing", tolerance=tol)
-            Path(args.png).with_suffix(".rough.png").write_bytes(png)
+        pics = job.pictures()
+        Path(args.png).write_bytes(pics["finish"])
+        if "rough" in pics:
+            Path(args.png).with_suffix(".rough.png").write_bytes(pics["rough"])
         print(f"pictures {time.perf_counter() - t:.2f} s -> {args.png}")
 
 

@@ -390,11 +390,17 @@ def test_operations_from_program_and_picture():
         depth = 2.5
 
     job = verify_job(Floor(), ops, 0.01, spacing=0.2)
-    png = stock_png(job.snapshots[-1], job.design, title="after finishing", tolerance=0.01)
-    assert png[:8] == b"\x89PNG\r\n\x1a\n"
+    pics = job.pictures()
+    assert sorted(pics) == ["finish", "rough"]
     from io import BytesIO
 
     from PIL import Image
 
-    im = Image.open(BytesIO(png))
-    assert im.size[0] >= 600 and im.mode == "RGB"
+    for png in list(pics.values()) + [stock_png(job.snapshots[0], job.design)]:
+        assert png[:8] == b"\x89PNG\r\n\x1a\n"
+        im = Image.open(BytesIO(png))
+        assert im.size[0] >= 600 and im.mode == "RGB"
+    # the picture is coloured by the deviation: the cut floor 2.5 deep (the design) is
+    # white-grey where the ball went to -2.5, the uncut top face orange (material left)
+    im = np.asarray(Image.open(BytesIO(pics["rough"])))
+    assert im[40:-100, 70:-40, 0].astype(int).max() > im[40:-100, 70:-40, 2].astype(int).max()

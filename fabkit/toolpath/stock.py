@@ -267,10 +267,10 @@ class OperationCut:
     min_left, max_left, left_at: material above the design (stock - design) where the
         tool reaches its target (design + leave): smallest, largest and where the largest is
     bounds: (low, high) allowed for that material
-    over_reachable, over_area: largest excess above ``high`` where the tool reaches, and
-        the area (mm^2) of nodes above it
-    unreachable, unreachable_area: largest material above ``high`` where the tool cannot
-        reach (a valley narrower than it), and its area (mm^2)
+    over_reachable, over_area, over_at: largest excess above ``high`` where the tool
+        reaches, the area (mm^2) of nodes above it, and where the largest is
+    unreachable, unreachable_area, unreachable_at: largest material above ``high`` where
+        the tool cannot reach (a valley narrower than it), its area (mm^2), and where
     max_removed, removed_at: largest thickness the operation removed at a node
     max_engagement: largest thickness a single move removed at a node
     depth_of_cut_limit: allowed thickness (None: not checked)
@@ -291,6 +291,8 @@ class OperationCut:
     over_area: float
     unreachable: float
     unreachable_area: float
+    over_at: tuple | None
+    unreachable_at: tuple | None
     max_removed: float
     removed_at: tuple
     max_engagement: float
@@ -335,8 +337,21 @@ class JobCut:
                     f"operations, largest gouge {worst:.4f} mm")
         return "; ".join(self.failures)
 
+    def pictures(self, **kw) -> dict:
+        """{"rough": PNG after the last roughing or rest operation, "finish": PNG after the
+        last finishing one} (:func:`stock_png`; keys only for the operations the job has)."""
+        out = {}
+        for key, kinds, title in (("rough", ("rough", "rest"), "after roughing"),
+                                  ("finish", ("finish",), "after finishing")):
+            idx = [i for i, o in enumerate(self.operations) if o.kind in kinds]
+            if idx:
+                out[key] = stock_png(self.snapshots[idx[-1]], self.design, title=title,
+                                     tolerance=self.tolerance, **kw)
+        return out
+
     def to_json(self) -> dict:
-        return {"ok": self.ok, "failures": list(self.failures), "grid": list(self.design.shape),
+        return {"ok": self.ok, "message": self.message, "failures": list(self.failures),
+                "grid": list(self.design.shape),
                 "spacing": list(self.spacing), "tolerance": self.tolerance, "seconds": self.seconds,
                 "operations": [o.to_json() for o in self.operations]}
 
@@ -389,6 +404,9 @@ def verify_job(surface, operations, tolerance: float, *, spacing: float | None =
         before = stock.z.copy()
         tp = op.toolpath
         start = tp.info.get("start") if isinstance(tp.info, dict) else None
+        if start is None and len(tp.points) and np.isfinite(tp.safe_z):
+            # the first point is reached by a rapid from the safe height (path.Toolpath)
+            start = np.array([tp.points[0, 0], tp.points[0, 1], max(float(tp.safe_z), tp.points[0, 2])])
         res = cut(stock, op.tool, tp.points, tp.kinds, start=start)
         snaps.append(stock.copy())
         z = stock.z
@@ -437,6 +455,9 @@ def verify_job(surface, operations, tolerance: float, *, spacing: float | None =
             over_area=float(over.sum() * area),
             unreachable=float((above - hi_n)[unre].max()) if unre.any() else 0.0,
             unreachable_area=float(unre.sum() * area),
+            over_at=_at(stock, np.argmax(np.where(over, excess, -np.inf))) if over.any() else None,
+            unreachable_at=(_at(stock, np.argmax(np.where(unre, above - hi_n, -np.inf)))
+                            if unre.any() else None),
             max_removed=float(removed.flat[irm]), removed_at=_at(stock, irm),
             max_engagement=res.max_engagement, depth_of_cut_limit=limit,
             rapids_into_stock=res.rapids_into_stock, rapid_depth=res.rapid_depth, rapid_at=res.rapid_at,
@@ -451,7 +472,8 @@ def verify_job(surface, operations, tolerance: float, *, spacing: float | None =
                             f"Y{_at(stock, k)[1]:.3f}, below the allowance's bound {float(lo_n.flat[k]):.4f} mm")
         if over.any():
             failures.append(f"{name}: material left {rep.over_reachable:.4f} mm above its bound ({hi:.4f} mm "
-                            f"above the design) where the tool reaches, over {rep.over_area:.1f} mm^2")
+                            f"above the design) where the tool reaches, at X{rep.over_at[0]:.3f} "
+                            f"Y{rep.over_at[1]:.3f}, over {rep.over_area:.1f} mm^2")
         if limit is not None and rep.max_removed > limit + 1e-9:
             failures.append(f"{name}: removes {rep.max_removed:.3f} mm at X{rep.removed_at[0]:.3f} "
                             f"Y{rep.removed_at[1]:.3f}, more than its depth of cut {limit:g} mm")
