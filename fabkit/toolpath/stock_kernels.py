@@ -73,19 +73,26 @@ def lowest(px, py, ax, ay, az, bx, by, bz, R, r, f):
     """Lowest point of the tool swept from tip a to tip b on the vertical line through
     (px, py); +inf where the tool does not pass over it."""
     dx, dy = bx - ax, by - ay
-    qx, qy = px - ax, py - ay
     L2 = dx * dx + dy * dy
     if L2 <= 1e-18:                    # XY travel below 1e-9 mm: a vertical move
-        rho = math.sqrt(qx * qx + qy * qy)
-        if rho > R:
-            return np.inf
-        return min(az, bz) + lift(rho, R, r, f)
+        return _lowest_on(px - ax, py - ay, 0.0, 0.0, 0.0, az, bz, 0.0, R, r, f)
     Ln = math.sqrt(L2)
-    ux, uy = dx / Ln, dy / Ln
+    return _lowest_on(px - ax, py - ay, dx / Ln, dy / Ln, Ln, az, bz, (bz - az) / Ln, R, r, f)
+
+
+@jit
+def _lowest_on(qx, qy, ux, uy, Ln, az, bz, k, R, r, f):
+    """:func:`lowest` with the move's constants: (qx, qy) = p - a, (ux, uy) the unit XY
+    direction, Ln the XY length (0: vertical), k = dz / Ln."""
+    R2 = R * R
+    if Ln <= 0.0:
+        rho2 = qx * qx + qy * qy
+        if rho2 > R2:
+            return np.inf
+        return min(az, bz) + lift(math.sqrt(rho2), R, r, f)
     s0 = qx * ux + qy * uy
     e = qx * uy - qy * ux
     e2 = e * e
-    R2 = R * R
     if e2 > R2:
         return np.inf
     half = math.sqrt(R2 - e2)
@@ -97,7 +104,6 @@ def lowest(px, py, ax, ay, az, bx, by, bz, R, r, f):
         hi = Ln
     if lo > hi:
         return np.inf
-    k = (bz - az) / Ln
     if r <= 0.0:                       # flat end mill: the lower end of the interval
         s = lo if k >= 0.0 else hi
         return az + k * s
@@ -152,6 +158,12 @@ def cut_moves(Z, hx, hy, A, B, feed, R, r, f, rapid_tol, engage, rapid_depth, ra
         i0 = max(0, int(math.ceil(x0 / hx)))
         i1 = min(nx - 1, int(math.floor(x1 / hx)))
         dx, dy = bx - ax, by - ay
+        L2 = dx * dx + dy * dy
+        if L2 <= 1e-18:                # a vertical move
+            ux = uy = Ln = k = 0.0
+        else:
+            Ln = math.sqrt(L2)
+            ux, uy, k = dx / Ln, dy / Ln, (bz - az) / Ln
         is_feed = feed[m]
         worst = 0.0
         for i in range(i0, i1 + 1):
@@ -178,7 +190,7 @@ def cut_moves(Z, hx, hy, A, B, feed, R, r, f, rapid_tol, engage, rapid_depth, ra
                 zc = Z[i, j]
                 if zlo >= zc:
                     continue
-                g = lowest(x, j * hy, ax, ay, az, bx, by, bz, R, r, f)
+                g = _lowest_on(x - ax, j * hy - ay, ux, uy, Ln, az, bz, k, R, r, f)
                 if g < zc:
                     d = zc - g
                     if is_feed:
