@@ -404,3 +404,29 @@ def test_operations_from_program_and_picture():
     # white-grey where the ball went to -2.5, the uncut top face orange (material left)
     im = np.asarray(Image.open(BytesIO(pics["rough"])))
     assert im[40:-100, 70:-40, 0].astype(int).max() > im[40:-100, 70:-40, 2].astype(int).max()
+
+
+def test_reach_of_a_ball_in_a_narrow_groove():
+    """The lowest a ball of radius 3 reaches in a V groove of half-angle 45 degrees (walls
+    z = |y - 10| - 4, clipped at the top face 0): the ball rests on both walls, its
+    centre sqrt(2) R above the apex, its tip (sqrt(2) - 1) R above the apex. Sampled
+    (every 2nd node, the rest by the nearest) and computed at every node agree with it."""
+    from fabkit.toolpath.stock import reach_height
+
+    s = make_stock(20.0, 20.0, 0.1)
+    X, Y = s.grid()
+    target = np.minimum(np.abs(Y - 10.0) - 4.0, 0.0)
+    ball = Tool.ball(6.0)
+    apex = (np.abs(s.y - 10.0) < 1e-9)
+    mask = np.zeros(s.shape, bool)
+    mask[40:160, :] = np.abs(Y[40:160, :] - 10.0) < 0.5
+    full = reach_height(target, s, ball, mask)
+    expect = -4.0 + (np.sqrt(2.0) - 1.0) * 3.0
+    # centres and contacts on the nodes: within the grid's chordal error
+    # (0.1^2 / (8 * 3) ~ 4e-4 mm, x sqrt(2) on the 45-degree walls)
+    got = full[100, apex][0]
+    assert abs(got - expect) < 1e-3
+    sampled = reach_height(target, s, ball, mask, max_nodes=int(mask.sum()) // 3)
+    both = np.isfinite(full) & np.isfinite(sampled)
+    assert both.sum() == mask.sum()
+    assert np.max(np.abs(sampled[both] - full[both])) < 0.1

@@ -33,9 +33,9 @@ design surface (:class:`~fabkit.toolpath.compensate.WorkSurface`, min(H, 0), as
 
 Where a tool "reaches" is the grey-scale opening of the target surface by the tool
 over the grid nodes (:func:`~fabkit.toolpath.stock_kernels.reach_at`): centres and
-contacts at the nodes only, so the reach is known to about the chordal error above
-(and, for a flat bottom on a slope s, to s x h): material the tool could remove is
-never called unreachable by more than that.
+contacts at the nodes only, so the reach is known to about the chordal error above,
+either way (a ball in a 45-degree V groove at h = 0.1 mm: 2e-4 mm low, tested; for a
+flat bottom on a slope s, to about s x h).
 """
 
 from __future__ import annotations
@@ -57,6 +57,8 @@ __all__ = ["RAPID_TOL", "MAX_NODES", "Stock", "CutResult", "OperationCut", "JobC
 RAPID_TOL = 1e-6
 #: grid nodes at most (a 500 x 250 mm block at 0.1 mm: 12.5 million, 100 MB a snapshot)
 MAX_NODES = 20_000_000
+#: nodes above their bound whose reach is computed one by one (beyond: sampled, see reach_height)
+MAX_REACH_NODES = 200_000
 #: grid spacing bounds, mm
 SPACING_MIN, SPACING_MAX = 0.05, 0.25
 
@@ -210,17 +212,37 @@ def cut(stock: Stock, tool: Tool, points, kinds, start=None) -> CutResult:
                      rapid_at=rat, rapid_move=ir, unlocated_low=unlocated_low)
 
 
-def reach_height(target: np.ndarray, stock: Stock, tool: Tool, mask: np.ndarray) -> np.ndarray:
+def reach_height(target: np.ndarray, stock: Stock, tool: Tool, mask: np.ndarray,
+                 max_nodes: int = MAX_REACH_NODES) -> np.ndarray:
     """Lowest height ``tool`` can cut at the nodes where ``mask`` holds without cutting
-    below ``target`` (nx, ny) anywhere (nan elsewhere); see the module's accuracy note."""
+    below ``target`` (nx, ny) anywhere (nan elsewhere); see the module's accuracy note.
+    Over ``max_nodes`` masked nodes (a job that left much of the block), the reach is
+    computed on every k-th node of the mask in each direction and the others take the
+    value of the nearest computed node."""
     from .stock_kernels import reach_at
 
     out = np.full(target.shape, np.nan)
-    pi, pj = np.nonzero(mask)
-    if pi.size:
-        R, r, f = _tool_shape(tool)
-        out[pi, pj] = reach_at(np.ascontiguousarray(target, dtype=float), stock.hx, stock.hy, R, r, f,
-                               pi.astype(np.int64), pj.astype(np.int64))
+    n = int(mask.sum())
+    if not n:
+        return out
+    R, r, f = _tool_shape(tool)
+    sub = mask
+    if n > max_nodes:
+        k = int(math.ceil(math.sqrt(n / max_nodes)))
+        grid = np.zeros_like(mask)
+        grid[::k, ::k] = True
+        sub = mask & grid
+        if not sub.any():
+            sub = mask
+    pi, pj = np.nonzero(sub)
+    out[pi, pj] = reach_at(np.ascontiguousarray(target, dtype=float), stock.hx, stock.hy, R, r, f,
+                           pi.astype(np.int64), pj.astype(np.int64))
+    if sub is not mask:
+        from scipy.ndimage import distance_transform_edt
+
+        ii, jj = distance_transform_edt(~sub, return_distances=False, return_indices=True)
+        rest = mask & ~sub
+        out[rest] = out[ii[rest], jj[rest]]
     return out
 
 
