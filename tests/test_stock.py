@@ -65,7 +65,7 @@ def test_flat_end_mill_slot_is_exact_trench():
     # the trench: exactly 2 mm deep, and across it the nodes in |y - 10.03| <= 3 (60 of them)
     col = s.z[200]
     assert col.min() == -2.0 and np.count_nonzero(col < 0) == 60
-    assert res.max_engagement == 2.0 and res.rapids_into_stock == 0
+    assert res.max_engagement == 2.0 and res.rapids_into_stock == 0 and res.deepest_cut == 2.0
 
 
 @pytest.mark.parametrize("tool", [Tool.ball(6.0), Tool("bull", 8.0, corner_radius=1.5)])
@@ -238,10 +238,14 @@ def test_verify_job_allowance_scallop_and_depth_of_cut():
     job = verify_job(FlatFloor(), ops, 0.01, spacing=0.25, measure="vertical")
     assert not job.ok
     text = " ".join(job.failures)
-    assert "gouge 0.0200" in text and "depth of cut 0.4" in text
+    assert "gouge 0.0200" in text and "depth of cut 0.4" in text and "reach" not in text
     report = json.loads(json.dumps(job.to_json()))
-    assert report["ok"] is False and len(report["failures"]) == 2
+    assert report["ok"] is False and len(report["failures"]) == 2, report["failures"]
     assert report["operations"][1]["max_removed"] == pytest.approx(0.52, abs=1e-12)
+    # a ball whose reach (its flute length) is shorter than the 3.02 mm it cuts down to
+    ops[1].tool = Tool.ball(6.0, reach=3.0)
+    job = verify_job(FlatFloor(), ops, 0.01, spacing=0.25, measure="vertical")
+    assert any("cuts 3.020 mm below the top face, deeper than the tool's reach 3 mm" in f for f in job.failures)
 
 
 def test_verify_job_narrow_valley_is_unreachable_not_a_failure():

@@ -143,6 +143,8 @@ class CutResult:
     rapids_into_stock: rapids whose tool would have passed below the stock present then
     rapid_depth, rapid_at, rapid_move: the deepest such, its node (X, Y) and move index
     unlocated_low: moves from or to a position not fully known that go below the top face
+    deepest_cut: mm below the top face (work Z = 0) of the deepest tip of a move that
+        removed material
     """
 
     moves: int
@@ -150,6 +152,7 @@ class CutResult:
     engagement: np.ndarray
     max_engagement: float
     engagement_at: int | None
+    deepest_cut: float
     rapids_into_stock: int
     rapid_depth: float
     rapid_at: tuple | None
@@ -180,6 +183,7 @@ def cut(stock: Stock, tool: Tool, points, kinds, start=None) -> CutResult:
     A = np.vstack([np.asarray(start, dtype=float)[None, :], P[:-1]]) if n else P.copy()
     unknown = ~(np.isfinite(A).all(axis=1) & np.isfinite(P).all(axis=1))
     A = np.where(np.isfinite(A), A, P)
+    A_all = A
     located = np.isfinite(A).all(axis=1) & np.isfinite(P).all(axis=1)
     zlow = np.fmin(A[:, 2], P[:, 2])
     top = float(stock.z.max()) if stock.z.size else 0.0
@@ -199,6 +203,8 @@ def cut(stock: Stock, tool: Tool, points, kinds, start=None) -> CutResult:
     rap = np.zeros(n)
     rap[idx] = rdepth
     bad = rap > RAPID_TOL
+    cutting = eng > 0
+    deepest = float(max(0.0, -np.min(np.fmin(A_all[cutting, 2], P[cutting, 2])))) if cutting.any() else 0.0
     ie = int(np.argmax(eng)) if n else None
     ir = int(np.argmax(rap)) if bad.any() else None
     rat = None
@@ -209,7 +215,8 @@ def cut(stock: Stock, tool: Tool, points, kinds, start=None) -> CutResult:
                      max_engagement=float(eng.max()) if n else 0.0,
                      engagement_at=ie if n and eng.max() > 0 else None,
                      rapids_into_stock=int(bad.sum()), rapid_depth=float(rap.max()) if n else 0.0,
-                     rapid_at=rat, rapid_move=ir, unlocated_low=unlocated_low)
+                     rapid_at=rat, rapid_move=ir, unlocated_low=unlocated_low,
+                     deepest_cut=deepest)
 
 
 def reach_height(target: np.ndarray, stock: Stock, tool: Tool, mask: np.ndarray,
@@ -296,6 +303,8 @@ class OperationCut:
     max_removed, removed_at: largest thickness the operation removed at a node
     max_engagement: largest thickness a single move removed at a node
     depth_of_cut_limit: allowed thickness (None: not checked)
+    deepest_cut: deepest tip below the top face of a move that cut (checked against the
+        tool's reach)
     rapids_into_stock, rapid_depth, rapid_at: rapids that would have cut
     unlocated_low: moves from an unknown position below the top face
     moves, feeds: moves replayed
@@ -319,6 +328,7 @@ class OperationCut:
     removed_at: tuple
     max_engagement: float
     depth_of_cut_limit: float | None
+    deepest_cut: float
     rapids_into_stock: int
     rapid_depth: float
     rapid_at: tuple | None
@@ -481,7 +491,7 @@ def verify_job(surface, operations, tolerance: float, *, spacing: float | None =
             unreachable_at=(_at(stock, np.argmax(np.where(unre, above - hi_n, -np.inf)))
                             if unre.any() else None),
             max_removed=float(removed.flat[irm]), removed_at=_at(stock, irm),
-            max_engagement=res.max_engagement, depth_of_cut_limit=limit,
+            max_engagement=res.max_engagement, depth_of_cut_limit=limit, deepest_cut=res.deepest_cut,
             rapids_into_stock=res.rapids_into_stock, rapid_depth=res.rapid_depth, rapid_at=res.rapid_at,
             unlocated_low=res.unlocated_low, moves=res.moves, feeds=res.feeds)
         reports.append(rep)
@@ -499,6 +509,9 @@ def verify_job(surface, operations, tolerance: float, *, spacing: float | None =
         if limit is not None and rep.max_removed > limit + 1e-9:
             failures.append(f"{name}: removes {rep.max_removed:.3f} mm at X{rep.removed_at[0]:.3f} "
                             f"Y{rep.removed_at[1]:.3f}, more than its depth of cut {limit:g} mm")
+        if rep.deepest_cut > op.tool.reach + 1e-9:
+            failures.append(f"{name}: cuts {rep.deepest_cut:.3f} mm below the top face, deeper than the "
+                            f"tool's reach {op.tool.reach:g} mm")
         if rep.rapids_into_stock:
             failures.append(f"{name}: {rep.rapids_into_stock} rapid(s) pass through the stock, "
                             f"{rep.rapid_depth:.3f} mm deep")
