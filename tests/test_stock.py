@@ -434,3 +434,41 @@ def test_reach_of_a_ball_in_a_narrow_groove():
     both = np.isfinite(full) & np.isfinite(sampled)
     assert both.sum() == mask.sum()
     assert np.max(np.abs(sampled[both] - full[both])) < 0.1
+
+
+def test_rest_pass_keeps_the_finishing_ball_within_its_depth_of_cut():
+    """The closed slot again (4 mm wide, 2 mm below the 3 mm floor, 30 mm long): the 10 mm
+    flat end mill leaves it full (2.5 mm above its floor); a ball 3 mm across finishing its
+    floor at -5 would remove 2.5 mm there. A rest operation with a 3 mm flat end mill
+    (two passes, leave 0.5) first: the ball removes at most 0.5 mm (its centre line), and
+    the slot's corners, which the rest tool's round end cannot reach, are reported as
+    unreachable, not as a failure."""
+
+    class Slot(FlatFloor):
+        def height(self, x, y):
+            x, y = np.asarray(x), np.asarray(y)
+            return np.where((np.abs(y - 15.0) < 2.0) & (np.abs(x - 20.0) < 15.0), -5.0, -3.0)
+
+    rough, rest, ball = Tool("flat", 10.0, number=1), Tool("flat", 3.0, number=2), Tool.ball(3.0, number=3)
+
+    def passes(ys, z, x0, x1):
+        pts, kinds = [], []
+        for y in ys:
+            pts += [[x0, y, 5.0], [x0, y, z], [x1, y, z], [x1, y, 5.0]]
+            kinds += [RAPID, PLUNGE, CUT, RAPID]
+        return Toolpath(np.array(pts), np.array(kinds), 1.5, 5.0)
+
+    ops = [Operation("rough", rough, raster(rough, -2.5, 8.0), leave=0.5, info={"cusp": 0.0}),
+           Operation("rest", rest, passes([14.51, 15.49], -4.5, 6.51, 33.49), leave=0.5, info={"cusp": 0.0}),
+           Operation("finish", ball, passes([15.0], -5.0, 6.6, 33.4), info={"scallop": 0.05})]
+    limit = {"finish": 1.0}
+    with_rest = verify_job(Slot(), ops, 0.01, spacing=0.25, depth_of_cut=limit)
+    r, rs, f = with_rest.operations
+    assert r.unreachable_area > 100 and not any("operation 1" in x or "operation 2" in x for x in with_rest.failures)
+    assert rs.max_removed == 2.0 and rs.max_gouge == 0.0
+    assert 0 < rs.unreachable_area < 4 * (0.25 * 0.25) * 20      # the four corners, a few nodes each
+    assert f.max_removed == 0.5 and f.max_gouge == 0.0
+    assert not any("depth of cut" in x for x in with_rest.failures)
+    without = verify_job(Slot(), [ops[0], ops[2]], 0.01, spacing=0.25, depth_of_cut=limit)
+    assert without.operations[1].max_removed == 2.5
+    assert any("removes 2.500 mm" in x and "depth of cut 1 mm" in x for x in without.failures)
