@@ -224,6 +224,7 @@ def test_verify_job_allowance_scallop_and_depth_of_cut():
            Operation("finish", ball, raster(ball, -3.0, step), info={"scallop": 0.1, "depth_of_cut": 1.0})]
     job = verify_job(FlatFloor(), ops, 0.01, spacing=0.25, measure="vertical")
     assert job.ok, job.failures
+    assert "largest gouge 0.0000 mm" in job.message
     r, f = job.operations
     # roughing: a flat floor exactly 0.5 above the design everywhere
     assert r.min_left == leave and r.max_left == leave and r.max_gouge == 0.0

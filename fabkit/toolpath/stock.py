@@ -364,9 +364,11 @@ class JobCut:
     def message(self) -> str:
         if self.ok:
             worst = max((o.max_gouge for o in self.operations), default=0.0)
+            parts = [f"{o.kind}: material left {o.min_left:.3f}-{o.max_left:.3f} mm (bound {o.bounds[1]:.3f})"
+                     for o in self.operations]
             return (f"stock simulation on a {self.design.shape[0]} x {self.design.shape[1]} grid "
-                    f"({self.spacing[0]:.3g} x {self.spacing[1]:.3g} mm): {len(self.operations)} "
-                    f"operations, largest gouge {worst:.4f} mm")
+                    f"({self.spacing[0]:.3g} x {self.spacing[1]:.3g} mm): largest gouge {worst:.4f} mm; "
+                    + "; ".join(parts))
         return "; ".join(self.failures)
 
     def pictures(self, **kw) -> dict:
@@ -513,8 +515,8 @@ def verify_job(surface, operations, tolerance: float, *, spacing: float | None =
             failures.append(f"{name}: cuts {rep.deepest_cut:.3f} mm below the top face, deeper than the "
                             f"tool's reach {op.tool.reach:g} mm")
         if rep.rapids_into_stock:
-            failures.append(f"{name}: {rep.rapids_into_stock} rapid(s) pass through the stock, "
-                            f"{rep.rapid_depth:.3f} mm deep")
+            failures.append(f"{name}: {rep.rapids_into_stock} rapid(s) pass through the stock, up to "
+                            f"{rep.rapid_depth:.3f} mm deep (at X{rep.rapid_at[0]:.3f} Y{rep.rapid_at[1]:.3f})")
         if rep.unlocated_low:
             failures.append(f"{name}: {rep.unlocated_low} move(s) below the top face from an unknown position")
     return JobCut(operations=reports, snapshots=snaps, design=dz, spacing=(stock.hx, stock.hy),
