@@ -318,11 +318,13 @@ def test_read_program_splits_tools():
     # after the change the tip's Z is unknown until the program sets it
     a, _ = p.segments()
     assert np.isnan(a[7, 2]) and runs[1][1].points[0, 2] == 5.0
-    # every move before any M6 is tool -1; M6 with no T is refused; G49 cancels the offset
+    # every move before any M6 is tool -1; M6 with no T loads T0 (LinuxCNC's selection
+    # before any T); G49 cancels the offset; a T word that is not a tool number is refused
     q = read_program("G0 Z5\nT3\nM6\nG43\nG1 X1 F100\nG49\nG0 Z5\nM2\n")
     assert list(q.tool) == [-1, 3, 3] and list(q.offset) == [-1, 3, -1]
+    assert list(read_program("G0 Z5\nM6\nG0 Z4\n").tool) == [-1, 0]
     with pytest.raises(DesignError, match="line 2"):
-        read_program("G0 Z5\nM6\n")
+        read_program("G0 Z5\nT1.5 M6\n")
 
 
 def test_split_program_simulates_each_tool():

@@ -125,7 +125,7 @@ def read_program(text: str) -> Program:
     (the tool call: the moves are of the tool tip either way; ``Program.tool`` and
     ``Program.offset`` record, per move, the tool M6 loaded and the G43 H offset in
     effect, so a multi-tool program splits by tool; a T word selects the tool the next
-    M6 loads, on the same line or before it; after M6, or a G43/G49 that changes the
+    M6 loads, on the same line or before it (none: T0, as LinuxCNC); after M6, or a G43/G49 that changes the
     offset, the tip's Z is unknown (nan) until a move sets it, as the new tool's length
     moves the program's Z), G49 (offset cancelled), M3 S, M5,
     M2/M30 (end: later lines ignored), F (modal feed), X Y Z. Anything else raises
@@ -201,9 +201,8 @@ def read_program(text: str) -> Program:
                 raise DesignError(f"program line {ln}: unexpected word {letter}{value}")
         # the order LinuxCNC executes a line in: T, M6, then G43 (whatever the word order)
         if change:
-            if selected is None:
-                raise DesignError(f"program line {ln}: M6 without a T word before it")
-            spindle_tool = selected
+            # LinuxCNC's selection before any T word is T0 (no tool)
+            spindle_tool = selected if selected is not None else 0
             changes.append((len(pts), spindle_tool, ln))
             pos = np.array([pos[0], pos[1], np.nan])       # the tip's Z now depends on the new tool's length
         if g43:
