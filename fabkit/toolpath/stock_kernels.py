@@ -1,0 +1,257 @@
+"""Compiled kernels of the height-field stock model (:mod:`fabkit.toolpath.stock`).
+
+The tool is a solid of revolution given by its radius R, corner radius r and flat
+radius f = R - r (flat end mill: r = 0; ball: f = 0; bull nose: both > 0), its cutting
+surface at height lift(rho) above the tip at radial distance rho (0 on the flat
+bottom, r - sqrt(r^2 - (rho - f)^2) on the corner). Along a straight move a -> b the
+lowest point of the swept tool over the vertical line through a node p is
+
+    g = min over s of  a_z + k s + lift(sqrt((s - s0)^2 + e^2)),  s in [lo, hi]
+
+with s the distance travelled in XY (k = dz / XY length), s0 the foot of p on the
+move's XY line, e the distance of p from that line and [lo, hi] the part of [0, len]
+where the tool's disk covers p. lift is nondecreasing and convex in rho and rho is
+convex in s, so g's objective is convex: its minimum is the end of the interval for
+a flat end mill (closed form), the stationary point s0 - k w / sqrt(1 + k^2)
+(w = sqrt(R^2 - e^2)) clamped to the interval for a ball (closed form), and a
+bisection of the (monotone) derivative to 1e-12 mm for a bull nose. Exact at the
+nodes to floating point (~1e-12 mm; the bull nose's bisection adds at most ~1e-9 mm).
+
+Compiled with ``cache=True`` like the engine's static kernels (numba's cache next to
+this module, or NUMBA_CACHE_DIR).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+jit = njit(cache=True, nogil=True, error_model="numpy")
+
+BISECT = 64   # bull nose: bracket halvings (2R / 2^64: far below 1e-12 mm)
+
+
+@jit
+def lift(rho, R, r, f):
+    """Height of the cutting surface above the tip at radial distance rho (inf beyond R)."""
+    if rho > R:
+        return np.inf
+    u = rho - f
+    if u <= 0.0 or r <= 0.0:
+        return 0.0
+    v = r * r - u * u
+    return r - math.sqrt(v if v > 0.0 else 0.0)
+
+
+@jit
+def _bull_value(s, s0, e2, az, k, R, r, f):
+    w = s - s0
+    rho2 = w * w + e2
+    if rho2 > R * R:
+        rho2 = R * R
+    return az + k * s + lift(math.sqrt(rho2), R, r, f)
+
+
+@jit
+def _bull_slope(s, s0, e2, k, R, r, f):
+    """Derivative of the bull nose's objective (monotone nondecreasing in s)."""
+    w = s - s0
+    rho = math.sqrt(w * w + e2)
+    u = rho - f
+    if u <= 0.0 or rho <= 0.0:
+        return k
+    v = r * r - u * u
+    if v <= 0.0:
+        return k + (np.inf if w > 0 else (-np.inf if w < 0 else 0.0))
+    return k + u / math.sqrt(v) * w / rho
+
+
+@jit
+def lowest(px, py, ax, ay, az, bx, by, bz, R, r, f):
+    """Lowest point of the tool swept from tip a to tip b on the vertical line through
+    (px, py); +inf where the tool does not pass over it."""
+    dx, dy = bx - ax, by - ay
+    L2 = dx * dx + dy * dy
+    if L2 <= 1e-18:                    # XY travel below 1e-9 mm: a vertical move
+        return _lowest_on(px - ax, py - ay, 0.0, 0.0, 0.0, az, bz, 0.0, R, r, f)
+    Ln = math.sqrt(L2)
+    return _lowest_on(px - ax, py - ay, dx / Ln, dy / Ln, Ln, az, bz, (bz - az) / Ln, R, r, f)
+
+
+@jit
+def _lowest_on(qx, qy, ux, uy, Ln, az, bz, k, R, r, f):
+    """:func:`lowest` with the move's constants: (qx, qy) = p - a, (ux, uy) the unit XY
+    direction, Ln the XY length (0: vertical), k = dz / Ln."""
+    R2 = R * R
+    if Ln <= 0.0:
+        rho2 = qx * qx + qy * qy
+        if rho2 > R2:
+            return np.inf
+        return min(az, bz) + lift(math.sqrt(rho2), R, r, f)
+    s0 = qx * ux + qy * uy
+    e = qx * uy - qy * ux
+    e2 = e * e
+    if e2 > R2:
+        return np.inf
+    half = math.sqrt(R2 - e2)
+    lo = s0 - half
+    hi = s0 + half
+    if lo < 0.0:
+        lo = 0.0
+    if hi > Ln:
+        hi = Ln
+    if lo > hi:
+        return np.inf
+    if r <= 0.0:                       # flat end mill: the lower end of the interval
+        s = lo if k >= 0.0 else hi
+        return az + k * s
+    if f <= 0.0:                       # ball: closed-form stationary point, clamped
+        s = s0 - k * half / math.sqrt(1.0 + k * k)
+        if s < lo:
+            s = lo
+        elif s > hi:
+            s = hi
+        w = s - s0
+        v = R2 - e2 - w * w
+        return az + k * s + R - math.sqrt(v if v > 0.0 else 0.0)
+    # bull nose: bisection of the monotone derivative
+    if _bull_slope(lo, s0, e2, k, R, r, f) >= 0.0:
+        return _bull_value(lo, s0, e2, az, k, R, r, f)
+    if _bull_slope(hi, s0, e2, k, R, r, f) <= 0.0:
+        return _bull_value(hi, s0, e2, az, k, R, r, f)
+    a, b = lo, hi
+    for _ in range(BISECT):
+        m = 0.5 * (a + b)
+        if m <= a or m >= b:
+            break
+        if _bull_slope(m, s0, e2, k, R, r, f) < 0.0:
+            a = m
+        else:
+            b = m
+    va = _bull_value(a, s0, e2, az, k, R, r, f)
+    vb = _bull_value(b, s0, e2, az, k, R, r, f)
+    return va if va < vb else vb
+
+
+@jit
+def cut_moves(Z, hx, hy, A, B, feed, R, r, f, rapid_tol, engage, rapid_depth, rapid_node):
+    """Sweep the tool along the moves A[m] -> B[m] in order over the stock height field
+    Z (nx, ny; node (i, j) at (i hx, j hy)). Feed moves (feed[m]) lower Z to the tool's
+    lowest point; ``engage[m]`` gets the largest thickness the move removes at a node.
+    Rapids do not cut: ``rapid_depth[m]`` gets the deepest the tool would go into the
+    stock present then (0 if it stays clear by ``rapid_tol``), at node rapid_node[m]."""
+    nx, ny = Z.shape
+    top = -np.inf
+    for i in range(nx):
+        for j in range(ny):
+            if Z[i, j] > top:
+                top = Z[i, j]
+    for m in range(A.shape[0]):
+        ax, ay, az = A[m, 0], A[m, 1], A[m, 2]
+        bx, by, bz = B[m, 0], B[m, 1], B[m, 2]
+        zlo = min(az, bz)
+        if zlo >= top:
+            continue
+        x0, x1 = min(ax, bx) - R, max(ax, bx) + R
+        i0 = max(0, int(math.ceil(x0 / hx)))
+        i1 = min(nx - 1, int(math.floor(x1 / hx)))
+        dx, dy = bx - ax, by - ay
+        L2 = dx * dx + dy * dy
+        if L2 <= 1e-18:                # a vertical move
+            ux = uy = Ln = k = 0.0
+        else:
+            Ln = math.sqrt(L2)
+            ux, uy, k = dx / Ln, dy / Ln, (bz - az) / Ln
+        is_feed = feed[m]
+        worst = 0.0
+        for i in range(i0, i1 + 1):
+            x = i * hx
+            # the part of the move whose disk can reach this column, and its y range
+            if abs(dx) > 1e-12:
+                t1 = (x - R - ax) / dx
+                t2 = (x + R - ax) / dx
+                if t1 > t2:
+                    t1, t2 = t2, t1
+                if t1 < 0.0:
+                    t1 = 0.0
+                if t2 > 1.0:
+                    t2 = 1.0
+                if t1 > t2:
+                    continue
+                ya, yb = ay + t1 * dy, ay + t2 * dy
+            else:
+                ya, yb = ay, by
+            y0, y1 = min(ya, yb) - R, max(ya, yb) + R
+            j0 = max(0, int(math.ceil(y0 / hy)))
+            j1 = min(ny - 1, int(math.floor(y1 / hy)))
+            for j in range(j0, j1 + 1):
+                zc = Z[i, j]
+                if zlo >= zc:
+                    continue
+                g = _lowest_on(x - ax, j * hy - ay, ux, uy, Ln, az, bz, k, R, r, f)
+                if g < zc:
+                    d = zc - g
+                    if is_feed:
+                        Z[i, j] = g
+                        if d > worst:
+                            worst = d
+                    elif d > rapid_tol and d > worst:
+                        worst = d
+                        rapid_node[m, 0] = i
+                        rapid_node[m, 1] = j
+        if is_feed:
+            engage[m] = worst
+        else:
+            rapid_depth[m] = worst
+
+
+@jit
+def reach_at(S, hx, hy, R, r, f, pi, pj):
+    """Lowest height the tool can cut at the nodes (pi[k], pj[k]) without cutting below
+    S anywhere on the grid: the grey-scale opening of S by the tool, min over tool
+    positions c on the grid nodes (and up to R beyond the edges, where there is no
+    material) within R of p of drop(c) + lift(|p - c|), drop(c) = max over nodes q
+    within R of c of S(q) - lift(|q - c|). The drops are computed once per centre."""
+    nx, ny = S.shape
+    pi_ = int(math.ceil(R / hx))
+    pj_ = int(math.ceil(R / hy))
+    # offsets within R and their lifts
+    n_off = 0
+    for di in range(-pi_, pi_ + 1):
+        for dj in range(-pj_, pj_ + 1):
+            if (di * hx) ** 2 + (dj * hy) ** 2 <= R * R:
+                n_off += 1
+    oi = np.empty(n_off, np.int64)
+    oj = np.empty(n_off, np.int64)
+    ol = np.empty(n_off)
+    n = 0
+    for di in range(-pi_, pi_ + 1):
+        for dj in range(-pj_, pj_ + 1):
+            rho2 = (di * hx) ** 2 + (dj * hy) ** 2
+            if rho2 <= R * R:
+                oi[n], oj[n] = di, dj
+                ol[n] = lift(math.sqrt(rho2), R, r, f)
+                n += 1
+    D = np.full((nx + 2 * pi_, ny + 2 * pj_), np.nan)
+    out = np.empty(pi.size)
+    for k in range(pi.size):
+        best = np.inf
+        for a in range(n_off):
+            ci, cj = pi[k] + oi[a], pj[k] + oj[a]
+            dd = D[ci + pi_, cj + pj_]
+            if dd != dd:
+                dd = -np.inf
+                for b in range(n_off):
+                    qi, qj = ci + oi[b], cj + oj[b]
+                    if 0 <= qi < nx and 0 <= qj < ny:
+                        v = S[qi, qj] - ol[b]
+                        if v > dd:
+                            dd = v
+                D[ci + pi_, cj + pj_] = dd
+            v = dd + ol[a]
+            if v < best:
+                best = v
+        out[k] = best
+    return out
