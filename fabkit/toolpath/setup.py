@@ -82,13 +82,14 @@ def job_program_path(program_path, suffix: str) -> Path:
 
 
 def job_program_paths_possible(program_path, dialect: str) -> list[Path]:
-    """Every program file a job with roughing may write for ``dialect`` (to check them
-    before planning): the program itself, or grbl's one per operation."""
+    """Every program file besides ``program_path`` a job with roughing may write for
+    ``dialect`` (to check them before planning): none with a tool change (one program),
+    else (grbl) one per operation."""
     from .gcode import DIALECTS
     from .operations import OPERATION_KINDS
 
     if DIALECTS[dialect].tool_change is not None:
-        return [Path(program_path)]
+        return []
     return [job_program_path(program_path, f".{i}-{kind}.nc")
             for i in range(1, 6) for kind in OPERATION_KINDS]
 
