@@ -386,22 +386,43 @@ def job_figures(operations, programs, profile, machine=None, raster_axis: int | 
     return figures, readback
 
 
+#: the operations a picture "after roughing" follows: the last of these before the finish
+_ROUGHING_KINDS = ("rough", "rest")
+
+
 def _stock_verification(spec, surface, operations, readback):
-    """The whole job simulated on the stock (:func:`fabkit.toolpath.stock.verify_job`:
-    every operation's moves as read back, each with its own tool) and the shaded
-    pictures after roughing and after finishing (:func:`fabkit.toolpath.stock.stock_png`);
-    (None, {}) where that module is not there."""
+    """The whole job simulated on the stock, each operation's moves AS READ BACK from the
+    written text, each with its own tool (:func:`fabkit.toolpath.stock.verify_job`), and
+    the shaded pictures of the stock after roughing and after finishing
+    (:func:`fabkit.toolpath.stock.stock_png`): (check, {'rough'|'finish': png}); (None, {})
+    where that module is not there. The one place that knows the stock module's interface."""
     try:
         from . import stock
     except ImportError:
         return None, {}
-    check = stock.verify_job(spec, surface, operations, readback)
+    from .operations import Operation
+    from .path import Toolpath
+
+    m = spec.machining
+    replay = []
+    for op, prog in zip(operations, readback):
+        tp = Toolpath(prog.points, prog.kinds, op.tool.radius, safe_z=op.toolpath.safe_z)
+        tp.info["start"] = prog.start
+        tp.info["line"] = prog.line
+        replay.append(Operation(op.kind, op.tool, tp, leave=op.leave, levels=op.levels, passes=op.passes,
+                                info={**op.info, "start": prog.start}))
+    doc = getattr(spec.tool, "_values", {}).get("depth_of_cut")     # the finishing tool's allowed depth of cut
+    check = stock.verify_job(surface, replay, m.tolerance, scallop=m.scallop,
+                             depth_of_cut={"finish": doc} if doc else None,
+                             measure=getattr(m, "scallop_measure", "normal"))
     pictures = {}
-    if hasattr(stock, "stock_png"):
-        for after in ("rough", "finish"):
-            png = stock.stock_png(spec, surface, operations, readback, after=after, check=check)
-            if png:
-                pictures[after] = png
+    snaps = getattr(check, "snapshots", None) or []
+    if hasattr(stock, "stock_png") and len(snaps) == len(replay):
+        rough = [i for i, op in enumerate(replay) if op.kind in _ROUGHING_KINDS]
+        for after, i in (("rough", rough[-1] if rough else None), ("finish", len(replay) - 1)):
+            if i is not None:
+                title = "stock after " + ("roughing" if after == "rough" else "finishing")
+                pictures[after] = stock.stock_png(snaps[i], check.design, title=title, tolerance=m.tolerance)
     return check, pictures
 
 
