@@ -265,7 +265,9 @@ def test_gcode_grbl_writes_every_program_and_reports_each(cli, tmp_path, roughin
     assert [o["lines"] for o in ops] == [(tmp_path / n).read_text().count("\n") for n in names]
     assert s["lines"] == sum(o["lines"] for o in ops)
     assert all(o["estimator"] == "length/feed" for o in ops)
-    assert ops[0]["time_s"] == pytest.approx((6 / 5000 + 2 / 500 + 44 / 3000) * 60.0, abs=0.05)
+    # read back: the rectangle and the park from its last point (2, 10) to X0 Y0 at the safe height
+    want = (6 / 5000 + 2 / 500 + 44 / 3000 + np.hypot(2, 10) / 5000) * 60.0
+    assert ops[0]["time_s"] == pytest.approx(want, abs=0.05)
     assert s["estimated_time_s"] == pytest.approx(sum(o["length_over_feed_s"] for o in ops), abs=0.2)
     assert s["steps"][0].startswith("rough: load T2") and "job.1-rough.nc" in s["steps"][0]
     md = (tmp_path / "job.setup.md").read_text()
@@ -295,8 +297,13 @@ def test_gcode_json_keeps_every_key(cli, tmp_path, monkeypatch):
     assert [o["program"] for o in after["operations"]] == ["two.ngc"] * 3
     text = (tmp_path / "two.ngc").read_text()
     assert [ln for ln in text.splitlines() if "M6" in ln] == ["T2 M6 G43 H2", "T3 M6 G43 H3", "T1 M6 G43 H1"]
-    # the operations' lines partition the program
+    # the operations' lines and times partition the program's
     assert sum(o["lines"] for o in after["operations"]) == text.count("\n")
+    from fabkit.toolpath.verify import estimate_time, read_program
+
+    whole = estimate_time(read_program(text), 5000.0)
+    assert after["estimated_time_s"] == pytest.approx(whole, abs=0.05)
+    assert sum(o["length_over_feed_s"] for o in after["operations"]) == pytest.approx(whole, abs=0.15)
 
 
 def test_gcode_summary_names_each_operation(cli, tmp_path, roughing):
@@ -339,3 +346,47 @@ def test_gcode_refuses_a_program_path_before_planning(cli, tmp_path, roughing):
     code, out, err = cli("gcode", spec, "-o", "job.ngc")
     assert code == 2 and "job.2-rest.nc" in err
     assert not (tmp_path / "job.1-rough.nc").exists() and not (tmp_path / "job.setup.json").exists()
+
+
+def test_machine_time_per_operation(finish):
+    """With a machine profile each operation's time is the controller's planner on its
+    own program (grbl: the very file written), and the estimator is named so."""
+    from fabkit.machine.planner import run_time
+    from fabkit.machine.profile import grbl_defaults
+    from fabkit.toolpath.gcode import profile_from_spec, write_job
+    from fabkit.toolpath.job import job_figures
+
+    spec, surface, tp = finish
+    machine = grbl_defaults()
+    profile = profile_from_spec(_spec(dialect="grbl"), surface)
+    ops = _job(tp)
+    progs = write_job(ops, profile)
+    figures, _ = job_figures(ops, progs, profile, machine)
+    for f, (_, text) in zip(figures, progs):
+        assert f.estimator == "machine planner"
+        assert f.run_s == pytest.approx(run_time(text, machine).total_s, rel=1e-12)
+        # acceleration and grbl's default 500 mm/min rates only slow it down
+        assert f.run_s >= f.estimate_s
+
+
+def test_report_page_shows_operations_and_stock(finish, roughing):
+    """The report's setup-sheet section carries the steps (a numbered list) and the
+    operations table; the stock pictures get their own section."""
+    import base64
+
+    from fabkit.report import _stock_section, markdown_html
+    from fabkit.toolpath.job import run_job
+    from fabkit.toolpath.setup import sheet_markdown
+
+    spec, surface, tp = finish
+    res = run_job(spec, surface, verify=False)
+    html = markdown_html(sheet_markdown(res.sheet, None))
+    steps = re.search(r"<ol>(.*?)</ol>", html).group(1)
+    assert steps.count("<li>") == 4 and "T2 flat end mill 12.7" in steps   # three tools, then run
+    table = re.search(r"<table>(.*?)</table>", html).group(1)
+    rows = re.findall(r"<tr>(.*?)</tr>", table)
+    assert len(rows) == 4 and "<th>operation</th>" in rows[0]
+    assert [re.findall(r"<td>(.*?)</td>", r)[1] for r in rows[1:]] == ["rough", "rest", "finish"]
+    page = "".join(_stock_section({"rough": b"\x89PNG-rough", "finish": b"\x89PNG-finish"}))
+    assert base64.b64encode(b"\x89PNG-rough").decode() in page and "after finishing" in page
+    assert _stock_section({}) == []

@@ -244,7 +244,10 @@ class OperationFigures:
     ``program``: the suffix of its program file on the program's stem ("" : the program
     itself); ``lines``: its lines (in a one-program job, those from its tool change to
     the next); ``estimate_s``: length / feed at its tool's feeds; ``run_s``: the machine
-    planner's time of its moves (None without a machine profile)."""
+    planner's time of its moves (None without a machine profile). Both from the program
+    text: ``estimate_s`` is :func:`fabkit.toolpath.verify.estimate_time` of its moves read
+    back (today's estimator; in a one-program job the moves from the previous
+    operation's last position, so the operations' figures add up to the program's)."""
 
     kind: str
     tool: object
@@ -353,8 +356,8 @@ def job_figures(operations, programs, profile, machine=None, raster_axis: int | 
     ``programs``: :func:`fabkit.toolpath.gcode.write_job`'s [(suffix, text)]: one per
     operation, or one for all. Returns (figures, readback) with ``readback`` one
     Program per operation (its moves read back from the written text)."""
-    from .gcode import operation_profile, operation_seconds, write_program
-    from .verify import read_program
+    from .gcode import operation_profile, write_program
+    from .verify import estimate_time, read_program
 
     n = len(operations)
     if len(programs) == n:
@@ -381,7 +384,7 @@ def job_figures(operations, programs, profile, machine=None, raster_axis: int | 
                                    raster_axis=raster_axis if op.kind == "finish" else None).total_s)
         figures.append(OperationFigures(kind=op.kind, tool=op.tool, levels=int(op.levels), passes=int(op.passes),
                                         leave=float(op.leave), program=names[i], lines=int(lines[i]),
-                                        estimate_s=operation_seconds(op, profile), run_s=run_s,
+                                        estimate_s=estimate_time(readback[i], profile.rapid), run_s=run_s,
                                         feed=p.feed, plunge=p.plunge, spindle=p.spindle))
     return figures, readback
 
