@@ -92,7 +92,14 @@ def main(argv=None) -> int:
     p.add_argument("--no-verify", action="store_true")
     a = p.parse_args(argv)
     raw = yaml.safe_load(Path(a.spec).read_text())
-    rows = [measure(r, name, a.machine, not a.no_verify) for name, r in specs(raw, a).items()]
+    from fabkit.errors import FabkitError
+
+    rows, missing = [], []
+    for name, r in specs(raw, a).items():
+        try:
+            rows.append(measure(r, name, a.machine, not a.no_verify))
+        except (FabkitError, ImportError) as exc:     # e.g. a fabkit without the roughing planner
+            missing.append(f"{name}: not run ({exc})")
     print(f"{Path(a.spec).name}: same allowance leave {a.leave:g} mm; time by one estimator "
           "(program text read back: G1 length / F, G0 at 5000 mm/min, no acceleration)")
     print()
@@ -107,6 +114,8 @@ def main(argv=None) -> int:
     print()
     for r in rows:
         print(f"{r['job']}: {r['verdict']}")
+    for m in missing:
+        print(m)
     if len(rows) == 2:
         a0, b0 = rows
         print(f"\nrough + finish / ball stepdown: time x{b0['length_feed_s'] / a0['length_feed_s']:.2f}, "

@@ -256,6 +256,7 @@ def test_gcode_grbl_writes_every_program_and_reports_each(cli, tmp_path, roughin
     s = json.loads(out)
     names = ["job.1-rough.nc", "job.2-rest.nc", "job.3-finish.nc"]
     assert s["programs"] == names and s["program_paths"] == names
+    assert s["program"] == s["program_path"] == "job.3-finish.nc"      # the finishing program
     for n in names:
         assert (tmp_path / n).is_file()
     assert not (tmp_path / "job.ngc").exists()
@@ -312,7 +313,7 @@ def test_gcode_summary_names_each_operation(cli, tmp_path, roughing):
     assert code == 0, err
     ops = [ln.strip() for ln in out.splitlines() if re.match(r"\s+\d\. ", ln)]
     assert [o.split(":")[0] for o in ops] == ["1. rough", "2. rest", "3. finish"]
-    assert "T2 flat 12.7 mm, 1 levels, 2 passes" in ops[0] and "(length/feed)" in ops[0]
+    assert "T2 flat 12.7 mm, 1 level, 2 passes" in ops[0] and "(length/feed)" in ops[0]
     assert "operations: 3" in out
 
 

@@ -130,7 +130,8 @@ def _finish(args, job, out, paths, total) -> int:
           else f"{toolpath.stepover:.2f}")
     gap = toolpath.info.get("edge_pass_gap_max", 0.0)
     so += f" (edge pass gap {gap:.2f})" if gap > toolpath.stepover else ""
-    head = f"gcode: {out}, {toolpath.passes} passes, stepover {so} mm, {lines} lines; "
+    shown = programs[-1][0]       # the program (grbl with roughing: the finishing one, the last)
+    head = f"gcode: {shown}, {toolpath.passes} passes, stepover {so} mm, {lines} lines; "
     if check:
         meas = "normal to the surface" if check.get("material_left_measure", "normal") == "normal" else "vertically"
         head += (f"largest gouge {check['max_gouge']:.4f} mm, material left {check['max_material_left']:.4f} mm {meas} "
@@ -155,7 +156,7 @@ def _finish(args, job, out, paths, total) -> int:
         if pictures:
             summary.append("stock pictures: " + ", ".join(str(p) for p, _ in pictures.values()))
     payload = dict(sheet)
-    payload.update(program_path=str(out), setup_paths={k: str(v) for k, v in paths.items()},
+    payload.update(program_path=str(shown), setup_paths={k: str(v) for k, v in paths.items()},
                    seconds=round(seconds, 3), ok=not bad, failures=bad)
     payload["timings_s"] = {k: round(v, 3) for k, v in {**timings, "sheet": t_sheet, "total": seconds}.items()}
     if check:
@@ -167,7 +168,7 @@ def _finish(args, job, out, paths, total) -> int:
             payload["stock_paths"] = {k: str(p) for k, (p, _) in pictures.items()}
     emit(summary, payload, args.json)
     if not job.ok:
-        raise DesignError(job.message + f" (outputs written to {out} and its setup sheet for inspection)")
+        raise DesignError(job.message + f" (outputs written to {shown} and its setup sheet for inspection)")
     return 0
 
 
@@ -197,8 +198,8 @@ def _operations_summary(job, out) -> list[str]:
     for i, f in enumerate(job.figures, start=1):
         t = f.tool
         tool = (f"T{t.number} " if t.number is not None else "") + f"{t.shape} {t.diameter:g} mm"
-        lines.append(f"  {i}. {f.kind}: {tool}, " + (f"{f.levels} levels, " if f.levels else "")
-                     + f"{f.passes} passes, leaves {f.leave:g} mm, {f.lines} lines, "
+        lines.append(f"  {i}. {f.kind}: {tool}, " + (f"{f.levels} level{'s' * (f.levels != 1)}, " if f.levels else "")
+                     + f"{f.passes} pass{'es' * (f.passes != 1)}, leaves {f.leave:g} mm, {f.lines} lines, "
                      f"{_hm(f.time_s)} ({f.estimator}), {job_program_path(out, f.program).name}")
     est = " and ".join(sorted({f.estimator for f in job.figures}))
     total = sum(f.time_s for f in job.figures)

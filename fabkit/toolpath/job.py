@@ -11,6 +11,12 @@ command judges a cut on its own. Nothing here prints, writes files or exits.
 The verification reads the WRITTEN TEXT back (not the planner's arrays), so the
 program's formatting and rounding are part of what is checked. Lengths are work mm
 (the program's own units appear only in the text and the sheet).
+
+With a ``roughing`` section the finish above is planned, verified and repaired the
+same way; then the roughing planner (:mod:`fabkit.toolpath.roughing`) adds its rough
+and rest operations, :func:`fabkit.toolpath.gcode.write_job` writes every program, each
+is read back, and the stock model (:mod:`fabkit.toolpath.stock`, when present)
+replays the whole job from the text.
 """
 
 from __future__ import annotations
@@ -172,7 +178,17 @@ class JobResult:
     """One toolpath job's outcome. ``cut`` is None when not verified. ``estimate_s``:
     length / feed (rapids at the assumed rate, no acceleration); ``run``, ``machine_check``:
     the machine planner's run time and the checks before cutting (None without a machine
-    profile). ``timings``: wall seconds of plan, write, verify, sheet."""
+    profile). ``timings``: wall seconds of plan, write, verify, sheet.
+
+    A job with roughing (a ``roughing`` section) also has ``operations`` (rough, rest,
+    finish: :class:`~fabkit.toolpath.operations.Operation`), ``figures`` (one
+    :class:`OperationFigures` each), ``programs`` ([(suffix, text)] as written:
+    :func:`fabkit.toolpath.gcode.write_job`), ``job_check`` (the whole job simulated on
+    the stock, None without the stock model or unverified) and ``stock_pictures``
+    ({'rough'|'finish': PNG bytes}). Then ``toolpath``, ``program`` and ``cut`` are the
+    finish's (verified as without roughing), ``text`` the program holding the finish,
+    ``estimate_s`` and ``lines`` the whole job's. Without roughing these are empty and
+    everything is as before."""
 
     spec: object
     surface: object
@@ -486,13 +502,17 @@ def run_job(spec, surface, *, machine=None, verify: bool = True,
     t0 = time.perf_counter()
     timings = {"plan": t_plan, "write": t_write, "verify": t_verify}
     lines = sum(t.count("\n") for _, t in extra["programs"]) if extra else text.count("\n")
+    sheet_program = job_path = program_path if program_path is not None else f"{spec.name}.ngc"
+    if extra and len(extra["programs"]) > 1:        # grbl: the finishing program's own file
+        from .setup import job_program_path
+
+        sheet_program = job_program_path(sheet_program, extra["programs"][-1][0])
     needs = program if not extra else _merged(extra["readback_programs"])
-    sheet = setup_sheet(spec, surface, toolpath, profile,
-                        program_path if program_path is not None else f"{spec.name}.ngc",
+    sheet = setup_sheet(spec, surface, toolpath, profile, sheet_program,
                         cut.as_dict() if cut is not None else None, est, lines,
                         timings=timings, generated_at=generated if generated is not None else generated_at(),
                         program=needs, machine=machine, run=run, machine_check=mcheck,
-                        operations=extra.get("figures"), job_check=extra.get("job_check"))
+                        operations=extra.get("figures"), job_check=extra.get("job_check"), job_path=job_path)
     timings["sheet"] = time.perf_counter() - t0
     if extra:
         job_text = extra["programs"][-1][1]      # the program holding the finish

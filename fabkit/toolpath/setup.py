@@ -150,7 +150,7 @@ def _r(v, nd=9):
 def setup_sheet(spec, surface, toolpath, profile, program_path, check: dict | None,
                 estimated_time_s: float, lines: int, timings: dict | None = None,
                 generated_at: str | None = None, program=None, machine=None, run=None,
-                machine_check=None, operations=None, job_check=None) -> dict:
+                machine_check=None, operations=None, job_check=None, job_path=None) -> dict:
     """The setup sheet as a dict (JSON-ready). ``check``: the result of
     :func:`fabkit.toolpath.verify.verify_cut` (work mm) or None when not verified.
     ``program``: the program read back (:func:`fabkit.toolpath.verify.read_program`);
@@ -229,7 +229,8 @@ def setup_sheet(spec, surface, toolpath, profile, program_path, check: dict | No
     if machine is not None:
         sheet.update(_machine_keys(machine, run, machine_check, k))
     if operations:
-        sheet.update(_operations_keys(operations, program_path, profile.dialect, k, job_check))
+        sheet.update(_operations_keys(operations, job_path if job_path is not None else program_path,
+                                      profile.dialect, k, job_check))
     if timings:
         sheet["timings_s"] = {key: round(float(v), 3) for key, v in timings.items()}
     if generated_at:
