@@ -90,12 +90,15 @@ def main(argv=None) -> int:
     p.add_argument("--rough-spindle", type=float, default=16000.0, help="rpm")
     p.add_argument("--machine", default=None, help="machine profile: add the controller's planner time")
     p.add_argument("--no-verify", action="store_true")
+    p.add_argument("--only", choices=("ball stepdown", "rough + finish"), default=None, help="run one row")
     a = p.parse_args(argv)
     raw = yaml.safe_load(Path(a.spec).read_text())
     from fabkit.errors import FabkitError
 
     rows, missing = [], []
     for name, r in specs(raw, a).items():
+        if a.only and name != a.only:
+            continue
         try:
             rows.append(measure(r, name, a.machine, not a.no_verify))
         except (FabkitError, ImportError) as exc:     # e.g. a fabkit without the roughing planner

@@ -266,6 +266,9 @@ def _run_markdown(sheet: dict) -> list[str]:
              f"plunges {rt['plunge_s']:g} s, rapids {rt['rapid_s']:g} s",
              f"- Length/feed estimate of the same moves (no acceleration): {_hms(rt['length_over_feed_s'])} "
              f"({rt['length_over_feed_s']:g} s)"]
+    if sheet.get("operations"):
+        lines.insert(3, "- These figures are the finishing program's; every operation's time is in the "
+                        "Operations table")
     pp = rt.get("per_pass")
     if pp:
         lines.append(f"- {pp['passes']} passes: {pp['median_s']:g} s each (median; {pp['min_s']:g} to {pp['max_s']:g} s, "
