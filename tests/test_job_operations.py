@@ -391,3 +391,28 @@ def test_report_page_shows_operations_and_stock(finish, roughing):
     page = "".join(_stock_section({"rough": b"\x89PNG-rough", "finish": b"\x89PNG-finish"}))
     assert base64.b64encode(b"\x89PNG-rough").decode() in page and "after finishing" in page
     assert _stock_section({}) == []
+
+
+def test_same_tool_twice_is_not_changed_again(finish):
+    """Rest passes with the finishing ball, then the finish: one tool change for both
+    (LinuxCNC), and the sheet's steps keep the tool; the operations still split the
+    program (each from its own comment) and their lines add up to it."""
+    from fabkit.toolpath.gcode import profile_from_spec, write_job
+    from fabkit.toolpath.job import job_figures
+    from fabkit.toolpath.operations import Operation
+    from fabkit.toolpath.tools import Tool
+
+    spec, surface, tp = finish
+    rough, rest = _rough_ops()
+    rest_ball = Operation("rest", Tool.ball(6.0, number=1), rest.toolpath, leave=0.3, levels=1, passes=1)
+    ops = _job(tp, ops=[rough, rest_ball])
+    profile = profile_from_spec(spec, surface)
+    (_, text), = write_job(ops, profile)
+    code = _code(text)
+    assert [ln for ln in code if "M6" in ln] == ["T2 M6 G43 H2", "T1 M6 G43 H1"]
+    assert code.count("M5") == 2                       # before the one change, and at the end
+    figures, back = job_figures(ops, [("", text)], profile)
+    assert sum(f.lines for f in figures) == text.count("\n")
+    assert [len(b) > 0 for b in back] == [True, True, True]
+    rest_feeds = back[1].feed[np.isfinite(back[1].feed)]
+    assert set(rest_feeds.tolist()) == {profile.feed, profile.plunge}     # the ball's own feeds

@@ -203,6 +203,7 @@ def _operations_summary(job, out) -> list[str]:
                      f"{_hm(f.time_s)} ({f.estimator}), {job_program_path(out, f.program).name}")
     est = " and ".join(sorted({f.estimator for f in job.figures}))
     total = sum(f.time_s for f in job.figures)
-    verdict = ("whole job not simulated (no stock model)" if job.job_check is None else
+    verdict = ("whole job not simulated (--no-verify)" if not job.verified else
+               "whole job not simulated (no stock model)" if job.job_check is None else
                "whole job simulated on the stock: " + ("within bounds" if not job.failures else "FAILED"))
     return [f"operations: {len(job.figures)}, {job.lines} lines, {_hm(total)} ({est}); {verdict}"] + lines

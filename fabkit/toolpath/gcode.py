@@ -429,10 +429,11 @@ def write_job(operations, profile: MachineProfile) -> list[tuple[str, str]]:
     - One operation: :func:`write_program` of its toolpath on ``profile``, unchanged
       (today's single program, byte for byte).
     - A dialect with a tool change (LinuxCNC): ONE program; each operation starts with a
-      retract to the safe height, spindle off (M5, from the second on), the tool call
-      ``Tn M6 G43 Hn``, a rapid to the safe height (the new length offset applies) and
-      its own spindle speed, then its moves at its tool's feeds. The header lists every
-      operation. Every tool needs a number.
+      comment ``(operation: i of n, kind, Tn)``, then (when its tool is not the one in the
+      spindle) spindle off (M5, from the second on; the tool is already retracted to the
+      safe height) and the tool call ``Tn M6 G43 Hn``, a rapid to the safe height (the new
+      length offset applies) and its own spindle speed, then its moves at its tool's
+      feeds. The header lists every operation. Every tool needs a number.
     - Without one (grbl): one complete program per operation (preamble, spindle, its
       moves, end), each naming its tool and its place in the job.
 
@@ -473,7 +474,8 @@ def _write_changes(ops, profile: MachineProfile, header: list) -> str:
     park = [_num(v * k, dec) for v in profile.park]
     n = len(ops)
     total = sum(operation_seconds(op, profile) for op in ops)
-    items = [("fabkit", f"{', '.join(op.kind for op in ops)} program, {n} tools, {d.name} dialect")]
+    n_tools = len({op.tool.number for op in ops})
+    items = [("fabkit", f"{', '.join(op.kind for op in ops)} program, {n_tools} tools, {d.name} dialect")]
     items += header
     items += [("work zero (G54)", "X0 Y0 at the footprint corner of smallest x, y,"),
               ("", "Z0 on the stock top face, every tool's length offset from the tool table (G43)"),
@@ -492,12 +494,15 @@ def _write_changes(ops, profile: MachineProfile, header: list) -> str:
     add(" ".join(w.format(units=u.gword) for w in d.preamble))
     if d.path_blending:
         add(f"G64 P{_num(profile.tolerance * 0.5 * k, dec)}")
+    loaded = None
     for i, op in enumerate(ops, start=1):
         p = operation_profile(profile, op.tool)
-        if i > 1:
-            add("M5")
         out.extend(_comment_lines("operation", f"{i} of {n}, {op.kind}, T{op.tool.number}", d))
-        add(d.tool_change.format(n=int(op.tool.number)))
+        if op.tool.number != loaded:          # the same tool again (rest then finish with one ball): no change
+            if loaded is not None:
+                add("M5")
+            add(d.tool_change.format(n=int(op.tool.number)))
+            loaded = op.tool.number
         add(f"G0 Z{safe}")
         add(f"M3 S{p.spindle:.0f}")
         txt, kinds, last_z = _moves(op.toolpath, p, add)

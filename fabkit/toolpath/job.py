@@ -323,13 +323,12 @@ def _job_failures(check) -> list[str]:
 
 def _op_line_ranges(text: str, n: int) -> list[tuple[int, int]]:
     """[(first line, last line)] (1-based) of each operation in a one-program job: from its
-    tool change to the line before the next one (the first from line 1, the last to the end)."""
-    import re
-
+    ``(operation: i of n, ...)`` comment (:func:`fabkit.toolpath.gcode.write_job`) to the
+    line before the next one (the first from line 1, the last to the end)."""
     lines = text.splitlines()
-    starts = [i + 1 for i, ln in enumerate(lines) if re.match(r"\s*T\d+\s+M6\b", ln)]
+    starts = [i + 1 for i, ln in enumerate(lines) if ln.startswith("(operation: ")]
     if len(starts) != n:
-        raise ValueError(f"{len(starts)} tool changes in a program of {n} operations")
+        raise ValueError(f"{len(starts)} operation comments in a program of {n} operations")
     starts[0] = 1
     return [(a, b - 1) for a, b in zip(starts, starts[1:] + [len(lines) + 1])]
 
@@ -503,7 +502,8 @@ def run_job(spec, surface, *, machine=None, verify: bool = True,
         est = sum(f.estimate_s for f in extra["figures"])
         if machine is not None:
             mcheck = _machine_checks(extra["programs"], extra["readback_programs"], machine, mcheck)
-        t_verify += extra.pop("seconds")
+        t_plan += extra.pop("plan_seconds")         # the rough and rest operations' planning
+        t_verify += extra.pop("seconds")            # writing, reading back, the whole job simulated
 
     say("setup sheet")
     t0 = time.perf_counter()
@@ -544,6 +544,7 @@ def _operations(spec, surface, toolpath, profile, text, program, machine, verify
     say("planning the roughing")
     t0 = time.perf_counter()
     ops = plan_job_operations(spec, surface, toolpath)
+    t_plan = time.perf_counter() - t0
     if profile.d.tool_change is not None:
         missing = [op.kind for op in ops if op.tool.number is None]
         if missing:
@@ -562,7 +563,8 @@ def _operations(spec, surface, toolpath, profile, text, program, machine, verify
         say("verifying the whole job")
         job_check, pictures = _stock_verification(spec, surface, ops, readback)
     return {"operations": ops, "programs": programs, "figures": figures, "readback_programs": readback,
-            "job_check": job_check, "stock_pictures": pictures, "seconds": time.perf_counter() - t0}
+            "job_check": job_check, "stock_pictures": pictures, "plan_seconds": t_plan,
+            "seconds": time.perf_counter() - t0 - t_plan}
 
 
 def _merged(programs):

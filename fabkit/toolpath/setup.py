@@ -113,11 +113,16 @@ def _operations_keys(figures, program_path, dialect: str, k: float, job_check) -
         ops.append(d)
     files = list(dict.fromkeys(o["program"] for o in ops))
     steps = []
+    loaded = None
     for i, o in enumerate(ops, start=1):
         t = o["tool"]
         tool = (f"T{t['number']} " if t["number"] is not None else "") + _TOOL_NAMES[t["shape"]] + \
             f" {t['diameter']:g}"
-        if len(files) == 1:
+        same, loaded = t["number"] is not None and t["number"] == loaded, t["number"]
+        if same:
+            steps.append(f"{o['kind']}: keep {tool} (no change)"
+                         + (f", run {o['program']}" if len(files) > 1 else ""))
+        elif len(files) == 1:
             steps.append(f"{o['kind']}: load {tool} and touch it off (Z0) on the same top face into the tool "
                          "table: the program changes to it with M6 and applies its length with G43")
         else:
