@@ -416,3 +416,26 @@ def test_same_tool_twice_is_not_changed_again(finish):
     assert [len(b) > 0 for b in back] == [True, True, True]
     rest_feeds = back[1].feed[np.isfinite(back[1].feed)]
     assert set(rest_feeds.tolist()) == {profile.feed, profile.plunge}     # the ball's own feeds
+
+
+def test_sheet_job_verification_is_plain_json(finish):
+    """Whatever the stock model reports (numpy numbers, tuples, inf) the sheet stays
+    strict JSON."""
+    from fabkit.toolpath.gcode import profile_from_spec, write_job
+    from fabkit.toolpath.job import job_figures
+    from fabkit.toolpath.setup import setup_sheet, sheet_json
+
+    class Check:
+        failures = []
+
+        def to_json(self):
+            return {"ok": np.bool_(True), "seconds": 1.5, "operations": [{"bounds": (np.float64(0.49), np.inf),
+                                                                           "moves": np.int64(7)}]}
+
+    spec, surface, tp = finish
+    profile = profile_from_spec(spec, surface)
+    ops = _job(tp)
+    figures, _ = job_figures(ops, write_job(ops, profile), profile)
+    sheet = setup_sheet(spec, surface, tp, profile, "a.ngc", None, 1.0, 10, operations=figures, job_check=Check())
+    back = json.loads(sheet_json(sheet))
+    assert back["job_verification"] == {"ok": True, "operations": [{"bounds": [0.49, None], "moves": 7}]}

@@ -135,11 +135,27 @@ def _operations_keys(figures, program_path, dialect: str, k: float, job_check) -
         jv = to_json() if callable(to_json) else None
         if isinstance(jv, dict):
             jv = {key: v for key, v in jv.items() if key != "seconds"}     # wall time: in timings_s
-        out["job_verification"] = jv
+        out["job_verification"] = _plain(jv)
     return out
 
 
 _TOOL_NAMES = {"flat": "flat end mill", "bull": "bull nose", "ball": "ball-end mill"}
+
+
+def _plain(v):
+    """JSON-ready (the sheet is written with allow_nan=False): numpy to Python, tuples to
+    lists, non-finite floats to None."""
+    if isinstance(v, dict):
+        return {str(key): _plain(x) for key, x in v.items()}
+    if isinstance(v, (list, tuple, np.ndarray)):
+        return [_plain(x) for x in (v.tolist() if isinstance(v, np.ndarray) else v)]
+    if isinstance(v, (bool, np.bool_)):
+        return bool(v)
+    if isinstance(v, (int, np.integer)):
+        return int(v)
+    if isinstance(v, (float, np.floating)):
+        return float(v) if math.isfinite(v) else None
+    return v
 
 
 def _r(v, nd=9):
