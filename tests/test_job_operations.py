@@ -439,3 +439,60 @@ def test_sheet_job_verification_is_plain_json(finish):
     sheet = setup_sheet(spec, surface, tp, profile, "a.ngc", None, 1.0, 10, operations=figures, job_check=Check())
     back = json.loads(sheet_json(sheet))
     assert back["job_verification"] == {"ok": True, "operations": [{"bounds": [0.49, None], "moves": 7}]}
+
+
+@pytest.fixture
+def stock_model(monkeypatch):
+    """fabkit.toolpath.stock replaced by a recorder: it receives the moves READ BACK per
+    operation and answers with a given verdict and one picture per snapshot."""
+    import fabkit.toolpath as pkg
+
+    seen = {}
+    verdict = {"failures": []}
+
+    class Cut:
+        def __init__(self, n):
+            self.snapshots = [f"after {i}" for i in range(n)]
+            self.design = "design"
+            self.failures = list(verdict["failures"])
+
+        def to_json(self):
+            return {"ok": not self.failures, "failures": self.failures}
+
+    def verify_job(surface, operations, tolerance, *, scallop=None, depth_of_cut=None, measure="normal"):
+        seen.update(operations=operations, tolerance=tolerance, scallop=scallop, depth_of_cut=depth_of_cut)
+        return Cut(len(operations))
+
+    def stock_png(snapshot, design, *, title="", tolerance=0.0):
+        return f"PNG {snapshot}: {title}".encode()
+
+    fake = types.ModuleType("fabkit.toolpath.stock")
+    fake.verify_job, fake.stock_png = verify_job, stock_png
+    monkeypatch.setitem(sys.modules, "fabkit.toolpath.stock", fake)
+    monkeypatch.setattr(pkg, "stock", fake, raising=False)
+    return seen, verdict
+
+
+def test_gcode_writes_the_stock_pictures_and_the_whole_job_verdict(cli, tmp_path, roughing, stock_model):
+    seen, verdict = stock_model
+    spec = write_spec(tmp_path, _numbered())
+    code, out, err = cli("gcode", spec, "-o", "w.ngc", "--json")
+    assert code == 0, err
+    s = json.loads(out)
+    # the stock model replayed the three operations from the program text, each with its tool
+    ops = seen["operations"]
+    assert [(o.kind, o.tool.number) for o in ops] == [("rough", 2), ("rest", 3), ("finish", 1)]
+    assert np.max(np.abs(ops[0].toolpath.points[2:8] - RECT)) <= 0.5e-4
+    assert seen["tolerance"] == 0.02 and seen["scallop"] == 0.1
+    # after roughing: the stock after the last operation before the finish (rest)
+    assert (tmp_path / "w.stock-rough.png").read_bytes() == b"PNG after 1: stock after roughing"
+    assert (tmp_path / "w.stock-finish.png").read_bytes() == b"PNG after 2: stock after finishing"
+    assert s["stock_paths"] == {"rough": "w.stock-rough.png", "finish": "w.stock-finish.png"}
+    assert s["job_verification"] == {"ok": True, "failures": []}
+    md = (tmp_path / "w.setup.md").read_text()
+    assert "![stock after rough](w.stock-rough.png)" in md and "within its bounds" in md
+    # a failure of the whole job fails the command (exit 1, outputs kept for inspection)
+    verdict["failures"] = ["operation 3 (finish): removes 7.3 mm, more than its depth of cut 6 mm"]
+    code, out, err = cli("gcode", spec, "-o", "w.ngc")
+    assert code == 1 and "whole job: operation 3 (finish): removes 7.3 mm" in err
+    assert "FAILED" in out
