@@ -1,6 +1,11 @@
 """``fabkit gcode SPEC [-o PATH] [--no-verify] [--json]``: the ball-end raster program,
 its setup sheet, and the verified cut.
 
+With a ``roughing`` section (its tools in ``tools``) the job is rough, rest and
+finish operations: LinuxCNC gets one program with a tool change per tool, grbl one
+program per operation (``<stem>.1-rough.nc``, ...); the summary and ``--json``
+(``operations``) give each operation's tool, levels, passes, lines and time.
+
 Reads only the sections surface, stock, tool and machining; never builds the
 solid or runs the simulator. The verification reads the WRITTEN TEXT back (not
 the planner's arrays), so formatting and rounding are part of what is checked.
@@ -192,6 +197,7 @@ def _stock_pictures(job, out) -> dict:
 def _operations_summary(job, out) -> list[str]:
     """One line per operation: tool, levels, passes, lines, time and its estimator; then
     the total and the whole job's verdict."""
+    from ..toolpath.job import _job_failures
     from ..toolpath.setup import job_program_path
 
     lines = []
@@ -205,5 +211,5 @@ def _operations_summary(job, out) -> list[str]:
     total = sum(f.time_s for f in job.figures)
     verdict = ("whole job not simulated (--no-verify)" if not job.verified else
                "whole job not simulated (no stock model)" if job.job_check is None else
-               "whole job simulated on the stock: " + ("within bounds" if not job.failures else "FAILED"))
+               "whole job simulated on the stock: " + ("FAILED" if _job_failures(job.job_check) else "within bounds"))
     return [f"operations: {len(job.figures)}, {job.lines} lines, {_hm(total)} ({est}); {verdict}"] + lines
