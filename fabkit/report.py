@@ -8,7 +8,8 @@ scripts inlined). It takes results and computes nothing; ``fabkit report`` compu
     surface      {"x" (nx,), "y" (ny,), "z" (nx, ny) clipped heights, "top", "start", "y0"}
     sweep        {"png": bytes, "v_critical", "v_critical_error", "windows", "error_estimate", "seconds",
                   "launches"}
-    toolpath     {"png": bytes, "sheet": setup-sheet dict, "seconds": {...}, "verify": {...} or None}
+    toolpath     {"png": bytes, "sheet": setup-sheet dict, "seconds": {...}, "verify": {...} or None,
+                  "stock_png": {"rough"|"finish": bytes} (a job with roughing simulated on the stock; optional)}
     calibration  {"heights", "v_in", "g", "k", "units", "seconds"}
     ramp_marks   optional list of {height, v_in, label}
 
@@ -207,14 +208,40 @@ def _inline(text: str) -> str:
     return re.sub(r"\*\*([^*]+)\*\*", r"<b>\1</b>", t)
 
 
+def _table_html(rows: list[str]) -> str:
+    """A Markdown table (header, |---| rule, rows) as HTML."""
+    cells = [[c.strip() for c in r.strip().strip("|").split("|")] for r in rows]
+    body = [c for c in cells[1:] if not all(set(x) <= set("-: ") for x in c)]
+    head = "".join(f"<th>{_inline(c)}</th>" for c in cells[0])
+    return ("<table><tr>" + head + "</tr>"
+            + "".join("<tr>" + "".join(f"<td>{_inline(c)}</td>" for c in r) + "</tr>" for r in body) + "</table>")
+
+
 def markdown_html(md: str) -> str:
     """The operator's setup sheet (``setup.md``, :func:`fabkit.toolpath.setup.sheet_markdown`)
     as HTML: the same lines, each with its unit, so the page and the file beside the
     program say the same thing. Handles what the sheet uses: headings, bullet lists,
     paragraphs, inline code and bold; its preview image is shown elsewhere on the page."""
+    import re
+
     out: list[str] = []
     in_list = False
-    for line in md.splitlines():
+    table: list[str] = []
+    numbered: list[str] = []
+    for line in md.splitlines() + [""]:
+        if line.startswith("|"):                 # a table (the operations of a job with roughing)
+            table.append(line)
+            continue
+        if table:
+            out.append(_table_html(table))
+            table = []
+        m = re.match(r"\d+\. (.*)", line)
+        if m:                                    # a numbered list (the steps per tool)
+            numbered.append(f"<li>{_inline(m.group(1))}</li>")
+            continue
+        if numbered:
+            out.append("<ol>" + "".join(numbered) + "</ol>")
+            numbered = []
         if line.startswith("- "):
             if not in_list:
                 out.append("<ul>")
@@ -246,6 +273,19 @@ def _sheet_section(sheet: dict) -> str:
     refused = ("".join(f"<p class=unsafe><b>The machine cannot run this program:</b> {_e(r)} "
                        f"(<code>fabkit gcode</code> refuses it, exit 2)</p>" for r in refusals))
     return f'<div id="setup-sheet">{refused}{markdown_html(sheet_markdown(sheet, None))}</div>'
+
+
+def _stock_section(pictures: dict) -> list[str]:
+    """The shaded stock after roughing and after finishing (a job with roughing whose
+    whole job was simulated on the stock); nothing otherwise."""
+    if not pictures:
+        return []
+    names = {"rough": "after roughing", "finish": "after finishing"}
+    imgs = "".join(f"<h3>Stock {names[k]}</h3>{_img(pictures[k], 'simulated stock ' + names[k])}"
+                   for k in ("rough", "finish") if k in pictures)
+    return [f"<section><h2>Simulated stock</h2><p class=meta>The stock height field after each "
+            f"operation, every tool with its own shape, coloured by the deviation from the design."
+            f"</p>{imgs}</section>"]
 
 
 def render(results: dict) -> str:
@@ -291,6 +331,7 @@ def render(results: dict) -> str:
         f"<p class=meta>verified cut: largest gouge {_n(ver.get('max_gouge'), '.4f')} mm, material left "
         f"{_n(ver.get('max_material_left'), '.4f')} mm (checked at {_n(ver.get('checked_points'), 'd')} points); "
         + ", ".join(f"{k} {_n(v, '.3g')} s" for k, v in tps.items()) + ".</p></section>",
+        *_stock_section(tp.get("stock_png") or {}),
         f"<section><h2>Ramp calibration</h2>{_calibration_table(cal, results.get('ramp_marks'), u, max(1, len(cal['heights']) // 20))}</section>",
         f"<section><h2>Setup sheet</h2>{_sheet_section(tp.get('sheet') or {})}</section>",
     ]

@@ -1,6 +1,11 @@
 """``fabkit gcode SPEC [-o PATH] [--no-verify] [--json]``: the ball-end raster program,
 its setup sheet, and the verified cut.
 
+With a ``roughing`` section (its tools in ``tools``) the job is rough, rest and
+finish operations: LinuxCNC gets one program with a tool change per tool, grbl one
+program per operation (``<stem>.1-rough.nc``, ...); the summary and ``--json``
+(``operations``) give each operation's tool, levels, passes, lines and time.
+
 Reads only the sections surface, stock, tool and machining; never builds the
 solid or runs the simulator. The verification reads the WRITTEN TEXT back (not
 the planner's arrays), so formatting and rounding are part of what is checked.
@@ -38,7 +43,8 @@ def run(args) -> int:
     out = default_output(spec, ".ngc", args.output)
     paths = sheet_paths(out)
     # refuse now, not after minutes of planning
-    check_paths(args, {"--output": out, **{f"--output (setup sheet .{k})": p for k, p in paths.items()}})
+    check_paths(args, {"--output": out, **{f"--output (setup sheet .{k})": p for k, p in paths.items()},
+                       **_job_paths(spec, out)})
     surface = Surface.from_spec(spec)
     machine = machine_from_spec(spec, getattr(args, "machine", None))    # a bad profile: exit 2 now
     _machine_precheck(spec, surface, machine)  # the machine's travel, spindle, tool changer: before planning
@@ -56,6 +62,20 @@ def run(args) -> int:
         return _finish(args, job, out, paths, total)
     finally:
         close()
+
+
+def _job_paths(spec, out) -> dict:
+    """A job with roughing: the files it may write besides ``out`` (grbl's programs per
+    operation, the stock pictures), to refuse before planning."""
+    from ..toolpath.job import has_roughing
+    from ..toolpath.setup import job_program_paths_possible, stock_paths
+
+    if not has_roughing(spec):
+        return {}
+    paths = {f"--output (stock picture, {k})": p for k, p in stock_paths(out).items()}
+    for p in job_program_paths_possible(out, spec.machining.dialect):
+        paths[f"--output (program {p.name})"] = p
+    return paths
 
 
 def _machine_precheck(spec, surface, machine) -> None:
@@ -90,12 +110,17 @@ def _finish(args, job, out, paths, total) -> int:
     t_plan, t_write, t_verify = job.timings["plan"], job.timings["write"], job.timings["verify"]
     timings = {"plan": t_plan, "write": t_write, "verify": t_verify}
     png = job.preview_png()
-    md = sheet_markdown(sheet, paths["png"].name)
-    with atomic_outputs() as files:
-        files.write(out, text)
+    pictures = _stock_pictures(job, out)
+    md = sheet_markdown(sheet, paths["png"].name, {k: p.name for k, (p, _) in pictures.items()} or None)
+    programs = _program_files(job, out)
+    with atomic_outputs() as files:         # every program, sheet and picture, or none
+        for path, body in programs:
+            files.write(path, body)
         files.write(paths["json"], sheet_json(sheet))
         files.write(paths["md"], md)
         files.write(paths["png"], png)
+        for path, body in pictures.values():
+            files.write(path, body)
     t_sheet = job.timings["sheet"] + t.seconds
 
     bad = job.failures
@@ -110,7 +135,8 @@ def _finish(args, job, out, paths, total) -> int:
           else f"{toolpath.stepover:.2f}")
     gap = toolpath.info.get("edge_pass_gap_max", 0.0)
     so += f" (edge pass gap {gap:.2f})" if gap > toolpath.stepover else ""
-    head = f"gcode: {out}, {toolpath.passes} passes, stepover {so} mm, {lines} lines; "
+    shown = programs[-1][0]       # the program (grbl with roughing: the finishing one, the last)
+    head = f"gcode: {shown}, {toolpath.passes} passes, stepover {so} mm, {lines} lines; "
     if check:
         meas = "normal to the surface" if check.get("material_left_measure", "normal") == "normal" else "vertically"
         head += (f"largest gouge {check['max_gouge']:.4f} mm, material left {check['max_material_left']:.4f} mm {meas} "
@@ -128,14 +154,62 @@ def _finish(args, job, out, paths, total) -> int:
     if run is not None:
         summary.insert(2, run.summary())
         summary.insert(3, mcheck.summary())
+    if job.figures:
+        summary[1:1] = _operations_summary(job, out)
+        if len(programs) > 1:
+            summary.append("programs (run in this order): " + ", ".join(str(p) for p, _ in programs))
+        if pictures:
+            summary.append("stock pictures: " + ", ".join(str(p) for p, _ in pictures.values()))
     payload = dict(sheet)
-    payload.update(program_path=str(out), setup_paths={k: str(v) for k, v in paths.items()},
+    payload.update(program_path=str(shown), setup_paths={k: str(v) for k, v in paths.items()},
                    seconds=round(seconds, 3), ok=not bad, failures=bad)
     payload["timings_s"] = {k: round(v, 3) for k, v in {**timings, "sheet": t_sheet, "total": seconds}.items()}
     if check:
         payload["deepest_cut_mm"] = check["deepest_cut"]
         payload["rapids_checked"] = check["rapids_checked"]
+    if job.figures:
+        payload["program_paths"] = [str(p) for p, _ in programs]
+        if pictures:
+            payload["stock_paths"] = {k: str(p) for k, (p, _) in pictures.items()}
     emit(summary, payload, args.json)
     if not job.ok:
-        raise DesignError(job.message + f" (outputs written to {out} and its setup sheet for inspection)")
+        raise DesignError(job.message + f" (outputs written to {shown} and its setup sheet for inspection)")
     return 0
+
+
+def _program_files(job, out) -> list:
+    """[(path, text)]: the job's programs (today's one program at ``out``)."""
+    from ..toolpath.setup import job_program_path
+
+    if not job.programs:
+        return [(out, job.text)]
+    return [(job_program_path(out, suffix), text) for suffix, text in job.programs]
+
+
+def _stock_pictures(job, out) -> dict:
+    """{'rough'|'finish': (path, png)}: the shaded stock pictures the job made."""
+    from ..toolpath.setup import stock_paths
+
+    paths = stock_paths(out)
+    return {k: (paths[k], png) for k, png in (job.stock_pictures or {}).items() if k in paths}
+
+
+def _operations_summary(job, out) -> list[str]:
+    """One line per operation: tool, levels, passes, lines, time and its estimator; then
+    the total and the whole job's verdict."""
+    from ..toolpath.job import _job_failures
+    from ..toolpath.setup import job_program_path
+
+    lines = []
+    for i, f in enumerate(job.figures, start=1):
+        t = f.tool
+        tool = (f"T{t.number} " if t.number is not None else "") + f"{t.shape} {t.diameter:g} mm"
+        lines.append(f"  {i}. {f.kind}: {tool}, " + (f"{f.levels} level{'s' * (f.levels != 1)}, " if f.levels else "")
+                     + f"{f.passes} pass{'es' * (f.passes != 1)}, leaves {f.leave:g} mm, {f.lines} lines, "
+                     f"{_hm(f.time_s)} ({f.estimator}), {job_program_path(out, f.program).name}")
+    est = " and ".join(sorted({f.estimator for f in job.figures}))
+    total = sum(f.time_s for f in job.figures)
+    verdict = ("whole job not simulated (--no-verify)" if not job.verified else
+               "whole job not simulated (no stock model)" if job.job_check is None else
+               "whole job simulated on the stock: " + ("FAILED" if _job_failures(job.job_check) else "within bounds"))
+    return [f"operations: {len(job.figures)}, {job.lines} lines, {_hm(total)} ({est}); {verdict}"] + lines

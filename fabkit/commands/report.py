@@ -27,7 +27,8 @@ def _toolpath(spec, surface, machine=None):
     ver = job.cut.to_json()
     return {"png": job.preview_png(), "sheet": job.sheet,
             "seconds": {k: job.timings[k] for k in ("plan", "write", "verify")},
-            "verify": {k: ver[k] for k in ("max_gouge", "max_material_left", "checked_points") if k in ver}}
+            "verify": {k: ver[k] for k in ("max_gouge", "max_material_left", "checked_points") if k in ver},
+            **({"stock_png": dict(job.stock_pictures)} if job.stock_pictures else {})}
 
 
 def _sweep(spec, cal) -> dict:

@@ -23,7 +23,7 @@ remains is part of the verified figures. Same toolpath and profile -> same text.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -244,55 +244,95 @@ def _move_lines(txt: np.ndarray, kinds: np.ndarray, safe: str, feed_s: str, plun
     return [" ".join(w for w in row if w) for row in zip(g_word, *words, f_word)]
 
 
-def write_program(toolpath: Toolpath, profile: MachineProfile) -> str:
+def _num(v: float, nd: int) -> str:
+    """A number with at most ``nd`` decimals, trailing zeros dropped ('12.5', '0', never '-0')."""
+    s = f"{v:.{nd}f}"
+    if "." in s:
+        s = s.rstrip("0").rstrip(".")
+    if s in ("-0", ""):
+        s = "0"
+    return s
+
+
+def _start(toolpath: Toolpath, profile: MachineProfile) -> np.ndarray:
+    """The position before the first move: above the first point at the safe height."""
+    if len(toolpath.points):
+        return np.array([toolpath.points[0, 0], toolpath.points[0, 1], profile.safe_z])
+    return np.array([np.nan, np.nan, profile.safe_z])
+
+
+def _moves(toolpath: Toolpath, profile: MachineProfile, add) -> tuple:
+    """The rapid across to above the first point and the moves of ``toolpath`` (G0 is
+    modal from the "G0 Z<safe>" before). Returns (txt, kinds, last_z) for the retract."""
+    k = 1.0 / profile.u.mm_per_unit
+    dec, fdec = profile.decimals, profile.u.feed_decimals
+    pts = np.asarray(toolpath.points, dtype=float) * k
+    kinds = np.asarray(toolpath.kinds)
+    # format every coordinate once; the same strings are compared (modality) and written
+    txt = _format_array(pts, dec)
+    safe = _num(profile.safe_z * k, dec)
+    if not len(pts):
+        return txt, kinds, safe
+    add(f"X{txt[0, 0]} Y{txt[0, 1]}")
+    for line in _move_lines(txt, kinds, safe, _num(profile.feed * k, fdec), _num(profile.plunge * k, fdec)):
+        add(line)
+    return txt, kinds, txt[-1, 2]
+
+
+def _retract(txt, kinds, last_z: str, safe: str, add) -> None:
+    """Back up to the safe height after the moves (G0 named when the last move was G1)."""
+    if last_z != safe:
+        add(("G0 " if len(txt) and kinds[-1] != RAPID else "") + f"Z{safe}")
+
+
+def _feeds_item(profile: MachineProfile) -> str:
+    u, k, fdec = profile.u, 1.0 / profile.u.mm_per_unit, profile.u.feed_decimals
+    return (f"cut {_num(profile.feed * k, fdec)}, plunge {_num(profile.plunge * k, fdec)} "
+            f"{u.name}/min, spindle {profile.spindle:.0f} rpm")
+
+
+def write_program(toolpath: Toolpath, profile: MachineProfile, *, title: str | None = None,
+                  operation: tuple | None = None) -> str:
     """The program text for ``toolpath`` (tip positions, work mm) on ``profile``.
 
     Pure and deterministic: no timestamps, no I/O. Coordinates are rounded to
     ``profile.decimals`` in program units (error <= ``profile.rounding_mm`` per axis).
     Moves that round to the previous position are dropped.
+
+    ``title``: the first header comment (default: the ball-end finishing program);
+    ``operation``: (key, value) header items of one operation of a job written one
+    program per tool (grbl), in place of the finishing passes' ``passes`` and ``stepover``.
     """
     d, u = profile.d, profile.u
     k = 1.0 / u.mm_per_unit
     dec, fdec = profile.decimals, u.feed_decimals
     units_word = u.gword
-
-    def num(v: float, nd: int) -> str:
-        s = f"{v:.{nd}f}"
-        if "." in s:
-            s = s.rstrip("0").rstrip(".")
-        if s in ("-0", ""):
-            s = "0"
-        return s
-
-    pts = np.asarray(toolpath.points, dtype=float) * k
+    num = _num
     kinds = np.asarray(toolpath.kinds)
-    # format every coordinate once; the same strings are compared (modality) and written
-    txt = _format_array(pts, dec)
 
     safe = num(profile.safe_z * k, dec)
     park = [num(v * k, dec) for v in profile.park]
-    start = np.array([np.nan, np.nan, profile.safe_z])
-    if len(pts):
-        start = np.array([toolpath.points[0, 0], toolpath.points[0, 1], profile.safe_z])
-    est = estimate_seconds(toolpath.points, kinds, start, profile)
+    est = estimate_seconds(toolpath.points, kinds, _start(toolpath, profile), profile)
 
     out: list[str] = []
     add = out.append
-    items = [("fabkit", f"ball-end raster finishing program, {d.name} dialect")]
+    items = [("fabkit", title or f"ball-end raster finishing program, {d.name} dialect")]
     items += list(profile.header)
     items += [("work zero (G54)", "X0 Y0 at the footprint corner of smallest x, y,"),
               ("", "Z0 on the stock top face"),
               ("scallop", _length(profile.scallop, u)), ("tolerance", _length(profile.tolerance, u))]
     gap = float(toolpath.info.get("edge_pass_gap_max", 0.0))
-    items += [("passes", f"{toolpath.passes}"),
-              ("stepover", (f"{toolpath.stepover_min * k:.4g}-" if toolpath.stepover_min < toolpath.stepover
-                            else "") + f"{toolpath.stepover * k:.4g} {u.name}"),
-              *([("edge pass gap", f"up to {gap * k:.4g} {u.name} from the passes over the stock "
-                                   "to those beyond its edges")]
-                if gap > toolpath.stepover else []),
-              ("units", f"{u.name} ({units_word}), feeds {u.name}/min, absolute (G90)"),
-              ("feeds", f"cut {num(profile.feed * k, fdec)}, plunge {num(profile.plunge * k, fdec)} "
-                        f"{u.name}/min, spindle {profile.spindle:.0f} rpm"),
+    if operation is not None:
+        items += list(operation)
+    else:
+        items += [("passes", f"{toolpath.passes}"),
+                  ("stepover", (f"{toolpath.stepover_min * k:.4g}-" if toolpath.stepover_min < toolpath.stepover
+                                else "") + f"{toolpath.stepover * k:.4g} {u.name}"),
+                  *([("edge pass gap", f"up to {gap * k:.4g} {u.name} from the passes over the stock "
+                                       "to those beyond its edges")]
+                    if gap > toolpath.stepover else [])]
+    items += [("units", f"{u.name} ({units_word}), feeds {u.name}/min, absolute (G90)"),
+              ("feeds", _feeds_item(profile)),
               ("safe height", f"Z{safe} {u.name}"),
               ("park", f"X{park[0]} Y{park[1]} at the safe height"),
               ("estimated time", f"{_fmt_duration(est)} (rapids at {num(profile.rapid * k, fdec)} "
@@ -311,20 +351,166 @@ def write_program(toolpath: Toolpath, profile: MachineProfile) -> str:
     add(f"G0 Z{safe}")
     add(f"M3 S{profile.spindle:.0f}")
 
-    if len(pts):
-        # rapid across at the safe height to above the first point (G0 is modal from "G0 Z<safe>")
-        add(f"X{txt[0, 0]} Y{txt[0, 1]}")
-        out.extend(_move_lines(txt, kinds, safe, num(profile.feed * k, fdec), num(profile.plunge * k, fdec)))
-        last_z = txt[-1, 2]
-    else:
-        last_z = safe
-    if last_z != safe:
-        add(("G0 " if len(pts) and kinds[-1] != RAPID else "") + f"Z{safe}")
-    last_xy = (txt[-1, 0], txt[-1, 1]) if len(pts) else (None, None)
+    txt, kinds, last_z = _moves(toolpath, profile, add)
+    _retract(txt, kinds, last_z, safe, add)
+    _park(txt, kinds, last_z, safe, park, add)
+    add("M5")
+    add(d.program_end)
+    return "\n".join(out) + "\n"
+
+
+def _park(txt, kinds, last_z: str, safe: str, park: list, add) -> None:
+    """The rapid at the safe height to the park position (axes already there omitted)."""
+    n = len(txt)
+    last_xy = (txt[-1, 0], txt[-1, 1]) if n else (None, None)
     if (last_xy[0], last_xy[1]) != (park[0], park[1]):
-        g0 = "G0 " if len(pts) and kinds[-1] != RAPID and last_z == safe else ""
+        g0 = "G0 " if n and kinds[-1] != RAPID and last_z == safe else ""
         add(g0 + " ".join(f"{a}{v}" for a, v, was in (("X", park[0], last_xy[0]), ("Y", park[1], last_xy[1]))
                           if v != was))
+
+
+# ----------------------------------------------------------------------------
+# a job of several operations (each with its own tool)
+# ----------------------------------------------------------------------------
+def operation_profile(profile: MachineProfile, tool) -> MachineProfile:
+    """``profile`` with the tool's own feed, plunge, spindle speed and number (the
+    profile's feeds and speed where the tool gives none)."""
+    return replace(profile,
+                   feed=float(tool.feed) if getattr(tool, "feed", None) is not None else profile.feed,
+                   plunge=float(tool.plunge) if getattr(tool, "plunge", None) is not None else profile.plunge,
+                   spindle=float(tool.spindle) if getattr(tool, "spindle", None) is not None else profile.spindle,
+                   tool_number=tool.number)
+
+
+def operation_seconds(op, profile: MachineProfile) -> float:
+    """Length / feed run time of one operation, s, at its tool's feeds (rapids at
+    ``profile.rapid``, no acceleration), from the safe height above its first point."""
+    p = operation_profile(profile, op.tool)
+    return estimate_seconds(op.toolpath.points, np.asarray(op.toolpath.kinds), _start(op.toolpath, p), p)
+
+
+def job_suffixes(operations, dialect: str) -> list[str]:
+    """The program files of a job, as suffixes of the program's stem: ``[""]`` (the
+    program path itself) for one program; for a dialect without a tool change (grbl)
+    and more than one operation, ``.1-rough.nc``, ``.2-rest.nc``, ``.3-finish.nc``...
+    numbered in the order they run."""
+    if len(operations) <= 1 or DIALECTS[dialect].tool_change is not None:
+        return [""]
+    return [f".{i}-{op.kind}.nc" for i, op in enumerate(operations, start=1)]
+
+
+def _op_items(op, i: int, n: int, profile: MachineProfile, u: Units, full: bool = True) -> list[tuple]:
+    """Header items describing operation ``i`` of ``n`` (``full``: with its feeds and time)."""
+    p = operation_profile(profile, op.tool)
+    k = 1.0 / u.mm_per_unit
+    tool = (f"T{op.tool.number} " if op.tool.number is not None else "") + _tool_words(op.tool, u)
+    what = [f"{op.levels} level" + ("s" if op.levels != 1 else "")] if op.levels else []
+    what.append(f"{op.passes} pass" + ("es" if op.passes != 1 else ""))
+    if op.leave > 0:
+        what.append(f"leaves {op.leave * k:.4g} {u.name}")
+    items = [(f"operation {i} of {n}", f"{op.kind}, {tool}"), ("", ", ".join(what))]
+    if full:
+        items += [("", f"feeds {_feeds_item(p)}"),
+                  ("", f"estimated {_fmt_duration(operation_seconds(op, profile))} (length/feed)")]
+    return items
+
+
+def _tool_words(tool, u: Units) -> str:
+    name = {"flat": "flat end mill", "ball": "ball-end mill", "bull": "bull nose"}[tool.shape]
+    extra = f", corner radius {_length(tool.corner_radius, u)}" if tool.shape == "bull" else ""
+    return f"{name}, diameter {_length(tool.diameter, u)}{extra}"
+
+
+def write_job(operations, profile: MachineProfile) -> list[tuple[str, str]]:
+    """The programs of a job of ``operations`` (:class:`~fabkit.toolpath.operations.Operation`,
+    in the order they run) on ``profile`` (the finishing tool's, as :func:`profile_from_spec`
+    gives it). Returns [(suffix, text)], suffixes as :func:`job_suffixes`.
+
+    - One operation: :func:`write_program` of its toolpath on ``profile``, unchanged
+      (today's single program, byte for byte).
+    - A dialect with a tool change (LinuxCNC): ONE program; each operation starts with a
+      comment ``(operation: i of n, kind, Tn)``, then (when its tool is not the one in the
+      spindle) spindle off (M5, from the second on; the tool is already retracted to the
+      safe height) and the tool call ``Tn M6 G43 Hn``, a rapid to the safe height (the new
+      length offset applies) and its own spindle speed, then its moves at its tool's
+      feeds. The header lists every operation. Every tool needs a number.
+    - Without one (grbl): one complete program per operation (preamble, spindle, its
+      moves, end), each naming its tool and its place in the job.
+
+    Pure and deterministic, like :func:`write_program`.
+    """
+    ops = list(operations)
+    if not ops:
+        raise ValueError("a job needs at least one operation")
+    if len(ops) == 1:
+        return [("", write_program(ops[0].toolpath, profile))]
+    d, u = profile.d, profile.u
+    n = len(ops)
+    header = [(key, value) for key, value in profile.header if key != "tool"]
+    kinds = " then ".join(op.kind for op in ops)
+    if d.tool_change is None:
+        out = []
+        for i, (op, suffix) in enumerate(zip(ops, job_suffixes(ops, d.name)), start=1):
+            p = replace(operation_profile(profile, op.tool), header=tuple(header))
+            items = _op_items(op, i, n, profile, u, full=False)
+            items.append(("job", f"{kinds}: run the programs in this order, touching off Z0 on the "
+                                 "same top face after each tool change"))
+            out.append((suffix, write_program(op.toolpath, p, operation=items,
+                                              title=f"{op.kind} program {i} of {n}, {d.name} dialect")))
+        return out
+    missing = [op.kind for op in ops if op.tool.number is None]
+    if missing:
+        raise ValueError(f"every tool of a {d.name} job needs a number for its tool change "
+                         f"(none for: {', '.join(missing)})")
+    return [("", _write_changes(ops, profile, header))]
+
+
+def _write_changes(ops, profile: MachineProfile, header: list) -> str:
+    """One program with a tool change before each operation (see :func:`write_job`)."""
+    d, u = profile.d, profile.u
+    k = 1.0 / u.mm_per_unit
+    dec, fdec = profile.decimals, u.feed_decimals
+    safe = _num(profile.safe_z * k, dec)
+    park = [_num(v * k, dec) for v in profile.park]
+    n = len(ops)
+    total = sum(operation_seconds(op, profile) for op in ops)
+    n_tools = len({op.tool.number for op in ops})
+    items = [("fabkit", f"{', '.join(op.kind for op in ops)} program, {n_tools} tools, {d.name} dialect")]
+    items += header
+    items += [("work zero (G54)", "X0 Y0 at the footprint corner of smallest x, y,"),
+              ("", "Z0 on the stock top face, every tool's length offset from the tool table (G43)"),
+              ("scallop", _length(profile.scallop, u)), ("tolerance", _length(profile.tolerance, u))]
+    for i, op in enumerate(ops, start=1):
+        items += _op_items(op, i, n, profile, u)
+    items += [("units", f"{u.name} ({u.gword}), feeds {u.name}/min, absolute (G90)"),
+              ("safe height", f"Z{safe} {u.name}"),
+              ("park", f"X{park[0]} Y{park[1]} at the safe height"),
+              ("estimated time", f"{_fmt_duration(total)} (length/feed, rapids at "
+                                 f"{_num(profile.rapid * k, fdec)} {u.name}/min, no acceleration)")]
+    out: list[str] = []
+    add = out.append
+    for key, value in items:
+        out.extend(_comment_lines(key, str(value), d))
+    add(" ".join(w.format(units=u.gword) for w in d.preamble))
+    if d.path_blending:
+        add(f"G64 P{_num(profile.tolerance * 0.5 * k, dec)}")
+    loaded = None
+    for i, op in enumerate(ops, start=1):
+        p = operation_profile(profile, op.tool)
+        out.extend(_comment_lines("operation", f"{i} of {n}, {op.kind}, T{op.tool.number}", d))
+        if op.tool.number != loaded:          # the same tool again (rest then finish with one ball): no change
+            if loaded is not None:
+                add("M5")
+            add(d.tool_change.format(n=int(op.tool.number)))
+            loaded = op.tool.number
+        add(f"G0 Z{safe}")
+        add(f"M3 S{p.spindle:.0f}")
+        txt, kinds, last_z = _moves(op.toolpath, p, add)
+        _retract(txt, kinds, last_z, safe, add)
+    if len(txt):
+        _park(txt, kinds, last_z, safe, park, add)
+    else:
+        add(f"G0 X{park[0]} Y{park[1]}")
     add("M5")
     add(d.program_end)
     return "\n".join(out) + "\n"
@@ -347,5 +533,6 @@ def used_words(text: str) -> set[str]:
     return words
 
 
-__all__ = ["Dialect", "DIALECTS", "UNITS", "MachineProfile", "profile_from_spec", "write_program",
+__all__ = ["Dialect", "DIALECTS", "UNITS", "MachineProfile", "profile_from_spec", "write_program", "write_job",
+           "job_suffixes", "operation_profile", "operation_seconds",
            "estimate_seconds", "used_words", "DEFAULT_RAPID_MM_MIN", "MM_PER_INCH"]

@@ -11,6 +11,12 @@ command judges a cut on its own. Nothing here prints, writes files or exits.
 The verification reads the WRITTEN TEXT back (not the planner's arrays), so the
 program's formatting and rounding are part of what is checked. Lengths are work mm
 (the program's own units appear only in the text and the sheet).
+
+With a ``roughing`` section the finish above is planned, verified and repaired the
+same way; then the roughing planner (:mod:`fabkit.toolpath.roughing`) adds its rough
+and rest operations, :func:`fabkit.toolpath.gcode.write_job` writes every program, each
+is read back, and the stock model (:mod:`fabkit.toolpath.stock`, when present)
+replays the whole job from the text.
 """
 
 from __future__ import annotations
@@ -23,7 +29,8 @@ from typing import Callable
 
 import numpy as np
 
-__all__ = ["REPAIR_ROUNDS", "CutReport", "JobResult", "run_job", "verify_program", "repair", "generated_at"]
+__all__ = ["REPAIR_ROUNDS", "CutReport", "JobResult", "OperationFigures", "run_job", "verify_program", "repair",
+           "generated_at", "has_roughing", "plan_job_operations", "job_figures"]
 
 REPAIR_ROUNDS = 2      # verify, add passes where material is left, verify again (at most twice)
 
@@ -171,7 +178,17 @@ class JobResult:
     """One toolpath job's outcome. ``cut`` is None when not verified. ``estimate_s``:
     length / feed (rapids at the assumed rate, no acceleration); ``run``, ``machine_check``:
     the machine planner's run time and the checks before cutting (None without a machine
-    profile). ``timings``: wall seconds of plan, write, verify, sheet."""
+    profile). ``timings``: wall seconds of plan, write, verify, sheet.
+
+    A job with roughing (a ``roughing`` section) also has ``operations`` (rough, rest,
+    finish: :class:`~fabkit.toolpath.operations.Operation`), ``figures`` (one
+    :class:`OperationFigures` each), ``programs`` ([(suffix, text)] as written:
+    :func:`fabkit.toolpath.gcode.write_job`), ``job_check`` (the whole job simulated on
+    the stock, None without the stock model or unverified) and ``stock_pictures``
+    ({'rough'|'finish': PNG bytes}). Then ``toolpath``, ``program`` and ``cut`` are the
+    finish's (verified as without roughing), ``text`` the program holding the finish,
+    ``estimate_s`` and ``lines`` the whole job's. Without roughing these are empty and
+    everything is as before."""
 
     spec: object
     surface: object
@@ -186,9 +203,17 @@ class JobResult:
     machine: object = None
     run: object = None
     machine_check: object = None
+    operations: list = field(default_factory=list)
+    figures: list = field(default_factory=list)
+    programs: list = field(default_factory=list)
+    job_check: object = None
+    stock_pictures: dict = field(default_factory=dict)
 
     @property
     def lines(self) -> int:
+        """Lines of every program of the job (today's one program: its lines)."""
+        if self.programs:
+            return sum(text.count("\n") for _, text in self.programs)
         return self.text.count("\n")
 
     @property
@@ -197,8 +222,13 @@ class JobResult:
 
     @property
     def failures(self) -> list[str]:
-        """The failed acceptance checks (empty: the cut is good, or it was not verified)."""
-        return self.cut.failures(self.spec.machining) if self.cut is not None else []
+        """The failed acceptance checks (empty: the cut is good, or it was not verified):
+        the finishing cut's and, for a job with roughing, the whole job's (every tool's
+        gouge, the allowance after roughing, the finishing ball's depth of cut)."""
+        bad = self.cut.failures(self.spec.machining) if self.cut is not None else []
+        if self.job_check is not None:
+            bad += [f"whole job: {b}" for b in _job_failures(self.job_check)]
+        return bad
 
     @property
     def ok(self) -> bool:
@@ -218,6 +248,207 @@ class JobResult:
 
         L, W = self.surface.stock_size_mm
         return preview_png(self.program, L, W, self.profile.units)
+
+
+# ----------------------------------------------------------------------------
+# a job of several operations (roughing, rest machining, finishing)
+# ----------------------------------------------------------------------------
+@dataclass(frozen=True)
+class OperationFigures:
+    """What the summary, the sheet and the report give for one operation (work mm, s).
+
+    ``program``: the suffix of its program file on the program's stem ("" : the program
+    itself); ``lines``: its lines (in a one-program job, those from its tool change to
+    the next); ``estimate_s``: length / feed at its tool's feeds; ``run_s``: the machine
+    planner's time of its moves (None without a machine profile). Both from the program
+    text: ``estimate_s`` is :func:`fabkit.toolpath.verify.estimate_time` of its moves read
+    back (today's estimator; in a one-program job the moves from the previous
+    operation's last position, so the operations' figures add up to the program's)."""
+
+    kind: str
+    tool: object
+    levels: int
+    passes: int
+    leave: float
+    program: str
+    lines: int
+    estimate_s: float
+    run_s: float | None = None
+    feed: float = 0.0
+    plunge: float = 0.0
+    spindle: float = 0.0
+
+    @property
+    def time_s(self) -> float:
+        """The best time there is: the machine's when known, else length / feed."""
+        return self.run_s if self.run_s is not None else self.estimate_s
+
+    @property
+    def estimator(self) -> str:
+        return "machine planner" if self.run_s is not None else "length/feed"
+
+    def to_json(self, k: float = 1.0) -> dict:
+        """JSON keys; lengths in program units (``k``: program units per mm)."""
+        t = self.tool
+        return {"kind": self.kind, "tool": {"number": t.number, "shape": t.shape, "diameter": _rk(t.diameter, k),
+                                            "corner_radius": _rk(t.corner_radius, k)},
+                "levels": int(self.levels), "passes": int(self.passes), "leave": _rk(self.leave, k),
+                "program": self.program, "lines": int(self.lines),
+                "time_s": round(float(self.time_s), 1), "estimator": self.estimator,
+                "length_over_feed_s": round(float(self.estimate_s), 1),
+                "machine_s": round(float(self.run_s), 1) if self.run_s is not None else None,
+                "feed": _rk(self.feed, k), "plunge": _rk(self.plunge, k), "spindle_rpm": _rk(self.spindle, 1.0)}
+
+
+def _rk(v: float, k: float):
+    v = float(v) * k
+    return float(f"{v:.9g}") if np.isfinite(v) else None
+
+
+def has_roughing(spec) -> bool:
+    """The spec asks for roughing with its own tool (a ``roughing`` section)."""
+    return bool(getattr(spec, "has", lambda name: False)("roughing"))
+
+
+def _job_failures(check) -> list[str]:
+    """The whole job's failed checks from :func:`fabkit.toolpath.stock.verify_job`'s result
+    (a ``failures`` list or method, or an ``ok``/``message`` pair)."""
+    f = getattr(check, "failures", None)
+    if callable(f):
+        f = f()
+    if f is not None:
+        return list(f)
+    return [] if getattr(check, "ok", True) else [str(getattr(check, "message", "failed"))]
+
+
+def _op_line_ranges(text: str, n: int) -> list[tuple[int, int]]:
+    """[(first line, last line)] (1-based) of each operation in a one-program job: from its
+    ``(operation: i of n, ...)`` comment (:func:`fabkit.toolpath.gcode.write_job`) to the
+    line before the next one (the first from line 1, the last to the end)."""
+    lines = text.splitlines()
+    starts = [i + 1 for i, ln in enumerate(lines) if ln.startswith("(operation: ")]
+    if len(starts) != n:
+        raise ValueError(f"{len(starts)} operation comments in a program of {n} operations")
+    starts[0] = 1
+    return [(a, b - 1) for a, b in zip(starts, starts[1:] + [len(lines) + 1])]
+
+
+def _section(program, lo: int, hi: int):
+    """The moves of ``program`` on lines lo..hi, as a Program starting where the one
+    before left off."""
+    from .verify import Program
+
+    keep = (program.line >= lo) & (program.line <= hi)
+    idx = np.nonzero(keep)[0]
+    start = program.start if not len(idx) or idx[0] == 0 else program.points[idx[0] - 1]
+    return Program(start=np.array(start, dtype=float), points=program.points[keep], kinds=program.kinds[keep],
+                   feed=program.feed[keep], line=program.line[keep], units=program.units, lines=program.lines)
+
+
+def plan_job_operations(spec, surface, finish_toolpath) -> list:
+    """The job's operations: the roughing planner's (rough, then rest) and the finish
+    with the spec's finishing tool. Without a ``roughing`` section: the finish alone."""
+    from .operations import Operation
+
+    if not has_roughing(spec):
+        from .tools import Tool
+
+        t = spec.tool
+        tool = Tool(t.shape, t.diameter, 0.5 * t.diameter if t.shape == "ball" else 0.0,
+                    reach=t.reach, number=t.number)
+        return [Operation("finish", tool, finish_toolpath, passes=int(finish_toolpath.passes))]
+    from . import roughing
+
+    ops = list(roughing.plan_operations(spec, surface, finish_toolpath))
+    ops.append(Operation("finish", roughing.finish_tool(spec), finish_toolpath,
+                         passes=int(finish_toolpath.passes)))
+    return ops
+
+
+def job_figures(operations, programs, profile, machine=None, raster_axis: int | None = None) -> tuple:
+    """Per operation :class:`OperationFigures` and the programs read back.
+
+    ``programs``: :func:`fabkit.toolpath.gcode.write_job`'s [(suffix, text)]: one per
+    operation, or one for all. Returns (figures, readback) with ``readback`` one
+    Program per operation (its moves read back from the written text)."""
+    from .gcode import operation_profile, write_program
+    from .verify import estimate_time, read_program
+
+    n = len(operations)
+    if len(programs) == n:
+        parts = [(suffix, text, read_program(text)) for suffix, text in programs]
+        readback = [p for _, _, p in parts]
+        lines = [text.count("\n") for _, text, _ in parts]
+        names = [suffix for suffix, _, _ in parts]
+    else:
+        (suffix, text), = programs
+        whole = read_program(text)
+        ranges = _op_line_ranges(text, n)
+        readback = [_section(whole, lo, hi) for lo, hi in ranges]
+        lines = [hi - lo + 1 for lo, hi in ranges]
+        names = [suffix] * n
+    figures = []
+    for i, op in enumerate(operations):
+        run_s = None
+        p = operation_profile(profile, op.tool)
+        if machine is not None:
+            from ..machine.planner import run_time
+
+            text_i = programs[i][1] if len(programs) == n else write_program(op.toolpath, p)
+            run_s = float(run_time(text_i, machine, None if len(programs) != n else readback[i],
+                                   raster_axis=raster_axis if op.kind == "finish" else None).total_s)
+        figures.append(OperationFigures(kind=op.kind, tool=op.tool, levels=int(op.levels), passes=int(op.passes),
+                                        leave=float(op.leave), program=names[i], lines=int(lines[i]),
+                                        estimate_s=estimate_time(readback[i], profile.rapid), run_s=run_s,
+                                        feed=p.feed, plunge=p.plunge, spindle=p.spindle))
+    return figures, readback
+
+
+#: the operations a picture "after roughing" follows: the last of these before the finish
+_ROUGHING_KINDS = ("rough", "rest")
+#: Operation.info keys the stock simulation reads (bounds of the allowance, depth of cut),
+#: also given by the roughing planner with a "_mm" suffix
+_STOCK_INFO_KEYS = ("cusp", "stepdown", "depth_of_cut", "leave")
+
+
+def _stock_verification(spec, surface, operations, readback):
+    """The whole job simulated on the stock, each operation's moves AS READ BACK from the
+    written text, each with its own tool (:func:`fabkit.toolpath.stock.verify_job`), and
+    the shaded pictures of the stock after roughing and after finishing
+    (:func:`fabkit.toolpath.stock.stock_png`): (check, {'rough'|'finish': png}); (None, {})
+    where that module is not there. The one place that knows the stock module's interface."""
+    try:
+        from . import stock
+    except ImportError:
+        return None, {}
+    from .operations import Operation
+    from .path import Toolpath
+
+    m = spec.machining
+    replay = []
+    for op, prog in zip(operations, readback):
+        info = dict(op.info)
+        for key in _STOCK_INFO_KEYS:          # the roughing planner's names for what the stock checks
+            if key not in info and f"{key}_mm" in info:
+                info[key] = info[f"{key}_mm"]
+        tp = Toolpath(prog.points, prog.kinds, op.tool.radius, safe_z=op.toolpath.safe_z)
+        tp.info["start"] = prog.start
+        tp.info["line"] = prog.line
+        replay.append(Operation(op.kind, op.tool, tp, leave=op.leave, levels=op.levels, passes=op.passes,
+                                info={**info, "start": prog.start}))
+    doc = getattr(spec.tool, "_values", {}).get("depth_of_cut")     # the finishing tool's allowed depth of cut
+    check = stock.verify_job(surface, replay, m.tolerance, scallop=m.scallop,
+                             depth_of_cut={"finish": doc} if doc else None,
+                             measure=getattr(m, "scallop_measure", "normal"))
+    pictures = {}
+    snaps = getattr(check, "snapshots", None) or []
+    if hasattr(stock, "stock_png") and len(snaps) == len(replay):
+        rough = [i for i, op in enumerate(replay) if op.kind in _ROUGHING_KINDS]
+        for after, i in (("rough", rough[-1] if rough else None), ("finish", len(replay) - 1)):
+            if i is not None:
+                title = "stock after " + ("roughing" if after == "rough" else "finishing")
+                pictures[after] = stock.stock_png(snaps[i], check.design, title=title, tolerance=m.tolerance)
+    return check, pictures
 
 
 def run_job(spec, surface, *, machine=None, verify: bool = True,
@@ -258,22 +489,107 @@ def run_job(spec, surface, *, machine=None, verify: bool = True,
     est = estimate_time(program, profile.rapid)
     t_verify = time.perf_counter() - t0
     run = mcheck = None
+    axis = 0 if spec.machining.direction == "x" else 1
     if machine is not None:
         from ..machine.limits import check_program
         from ..machine.planner import run_time
 
-        run = run_time(text, machine, program, raster_axis=0 if spec.machining.direction == "x" else 1)
+        run = run_time(text, machine, program, raster_axis=axis)
         mcheck = check_program(program, text, machine, run)
+    extra: dict = {}
+    if has_roughing(spec):
+        extra = _operations(spec, surface, toolpath, profile, text, program, machine, verify, axis, say)
+        est = sum(f.estimate_s for f in extra["figures"])
+        if machine is not None:
+            mcheck = _machine_checks(extra["programs"], extra["readback_programs"], machine, mcheck)
+        t_plan += extra.pop("plan_seconds")         # the rough and rest operations' planning
+        t_verify += extra.pop("seconds")            # writing, reading back, the whole job simulated
 
     say("setup sheet")
     t0 = time.perf_counter()
     timings = {"plan": t_plan, "write": t_write, "verify": t_verify}
-    sheet = setup_sheet(spec, surface, toolpath, profile,
-                        program_path if program_path is not None else f"{spec.name}.ngc",
-                        cut.as_dict() if cut is not None else None, est, text.count("\n"),
+    lines = sum(t.count("\n") for _, t in extra["programs"]) if extra else text.count("\n")
+    sheet_program = job_path = program_path if program_path is not None else f"{spec.name}.ngc"
+    if extra and len(extra["programs"]) > 1:        # grbl: the finishing program's own file
+        from .setup import job_program_path
+
+        sheet_program = job_program_path(sheet_program, extra["programs"][-1][0])
+    needs = program if not extra else _merged(extra["readback_programs"])
+    sheet = setup_sheet(spec, surface, toolpath, profile, sheet_program,
+                        cut.as_dict() if cut is not None else None, est, lines,
                         timings=timings, generated_at=generated if generated is not None else generated_at(),
-                        program=program, machine=machine, run=run, machine_check=mcheck)
+                        program=needs, machine=machine, run=run, machine_check=mcheck,
+                        operations=extra.get("figures"), job_check=extra.get("job_check"), job_path=job_path)
     timings["sheet"] = time.perf_counter() - t0
+    if extra:
+        job_text = extra["programs"][-1][1]      # the program holding the finish
+        return JobResult(spec=spec, surface=surface, toolpath=toolpath, profile=profile, text=job_text,
+                         program=program, cut=cut, estimate_s=est, sheet=sheet, timings=timings, machine=machine,
+                         run=run, machine_check=mcheck, operations=extra["operations"], figures=extra["figures"],
+                         programs=extra["programs"], job_check=extra.get("job_check"),
+                         stock_pictures=extra.get("stock_pictures", {}))
     return JobResult(spec=spec, surface=surface, toolpath=toolpath, profile=profile, text=text, program=program,
                      cut=cut, estimate_s=est, sheet=sheet, timings=timings, machine=machine, run=run,
                      machine_check=mcheck)
+
+
+def _operations(spec, surface, toolpath, profile, text, program, machine, verify, axis, say) -> dict:
+    """The roughing part of :func:`run_job`: plan the rough and rest operations against
+    the (verified, repaired) finish, write every program, read each back, check that
+    the finish's moves read back are the ones verified, figure each operation and, when
+    the stock simulation is there, verify the whole job."""
+    from ..errors import DesignError, SpecError
+    from .gcode import write_job
+
+    say("planning the roughing")
+    t0 = time.perf_counter()
+    ops = plan_job_operations(spec, surface, toolpath)
+    t_plan = time.perf_counter() - t0
+    if profile.d.tool_change is not None:
+        missing = [op.kind for op in ops if op.tool.number is None]
+        if missing:
+            raise SpecError(f"a {profile.dialect} job with roughing changes tools with M6: every tool needs a "
+                            f"number (none for the {', '.join(missing)} tool)", file=spec.path, key="tools")
+    programs = write_job(ops, profile)
+    figures, readback = job_figures(ops, programs, profile, machine, raster_axis=axis)
+    fin = readback[-1]
+    # from the rapid across on: the first move (G0 Z<safe>) starts where the tool change left the tool
+    if not (np.array_equal(fin.points[1:], program.points[1:], equal_nan=True)
+            and np.array_equal(fin.kinds, program.kinds)):
+        # the finish written into the job is not the program verified: never pass it off as verified
+        raise DesignError("the finishing moves written into the job differ from the verified program")
+    job_check, pictures = (None, {})
+    if verify:
+        say("verifying the whole job")
+        job_check, pictures = _stock_verification(spec, surface, ops, readback)
+    return {"operations": ops, "programs": programs, "figures": figures, "readback_programs": readback,
+            "job_check": job_check, "stock_pictures": pictures, "plan_seconds": t_plan,
+            "seconds": time.perf_counter() - t0 - t_plan}
+
+
+def _merged(programs):
+    """Every operation's moves read back, in order, as one Program (what the whole job
+    asks of the machine)."""
+    from .verify import Program
+
+    return Program(start=programs[0].start, points=np.vstack([p.points for p in programs]),
+                   kinds=np.concatenate([p.kinds for p in programs]),
+                   feed=np.concatenate([p.feed for p in programs]),
+                   line=np.concatenate([p.line for p in programs]), units=programs[0].units,
+                   lines=sum(p.lines for p in programs))
+
+
+def _machine_checks(programs, readback, machine, finish_check):
+    """The machine's checks over every program of the job, merged into one verdict."""
+    from ..machine.limits import MachineCheck, check_program
+    from .verify import read_program
+
+    merged = MachineCheck(machine=finish_check.machine, travel=dict(finish_check.travel))
+    for _, text in programs:
+        chk = check_program(read_program(text), text, machine)
+        merged.refusals += [r for r in chk.refusals if r not in merged.refusals]
+        merged.warnings += [w for w in chk.warnings if w not in merged.warnings]
+        for ax, (span, avail) in chk.travel.items():
+            if span > merged.travel.get(ax, (0.0, avail))[0]:
+                merged.travel[ax] = (span, avail)
+    return merged

@@ -71,6 +71,93 @@ def sheet_paths(program_path) -> dict:
             "png": Path(f"{stem}.preview.png")}
 
 
+def job_program_path(program_path, suffix: str) -> Path:
+    """The file of one program of a job: ``program_path`` itself for suffix "", else the
+    stem with the suffix (``<stem>.1-rough.nc``)."""
+    p = Path(program_path)
+    if not suffix:
+        return p
+    stem = p.with_suffix("") if p.suffix else p
+    return Path(f"{stem}{suffix}")
+
+
+def job_program_paths_possible(program_path, dialect: str) -> list[Path]:
+    """Every program file besides ``program_path`` a job with roughing may write for
+    ``dialect`` (to check them before planning): none with a tool change (one program),
+    else (grbl) one per operation."""
+    from .gcode import DIALECTS
+    from .operations import OPERATION_KINDS
+
+    if DIALECTS[dialect].tool_change is not None:
+        return []
+    return [job_program_path(program_path, f".{i}-{kind}.nc")
+            for i in range(1, 6) for kind in OPERATION_KINDS]
+
+
+def stock_paths(program_path) -> dict:
+    """{'rough', 'finish'}: the shaded stock pictures beside ``program_path``."""
+    p = Path(program_path)
+    stem = p.with_suffix("") if p.suffix else p
+    return {after: Path(f"{stem}.stock-{after}.png") for after in ("rough", "finish")}
+
+
+def _operations_keys(figures, program_path, dialect: str, k: float, job_check) -> dict:
+    """The sheet's keys of a job with roughing: ``operations`` (one per operation: tool,
+    levels, passes, leave, program file, lines, time and its estimator), ``programs``
+    (the files in the order they run), ``steps`` (what the operator does, per tool) and
+    ``job_verification`` (the whole job simulated on the stock, when there is one)."""
+    ops = []
+    for f in figures:
+        d = f.to_json(k)
+        d["program"] = job_program_path(program_path, f.program).name
+        ops.append(d)
+    files = list(dict.fromkeys(o["program"] for o in ops))
+    steps = []
+    loaded = None
+    for i, o in enumerate(ops, start=1):
+        t = o["tool"]
+        tool = (f"T{t['number']} " if t["number"] is not None else "") + _TOOL_NAMES[t["shape"]] + \
+            f" {t['diameter']:g}"
+        same, loaded = t["number"] is not None and t["number"] == loaded, t["number"]
+        if same:
+            steps.append(f"{o['kind']}: keep {tool} (no change)"
+                         + (f", run {o['program']}" if len(files) > 1 else ""))
+        elif len(files) == 1:
+            steps.append(f"{o['kind']}: load {tool} and touch it off (Z0) on the same top face into the tool "
+                         "table: the program changes to it with M6 and applies its length with G43")
+        else:
+            steps.append(f"{o['kind']}: load {tool}, touch off Z0 on the same top face, run {o['program']}")
+    if len(files) == 1:
+        steps.append(f"run {files[0]}: it stops for each tool change (M6)")
+    out = {"operations": ops, "programs": files, "steps": steps}
+    if job_check is not None:
+        to_json = getattr(job_check, "to_json", None)
+        jv = to_json() if callable(to_json) else None
+        if isinstance(jv, dict):
+            jv = {key: v for key, v in jv.items() if key != "seconds"}     # wall time: in timings_s
+        out["job_verification"] = _plain(jv)
+    return out
+
+
+_TOOL_NAMES = {"flat": "flat end mill", "bull": "bull nose", "ball": "ball-end mill"}
+
+
+def _plain(v):
+    """JSON-ready (the sheet is written with allow_nan=False): numpy to Python, tuples to
+    lists, non-finite floats to None."""
+    if isinstance(v, dict):
+        return {str(key): _plain(x) for key, x in v.items()}
+    if isinstance(v, (list, tuple, np.ndarray)):
+        return [_plain(x) for x in (v.tolist() if isinstance(v, np.ndarray) else v)]
+    if isinstance(v, (bool, np.bool_)):
+        return bool(v)
+    if isinstance(v, (int, np.integer)):
+        return int(v)
+    if isinstance(v, (float, np.floating)):
+        return float(v) if math.isfinite(v) else None
+    return v
+
+
 def _r(v, nd=9):
     """Round for the sheet (floats to ``nd`` significant digits); None for non-finite."""
     if v is None:
@@ -84,7 +171,7 @@ def _r(v, nd=9):
 def setup_sheet(spec, surface, toolpath, profile, program_path, check: dict | None,
                 estimated_time_s: float, lines: int, timings: dict | None = None,
                 generated_at: str | None = None, program=None, machine=None, run=None,
-                machine_check=None) -> dict:
+                machine_check=None, operations=None, job_check=None, job_path=None) -> dict:
     """The setup sheet as a dict (JSON-ready). ``check``: the result of
     :func:`fabkit.toolpath.verify.verify_cut` (work mm) or None when not verified.
     ``program``: the program read back (:func:`fabkit.toolpath.verify.read_program`);
@@ -146,7 +233,8 @@ def setup_sheet(spec, surface, toolpath, profile, program_path, check: dict | No
             "height": _r(un["height"] * k), "at": [_r(v * k) for v in un["at"]],
             "area": _r(un["area"] * k * k)}
     if program is not None:
-        need = machine_needs(program, profile.spindle)
+        rpm = max([profile.spindle] + [f.spindle for f in operations or []])
+        need = machine_needs(program, rpm)
         axes = need["axis_rate_max"]
         sheet["tool_number"] = getattr(spec.tool, "number", None)
         sheet["park"] = [_r(v * k) for v in profile.park]
@@ -161,6 +249,9 @@ def setup_sheet(spec, surface, toolpath, profile, program_path, check: dict | No
         sheet["grbl_defaults"] = dict(GRBL_DEFAULTS)
     if machine is not None:
         sheet.update(_machine_keys(machine, run, machine_check, k))
+    if operations:
+        sheet.update(_operations_keys(operations, job_path if job_path is not None else program_path,
+                                      profile.dialect, k, job_check))
     if timings:
         sheet["timings_s"] = {key: round(float(v), 3) for key, v in timings.items()}
     if generated_at:
@@ -196,6 +287,9 @@ def _run_markdown(sheet: dict) -> list[str]:
              f"plunges {rt['plunge_s']:g} s, rapids {rt['rapid_s']:g} s",
              f"- Length/feed estimate of the same moves (no acceleration): {_hms(rt['length_over_feed_s'])} "
              f"({rt['length_over_feed_s']:g} s)"]
+    if sheet.get("operations"):
+        lines.insert(3, "- These figures are the finishing program's; every operation's time is in the "
+                        "Operations table")
     pp = rt.get("per_pass")
     if pp:
         lines.append(f"- {pp['passes']} passes: {pp['median_s']:g} s each (median; {pp['min_s']:g} to {pp['max_s']:g} s, "
@@ -268,8 +362,47 @@ def _needs_markdown(sheet: dict) -> list[str]:
     return lines
 
 
-def sheet_markdown(sheet: dict, png_name: str | None) -> str:
-    """The operator's sheet (Markdown)."""
+def _duration(seconds: float) -> str:
+    """h min, or seconds below a minute."""
+    return _hms(seconds) if seconds >= 59.5 else f"{seconds:.0f} s"
+
+
+def _operations_markdown(sheet: dict) -> list[str]:
+    """The 'Operations' section of a job with roughing: the steps per tool and a table
+    per operation (empty for today's one-tool job)."""
+    ops = sheet.get("operations")
+    if not ops:
+        return []
+    u = sheet["units"]
+    total = sum(o["time_s"] for o in ops)
+    est = sorted({o["estimator"] for o in ops})
+    lines = ["## Operations", "", "Steps, in this order:", ""]
+    lines += [f"{i}. {s}" for i, s in enumerate(sheet["steps"], start=1)]
+    lines += ["", "| # | operation | tool | feeds | levels | passes | leaves | program | lines | time |",
+              "|---|---|---|---|---|---|---|---|---|---|"]
+    for i, o in enumerate(ops, start=1):
+        t = o["tool"]
+        tool = (f"T{t['number']} " if t["number"] is not None else "") + f"{_TOOL_NAMES[t['shape']]} " \
+            f"{t['diameter']:g} {u}" + (f" (corner {t['corner_radius']:g})" if t["shape"] == "bull" else "")
+        lines.append(f"| {i} | {o['kind']} | {tool} | F{o['feed']:g}, plunge F{o['plunge']:g} {u}/min, "
+                     f"S{o['spindle_rpm']:g} | {o['levels'] or '-'} | {o['passes']} | "
+                     f"{o['leave']:g} {u} | `{o['program']}` | {o['lines']} | "
+                     f"{_duration(o['time_s'])} ({o['estimator']}) |")
+    lines += ["", f"Total {_duration(total)} ({' and '.join(est)}; a tool change's own time not counted), "
+                  f"{sheet['lines']} program lines."]
+    jv = sheet.get("job_verification")
+    if jv and isinstance(jv, dict):
+        ok = jv.get("ok")
+        lines.append("")
+        lines.append("Whole job simulated on the stock, each tool with its own shape: "
+                     + ("within its bounds." if ok else "see `job_verification` in the JSON sheet."
+                        if ok is None else "OUT OF BOUNDS: see `job_verification` in the JSON sheet."))
+    return lines + [""]
+
+
+def sheet_markdown(sheet: dict, png_name: str | None, stock_pngs: dict | None = None) -> str:
+    """The operator's sheet (Markdown). ``stock_pngs``: {'rough'|'finish': file name} of
+    the shaded stock pictures beside it (a job with roughing)."""
     u = sheet["units"]
     st = sheet["stock"]
     lines = [
@@ -286,7 +419,7 @@ def sheet_markdown(sheet: dict, png_name: str | None) -> str:
         f"({', '.join(f'{v:g}' for v in sheet['design_to_work']['offset'])}) "
         f"(design units: {sheet['design_to_work']['design_units']}).",
         "",
-        "## Tool and feeds",
+        "## Tool and feeds" if not sheet.get("operations") else "## Finishing tool and feeds",
         "",
         f"- Tool: {sheet['tool']['shape']}-end mill, diameter {sheet['tool']['diameter']:g} {u}"
         + (f", reach {sheet['tool']['reach']:g} {u}" if sheet["tool"]["reach"] is not None else ""),
@@ -294,9 +427,10 @@ def sheet_markdown(sheet: dict, png_name: str | None) -> str:
         f"- Safe height Z{sheet['safe_z']:g}; deepest cut {sheet['depth']:g} {u} (limit {sheet['depth_limit']:g})"
         if sheet["depth"] is not None else f"- Safe height Z{sheet['safe_z']:g}",
         "",
+        *_operations_markdown(sheet),
         *_needs_markdown(sheet),
         *_run_markdown(sheet),
-        "## Passes",
+        "## Passes" if not sheet.get("operations") else "## Finishing passes",
         "",
         f"- {sheet['passes']} raster passes along {sheet['direction']}, stepover "
         f"{sheet['stepover_min']:g} to {sheet['stepover']:g} {u} between passes over the stock"
@@ -331,6 +465,9 @@ def sheet_markdown(sheet: dict, png_name: str | None) -> str:
         lines += ["- Not verified (--no-verify)."]
     if png_name:
         lines += ["", "## Preview", "", f"![toolpath preview]({png_name})"]
+    for after, name in (stock_pngs or {}).items():
+        lines += ["", f"## Simulated stock after {'roughing' if after == 'rough' else 'finishing'}", "",
+                  f"![stock after {after}]({name})"]
     return "\n".join(lines) + "\n"
 
 
@@ -420,4 +557,5 @@ def preview_png(program, L: float, W: float, units: str = "mm", max_segments: in
     return buf.getvalue()
 
 
-__all__ = ["sheet_paths", "setup_sheet", "sheet_json", "sheet_markdown", "preview_png"]
+__all__ = ["sheet_paths", "setup_sheet", "sheet_json", "sheet_markdown", "preview_png", "job_program_path",
+           "stock_paths"]
