@@ -225,6 +225,9 @@ def test_rs274_reads_the_two_tool_program(finish, tmp_path):
 # ----------------------------------------------------------------------------
 # the job and `fabkit gcode`, with a stand-in roughing planner
 # ----------------------------------------------------------------------------
+from fabkit.toolpath.job import _stock_verification as _STOCK_VERIFICATION
+
+
 @pytest.fixture
 def roughing(monkeypatch):
     """fabkit.toolpath.roughing replaced by one returning the hand-built rough and rest
@@ -240,6 +243,10 @@ def roughing(monkeypatch):
 
     monkeypatch.setattr(pkg, "roughing", fake, raising=False)
     monkeypatch.setattr(job, "has_roughing", lambda spec: True)
+    # the hand-built operations are a rectangle cut into the block, not a roughing of its
+    # design: the whole job's simulation on the stock is tested in tests/test_stock.py and
+    # with the real planner in tests/test_roughing_job.py
+    monkeypatch.setattr(job, "_stock_verification", lambda spec, surface, ops, readback: (None, {}))
     return fake
 
 
@@ -289,6 +296,7 @@ def test_gcode_json_keeps_every_key(cli, tmp_path, monkeypatch):
     fake.finish_tool = lambda spec: Tool.ball(spec.tool.diameter, number=spec.tool.number)
     monkeypatch.setitem(sys.modules, "fabkit.toolpath.roughing", fake)
     monkeypatch.setattr(job, "has_roughing", lambda spec: True)
+    monkeypatch.setattr(job, "_stock_verification", lambda spec, surface, ops, readback: (None, {}))
     code, out, err = cli("gcode", spec, "-o", "two.ngc", "--json")
     assert code == 0, err
     after = json.loads(out)
@@ -446,7 +454,10 @@ def stock_model(monkeypatch):
     """fabkit.toolpath.stock replaced by a recorder: it receives the moves READ BACK per
     operation and answers with a given verdict and one picture per snapshot."""
     import fabkit.toolpath as pkg
+    from fabkit.toolpath import job
 
+    # the job's own stock verification (the `roughing` fixture turns it off), on this recorder
+    monkeypatch.setattr(job, "_stock_verification", _STOCK_VERIFICATION)
     seen = {}
     verdict = {"failures": []}
 
