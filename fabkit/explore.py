@@ -68,7 +68,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import SpecError
-from .spec import _suggest
+from .spec import suggest
 from .tolerances import DEFAULT
 
 MIN_CHUNK = 64         # smallest automatic chunk (lanes per Dask task)
@@ -134,18 +134,18 @@ def check_value(key: str, value, spec, flag: str, what: str = "a value"):
     checked by the spec's own rules for that key (range, whole number, choice), as if it
     were written in the spec; returns it as the spec would read it. SpecError naming
     ``flag`` and the key."""
-    from .spec import SCHEMA, Params, _field
+    from .spec import SCHEMA, Params, read_field
 
     sec, _, rest = key.partition(".")
     try:
         if key.startswith("surface.params."):
-            return _field(Params(), {rest.split(".", 1)[1]: value}, "surface.params", "", spec.units)[
+            return read_field(Params(), {rest.split(".", 1)[1]: value}, "surface.params", "", spec.units)[
                 rest.split(".", 1)[1]]
         if rest.count(".") == 1:          # an end of a footprint interval (surface.x.lo)
             if not abs(value) <= 1e9:
                 raise SpecError(f"out of range (|value| <= 1e9), got {value:g}")
             return value
-        return _field(SCHEMA[sec][rest], value, key, "", spec.units)
+        return read_field(SCHEMA[sec][rest], value, key, "", spec.units)
     except SpecError as exc:
         raise SpecError(f"{key}: {what}: {exc.detail}", key=flag) from None
 
@@ -189,8 +189,8 @@ def refuse_key(key: str, allowed, spec, flag: str, not_variable: str):
     if key.startswith("surface.params."):
         names = list(spec.surface.params) if spec.has("surface") else []
         raise SpecError(f"{key}: no such parameter in surface.params"
-                        f"{_suggest(key, [f'surface.params.{n}' for n in names])}", key=flag)
-    raise SpecError(f"unknown key {key!r}{_suggest(key, allowed)}", key=flag)
+                        f"{suggest(key, [f'surface.params.{n}' for n in names])}", key=flag)
+    raise SpecError(f"unknown key {key!r}{suggest(key, allowed)}", key=flag)
 
 
 def parse_vary(text: str, spec, flag: str = "--vary") -> Vary:

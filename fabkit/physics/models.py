@@ -213,7 +213,7 @@ def rolling_smoothing_speed(problem: Problem) -> float:
 def _build_fused(fns, model, gt, mu, mu_nl, crr_k=0.0, vs=0.0, g=0.0):
     import sympy as sp
 
-    from ..expr import _cse_unevaluated   # sympy's cse re-evaluates: exponential on nested functions
+    from ..expr import cse_unevaluated   # sympy's cse re-evaluates: exponential on nested functions
 
     h = fns.symbolic
     syms = sorted(h.free_symbols, key=lambda s: s.name)
@@ -251,13 +251,13 @@ def _build_fused(fns, model, gt, mu, mu_nl, crr_k=0.0, vs=0.0, g=0.0):
         P = -(dx * vx + dy * vy)
     outs = [ax, ay, h, hx, hy, B, P]
     if P == 0:  # undamped: leave P out of the generated code (the caller gets 0.0)
-        f0 = sp.lambdify((x, y, vx, vy), outs[:6], modules="numpy", cse=_cse_unevaluated)
+        f0 = sp.lambdify((x, y, vx, vy), outs[:6], modules="numpy", cse=cse_unevaluated)
         outs = outs[:6]
 
         def f(xa, ya, vxa, vya, _f=f0):
             return (*_f(xa, ya, vxa, vya), 0.0)
     else:
-        f = sp.lambdify((x, y, vx, vy), outs, modules="numpy", cse=_cse_unevaluated)
+        f = sp.lambdify((x, y, vx, vy), outs, modules="numpy", cse=cse_unevaluated)
     const = [i for i, e in enumerate(outs) if not (e.free_symbols & {x, y, vx, vy})]
 
     if not const:

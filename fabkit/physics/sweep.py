@@ -237,7 +237,7 @@ def _isolate(inside_end: float, outside_end: float, gap: float, inside, scan: in
     return last_in, outside_end
 
 
-def _critical_task(lo: float, hi: float, rel_tol: float, k: int, max_rounds: int = 40,
+def critical_task(lo: float, hi: float, rel_tol: float, k: int, max_rounds: int = 40,
                    gap_rel_tol: float | None = None):
     """Generator: narrows [lo, hi] (lo: not a one-bounce escape, hi: one) by
     k-section (``k`` = 1: plain bisection); yields speeds to launch, receives their
@@ -304,7 +304,7 @@ def run_tasks(launch, tasks: list) -> list:
 def refine_critical(launch, lo: float, hi: float, *, rel_tol: float = 1e-6, k: int = 64) -> tuple[float, float]:
     """Narrow [lo, hi] (lo: not a one-bounce escape, hi: one) by batched k-section
     to width <= rel_tol * hi. Returns (lo, hi)."""
-    return run_tasks(launch, [_critical_task(lo, hi, rel_tol, k)])[0]
+    return run_tasks(launch, [critical_task(lo, hi, rel_tol, k)])[0]
 
 
 # ----------------------------------------------------------------------------
@@ -325,11 +325,11 @@ def find_runs(res: Launches) -> list[tuple[int, int, int]]:
     return runs
 
 
-def _two_bounce(r: Launches) -> np.ndarray:
+def two_bounce(r: Launches) -> np.ndarray:
     return (r.outcome == ESCAPED) & (r.bounces == 2)
 
 
-def _edge_task(a: float, b: float, side: int, rel_tol: float, k: int = 16, max_rounds: int = 40,
+def edge_task(a: float, b: float, side: int, rel_tol: float, k: int = 16, max_rounds: int = 40,
                gap_rel_tol: float | None = None, inside=None):
     """Generator: k-section (``k`` = 1: plain bisection) of one window edge. side -1
     (left edge): b inside the two-bounce window, a outside; +1 (right edge): a inside,
@@ -338,7 +338,7 @@ def _edge_task(a: float, b: float, side: int, rel_tol: float, k: int = 16, max_r
     a walk from the inside end (:func:`_isolate`) first brackets the run's first
     boundary to that resolution (gaps narrower than it are not seen). ``inside``:
     ``Launches -> bool array``, the window's outcome (default: two-bounce escapes)."""
-    inside_fn = _two_bounce if inside is None else inside
+    inside_fn = two_bounce if inside is None else inside
     if gap_rel_tol:
         gap = gap_rel_tol * max(abs(a), abs(b))
         if side < 0:
@@ -427,9 +427,9 @@ def _clean_task(lo_br: tuple, hi_br: tuple, inside, resolution: float | None, ed
     spacing = (hi_in - lo_in) / (m + 1)
     edges, parts = [], _parts(x, ins)
     for a, b in parts:
-        edges.append(_edge_task(float(x[a - 1]), float(x[a]), -1, edge_rel_tol, k_edge, inside=inside)
+        edges.append(edge_task(float(x[a - 1]), float(x[a]), -1, edge_rel_tol, k_edge, inside=inside)
                      if a > 0 else iter(()))
-        edges.append(_edge_task(float(x[b]), float(x[b + 1]), +1, edge_rel_tol, k_edge, inside=inside)
+        edges.append(edge_task(float(x[b]), float(x[b + 1]), +1, edge_rel_tol, k_edge, inside=inside)
                      if b + 1 < len(x) else iter(()))
     br = yield from _together(edges)
     subs = [_clean_task(lo_br if a == 0 else br[2 * q], hi_br if b == len(x) - 1 else br[2 * q + 1], inside,
@@ -446,7 +446,7 @@ def _window_task(v: np.ndarray, v_out: np.ndarray, run: tuple[int, int, int], re
     apart, split it where a launch of another outcome lies between them; every edge of
     every part is bisected to ``edge_rel_tol`` relative (an edge next to a sample
     outside the run after a walk from the inside end at ``resolution``, as in
-    :func:`_edge_task`); each part is then checked inside at its own scale
+    :func:`edge_task`); each part is then checked inside at its own scale
     (:func:`_clean_task`: at least MIN_PROBES probes), and parts narrower than
     ``resolution`` relative are set apart as unresolved. For n = 2 with ``tn``, v_out is
     maximized inside each window. Returns (windows, unresolved): the windows in order,
@@ -475,9 +475,9 @@ def _window_task(v: np.ndarray, v_out: np.ndarray, run: tuple[int, int, int], re
     for a, b in parts:
         lo_out = float(x[a - 1]) if a > 0 else (float(v[i - 1]) if i > 0 else None)
         hi_out = float(x[b + 1]) if b + 1 < len(x) else (float(v[j + 1]) if j + 1 < len(v) else None)
-        edges.append(_edge_task(float(x[a]) if lo_out is None else lo_out, float(x[a]), -1, edge_rel_tol, k_edge,
+        edges.append(edge_task(float(x[a]) if lo_out is None else lo_out, float(x[a]), -1, edge_rel_tol, k_edge,
                                 gap_rel_tol=resolution, inside=inside))
-        edges.append(_edge_task(float(x[b]), float(x[b]) if hi_out is None else hi_out, +1, edge_rel_tol, k_edge,
+        edges.append(edge_task(float(x[b]), float(x[b]) if hi_out is None else hi_out, +1, edge_rel_tol, k_edge,
                                 gap_rel_tol=resolution, inside=inside))
     brackets = yield from _together(edges)
     # each part checked at its own scale: the probes so far were at most resolution |v| apart
@@ -657,7 +657,7 @@ def sweep(problem, v_in, *, launcher=None, method: str = "fabkit", rtol: float |
     e_tol = rel_tol if edge_rel_tol is None else float(edge_rel_tol)
     tasks = []
     if refine:
-        tasks.append(_critical_task(lo, hi, rel_tol, k, gap_rel_tol=gap_rel_tol) if lo is not None else iter(()))
+        tasks.append(critical_task(lo, hi, rel_tol, k, gap_rel_tol=gap_rel_tol) if lo is not None else iter(()))
         tasks += [_window_task(v, res.v_out, run, gap_rel_tol, e_tol, k_edge, tn) for run in runs]
     done = run_tasks(counting, tasks)
     if refine and lo is not None:
