@@ -33,6 +33,7 @@ import time
 import numpy as np
 
 from .errors import SpecError
+from .physics.outcomes import outcome_counts, outcome_names
 from .launches import (MAX_CACHED, MAX_CHUNK, MIN_CHUNK, TASK_PREFIX, Design, Engine,  # noqa: F401
                        design_of, problem_of, run_chunk)
 from .robustness import MAX_SIGMA_VY, check_scatter, check_scatter_size, draw_scatter, robustness  # noqa: F401
@@ -40,15 +41,6 @@ from .tables import table_bytes, table_format  # noqa: F401
 from .tolerances import DEFAULT
 from .vary import (MAX_DESIGNS, MIN_SPAN_ABS, MIN_SPAN_REL, Vary, check_interval, check_value,  # noqa: F401
                    design_grid, parse_vary, refuse_key, variable_keys)
-
-
-def _counts(outcome) -> dict:
-    from .physics.models import OUTCOMES
-
-    out = {}
-    for o in np.asarray(outcome).tolist():
-        out[OUTCOMES[int(o)]] = out.get(OUTCOMES[int(o)], 0) + 1
-    return out
 
 
 def evaluate_design(spec, v_grid, engine: Engine, *, rel_tol: float = 1e-6, height_rel_tol: float = 1e-4,
@@ -110,10 +102,10 @@ def evaluate_design(spec, v_grid, engine: Engine, *, rel_tol: float = 1e-6, heig
     out["depth_ok"] = None if m is None else m["depth_ok"]
     out["machining"] = m
     out["safe"] = bool(safe)
-    out["outcomes"] = _counts(grid.outcome)
+    out["outcomes"] = outcome_counts(outcome_names(grid.outcome))
     out["launches"] = counted["n"]
     out["seconds"] = time.perf_counter() - t0
-    out["grid"] = {"v_in": v, "outcome": [OUTCOMES[int(o)] for o in grid.outcome], "bounces": grid.bounces,
+    out["grid"] = {"v_in": v, "outcome": outcome_names(grid.outcome), "bounces": grid.bounces,
                    "v_out": grid.v_out}
     return out
 

@@ -79,8 +79,7 @@ def robustness(spec, v, *, sigma_y: float, sigma_vy: float, samples: int, seed: 
     {outcome: P}, ``p_nominal`` (P(same outcome and bounce count as the nominal
     launch)), ``most_likely``, ``standard_error`` (largest over the row)), ``summary``,
     ``launches`` (arrays over all sampled launches, for the table), ``seconds``."""
-    from .physics.models import OUTCOMES
-    from .physics.sweep import ESCAPED
+    from .physics.outcomes import ESCAPED, OUTCOMES, outcome_names
 
     t0 = time.perf_counter()
     v = np.asarray(v, dtype=float).ravel()
@@ -129,7 +128,7 @@ def robustness(spec, v, *, sigma_y: float, sigma_vy: float, samples: int, seed: 
         "bound_standard_error": 0.5 / math.sqrt(samples),
     }
     launches = {"v_in": V, "sample": np.tile(np.arange(samples), n), "y0": Y.ravel(), "vy0": VY.ravel(),
-                "outcome": [OUTCOMES[int(o)] for o in r.outcome[n:]], "bounces": r.bounces[n:],
+                "outcome": outcome_names(r.outcome[n:]), "bounces": r.bounces[n:],
                 "v_out": r.v_out[n:]}
     return {"v_in": v, "rows": rows, "summary": summary, "sigma_y": float(sigma_y), "sigma_vy": float(sigma_vy),
             "samples": int(samples), "seed": int(seed), "y0": problem.y0, "vy0": problem.vy0,

@@ -54,22 +54,11 @@ import numpy as np
 from ..errors import SpecError
 from ..units import gravity
 
-#: outcome names; the index is the integer outcome code of the simulator's results.
-#: ``captured`` also covers a launch too slow to arrive anywhere before ``t_max``
-#: (it is still on the surface, trapped, when time runs out).
-#: ``bridged`` and ``slipped`` occur only in the ``ball`` model (:mod:`fabkit.physics.ball`):
-#: the ball touches the surface at two points (r times the largest concave principal
-#: curvature reaches 1), or the friction it needs exceeds ``ball.friction``.
-OUTCOMES = ("escaped", "captured", "flew_off", "lost_contact", "bridged", "slipped")
-ESCAPED, CAPTURED, FLEW_OFF, LOST_CONTACT, BRIDGED, SLIPPED = range(6)
-#: outcomes where the ball leaves the modelled motion: a design with one is unsafe
-UNSAFE = (FLEW_OFF, LOST_CONTACT, BRIDGED, SLIPPED)
+#: outcome codes and names: defined once in physics/outcomes.py
+from .outcomes import (BRIDGED, CAPTURED, ESCAPED, FLEW_OFF, LOST_CONTACT, OUTCOMES, SLIPPED,  # noqa: F401
+                       UNSAFE, unsafe)
+
 MODELS = ("full", "simplified", "ball")
-
-
-def unsafe(outcome) -> np.ndarray:
-    """Boolean mask of the unsafe outcome codes (:data:`UNSAFE`)."""
-    return np.isin(np.asarray(outcome), UNSAFE)
 
 
 @dataclass(frozen=True, eq=False)

@@ -65,7 +65,8 @@ import numpy as np
 from ..errors import SpecError
 from ..tolerances import DEFAULT
 
-from .models import BRIDGED, CAPTURED, ESCAPED, FLEW_OFF, LOST_CONTACT, SLIPPED, unsafe  # noqa: F401
+from .outcomes import (BRIDGED, CAPTURED, ESCAPED, FLEW_OFF, LOST_CONTACT, SLIPPED, outcome_counts,  # noqa: F401
+                       outcome_names, unsafe)
 
 
 @dataclass
@@ -628,8 +629,6 @@ def sweep(problem, v_in, *, launcher=None, method: str = "fabkit", rtol: float |
     Large batches (the probes) run on every core (``_threads``): results do not
     depend on it.
     """
-    from .models import OUTCOMES
-
     t0 = time.perf_counter()
     v = np.sort(np.asarray(v_in, dtype=float).ravel())
     if v.size == 0:
@@ -648,7 +647,7 @@ def sweep(problem, v_in, *, launcher=None, method: str = "fabkit", rtol: float |
     res = initial if initial is not None else counting(v)
     out: dict = {
         "v_in": v, "v_out": res.v_out, "bounces": res.bounces,
-        "outcome": [OUTCOMES[int(i)] for i in res.outcome],
+        "outcome": outcome_names(res.outcome),
     }
 
     # v_critical, windows (probes, edges, v_out maxima): refinement tasks run together
@@ -702,6 +701,92 @@ def sweep(problem, v_in, *, launcher=None, method: str = "fabkit", rtol: float |
     out["launches"] = counted["n"]
     out["seconds"] = time.perf_counter() - t0
     return out
+
+
+#: the keys of ``fabkit sweep --json``, in order (a contract: every key stays)
+SWEEP_JSON_KEYS = ("v_in", "v_out", "bounces", "outcome", "v_critical", "windows", "tn_fit", "seconds",
+                   "error_estimate", "v_critical_error", "v_critical_reason", "launches", "resolution",
+                   "unresolved_windows", "model", "units")
+
+
+@dataclass
+class SweepReport:
+    """What ``fabkit sweep`` found (:func:`sweep` over a model), with its verdict.
+
+    Arrays (N,) over the sorted entry speeds ``v_in`` (design units/s): ``v_out`` (nan
+    unless escaped), ``bounces``, ``outcome`` (names of :data:`outcomes.OUTCOMES`).
+    ``v_critical`` ± ``v_critical_error`` (None, and ``v_critical_reason`` says why, when
+    no capture-to-escape step lies in the range); ``windows``: every n-bounce window,
+    resolved to ``resolution`` (relative); ``tn_fit``: eq. (tn) over the two-bounce
+    windows; ``error_estimate``: the v_out error estimated by re-running launches 10x
+    tighter (None when not estimated). The verdict, :attr:`resonant`: the range shows the
+    two-bounce resonance (at least one two-bounce window); :attr:`reason` says why not."""
+
+    v_in: np.ndarray
+    v_out: np.ndarray
+    bounces: np.ndarray
+    outcome: list
+    v_critical: float | None
+    v_critical_error: float | None
+    v_critical_reason: str
+    windows: list
+    resolution: float | None
+    unresolved_windows: list
+    tn_fit: dict
+    error_estimate: dict | None
+    launches: int
+    seconds: float
+    model: str
+    damping: float
+    units: str
+
+    @classmethod
+    def of(cls, result: dict, problem, units: str, seconds: float | None = None) -> "SweepReport":
+        """The report of :func:`sweep`'s ``result`` for ``problem`` (its model and
+        damping); ``seconds``: the run's wall time (default: the sweep's own)."""
+        return cls(v_in=result["v_in"], v_out=result["v_out"], bounces=result["bounces"],
+                   outcome=list(result["outcome"]), v_critical=result["v_critical"],
+                   v_critical_error=result["v_critical_error"], v_critical_reason=result["v_critical_reason"],
+                   windows=result["windows"], resolution=result["resolution"],
+                   unresolved_windows=result["unresolved_windows"], tn_fit=result["tn_fit"],
+                   error_estimate=result["error_estimate"], launches=result["launches"],
+                   seconds=result["seconds"] if seconds is None else seconds, model=problem.model,
+                   damping=float(problem.damping), units=units)
+
+    @property
+    def two_bounce_windows(self) -> list:
+        return [w for w in self.windows if w["bounces"] == 2]
+
+    @property
+    def outcome_counts(self) -> dict:
+        """{outcome name: launches}, in order of first appearance."""
+        return outcome_counts(self.outcome)
+
+    @property
+    def resonant(self) -> bool:
+        """The verdict: at least one two-bounce window in the range."""
+        return bool(self.two_bounce_windows)
+
+    @property
+    def reason(self) -> str:
+        """Why the sweep shows no two-bounce window, one line ('' when it does)."""
+        if self.resonant:
+            return ""
+        u = self.units
+        where = f"v_in {float(self.v_in[0]):.4g}..{float(self.v_in[-1]):.4g} {u}/s"
+        if self.v_critical is None:
+            return f"no two-bounce window in {where}; no v_critical ({self.v_critical_reason})"
+        return f"no two-bounce window in {where}"
+
+    def to_json(self) -> dict:
+        """The JSON of ``fabkit sweep --json`` (:data:`SWEEP_JSON_KEYS`, unchanged)."""
+        return {k: getattr(self, k) for k in SWEEP_JSON_KEYS}
+
+    def as_result(self) -> dict:
+        """The mapping :func:`sweep` returns (what the figures read)."""
+        out = self.to_json()
+        out["damping"] = self.damping
+        return out
 
 
 def estimate_error(problem, v, res: Launches, *, method: str, rtol, atol, samples: int = 48,
