@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import SpecError
-from ._common import Timer, check_paths, emit, plot_format, prepare_simulator, progress_bar
+from ._common import Timer, check_paths, emit, launch_stages, plot_format, prepare_simulator, quiet
 
 
 #: two-bounce windows listed in the summary (--json lists every one)
@@ -57,19 +57,22 @@ def run(args) -> int:
     check_paths(args, {"--plot": args.plot})
     v = speeds(spec, args.v_in)
     problem = problem_from_spec(spec)
-    prepare_simulator(problem)
-    cb, close = progress_bar(len(v), getattr(args, "no_progress", False), "sweep")
+    # stages: the simulator, the launches, the refinement, the error estimate (, the figure)
+    stage, launches, close = launch_stages(4 + bool(args.plot), quiet(args), "sweep")
     try:
-        res = sweep(problem, v, progress=cb)
+        stage("compiling or loading the simulator")
+        prepare_simulator(problem, quiet=not quiet(args))
+        res = sweep(problem, v, progress=launches(f"launching {len(v)} speeds", len(v)), stage=stage)
+        rep = SweepReport.of(res, problem, spec.units, seconds=timer.seconds)
+        if args.plot:
+            from ..plots import sweep_figure
+
+            stage("drawing the figure")
+            write_atomic(args.plot, sweep_figure(rep.as_result(), f"{spec.name}: {rep.model} model, damping "
+                                                                  f"{rep.damping:g} 1/s", units=spec.units,
+                                                 fmt=plot_format(args.plot)))
     finally:
         close()
-    rep = SweepReport.of(res, problem, spec.units, seconds=timer.seconds)
-    if args.plot:
-        from ..plots import sweep_figure
-
-        write_atomic(args.plot, sweep_figure(rep.as_result(), f"{spec.name}: {rep.model} model, damping "
-                                                              f"{rep.damping:g} 1/s", units=spec.units,
-                                             fmt=plot_format(args.plot)))
     emit(summary(rep), rep.to_json(), args.json)
     return 0
 

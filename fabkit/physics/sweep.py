@@ -602,7 +602,7 @@ def sweep(problem, v_in, *, launcher=None, method: str = "fabkit", rtol: float |
           atol: float | None = None, progress=None, rel_tol: float = 1e-6, k: int = 1,
           refine: bool = True, error_samples: int = 48, initial: Launches | None = None, tn: bool = True,
           k_edge: int = 1, edge_rel_tol: float | None = None, gap_rel_tol: float | None = 1e-4,
-          bounces: tuple | None = None, tol=DEFAULT) -> dict:
+          bounces: tuple | None = None, tol=DEFAULT, stage=None) -> dict:
     """Launch at every ``v_in`` (N,) (design units/s, sorted ascending here) and analyse.
 
     Returns a dict: ``v_in`` (N,) sorted, ``v_out`` (N,) (nan unless escaped),
@@ -626,6 +626,8 @@ def sweep(problem, v_in, *, launcher=None, method: str = "fabkit", rtol: float |
     it (gaps between windows, and islands below v_critical, narrower than that are not
     seen); None skips the probes and walks. ``bounces``: resolve and report only the
     windows of these bounce counts (``check``: (2,)); None, every n >= 2.
+    ``stage(name)``: called as each stage after the first launches starts (a progress bar's
+    stage names: refining, estimating the error).
     Large batches (the probes) run on every core (``_threads``): results do not
     depend on it.
     """
@@ -658,6 +660,8 @@ def sweep(problem, v_in, *, launcher=None, method: str = "fabkit", rtol: float |
     if refine:
         tasks.append(critical_task(lo, hi, rel_tol, k, gap_rel_tol=gap_rel_tol) if lo is not None else iter(()))
         tasks += [_window_task(v, res.v_out, run, gap_rel_tol, e_tol, k_edge, tn) for run in runs]
+        if stage is not None:
+            stage("refining v_critical and the windows")
     done = run_tasks(counting, tasks)
     if refine and lo is not None:
         lo, hi = done[0]
@@ -696,6 +700,8 @@ def sweep(problem, v_in, *, launcher=None, method: str = "fabkit", rtol: float |
     # error estimate: re-run a subset of escaped interior launches 10x tighter
     out["error_estimate"] = None
     if error_samples and launcher is None:
+        if stage is not None:
+            stage("estimating the v_out error")
         out["error_estimate"] = estimate_error(problem, v, res, method=method, rtol=rtol, atol=atol,
                                                samples=error_samples, counter=counted)
     out["launches"] = counted["n"]
