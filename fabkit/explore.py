@@ -33,9 +33,9 @@ import time
 import numpy as np
 
 from .errors import SpecError
-from .physics.outcomes import outcome_counts, outcome_names
 from .launches import (MAX_CACHED, MAX_CHUNK, MIN_CHUNK, TASK_PREFIX, Design, Engine,  # noqa: F401
                        design_of, problem_of, run_chunk)
+from .physics.outcomes import outcome_counts, outcome_names
 from .robustness import MAX_SIGMA_VY, check_scatter, check_scatter_size, draw_scatter, robustness  # noqa: F401
 from .tables import table_bytes, table_format  # noqa: F401
 from .tolerances import DEFAULT

@@ -88,3 +88,26 @@ def test_ramp_and_analyze_name_their_stages_on_a_terminal(tmp_path, monkeypatch)
     assert "reading 1 track" in err and "simulating the tracks and fitting the losses" in err
     code, _, quiet = _run(["analyze", PAPER, track, "--json"], Terminal())
     assert code == 0 and quiet == ""
+
+
+def test_the_compile_notice_becomes_the_running_stage(small, monkeypatch):
+    """On a terminal with a bar, the simulator's 'compiling ...' line names the running stage
+    instead of being written into the bar; with --no-progress it is printed as before."""
+    from fabkit.commands import _common
+    from fabkit.physics.engine import batch
+
+    real = batch.engine
+
+    def engine(problem, notify=None):
+        if notify is not None:      # the load before the launches (the launches load it quietly)
+            notify("compiling the simulator for this surface (once, about 20 s)")
+        return real(problem)
+
+    monkeypatch.setattr(_common, "BAR_DELAY_S", 0.0)
+    monkeypatch.setattr(batch, "engine", engine)
+    code, out, err = _run(["sweep", small, "--v-in", "30", "80", "16"], Terminal())
+    assert code == 0, err
+    assert "stages" in err and "| 00:00, compiling the simulator for this surface (once, about 20 s)" in err
+    assert "\ncompiling" not in err and not err.startswith("compiling")
+    code, out, err = _run(["sweep", small, "--v-in", "30", "80", "16", "--no-progress"], Terminal())
+    assert code == 0 and err == "compiling the simulator for this surface (once, about 20 s)\n"

@@ -194,11 +194,12 @@ def progress_bar(total: int, disabled: bool, desc: str, unit: str = "launch"):
     return cb, bar.close
 
 
-def prepare_simulator(problem_or_spec, quiet: bool = False) -> None:
+def prepare_simulator(problem_or_spec, quiet: bool = False, say=None) -> None:
     """Load the compiled simulator for a problem (or a spec's problem) before its
     launches. The first run of a new formula compiles it (fabkit/physics/engine) and
     says so on stderr when it is a terminal: ``compiling the simulator for this
-    surface (once, about N s)``; later runs only load it from the cache."""
+    surface (once, about N s)``; later runs only load it from the cache. ``say``: where
+    that line goes instead (a stage bar's running stage)."""
     from ..physics.integrate import is_stiff
 
     problem = problem_or_spec
@@ -213,7 +214,9 @@ def prepare_simulator(problem_or_spec, quiet: bool = False) -> None:
     from ..physics.engine.batch import engine
 
     def notify(message: str) -> None:
-        if not quiet and sys.stderr.isatty():
+        if say is not None:
+            say(message)
+        elif not quiet and sys.stderr.isatty():
             sys.stderr.write(message + "\n")
             sys.stderr.flush()
 

@@ -155,7 +155,7 @@ def run(args) -> int:
         screens = screen_tracks(problem, tracks)     # refusals before the simulator loads
         if any(sc["kind"] == "launch" for sc in screens):
             stage("compiling or loading the simulator")
-            prepare_simulator(problem, quiet=not quiet(args))
+            prepare_simulator(problem, say=None if quiet(args) else (lambda m: stage(m, advance=False)))
         stage("simulating the tracks and fitting the losses")
         res = analyze(problem, tracks, screens)
         for r, tr in zip(res["tracks"], tracks):

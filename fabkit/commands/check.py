@@ -27,7 +27,7 @@ def run(args) -> int:
     stage, launches, close = launch_stages(5, quiet(args), "check")
     try:
         stage("compiling or loading the simulator")
-        prepare_simulator(spec, quiet=not quiet(args))
+        prepare_simulator(spec, say=None if quiet(args) else (lambda m: stage(m, advance=False)))
         n = len(ramp_heights(spec))
         r = check(spec, progress=launches(f"launching the ramp's {n} heights", n), stage=stage)
     finally:

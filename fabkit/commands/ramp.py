@@ -43,7 +43,7 @@ def run(args) -> int:
             raise DesignError(f"{spec.path}: no release height on the ramp reaches the block: {ent.why}")
         prof = ramp_profile(spec)
         stage("compiling or loading the simulator")
-        prepare_simulator(spec, quiet=not quiet(args))
+        prepare_simulator(spec, say=None if quiet(args) else (lambda m: stage(m, advance=False)))
         chk = check(spec, progress=launches(f"checking: launching the ramp's {len(H)} heights", len(H)),
                     stage=stage).to_json()
         t_check = timer.seconds

@@ -61,7 +61,7 @@ def run(args) -> int:
     stage, launches, close = launch_stages(4 + bool(args.plot), quiet(args), "sweep")
     try:
         stage("compiling or loading the simulator")
-        prepare_simulator(problem, quiet=not quiet(args))
+        prepare_simulator(problem, say=None if quiet(args) else (lambda m: stage(m, advance=False)))
         res = sweep(problem, v, progress=launches(f"launching {len(v)} speeds", len(v)), stage=stage)
         rep = SweepReport.of(res, problem, spec.units, seconds=timer.seconds)
         if args.plot:
