@@ -172,6 +172,7 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--plot", metavar="FILE", help="track and model overlaid, x(t) and y(t): " + PLOT)
     c.add_argument("-o", "--output", metavar="PATH", help="write the spec with the losses of the law the tracks "
                    "support (simulation.damping, ball.rolling_resistance) to PATH (YAML)")
+    c.add_argument("--no-progress", action="store_true", help="no progress bar")
 
     c = cmd("markers", "the ArUco markers for `fabkit track`, at true size, with where each goes on the block")
     c.add_argument("-o", "--output", metavar="PATH", help="the page to print (default toolpaths/<name>.markers.pdf; "
@@ -194,6 +195,7 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("-o", "--output", metavar="PATH", help="output file (default toolpaths/<name>.ramp.stl; "
                    "other mesh formats by extension)")
     c.add_argument("--json", action="store_true", help="print JSON")
+    c.add_argument("--no-progress", action="store_true", help="no progress bar")
 
     c = cmd("report", "the whole design on one self-contained HTML page (verdict, surface, toolpath, sweep, ...)")
     c.add_argument("-o", "--output", metavar="PATH", help="output page (default toolpaths/<name>.report.html)")

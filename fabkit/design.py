@@ -60,11 +60,11 @@ from __future__ import annotations
 
 import math
 import time
-import uuid
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from .cluster import Cluster
 from .errors import SpecError
 
 MIN_P_TWO = 0.8          # P(two bounces) at a window's centre for the window to count
@@ -116,7 +116,7 @@ PAIR_ENDS = {"lo": 0, "hi": 1}
 def searchable_keys(spec) -> list[str]:
     """The keys a search may vary: every number key of the spec's sections,
     ``surface.params.<name>``, and the ends of the footprint (``surface.x.lo`` ...)."""
-    from .explore import variable_keys
+    from .vary import variable_keys
     from .spec import SCHEMA, Num
 
     keys = [k for k in variable_keys(spec) if k.startswith("surface.params.")
@@ -129,7 +129,7 @@ def searchable_keys(spec) -> list[str]:
 def parse_bound(text: str, spec, flag: str = "--vary") -> Bound:
     """``KEY=LO:HI`` -> :class:`Bound`; SpecError naming ``--vary`` (did-you-mean
     for an unknown key)."""
-    from .explore import _num, check_interval, refuse_key
+    from .vary import check_interval, parse_number, refuse_key
     from .spec import SCHEMA
 
     text = str(text)
@@ -143,7 +143,7 @@ def parse_bound(text: str, spec, flag: str = "--vary") -> Bound:
     parts = rhs.split(":")
     if len(parts) != 2 or not all(p.strip() for p in parts):
         raise SpecError(f"{key}: expected LO:HI, got {rhs!r}", key=flag)
-    lo, hi = _num(parts[0], "LO", flag), _num(parts[1], "HI", flag)
+    lo, hi = parse_number(parts[0], "LO", flag), parse_number(parts[1], "HI", flag)
     check_interval(key, lo, hi, spec, flag)       # the key's own range, and a span the search can divide
     integer = False
     sec, _, name = key.partition(".")
@@ -219,7 +219,7 @@ def check_options(opts: Options, spec) -> None:
         raise SpecError(f"must be a whole number in 1..{MAX_SAMPLES}, got {opts.samples}", key="--samples")
     if not 0 <= opts.seed < 2**63:      # as fabkit robustness (a seed JSON readers can hold)
         raise SpecError(f"must be a whole number in 0..2**63-1, got {opts.seed}", key="--seed")
-    from .explore import check_scatter_size
+    from .robustness import check_scatter_size
 
     check_scatter_size(spec, opts.sigma_y, opts.sigma_vy)
     from .physics.calibrate import ramp_heights
@@ -469,74 +469,42 @@ def evaluate(kind: str, raw: dict, path: str, opts: Options) -> dict:
 # ----------------------------------------------------------------------------
 class Runner:
     """Evaluates batches of designs: in this process one after the other, or on a
-    Dask cluster (``scheduler``) one task per design (``fabkit-design-<id>``), side by
-    side. ``progress(done)``: called with the running count of evaluations."""
+    Dask cluster (``scheduler``, :class:`fabkit.cluster.Cluster`) one task per design
+    (``fabkit-design-<id>``), side by side. ``progress(done)``: called with the running
+    count of evaluations."""
 
     def __init__(self, scheduler: str | None = None, *, progress=None, timeout: float = 10.0):
         self.address = scheduler
         self.progress = progress
-        self.client = None
+        self.cluster = Cluster(scheduler, timeout) if scheduler else None
         self.done = 0
-        self.tasks = 0
-        self.workers: dict = {}
-        if scheduler:
-            from .explore import _connect
-
-            self.client = _connect(scheduler, timeout)
 
     def __enter__(self):
         return self
 
     def __exit__(self, *exc):
-        if self.client is not None:
-            try:
-                self.client.close()
-            finally:
-                self.client = None
+        if self.cluster is not None:
+            self.cluster.close()
 
-    def _tick(self, worker=None):
+    def _tick(self, *_):
         self.done += 1
-        if worker is not None:
-            self.tasks += 1
-            self.workers[worker] = self.workers.get(worker, 0) + 1
         if self.progress is not None:
             self.progress(self.done)
 
     def map(self, kind: str, specs: list, opts: Options) -> list[dict]:
-        if self.client is None:
+        if self.cluster is None:
             out = []
             for s in specs:
                 out.append(evaluate(kind, s.raw, s.path, opts))
                 self._tick()
             return out
-        from distributed import as_completed
-
-        futures = [self.client.submit(_task, kind, s.raw, s.path, opts, key=f"{TASK_PREFIX}-{uuid.uuid4().hex}",
-                                      pure=False, retries=1) for s in specs]
-        results = {}
-        try:
-            for fut in as_completed(futures, loop=self.client.loop):
-                ev, where = fut.result()
-                results[fut.key] = ev
-                self._tick(where or "unknown")
-        finally:
-            for f in futures:
-                f.release()
-        return [results[f.key] for f in futures]
+        return self.cluster.run(evaluate, [(kind, s.raw, s.path, opts) for s in specs], TASK_PREFIX,
+                                on_done=self._tick)
 
     def info(self) -> dict:
-        return {"scheduler": self.address, "tasks": self.tasks, "workers": dict(sorted(self.workers.items()))}
-
-
-def _task(kind, raw, path, opts):
-    ev = evaluate(kind, raw, path, opts)
-    try:
-        from distributed import get_worker
-
-        where = get_worker().address
-    except (ImportError, ValueError):
-        where = None
-    return ev, where
+        if self.cluster is None:
+            return {"scheduler": self.address, "tasks": 0, "workers": {}}
+        return self.cluster.info()
 
 
 # ----------------------------------------------------------------------------

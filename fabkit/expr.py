@@ -371,7 +371,7 @@ def _tree_size(exprs, limit: int) -> int:
     return n
 
 
-def _cse_unevaluated(exprs):
+def cse_unevaluated(exprs):
     """sympy's cse with the rebuilt expressions left unevaluated: evaluating them
     would ask sympy's assumption system about nested transcendental functions of
     the (assumption-free) cse symbols, which is exponential in the nesting (ten
@@ -420,7 +420,7 @@ def compile_surface(text: str, params: Mapping[str, float], tol: Tolerances = DE
                     f"than {limit} nodes (simplify the formula)")
 
     def generate(exprs):
-        return sp.lambdify((x, y), exprs, modules="numpy", cse=_cse_unevaluated)
+        return sp.lambdify((x, y), exprs, modules="numpy", cse=cse_unevaluated)
 
     def make(exprs, fn=None):
         fn = generate(exprs) if fn is None else fn

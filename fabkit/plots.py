@@ -13,7 +13,7 @@ import io
 import numpy as np
 
 
-def _figure(**kw):
+def new_figure(**kw):
     import matplotlib
 
     matplotlib.use("Agg")
@@ -28,13 +28,16 @@ _NO_STAMP = {"png": {"Software": None}, "pdf": {"CreationDate": None, "Producer"
              "ps": {"CreationDate": None, "Creator": None}}
 
 
-def _png(plt, fig, fmt: str = "png") -> bytes:
+def png_bytes(plt, fig, fmt: str = "png") -> bytes:
     """The figure as bytes in ``fmt`` (the name is historical: png by default)."""
     fmt = {"jpeg": "jpg", "tif": "tiff"}.get(fmt, fmt)
     buf = io.BytesIO()
     fig.savefig(buf, format=fmt, dpi=120, metadata=_NO_STAMP.get(fmt))
     plt.close(fig)
     return buf.getvalue()
+
+
+_figure, _png = new_figure, png_bytes      # the names this module's figures use
 
 
 def hermite_samples(traj: dict, n: int = 2000) -> dict:

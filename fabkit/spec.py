@@ -26,7 +26,7 @@ from pathlib import Path
 from typing import Any
 
 from .errors import SpecError
-from .units import MM_PER
+from .units import MM_PER, PROGRAM_UNITS, finest_tolerance, program_rounding
 
 MAX_SPEC_BYTES = 1_000_000
 NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$")
@@ -452,9 +452,12 @@ class _LazyLoader:
 _SafeLoader = _LazyLoader()
 
 
-def _suggest(word: str, options) -> str:
+def suggest(word: str, options) -> str:
     close = difflib.get_close_matches(str(word), list(options), n=1, cutoff=0.5)
     return f" (did you mean {close[0]!r}?)" if close else ""
+
+
+_suggest = suggest      # the name this module's checks use
 
 
 _LEN_RE = re.compile(r"^\s*([-+]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][-+]?\d+)?)(?:\s*/\s*(\d+(?:\.\d*)?))?\s*(mm|cm|in)\s*$")
@@ -514,7 +517,7 @@ def _check_range(v: float, f: Num, key: str, file: str) -> None:
         raise SpecError(f"must be a whole number, got {v:g}", file=file, key=key)
 
 
-def _field(f: Any, value: Any, key: str, file: str, unit: str) -> Any:
+def read_field(f: Any, value: Any, key: str, file: str, unit: str) -> Any:
     if isinstance(f, Num):
         if value is None and f.default is None:
             return None
@@ -614,6 +617,9 @@ def _field(f: Any, value: Any, key: str, file: str, unit: str) -> Any:
             raise SpecError(f"k = I/(m r^2) must be in [0, 10], got {v:g}", file=file, key=key)
         return v
     raise AssertionError(f)  # pragma: no cover
+
+
+_field = read_field      # the name this module's checks use
 
 
 def _default(f: Any) -> Any:
@@ -749,10 +755,6 @@ def _footprint_checks(sur: Section, file: str, scale: float) -> None:
                             file=file, key=f"surface.{ax}")
 
 
-def _program_rounding(value: float, decimals: int) -> float:
-    return float(f"{value:.{decimals}f}")
-
-
 def _machining_checks(s: dict[str, Section], file: str) -> None:
     """Numbers the program writes must survive its rounding (to 1 %): a spindle of
     0.4 rpm would be written S0, a feed of 0.0001 mm/min F0; tolerance and
@@ -762,12 +764,12 @@ def _machining_checks(s: dict[str, Section], file: str) -> None:
 
     m = s["machining"]
     inch = m.units == "in"
-    per = 25.4 if inch else 1.0
-    fdec = 3 if inch else 1
+    per = PROGRAM_UNITS[m.units].mm_per_unit
+    fdec = PROGRAM_UNITS[m.units].feed_decimals
     unit = "in/min" if inch else "mm/min"
     for key, word, dec, u in (("feed", "F", fdec, unit), ("plunge", "F", fdec, unit), ("spindle", "S", 0, "rpm")):
         v = getattr(m, key) / (per if u != "rpm" else 1.0)
-        r = _program_rounding(v, dec)
+        r = program_rounding(v, dec)
         if r == 0 or abs(r - v) > 0.01 * v:
             least = 50 * 10.0 ** -dec
             step = f"{10.0 ** -dec:g} {u}" if dec else f"whole {u}"
@@ -775,7 +777,7 @@ def _machining_checks(s: dict[str, Section], file: str) -> None:
                             f"give at least {least:g} {u}", file=file, key=f"machining.{key}")
     # coordinates get at most 6 decimals in program units; the rounding (half a unit in the
     # last place) must stay within tolerance / 20 (gcode.MachineProfile.decimals)
-    finest = 20 * 0.5e-6 * per
+    finest = finest_tolerance(m.units)
     if m.tolerance < finest:
         raise SpecError(f"{m.tolerance:g} mm is finer than the program can carry (limit {finest:g} mm: "
                         f"coordinates have at most 6 decimals in {m.units})", file=file, key="machining.tolerance")

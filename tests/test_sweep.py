@@ -267,3 +267,27 @@ def test_no_merged_windows_on_the_papers_spec(model):
     assert not bad
     for a, b in zip(wins[:-1], wins[1:]):         # windows in order, disjoint
         assert a["lo"] <= a["hi"] <= b["lo"] <= b["hi"]
+
+
+# ----------------------------------------------------------------------------
+# the typed report of `fabkit sweep`
+# ----------------------------------------------------------------------------
+def test_sweep_report_carries_its_verdict_and_the_json_keys():
+    from fabkit.physics.sweep import SWEEP_JSON_KEYS, SweepReport
+
+    base = dict(v_in=np.array([20.0, 70.0]), v_out=np.array([1.0, 2.0]), bounces=np.array([3, 1]),
+                outcome=["escaped", "escaped"], v_critical=50.0, v_critical_error=1e-5, v_critical_reason="",
+                resolution=1e-4, unresolved_windows=[], tn_fit={}, error_estimate=None, launches=2, seconds=0.1,
+                model="full", damping=0.0, units="mm")
+    three = SweepReport(windows=[{"bounces": 3, "lo": 20.0, "hi": 21.0}], **base)
+    assert not three.resonant and three.reason == "no two-bounce window in v_in 20..70 mm/s"
+    two = SweepReport(windows=[{"bounces": 3, "lo": 20.0, "hi": 21.0}, {"bounces": 2, "lo": 22.0, "hi": 23.0}],
+                      **base)
+    assert two.resonant and two.reason == "" and two.two_bounce_windows == [{"bounces": 2, "lo": 22.0, "hi": 23.0}]
+    none = SweepReport(windows=[], **{**base, "v_critical": None, "v_critical_reason": "every launch escapes"})
+    assert none.reason.endswith("no v_critical (every launch escapes)")
+    # the JSON keys of earlier versions, in their order
+    assert list(two.to_json()) == ["v_in", "v_out", "bounces", "outcome", "v_critical", "windows", "tn_fit",
+                                   "seconds", "error_estimate", "v_critical_error", "v_critical_reason",
+                                   "launches", "resolution", "unresolved_windows", "model", "units"]
+    assert tuple(two.to_json()) == SWEEP_JSON_KEYS and two.outcome_counts == {"escaped": 2}

@@ -93,14 +93,20 @@ def warn(message: str) -> None:
     sys.stderr.write(f"warning: {message}\n")
 
 
-def stage_bar(total: int, disabled: bool, desc: str, delay: float = 2.0):
+#: seconds a command runs before its stage bar is shown
+BAR_DELAY_S = 2.0
+
+
+def stage_bar(total: int, disabled: bool, desc: str, delay: float | None = None):
     """A tqdm bar of named stages on stderr, for commands whose work is a few long steps
     (gcode, precision); returns (step(name), close). Each ``step`` call completes the
-    previous stage and names the one that starts. Shown on a terminal only, once the
-    command has run ``delay`` s, then redrawn every second (the clock keeps moving
-    through a long stage)."""
+    previous stage and names the one that starts (``step(name, advance=False)`` renames the
+    running one). Shown on a terminal only, once the command has run ``delay`` s (default
+    :data:`BAR_DELAY_S`), then redrawn every second (the clock keeps moving through a long
+    stage)."""
     if disabled or not sys.stderr.isatty():
-        return (lambda _name: None), (lambda: None)
+        return (lambda _name, advance=True: None), (lambda: None)
+    delay = BAR_DELAY_S if delay is None else delay
     from tqdm import tqdm
 
     bar = tqdm(total=max(1, int(total)), desc=desc, unit="stage", file=sys.stderr, delay=delay, leave=False,
@@ -112,8 +118,9 @@ def stage_bar(total: int, disabled: bool, desc: str, delay: float = 2.0):
     def shown() -> bool:
         return time.monotonic() - t0 >= delay
 
-    def step(name: str) -> None:
-        if started[0] and bar.n < bar.total:
+    def step(name: str, advance: bool = True) -> None:
+        """Start stage ``name`` (``advance`` False: rename the running stage, e.g. with a count)."""
+        if advance and started[0] and bar.n < bar.total:
             bar.update(1)            # tqdm itself draws nothing before its delay
         started[0] = True
         bar.set_postfix_str(str(name), refresh=shown())
@@ -140,6 +147,32 @@ def stage_bar(total: int, disabled: bool, desc: str, delay: float = 2.0):
     return step, close
 
 
+def quiet(args) -> bool:
+    """No progress bar: ``--no-progress`` or ``--json`` (stderr off a terminal is silent anyway)."""
+    return bool(getattr(args, "no_progress", False) or getattr(args, "json", False))
+
+
+def launch_stages(stages: int, disabled: bool, desc: str):
+    """A :func:`stage_bar` for commands that launch a batch and then refine it (sweep,
+    check): returns (stage(name), launches(name, total), close). ``launches`` starts the
+    stage ``name`` and returns the launch callback ``cb(done, total=None)`` that keeps
+    the count of its launches in the stage's name (``name: done/total``), so the bar
+    never stands still at a full count while the refinement runs."""
+    step, close = stage_bar(stages, disabled, desc)
+
+    def launches(name: str, total: int):
+        step(name)
+        lock = threading.Lock()
+
+        def cb(done, _total=None):
+            with lock:
+                step(f"{name}: {int(done)}/{int(total)}", advance=False)
+
+        return cb
+
+    return step, launches, close
+
+
 def progress_bar(total: int, disabled: bool, desc: str, unit: str = "launch"):
     """A tqdm bar of launches on stderr, shown only on a terminal and after 2 s; returns
     (callback(done, total=None), close), or (None, no-op) when disabled. The total grows
@@ -161,11 +194,12 @@ def progress_bar(total: int, disabled: bool, desc: str, unit: str = "launch"):
     return cb, bar.close
 
 
-def prepare_simulator(problem_or_spec, quiet: bool = False) -> None:
+def prepare_simulator(problem_or_spec, quiet: bool = False, say=None) -> None:
     """Load the compiled simulator for a problem (or a spec's problem) before its
     launches. The first run of a new formula compiles it (fabkit/physics/engine) and
     says so on stderr when it is a terminal: ``compiling the simulator for this
-    surface (once, about N s)``; later runs only load it from the cache."""
+    surface (once, about N s)``; later runs only load it from the cache. ``say``: where
+    that line goes instead (a stage bar's running stage)."""
     from ..physics.integrate import is_stiff
 
     problem = problem_or_spec
@@ -180,7 +214,9 @@ def prepare_simulator(problem_or_spec, quiet: bool = False) -> None:
     from ..physics.engine.batch import engine
 
     def notify(message: str) -> None:
-        if not quiet and sys.stderr.isatty():
+        if say is not None:
+            say(message)
+        elif not quiet and sys.stderr.isatty():
             sys.stderr.write(message + "\n")
             sys.stderr.flush()
 

@@ -6,7 +6,7 @@ import math
 
 from ..errors import SpecError
 from ..spec import load_spec
-from ._common import Timer, check_paths, emit, plot_format, prepare_simulator
+from ._common import Timer, check_paths, emit, plot_format, prepare_simulator, quiet, stage_bar
 
 
 def _num(v, fmt=".5g"):
@@ -146,32 +146,42 @@ def run(args) -> int:
     check_outputs({"--plot": args.plot, "--output": args.output}, inputs=[*args.tracks, args.spec])
     spec = load_spec(args.spec, need=("surface", "simulation"), command="analyze")
     vm = _video_map(args)
-    tracks = [read_track(p, fps=args.fps, video=vm, units=spec.units) for p in args.tracks]
-    problem = problem_from_spec(spec)
-    screens = screen_tracks(problem, tracks)     # refusals before the simulator loads
-    if any(sc["kind"] == "launch" for sc in screens):
-        prepare_simulator(problem)
-    res = analyze(problem, tracks, screens)
-    for r, tr in zip(res["tracks"], tracks):
-        r["_track"] = {"t": tr.t, "x": tr.x, "y": tr.y}
-    res["seconds"] = timer.seconds
-    payload = _public(res)
-    lines = _lines(res, spec.units)
-    fitted_text = fitted_spec_text(spec, res, tracks) if args.output else None   # refused before any write
-    if args.plot:
-        from ..io import write_atomic
-        from ..plots import analyze_figure
+    # stages: the tracks, the simulator, the analysis and the fit (, the figure, the spec)
+    stage, close = stage_bar(3 + bool(args.plot) + bool(args.output), quiet(args), "analyze")
+    try:
+        stage(f"reading {len(args.tracks)} track{'s' if len(args.tracks) != 1 else ''}")
+        tracks = [read_track(p, fps=args.fps, video=vm, units=spec.units) for p in args.tracks]
+        problem = problem_from_spec(spec)
+        screens = screen_tracks(problem, tracks)     # refusals before the simulator loads
+        if any(sc["kind"] == "launch" for sc in screens):
+            stage("compiling or loading the simulator")
+            prepare_simulator(problem, say=None if quiet(args) else (lambda m: stage(m, advance=False)))
+        stage("simulating the tracks and fitting the losses")
+        res = analyze(problem, tracks, screens)
+        for r, tr in zip(res["tracks"], tracks):
+            r["_track"] = {"t": tr.t, "x": tr.x, "y": tr.y}
+        res["seconds"] = timer.seconds
+        payload = _public(res)
+        lines = _lines(res, spec.units)
+        fitted_text = fitted_spec_text(spec, res, tracks) if args.output else None   # refused before any write
+        if args.plot:
+            from ..io import write_atomic
+            from ..plots import analyze_figure
 
-        png = analyze_figure(res["tracks"], title=f"{spec.name}: tracks and the {problem.model} model", units=spec.units,
-                             fmt=plot_format(args.plot))
-        write_atomic(args.plot, png)
-        payload["plot"] = str(args.plot)
-        lines.append(f"wrote {args.plot}")
-    if args.output:
-        from ..io import write_atomic
+            stage("drawing the figure")
+            png = analyze_figure(res["tracks"], title=f"{spec.name}: tracks and the {problem.model} model",
+                                 units=spec.units, fmt=plot_format(args.plot))
+            write_atomic(args.plot, png)
+            payload["plot"] = str(args.plot)
+            lines.append(f"wrote {args.plot}")
+        if args.output:
+            from ..io import write_atomic
 
-        write_atomic(args.output, fitted_text)
-        payload["output"] = str(args.output)
-        lines.append(f"wrote {args.output} (the spec with the {res['losses']['chosen']} law's losses)")
+            stage("writing the fitted spec")
+            write_atomic(args.output, fitted_text)
+            payload["output"] = str(args.output)
+            lines.append(f"wrote {args.output} (the spec with the {res['losses']['chosen']} law's losses)")
+    finally:
+        close()
     emit(lines, payload, args.json)
     return 0

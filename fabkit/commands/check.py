@@ -18,14 +18,18 @@ def run(args) -> int:
     from ..physics.calibrate import ramp_heights
     from ..physics.check import check
     from ..spec import load_spec
-    from ._common import progress_bar
+    from ._common import launch_stages, quiet
 
     timer = Timer()
     spec = load_spec(args.spec, need=("surface", "ball", "ramp", "simulation"), command="check")
-    prepare_simulator(spec)
-    cb, close = progress_bar(len(ramp_heights(spec)), getattr(args, "no_progress", False), "check")
+    # stages: the simulator, the ramp's launches, the highest safe height (when one fails),
+    # the refinement of v_critical and the windows, the windows' release heights
+    stage, launches, close = launch_stages(5, quiet(args), "check")
     try:
-        r = check(spec, progress=cb)
+        stage("compiling or loading the simulator")
+        prepare_simulator(spec, say=None if quiet(args) else (lambda m: stage(m, advance=False)))
+        n = len(ramp_heights(spec))
+        r = check(spec, progress=launches(f"launching the ramp's {n} heights", n), stage=stage)
     finally:
         close()
     r.seconds = timer.seconds

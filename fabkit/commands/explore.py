@@ -27,7 +27,10 @@ def _models(designs: list[dict], spec) -> str:
 
 
 def run(args) -> int:
-    from ..explore import Engine, design_grid, explore, parse_vary, table_bytes, table_format
+    from ..explore import explore
+    from ..launches import Engine
+    from ..tables import table_bytes, table_format
+    from ..vary import design_grid, parse_vary
     from ..io import atomic_outputs
     from ..physics.calibrate import ramp_heights
     from ..spec import load_spec

@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import SpecError
+from ..units import MM_PER_INCH
 from ._common import Timer, check_paths, default_output, emit, warn
 
 FORMATS = {".pdf": "pdf", ".svg": "svg", ".png": "png"}
@@ -46,7 +47,7 @@ def sheet(layout, L: float, W: float, name: str, camera_height, fmt: str) -> byt
     pw = max(A4[0], 2 * cell + 2 * margin)
     plan_h = 70.0
     ph = max(A4[1], 2 * (cell + 16.0) + plan_h + 60.0 + 2 * margin)
-    fig = plt.figure(figsize=(pw / 25.4, ph / 25.4))
+    fig = plt.figure(figsize=(pw / MM_PER_INCH, ph / MM_PER_INCH))
     ax = fig.add_axes([0, 0, 1, 1])
     ax.set_xlim(0, pw)
     ax.set_ylim(0, ph)

@@ -7,7 +7,7 @@ from pathlib import Path
 
 from ..errors import SpecError
 from ..spec import load_spec
-from ._common import Timer, check_paths, default_output, emit, prepare_simulator
+from ._common import Timer, check_paths, default_output, emit, launch_stages, prepare_simulator, quiet
 
 
 def run(args) -> int:
@@ -31,23 +31,35 @@ def run(args) -> int:
         raise SpecError(f"unknown mesh format '{path.suffix}' (use one of: "
                         f"{', '.join('.' + f for f in EXPORT_FORMATS)})", key="--output")
     g, k = gravity(spec.units), ball_k(spec)
-    # the ball must reach the block from the ramp before the block is worth simulating
-    ent = entry(spec, ramp_heights(spec))
-    if not ent.reached.any():
-        raise DesignError(f"{spec.path}: no release height on the ramp reaches the block: {ent.why}")
-    prof = ramp_profile(spec)
-    prepare_simulator(spec)
-    chk = check(spec).to_json()
-    t_check = timer.seconds
-    targets = mark_targets(chk, g, k, spec=spec)
-    reach = [math.isfinite(t["height"]) and t["height"] <= prof.top for t in targets]
-    beyond = [t for t, ok in zip(targets, reach) if not ok]
-    targets = [t for t, ok in zip(targets, reach) if ok]
-    marks = place_marks(spec, prof, targets)
-    solid = build_ramp(spec, prof, marks)
-    if solid.bodies != 1:
-        raise RuntimeError(f"the ramp came out as {solid.bodies} bodies")
-    data = export_bytes(solid.vertices, solid.faces, fmt)
+    # stages: the calibration, the simulator, the check's (launches, highest safe height,
+    # refinement, the windows' heights), the marks, the solid
+    stage, launches, close = launch_stages(8, quiet(args), "ramp")
+    try:
+        stage("calibrating the ramp")
+        # the ball must reach the block from the ramp before the block is worth simulating
+        H = ramp_heights(spec)
+        ent = entry(spec, H)
+        if not ent.reached.any():
+            raise DesignError(f"{spec.path}: no release height on the ramp reaches the block: {ent.why}")
+        prof = ramp_profile(spec)
+        stage("compiling or loading the simulator")
+        prepare_simulator(spec, say=None if quiet(args) else (lambda m: stage(m, advance=False)))
+        chk = check(spec, progress=launches(f"checking: launching the ramp's {len(H)} heights", len(H)),
+                    stage=stage).to_json()
+        t_check = timer.seconds
+        stage("placing the marks")
+        targets = mark_targets(chk, g, k, spec=spec)
+        reach = [math.isfinite(t["height"]) and t["height"] <= prof.top for t in targets]
+        beyond = [t for t, ok in zip(targets, reach) if not ok]
+        targets = [t for t, ok in zip(targets, reach) if ok]
+        marks = place_marks(spec, prof, targets)
+        stage("building the solid")
+        solid = build_ramp(spec, prof, marks)
+        if solid.bodies != 1:
+            raise RuntimeError(f"the ramp came out as {solid.bodies} bodies")
+        data = export_bytes(solid.vertices, solid.faces, fmt)
+    finally:
+        close()
     with atomic_outputs() as out:
         out.write(path, data)
     u = spec.units

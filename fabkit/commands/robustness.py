@@ -15,7 +15,9 @@ from ._common import Timer, check_paths, emit, plot_format, prepare_simulator
 
 
 def run(args) -> int:
-    from ..explore import Engine, check_scatter, check_scatter_size, robustness, table_bytes, table_format
+    from ..launches import Engine
+    from ..robustness import check_scatter, check_scatter_size, robustness
+    from ..tables import table_bytes, table_format
     from ..io import atomic_outputs
     from ..spec import load_spec
     from ._common import progress_bar

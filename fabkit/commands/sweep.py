@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import SpecError
-from ._common import Timer, check_paths, emit, plot_format, prepare_simulator, progress_bar
+from ._common import Timer, check_paths, emit, launch_stages, plot_format, prepare_simulator, quiet
 
 
 #: two-bounce windows listed in the summary (--json lists every one)
@@ -47,7 +47,7 @@ def speeds(spec, v_in_arg, tol=None) -> np.ndarray:
 def run(args) -> int:
     from ..io import write_atomic
     from ..physics.models import problem_from_spec
-    from ..physics.sweep import sweep
+    from ..physics.sweep import SweepReport, sweep
     from ..spec import load_spec
 
     timer = Timer()
@@ -57,47 +57,47 @@ def run(args) -> int:
     check_paths(args, {"--plot": args.plot})
     v = speeds(spec, args.v_in)
     problem = problem_from_spec(spec)
-    prepare_simulator(problem)
-    cb, close = progress_bar(len(v), getattr(args, "no_progress", False), "sweep")
+    # stages: the simulator, the launches, the refinement, the error estimate (, the figure)
+    stage, launches, close = launch_stages(4 + bool(args.plot), quiet(args), "sweep")
     try:
-        res = sweep(problem, v, progress=cb)
+        stage("compiling or loading the simulator")
+        prepare_simulator(problem, say=None if quiet(args) else (lambda m: stage(m, advance=False)))
+        res = sweep(problem, v, progress=launches(f"launching {len(v)} speeds", len(v)), stage=stage)
+        rep = SweepReport.of(res, problem, spec.units, seconds=timer.seconds)
+        if args.plot:
+            from ..plots import sweep_figure
+
+            stage("drawing the figure")
+            write_atomic(args.plot, sweep_figure(rep.as_result(), f"{spec.name}: {rep.model} model, damping "
+                                                                  f"{rep.damping:g} 1/s", units=spec.units,
+                                                 fmt=plot_format(args.plot)))
     finally:
         close()
-    res["seconds"] = timer.seconds
-    if args.plot:
-        from ..plots import sweep_figure
+    emit(summary(rep), rep.to_json(), args.json)
+    return 0
 
-        write_atomic(args.plot, sweep_figure(res, f"{spec.name}: {problem.model} model, damping "
-                                                  f"{problem.damping:g} 1/s", units=spec.units,
-                                             fmt=plot_format(args.plot)))
-    u = spec.units
-    vc = res["v_critical"]
-    err = res["error_estimate"]
+
+def summary(rep) -> list[str]:
+    """The human summary of a :class:`~fabkit.physics.sweep.SweepReport`."""
+    u, v = rep.units, rep.v_in
+    vc = rep.v_critical
+    err = rep.error_estimate
     err_txt = f"v_out error < {err['v_out_abs']:.1e} {u}/s (estimated)" if err else "v_out error: not estimated"
-    vc_txt = (f"v_critical {vc:.6f} {u}/s ± {res['v_critical_error']:.1e}" if vc is not None
-              else f"v_critical: none ({res['v_critical_reason']})")
-    counts = {}
-    for o in res["outcome"]:
-        counts[o] = counts.get(o, 0) + 1
-    lines = [f"sweep: {len(v)} launches, v_in {v[0]:.4g}..{v[-1]:.4g} {u}/s, {problem.model} model, "
-             f"damping {problem.damping:g} 1/s: " + ", ".join(f"{kk} {n}" for kk, n in sorted(counts.items()))]
-    two = [w for w in res["windows"] if w["bounces"] == 2]
+    vc_txt = (f"v_critical {vc:.6f} {u}/s ± {rep.v_critical_error:.1e}" if vc is not None
+              else f"v_critical: none ({rep.v_critical_reason})")
+    lines = [f"sweep: {len(v)} launches, v_in {v[0]:.4g}..{v[-1]:.4g} {u}/s, {rep.model} model, "
+             f"damping {rep.damping:g} 1/s: " + ", ".join(f"{kk} {n}" for kk, n in sorted(rep.outcome_counts.items()))]
+    two = rep.two_bounce_windows
     shown = two if len(two) <= SHOW else two[:SHOW]
-    lines.append(f"sweep: {len(res['windows'])} windows of 2+ bounces, {len(two)} of two bounces"
-                 + (f", resolved to {res['resolution']:g} relative" if res.get("resolution") else "")
+    lines.append(f"sweep: {len(rep.windows)} windows of 2+ bounces, {len(two)} of two bounces"
+                 + (f", resolved to {rep.resolution:g} relative" if rep.resolution else "")
                  + (f" (the first {SHOW} listed; all in --json)" if len(shown) < len(two) else ""))
     for w in shown:
         lines.append(f"  2-bounce window {w['lo']:.6f} .. {w['hi']:.6f} {u}/s"
                      + (f", T_n {w['T_n']:.4f} s" if "T_n" in w else ""))
-    fit = res["tn_fit"]
+    fit = rep.tn_fit
     if fit.get("T") is not None:
         lines.append(f"sweep: T_n = {fit['T']:.4f} n + {fit['delta']:.4f} s (eq. tn, {len(fit['n'])} windows); "
                      f"2 pi/omega_y = {fit['T_shape']:.4f} s")
-    lines.append(f"sweep: {err_txt}, {vc_txt}, {res['seconds']:.1f} s")
-    payload = {kk: res[kk] for kk in ("v_in", "v_out", "bounces", "outcome", "v_critical", "windows", "tn_fit",
-                                      "seconds", "error_estimate", "v_critical_error", "v_critical_reason",
-                                      "launches", "resolution", "unresolved_windows")}
-    payload["model"] = problem.model
-    payload["units"] = u
-    emit(lines, payload, args.json)
-    return 0
+    lines.append(f"sweep: {err_txt}, {vc_txt}, {rep.seconds:.1f} s")
+    return lines

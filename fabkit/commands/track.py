@@ -42,7 +42,7 @@ def track_figure(result, fmt: str = "png") -> bytes:
     ball's disc in that frame."""
     import numpy as np
 
-    from ..plots import _figure, _png
+    from ..plots import new_figure as _figure, png_bytes as _png
     from ..lab.camera import MARKER_IDS
 
     img = result.snapshot

@@ -36,6 +36,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import SpecError
+from ..units import MM_PER_INCH
 
 MAX_TRACK_BYTES = 64 * 1024 * 1024   # a 10 s video at 1000 frames/s is ~0.5 MB of CSV
 MIN_POINTS = 12                      # a track shorter than 0.1 s at 125 frames/s says nothing
@@ -51,7 +52,7 @@ ROTATE_MAX = 360.0                   # |rotate|, degrees
 TIME_UNITS = {"s": 1.0, "sec": 1.0, "ms": 1e-3, "us": 1e-6, "\u00b5s": 1e-6, "\u03bcs": 1e-6, "min": 60.0}
 #: the length units a header may state, in mm (None: a video unit, pixels)
 LENGTH_UNITS = {"m": 1000.0, "cm": 10.0, "mm": 1.0, "um": 1e-3, "\u00b5m": 1e-3, "\u03bcm": 1e-3,
-                "in": 25.4, "inch": 25.4, "inches": 25.4, "ft": 304.8, "px": None, "pixel": None,
+                "in": MM_PER_INCH, "inch": MM_PER_INCH, "inches": MM_PER_INCH, "ft": 304.8, "px": None, "pixel": None,
                 "pixels": None, "pix": None}
 
 

@@ -49,6 +49,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..toolpath.verify import RAPID, Program
+from ..units import MM_PER_INCH
 
 #: grbl 1.1: BLOCK_BUFFER_SIZE 16 on the ATmega328p, one slot kept empty
 GRBL_LOOKAHEAD = 15
@@ -395,7 +396,7 @@ def _g64_p(text: str) -> float | None:
     if not m:
         return None
     p = float(m.group(1))
-    return p * (25.4 if "G20" in text[:2000].upper() else 1.0)
+    return p * (MM_PER_INCH if "G20" in text[:2000].upper() else 1.0)
 
 
 def _report(program, blocks: Blocks, t: np.ndarray, peak: np.ndarray, machine, model: str, top: int) -> RunTime:

@@ -20,9 +20,9 @@ from importlib import resources
 from pathlib import Path
 
 from ..errors import SpecError
+from ..units import MM_PER_INCH
 
 MAX_PROFILE_BYTES = 1_000_000
-MM_PER_INCH = 25.4
 AXES = "xyz"
 
 #: grbl $-settings a profile needs (number -> (key, axis index or None))

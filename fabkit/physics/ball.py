@@ -63,9 +63,9 @@ def jet_function(fns):
     hxxx, hxxy, hxyy, hyyy = sp.diff(hxx, x), sp.diff(hxx, y), sp.diff(hxy, y), sp.diff(hyy, y)
     parts = [e.replace(sp.DiracDelta, lambda *a: sp.Integer(0))
              for e in (h, hx, hy, hxx, hxy, hyy, hxxx, hxxy, hxyy, hyyy)]
-    from ..expr import _cse_unevaluated   # sympy's cse re-evaluates: exponential on nested functions
+    from ..expr import cse_unevaluated   # sympy's cse re-evaluates: exponential on nested functions
 
-    f = sp.lambdify((x, y), parts, modules="numpy", cse=_cse_unevaluated)
+    f = sp.lambdify((x, y), parts, modules="numpy", cse=cse_unevaluated)
 
     def jet(xa, ya, _f=f):
         xa = np.asarray(xa, dtype=float)

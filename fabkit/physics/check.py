@@ -253,7 +253,7 @@ def _take(r, sl):
 def check(spec, *, launcher=None, heights=None, sweep_v=None, progress=None, problem=None, machining_report=None,
           refine: bool = True, rel_tol: float = TOLERANCES["rel_tol"], v_rel_tol: float = TOLERANCES["v_rel_tol"],
           edge_rel_tol: float = TOLERANCES["edge_rel_tol"], gap_rel_tol: float = TOLERANCES["gap_rel_tol"],
-          tol=None, window_bounces: tuple | None = (2,)) -> CheckReport:
+          tol=None, window_bounces: tuple | None = (2,), stage=None) -> CheckReport:
     """The pre-fabrication check of ``spec`` (sections surface, ball, ramp, simulation;
     stock and tool optional), on the spec's model (module doc). ``window_bounces``: the
     bounce counts whose windows are resolved and reported (default the two-bounce ones the
@@ -267,7 +267,8 @@ def check(spec, *, launcher=None, heights=None, sweep_v=None, progress=None, pro
     the ramp's own), launched in one batch with the ramp's. ``problem``: the spec's
     :class:`models.Problem` if already built. ``machining_report``: :func:`machining`
     of the spec if already computed. ``refine`` False: no refinement launches (see
-    :class:`CheckReport`). Heights in design units, speeds in design units/s."""
+    :class:`CheckReport`). Heights in design units, speeds in design units/s. ``stage(name)``:
+    called as each stage after the ramp's launches starts (a progress bar's stage names)."""
     from ..tolerances import DEFAULT
     from .calibrate import ramp_heights
     from .models import problem_from_spec
@@ -316,6 +317,8 @@ def check(spec, *, launcher=None, heights=None, sweep_v=None, progress=None, pro
         first = {"height": float(H[i]), "v_in": float(v[i]), "outcome": OUTCOMES[o],
                  "reason": _why(problem, o, float(end.x_end[j]), float(end.y_end[j])),
                  "x": float(end.x_end[j]), "y": float(end.y_end[j]), "t": float(end.t_end[j])}
+        if i > 0 and refine and stage is not None:
+            stage("finding the highest safe height")
         if i > 0:
             highest = (highest_safe(launches_of, float(H[i - 1]), float(H[i]), lambda h: entry_speeds(spec, h),
                                     rel_tol) if refine else float(H[i - 1]))
@@ -325,13 +328,15 @@ def check(spec, *, launcher=None, heights=None, sweep_v=None, progress=None, pro
     # v_critical and windows over the swept speeds (reusing these launches)
     sw = sweep(problem, vs, launcher=launches_of, initial=grid, rel_tol=v_rel_tol, error_samples=0, tn=False,
                k=1, k_edge=1, edge_rel_tol=edge_rel_tol, gap_rel_tol=gap_rel_tol, refine=refine, tol=tol,
-               bounces=window_bounces)
+               bounces=window_bounces, stage=stage)
     vc = sw["v_critical"]
     windows = sw["windows"] if refine else _midpoint_windows(vs, grid)
     vmin, vmax = float(v[0]), float(v[-1])
     inside = [w for w in windows if w["bounces"] == 2 and vmin < w["lo"] and w["hi"] < vmax]
     # every height this report states, in one inverse calibration (each call integrates the descent)
     speeds = [s for w in inside for s in (w["lo"], w["hi"])] + ([vc] if vc is not None else [])
+    if speeds and stage is not None:
+        stage("the windows' release heights")
     hs = release_heights(spec, np.asarray(speeds, dtype=float)) if speeds else np.zeros(0)
     reach = [{"lo": w["lo"], "hi": w["hi"], "height_lo": float(hs[2 * i]), "height_hi": float(hs[2 * i + 1]),
               "v_out_max": w.get("v_out_max"), "edge_error": w.get("edge_error")} for i, w in enumerate(inside)]

@@ -54,22 +54,11 @@ import numpy as np
 from ..errors import SpecError
 from ..units import gravity
 
-#: outcome names; the index is the integer outcome code of the simulator's results.
-#: ``captured`` also covers a launch too slow to arrive anywhere before ``t_max``
-#: (it is still on the surface, trapped, when time runs out).
-#: ``bridged`` and ``slipped`` occur only in the ``ball`` model (:mod:`fabkit.physics.ball`):
-#: the ball touches the surface at two points (r times the largest concave principal
-#: curvature reaches 1), or the friction it needs exceeds ``ball.friction``.
-OUTCOMES = ("escaped", "captured", "flew_off", "lost_contact", "bridged", "slipped")
-ESCAPED, CAPTURED, FLEW_OFF, LOST_CONTACT, BRIDGED, SLIPPED = range(6)
-#: outcomes where the ball leaves the modelled motion: a design with one is unsafe
-UNSAFE = (FLEW_OFF, LOST_CONTACT, BRIDGED, SLIPPED)
+#: outcome codes and names: defined once in physics/outcomes.py
+from .outcomes import (BRIDGED, CAPTURED, ESCAPED, FLEW_OFF, LOST_CONTACT, OUTCOMES, SLIPPED,  # noqa: F401
+                       UNSAFE, unsafe)
+
 MODELS = ("full", "simplified", "ball")
-
-
-def unsafe(outcome) -> np.ndarray:
-    """Boolean mask of the unsafe outcome codes (:data:`UNSAFE`)."""
-    return np.isin(np.asarray(outcome), UNSAFE)
 
 
 @dataclass(frozen=True, eq=False)
@@ -213,7 +202,7 @@ def rolling_smoothing_speed(problem: Problem) -> float:
 def _build_fused(fns, model, gt, mu, mu_nl, crr_k=0.0, vs=0.0, g=0.0):
     import sympy as sp
 
-    from ..expr import _cse_unevaluated   # sympy's cse re-evaluates: exponential on nested functions
+    from ..expr import cse_unevaluated   # sympy's cse re-evaluates: exponential on nested functions
 
     h = fns.symbolic
     syms = sorted(h.free_symbols, key=lambda s: s.name)
@@ -251,13 +240,13 @@ def _build_fused(fns, model, gt, mu, mu_nl, crr_k=0.0, vs=0.0, g=0.0):
         P = -(dx * vx + dy * vy)
     outs = [ax, ay, h, hx, hy, B, P]
     if P == 0:  # undamped: leave P out of the generated code (the caller gets 0.0)
-        f0 = sp.lambdify((x, y, vx, vy), outs[:6], modules="numpy", cse=_cse_unevaluated)
+        f0 = sp.lambdify((x, y, vx, vy), outs[:6], modules="numpy", cse=cse_unevaluated)
         outs = outs[:6]
 
         def f(xa, ya, vxa, vya, _f=f0):
             return (*_f(xa, ya, vxa, vya), 0.0)
     else:
-        f = sp.lambdify((x, y, vx, vy), outs, modules="numpy", cse=_cse_unevaluated)
+        f = sp.lambdify((x, y, vx, vy), outs, modules="numpy", cse=cse_unevaluated)
     const = [i for i, e in enumerate(outs) if not (e.free_symbols & {x, y, vx, vy})]
 
     if not const:

@@ -65,7 +65,8 @@ import numpy as np
 from ..errors import SpecError
 from ..tolerances import DEFAULT
 
-from .models import BRIDGED, CAPTURED, ESCAPED, FLEW_OFF, LOST_CONTACT, SLIPPED, unsafe  # noqa: F401
+from .outcomes import (BRIDGED, CAPTURED, ESCAPED, FLEW_OFF, LOST_CONTACT, SLIPPED, outcome_counts,  # noqa: F401
+                       outcome_names, unsafe)
 
 
 @dataclass
@@ -237,7 +238,7 @@ def _isolate(inside_end: float, outside_end: float, gap: float, inside, scan: in
     return last_in, outside_end
 
 
-def _critical_task(lo: float, hi: float, rel_tol: float, k: int, max_rounds: int = 40,
+def critical_task(lo: float, hi: float, rel_tol: float, k: int, max_rounds: int = 40,
                    gap_rel_tol: float | None = None):
     """Generator: narrows [lo, hi] (lo: not a one-bounce escape, hi: one) by
     k-section (``k`` = 1: plain bisection); yields speeds to launch, receives their
@@ -304,7 +305,7 @@ def run_tasks(launch, tasks: list) -> list:
 def refine_critical(launch, lo: float, hi: float, *, rel_tol: float = 1e-6, k: int = 64) -> tuple[float, float]:
     """Narrow [lo, hi] (lo: not a one-bounce escape, hi: one) by batched k-section
     to width <= rel_tol * hi. Returns (lo, hi)."""
-    return run_tasks(launch, [_critical_task(lo, hi, rel_tol, k)])[0]
+    return run_tasks(launch, [critical_task(lo, hi, rel_tol, k)])[0]
 
 
 # ----------------------------------------------------------------------------
@@ -325,11 +326,11 @@ def find_runs(res: Launches) -> list[tuple[int, int, int]]:
     return runs
 
 
-def _two_bounce(r: Launches) -> np.ndarray:
+def two_bounce(r: Launches) -> np.ndarray:
     return (r.outcome == ESCAPED) & (r.bounces == 2)
 
 
-def _edge_task(a: float, b: float, side: int, rel_tol: float, k: int = 16, max_rounds: int = 40,
+def edge_task(a: float, b: float, side: int, rel_tol: float, k: int = 16, max_rounds: int = 40,
                gap_rel_tol: float | None = None, inside=None):
     """Generator: k-section (``k`` = 1: plain bisection) of one window edge. side -1
     (left edge): b inside the two-bounce window, a outside; +1 (right edge): a inside,
@@ -338,7 +339,7 @@ def _edge_task(a: float, b: float, side: int, rel_tol: float, k: int = 16, max_r
     a walk from the inside end (:func:`_isolate`) first brackets the run's first
     boundary to that resolution (gaps narrower than it are not seen). ``inside``:
     ``Launches -> bool array``, the window's outcome (default: two-bounce escapes)."""
-    inside_fn = _two_bounce if inside is None else inside
+    inside_fn = two_bounce if inside is None else inside
     if gap_rel_tol:
         gap = gap_rel_tol * max(abs(a), abs(b))
         if side < 0:
@@ -427,9 +428,9 @@ def _clean_task(lo_br: tuple, hi_br: tuple, inside, resolution: float | None, ed
     spacing = (hi_in - lo_in) / (m + 1)
     edges, parts = [], _parts(x, ins)
     for a, b in parts:
-        edges.append(_edge_task(float(x[a - 1]), float(x[a]), -1, edge_rel_tol, k_edge, inside=inside)
+        edges.append(edge_task(float(x[a - 1]), float(x[a]), -1, edge_rel_tol, k_edge, inside=inside)
                      if a > 0 else iter(()))
-        edges.append(_edge_task(float(x[b]), float(x[b + 1]), +1, edge_rel_tol, k_edge, inside=inside)
+        edges.append(edge_task(float(x[b]), float(x[b + 1]), +1, edge_rel_tol, k_edge, inside=inside)
                      if b + 1 < len(x) else iter(()))
     br = yield from _together(edges)
     subs = [_clean_task(lo_br if a == 0 else br[2 * q], hi_br if b == len(x) - 1 else br[2 * q + 1], inside,
@@ -446,7 +447,7 @@ def _window_task(v: np.ndarray, v_out: np.ndarray, run: tuple[int, int, int], re
     apart, split it where a launch of another outcome lies between them; every edge of
     every part is bisected to ``edge_rel_tol`` relative (an edge next to a sample
     outside the run after a walk from the inside end at ``resolution``, as in
-    :func:`_edge_task`); each part is then checked inside at its own scale
+    :func:`edge_task`); each part is then checked inside at its own scale
     (:func:`_clean_task`: at least MIN_PROBES probes), and parts narrower than
     ``resolution`` relative are set apart as unresolved. For n = 2 with ``tn``, v_out is
     maximized inside each window. Returns (windows, unresolved): the windows in order,
@@ -475,9 +476,9 @@ def _window_task(v: np.ndarray, v_out: np.ndarray, run: tuple[int, int, int], re
     for a, b in parts:
         lo_out = float(x[a - 1]) if a > 0 else (float(v[i - 1]) if i > 0 else None)
         hi_out = float(x[b + 1]) if b + 1 < len(x) else (float(v[j + 1]) if j + 1 < len(v) else None)
-        edges.append(_edge_task(float(x[a]) if lo_out is None else lo_out, float(x[a]), -1, edge_rel_tol, k_edge,
+        edges.append(edge_task(float(x[a]) if lo_out is None else lo_out, float(x[a]), -1, edge_rel_tol, k_edge,
                                 gap_rel_tol=resolution, inside=inside))
-        edges.append(_edge_task(float(x[b]), float(x[b]) if hi_out is None else hi_out, +1, edge_rel_tol, k_edge,
+        edges.append(edge_task(float(x[b]), float(x[b]) if hi_out is None else hi_out, +1, edge_rel_tol, k_edge,
                                 gap_rel_tol=resolution, inside=inside))
     brackets = yield from _together(edges)
     # each part checked at its own scale: the probes so far were at most resolution |v| apart
@@ -601,7 +602,7 @@ def sweep(problem, v_in, *, launcher=None, method: str = "fabkit", rtol: float |
           atol: float | None = None, progress=None, rel_tol: float = 1e-6, k: int = 1,
           refine: bool = True, error_samples: int = 48, initial: Launches | None = None, tn: bool = True,
           k_edge: int = 1, edge_rel_tol: float | None = None, gap_rel_tol: float | None = 1e-4,
-          bounces: tuple | None = None, tol=DEFAULT) -> dict:
+          bounces: tuple | None = None, tol=DEFAULT, stage=None) -> dict:
     """Launch at every ``v_in`` (N,) (design units/s, sorted ascending here) and analyse.
 
     Returns a dict: ``v_in`` (N,) sorted, ``v_out`` (N,) (nan unless escaped),
@@ -625,11 +626,11 @@ def sweep(problem, v_in, *, launcher=None, method: str = "fabkit", rtol: float |
     it (gaps between windows, and islands below v_critical, narrower than that are not
     seen); None skips the probes and walks. ``bounces``: resolve and report only the
     windows of these bounce counts (``check``: (2,)); None, every n >= 2.
+    ``stage(name)``: called as each stage after the first launches starts (a progress bar's
+    stage names: refining, estimating the error).
     Large batches (the probes) run on every core (``_threads``): results do not
     depend on it.
     """
-    from .models import OUTCOMES
-
     t0 = time.perf_counter()
     v = np.sort(np.asarray(v_in, dtype=float).ravel())
     if v.size == 0:
@@ -648,7 +649,7 @@ def sweep(problem, v_in, *, launcher=None, method: str = "fabkit", rtol: float |
     res = initial if initial is not None else counting(v)
     out: dict = {
         "v_in": v, "v_out": res.v_out, "bounces": res.bounces,
-        "outcome": [OUTCOMES[int(i)] for i in res.outcome],
+        "outcome": outcome_names(res.outcome),
     }
 
     # v_critical, windows (probes, edges, v_out maxima): refinement tasks run together
@@ -657,8 +658,10 @@ def sweep(problem, v_in, *, launcher=None, method: str = "fabkit", rtol: float |
     e_tol = rel_tol if edge_rel_tol is None else float(edge_rel_tol)
     tasks = []
     if refine:
-        tasks.append(_critical_task(lo, hi, rel_tol, k, gap_rel_tol=gap_rel_tol) if lo is not None else iter(()))
+        tasks.append(critical_task(lo, hi, rel_tol, k, gap_rel_tol=gap_rel_tol) if lo is not None else iter(()))
         tasks += [_window_task(v, res.v_out, run, gap_rel_tol, e_tol, k_edge, tn) for run in runs]
+        if stage is not None:
+            stage("refining v_critical and the windows")
     done = run_tasks(counting, tasks)
     if refine and lo is not None:
         lo, hi = done[0]
@@ -697,11 +700,99 @@ def sweep(problem, v_in, *, launcher=None, method: str = "fabkit", rtol: float |
     # error estimate: re-run a subset of escaped interior launches 10x tighter
     out["error_estimate"] = None
     if error_samples and launcher is None:
+        if stage is not None:
+            stage("estimating the v_out error")
         out["error_estimate"] = estimate_error(problem, v, res, method=method, rtol=rtol, atol=atol,
                                                samples=error_samples, counter=counted)
     out["launches"] = counted["n"]
     out["seconds"] = time.perf_counter() - t0
     return out
+
+
+#: the keys of ``fabkit sweep --json``, in order (a contract: every key stays)
+SWEEP_JSON_KEYS = ("v_in", "v_out", "bounces", "outcome", "v_critical", "windows", "tn_fit", "seconds",
+                   "error_estimate", "v_critical_error", "v_critical_reason", "launches", "resolution",
+                   "unresolved_windows", "model", "units")
+
+
+@dataclass
+class SweepReport:
+    """What ``fabkit sweep`` found (:func:`sweep` over a model), with its verdict.
+
+    Arrays (N,) over the sorted entry speeds ``v_in`` (design units/s): ``v_out`` (nan
+    unless escaped), ``bounces``, ``outcome`` (names of :data:`outcomes.OUTCOMES`).
+    ``v_critical`` ± ``v_critical_error`` (None, and ``v_critical_reason`` says why, when
+    no capture-to-escape step lies in the range); ``windows``: every n-bounce window,
+    resolved to ``resolution`` (relative); ``tn_fit``: eq. (tn) over the two-bounce
+    windows; ``error_estimate``: the v_out error estimated by re-running launches 10x
+    tighter (None when not estimated). The verdict, :attr:`resonant`: the range shows the
+    two-bounce resonance (at least one two-bounce window); :attr:`reason` says why not."""
+
+    v_in: np.ndarray
+    v_out: np.ndarray
+    bounces: np.ndarray
+    outcome: list
+    v_critical: float | None
+    v_critical_error: float | None
+    v_critical_reason: str
+    windows: list
+    resolution: float | None
+    unresolved_windows: list
+    tn_fit: dict
+    error_estimate: dict | None
+    launches: int
+    seconds: float
+    model: str
+    damping: float
+    units: str
+
+    @classmethod
+    def of(cls, result: dict, problem, units: str, seconds: float | None = None) -> "SweepReport":
+        """The report of :func:`sweep`'s ``result`` for ``problem`` (its model and
+        damping); ``seconds``: the run's wall time (default: the sweep's own)."""
+        return cls(v_in=result["v_in"], v_out=result["v_out"], bounces=result["bounces"],
+                   outcome=list(result["outcome"]), v_critical=result["v_critical"],
+                   v_critical_error=result["v_critical_error"], v_critical_reason=result["v_critical_reason"],
+                   windows=result["windows"], resolution=result["resolution"],
+                   unresolved_windows=result["unresolved_windows"], tn_fit=result["tn_fit"],
+                   error_estimate=result["error_estimate"], launches=result["launches"],
+                   seconds=result["seconds"] if seconds is None else seconds, model=problem.model,
+                   damping=float(problem.damping), units=units)
+
+    @property
+    def two_bounce_windows(self) -> list:
+        return [w for w in self.windows if w["bounces"] == 2]
+
+    @property
+    def outcome_counts(self) -> dict:
+        """{outcome name: launches}, in order of first appearance."""
+        return outcome_counts(self.outcome)
+
+    @property
+    def resonant(self) -> bool:
+        """The verdict: at least one two-bounce window in the range."""
+        return bool(self.two_bounce_windows)
+
+    @property
+    def reason(self) -> str:
+        """Why the sweep shows no two-bounce window, one line ('' when it does)."""
+        if self.resonant:
+            return ""
+        u = self.units
+        where = f"v_in {float(self.v_in[0]):.4g}..{float(self.v_in[-1]):.4g} {u}/s"
+        if self.v_critical is None:
+            return f"no two-bounce window in {where}; no v_critical ({self.v_critical_reason})"
+        return f"no two-bounce window in {where}"
+
+    def to_json(self) -> dict:
+        """The JSON of ``fabkit sweep --json`` (:data:`SWEEP_JSON_KEYS`, unchanged)."""
+        return {k: getattr(self, k) for k in SWEEP_JSON_KEYS}
+
+    def as_result(self) -> dict:
+        """The mapping :func:`sweep` returns (what the figures read)."""
+        out = self.to_json()
+        out["damping"] = self.damping
+        return out
 
 
 def estimate_error(problem, v, res: Launches, *, method: str, rtol, atol, samples: int = 48,

@@ -28,9 +28,9 @@ from pathlib import Path
 
 import numpy as np
 
+from ..units import PROGRAM_UNITS as UNITS, ProgramUnits as Units, MM_PER_INCH, coordinate_decimals  # noqa: F401
 from .path import CUT, PLUNGE, RAPID, Toolpath
 
-MM_PER_INCH = 25.4
 #: rapid rate assumed for time estimates, mm/min (G0 speed is set by the machine,
 #: not the program; 5000 mm/min is a typical hobby router/mill figure)
 DEFAULT_RAPID_MM_MIN = 5000.0
@@ -76,23 +76,6 @@ DIALECTS: dict[str, Dialect] = {
 
 
 @dataclass(frozen=True)
-class Units:
-    """Program units: G word, mm per unit, coordinate and feed decimals."""
-
-    name: str
-    gword: str
-    mm_per_unit: float
-    decimals: int
-    feed_decimals: int
-
-
-UNITS: dict[str, Units] = {
-    "mm": Units("mm", "G21", 1.0, 4, 1),
-    "in": Units("in", "G20", MM_PER_INCH, 5, 3),
-}
-
-
-@dataclass(frozen=True)
 class MachineProfile:
     """Everything the writer needs besides the moves. Lengths mm, feeds mm/min.
 
@@ -126,11 +109,7 @@ class MachineProfile:
     def decimals(self) -> int:
         """Coordinate decimals: the unit's default, raised until half a unit in the
         last place is at most tolerance/20 (capped at 6)."""
-        u = self.u
-        dec = u.decimals
-        while dec < 6 and 0.5 * 10.0 ** -dec * u.mm_per_unit > self.tolerance / 20.0:
-            dec += 1
-        return dec
+        return coordinate_decimals(self.units, self.tolerance)
 
     @property
     def rounding_mm(self) -> float:

@@ -43,17 +43,17 @@ import numpy as np
 
 from ..errors import SpecError
 from .compensate import INTERIOR, TOP, compensate
+# the scallop bound has its own module; its names stay importable from here
+from .scallop import (EDGE_NODES, SCALLOP_SAFETY, STEEP_ALONG, between_rows, flat_stepover,  # noqa: F401
+                      hermite_profile, slope_scale, stack_profiles, sweep_material, tilted_plane_cusp)
 
 AIR_EPS = 1e-7          # mm: a tip this close below the top face touches nothing worth a move
-SCALLOP_SAFETY = 0.95   # stepover keeps the cross-section bound below this fraction of the scallop
 FLOOR_SHARE = 0.25      # material the dense passes leave above this share of the target: unreachable
 FLOOR_EXCESS = 0.9      # above unreachable material, the bound allows this share of the target
 FLOOR_EXCESS_VERTICAL = 0.5   # the same, measured vertically (steep fillet flanks: 0.9 left 0.085 mm)
 MIN_STEP_SHARE = 0.02   # smallest stepover tried, share of the flat-ground stepover
 REFINE_SHARE = 0.5      # the material bound's crest is refined where it exceeds this share of the target
 GROWTH = 1.5            # the next stepover grows at most by this factor (cusp ~ s^2 predicts it)
-STEEP_ALONG = 1.5       # the material bound's stage 3 runs where the slope along the pass exceeds this
-EDGE_NODES = (0.95, 0.99)   # extra nodes along the passes beyond the edges, x R out
 EDGE_OUT = (0.0, 0.125, 0.25, 0.375, 0.5, 0.625, 0.75, 0.875, 0.95, 0.99, 0.999)  # edge passes, x R out
 COMB_EVEN, COMB_RIM = 60, 20    # the comb hanging off an edge: passes evenly to 0.9 R out, then toward 0.999 R
 COMB_GAIN = 0.25        # comb passes run where they lower the edge band by this share of the target
@@ -72,22 +72,6 @@ def comb_offsets() -> np.ndarray:
     return np.unique(np.r_[np.linspace(0.0, 0.9, COMB_EVEN), 1.0 - np.geomspace(1e-3, 0.1, COMB_RIM)])
 
 
-def flat_stepover(R: float, scallop: float) -> float:
-    """Stepover leaving cusps of height ``scallop`` on flat ground, mm (exact)."""
-    if scallop >= R:
-        return 2.0 * R
-    return 2.0 * math.sqrt(2.0 * R * scallop - scallop * scallop)
-
-
-def tilted_plane_cusp(R: float, s: float, theta: float, normal: bool = False) -> float:
-    """Cusp height between two balls of radius R on a plane of slope angle ``theta``
-    across passes ``s`` apart horizontally, mm (closed form): along the plane's normal
-    (``normal``) or vertically (1 / cos theta times that)."""
-    half = s / (2.0 * math.cos(theta))
-    cusp = R - math.sqrt(R * R - half * half)
-    return cusp if normal else cusp / math.cos(theta)
-
-
 class Frame:
     """Pass coordinates (u along, v across) <-> work (X, Y)."""
 
@@ -97,33 +81,6 @@ class Frame:
 
     def xy(self, u, v):
         return (u, v) if self.direction == "x" else (v, u)
-
-
-def _hermite(ug, Z, dZ, uf, kink=None, rows=None):
-    """Cubic Hermite interpolation of the pass profile (exact values and slopes at
-    the nodes ug) at uf; +inf outside the finite nodes.
-
-    ``kink`` (bool per node): the tip path has a kink there (the ball bridges a V
-    crease or a valley tighter than itself: two contacts, the slope of either one
-    side's); on the segments beside such a node the profile is not below the chord
-    (the Hermite cubic with the other side's slope dips below the true path, by
-    ~ h |dZ_left - dZ_right| / 7: 0.5 mm on a V crease of slope 3, and the material
-    bounds would take the balls for lower than they are).
-
-    ``rows``: Z, dZ, kink are stacked profiles (P, n) and ``rows`` (broadcastable to
-    uf) picks each position's profile: several passes in one call."""
-    i = np.clip(np.searchsorted(ug, uf, side="right") - 1, 0, len(ug) - 2)
-    h = ug[i + 1] - ug[i]
-    t = (uf - ug[i]) / h
-    t2, t3 = t * t, t * t * t
-    ix, ix1 = (i, i + 1) if rows is None else ((rows, i), (rows, i + 1))
-    with np.errstate(invalid="ignore"):
-        z = ((2 * t3 - 3 * t2 + 1) * Z[ix] + (t3 - 2 * t2 + t) * h * dZ[ix]
-             + (-2 * t3 + 3 * t2) * Z[ix1] + (t3 - t2) * h * dZ[ix1])
-        if kink is not None:
-            k = kink[ix] | kink[ix1]
-            z = np.where(k, np.fmax(z, Z[ix] + t * (Z[ix1] - Z[ix])), z)
-    return np.where(np.isfinite(z), z, np.inf)
 
 
 class _Pass:
@@ -144,7 +101,7 @@ class _Pass:
         self.cv = contact_curve(ug, pu, cv, v, R, np.where(ci.kind == INTERIOR, ug - pu, np.nan))
         self.keep = _trim_outside(ug, Z, fr.Lu, depth_lim, contact_top)
         k = np.nonzero(self.keep)[0]
-        f = _hermite(ug, Z, dZ, uf, self.bridged)
+        f = hermite_profile(ug, Z, dZ, uf, self.bridged)
         # the material bounds count the balls at most 7/8 R beyond the edges, and further
         # out only those at the nodes (exact heights): there the tip height rises too
         # steeply for the Hermite profile (fewer balls: a higher, still valid bound)
@@ -156,13 +113,6 @@ class _Pass:
         self._lo = max(ug[k[0]], -0.875 * R) if k.size else math.inf
         self._hi = min(ug[k[-1]], fr.Lu + 0.875 * R) if k.size else -math.inf
 
-
-
-def _stack(cutters):
-    """(Z, dZ, lo, hi, kink) of several passes stacked along a leading axis."""
-    return (np.vstack([p.Z for p in cutters]), np.vstack([p.dZ for p in cutters]),
-            np.array([p._lo for p in cutters]), np.array([p._hi for p in cutters]),
-            np.vstack([p.bridged for p in cutters]))
 
 
 def contact_curve(ug, pu, cv, v, R=None, du=None):
@@ -253,7 +203,7 @@ def _extend_where_profile_holds(ws, fr, R, ug, passes, target):
     X, Y = fr.xy(np.broadcast_to(uq, V.shape), V)
     Zx = compensate(ws, X, Y, R)
     for k, p in enumerate(live):
-        h = _hermite(ug, p.Z, p.dZ, uq, p.bridged)
+        h = hermite_profile(ug, p.Z, p.dZ, uq, p.bridged)
         for j, (sign, a, b) in enumerate(segs):
             if not (p.keep[a] and p.keep[b]):
                 continue
@@ -299,131 +249,12 @@ def _exact_where_contact_changes(ws, fr, R, ug, uf, passes, kind, target):
         p.fine[cols[m]] = np.where((Z[m] > f) | (f - Z[m] > 0.1 * target), Z[m], f)
 
 
-def slope_scale(ws, X, Y, normal: bool = True):
-    """(design clipped at the top face, scale): the factor that turns material measured
-    vertically above the design at (X, Y) into material measured along the design's
-    normal, 1 / sqrt(1 + |grad H|^2) (1 on the top face and where ``normal`` is False).
-    Exact for a cut surface parallel to the design (a cusp's crest above a plane), to
-    first order elsewhere."""
-    if not normal:
-        H = ws.H(X, Y)
-        return np.minimum(H, 0.0), np.ones_like(H)
-    H, hx, hy = ws.all(X, Y)[:3]
-    with np.errstate(all="ignore"):
-        g = np.where(np.isfinite(H) & (H < 0), hx * hx + hy * hy, 0.0)
-        scale = 1.0 / np.sqrt(1.0 + np.nan_to_num(g, nan=0.0, posinf=0.0))
-    return np.minimum(H, 0.0), scale
-
-
-def sweep_material(ws, fr, R, uq, vs, cutters, uf, threshold=0.0, chord=0.0, normal=False):
-    """Upper bound of the material left above the design at the points (uq, vs)
-    (``normal``: measured along the design's normal, else vertically; mm; vs (m, nq)
-    across, uq (nq,) along) after the passes ``cutters``
-    (list of :class:`_Pass`). Each point is cut by the lowest of the balls at the
-    fine positions uf of those passes: a discrete subset of the continuous sweep,
-    so the bound is conservative (by at most (du/4)^2 / (8 R) along steep slopes).
-    Where a first bound from the balls at the same u alone is <= ``threshold`` it
-    is returned as is (the caller needs no better). On ground steep along the pass the
-    lowest ball between the fine positions is found (stage 3); that bound follows the
-    exact path, so the chords of the program (within ``chord`` mm of it) are added to
-    it. Returns (m, nq) mm."""
-    df = float(np.diff(uf).max())   # the even spacing (nodes beyond the edges added between)
-    K = int(math.ceil(R / df)) + len(EDGE_NODES) + 1    # and the edge nodes between
-    j0 = np.clip(np.searchsorted(uf, uq), 0, len(uf) - 1)
-    X, Y = fr.xy(np.broadcast_to(uq, vs.shape), vs)
-    design, scale = slope_scale(ws, X, Y, normal)
-
-    def bound(cols, offsets):
-        """Material at the columns ``cols`` using the balls at fine offsets."""
-        J = np.clip(j0[cols, None] + offsets[None, :], 0, len(uf) - 1)
-        du2 = (uq[cols, None] - uf[J]) ** 2
-        v = vs[:, cols]
-        cut = np.full(v.shape, np.inf)
-        for p in cutters:
-            dv2 = (v - p.v) ** 2
-            r2 = R * R - du2[None, :, :] - dv2[:, :, None]
-            with np.errstate(invalid="ignore"):
-                b = (p.fine[J] + R)[None, :, :] - np.sqrt(r2)
-            cut = np.minimum(cut, np.where(r2 >= 0, b, np.inf).min(axis=2))
-        return (np.minimum(cut, 0.0) - design[:, cols]) * scale[:, cols]
-
-    # stage 1: balls at the same u only (fewer balls: a higher, still valid bound)
-    all_cols = np.arange(len(uq))
-    ml = bound(all_cols, np.zeros(1, int))
-    # stage 2: the whole sweep within R along the pass, where stage 1 is not enough
-    hot = np.nonzero((ml > threshold).any(axis=0))[0]
-    if hot.size:
-        ml[:, hot] = bound(hot, np.arange(-K, K + 1))
-    # stage 3: on ground steep along the pass the ball cuts a cross-section with its rim
-    # (slope 8: 0.99 R ahead), where a step du between balls leaves ~ du^2 / (2 R cos^3)
-    # (1.6 mm at the fine grid's 0.1 mm): the lowest ball between the fine positions,
-    # per pass, by golden-section search along the pass
-    hot = np.nonzero((ml > threshold + chord).any(axis=0))[0]
-    if hot.size:
-        # only where the design is steep along the pass (slope > STEEP_ALONG) near the
-        # column: elsewhere the fine grid's error, <= df^2 (1 + slope^2)^1.5 / (8 R), is small
-        uu = uq[hot][None, :] + np.array([-1.0, -0.5, 0.0, 0.5, 1.0])[:, None] * R
-        Xs, Ys = fr.xy(uu, np.broadcast_to(vs[vs.shape[0] // 2, hot], uu.shape))
-        d = ws.all(Xs, Ys)
-        su = np.abs(np.nan_to_num(d[1] if fr.direction == "x" else d[2]))
-        hot = hot[(su * (d[0] < 0)).max(axis=0) > STEEP_ALONG]
-    if hot.size:
-        v = vs[:, hot][:, :, None]
-        u0 = uq[hot][None, :, None]
-        uf_nodes = cutters[0]._ug
-        o = np.linspace(-R, R, 65)
-        h = o[1] - o[0]
-        # all cutters at once (leading axis): the same search per cutter, one array call
-        Zs, dZs, lo, hi, kink = _stack(cutters)
-        cv = np.array([p.v for p in cutters])[:, None, None, None]
-        dv2 = (v[None] - cv) ** 2
-        pi = np.arange(len(cutters))[:, None, None, None]
-
-        def ball(oo):
-            """Lowest point above u0 of each cutter's ball at u0 + oo: the pass's tip
-            profile (Hermite), +inf where it is not machined or beyond 7/8 R out."""
-            r2 = R * R - oo * oo - dv2
-            u = u0 + oo
-            with np.errstate(invalid="ignore"):
-                z = _hermite(uf_nodes, Zs, dZs, u, kink, rows=pi)
-                z = np.where((u >= lo[pi]) & (u <= hi[pi]), z, np.inf)
-                b = z + R - np.sqrt(r2)
-            return np.where(r2 >= 0, b, np.inf)
-
-        g = ball(o + 0 * dv2)
-        j = np.argmin(g, axis=3)[..., None]
-        a = np.take_along_axis(np.broadcast_to(o, g.shape), j, axis=3) - h
-        b = a + 2 * h
-        gr = 0.5 * (math.sqrt(5.0) - 1.0)
-        c, d = b - gr * (b - a), a + gr * (b - a)
-        gc, gd = ball(c), ball(d)
-        for _ in range(24):
-            lt = gc <= gd
-            a, b = np.where(lt, a, c), np.where(lt, d, b)
-            c, d = np.where(lt, b - gr * (b - a), d), np.where(lt, c, a + gr * (b - a))
-            gn = ball(np.where(lt, c, d))
-            gc, gd = np.where(lt, gn, gd), np.where(lt, gc, gn)
-        best = np.minimum(np.min(g, axis=3), np.minimum(gc, gd)[..., 0])
-        cut = best.min(axis=0)
-        ml[:, hot] = np.minimum(ml[:, hot],
-                                (np.minimum(cut, 0.0) - design[:, hot] + chord) * scale[:, hot])
-    return ml
-
-
 def _beside(v, step, Lv):
     """The pass right beside the pass at v (``step`` further across): short of the edge
     it stops at the edge; beyond it (the edge passes lie up to R out) it lies further
     out still, never behind v (a pass behind it bounds the material between the two as
     unreachable: on a dome falling to the edge, 0.24 mm was left that way)."""
     return v + step if v >= Lv else min(v + step, Lv)
-
-
-def _between(lo, hi, Lv, n=9):
-    """(n, nq) sample points across from lo to hi per position, clipped to [0, Lv]."""
-    a, b = np.minimum(lo, hi), np.maximum(lo, hi)
-    a, b = np.clip(a, 0.0, Lv), np.clip(b, 0.0, Lv)
-    w = np.linspace(0.0, 1.0, n)[:, None]
-    return a[None, :] + (b - a)[None, :] * w
 
 
 def u_grid(fr, R):
@@ -508,201 +339,260 @@ def place_passes(ws, fr, R: float, scallop: float, depth_lim: float, max_passes:
     along the design's normal (``machining.scallop_measure: normal``), else vertically.
 
     Raises SpecError (``machining.scallop``) past ``max_passes`` passes."""
-    ug = u_grid(fr, R)
-    inside_u = (ug >= 0) & (ug <= fr.Lu)
-    uq = ug[inside_u]
-    target = SCALLOP_SAFETY * scallop
-    uf = fine_grid(ug, R, target)
-    s_flat = flat_stepover(R, target)
-    s_min = MIN_STEP_SHARE * s_flat
-    Lv = fr.Lv
-    unreach = [0.0, math.nan, math.nan]
-    relaxed = None
+    return PassPlacer(ws, fr, R, scallop, depth_lim, spec_path=spec_path, chord=chord,
+                      normal=normal).place(max_passes)
 
-    def make(vlist):
-        return compensate_passes(ws, fr, R, ug, uf, vlist, depth_lim, target)
 
-    def left(vs, cutters):
-        ml = sweep_material(ws, fr, R, uq, vs, cutters, uf, 0.5 * target, chord, normal)
+class PassPlacer:
+    """Places the passes across one block (:func:`place_passes`): the first pass on or
+    beyond the edge v = 0, then each next pass as far as the scallop bound
+    (:func:`fabkit.toolpath.scallop.sweep_material`) allows, the last one on or beyond
+    the edge v = Lv, then the combs hanging off the edges (:func:`edge_comb`).
+
+    What the placement finds on the way: ``unreach`` [mm, u, v], the most material
+    beyond the ball's reach, and ``relaxed`` (mm, u, v) or None, where the stepover hit
+    its floor with the bound unmet. ``ahead``: passes computed ahead at the flat
+    stepover; ``floor_used``: the step needed the pass right beside the previous one
+    (:meth:`floor_of`), so the next step computes that one with its candidate
+    (``floor_ahead``)."""
+
+    def __init__(self, ws, fr, R: float, scallop: float, depth_lim: float, *, spec_path=None,
+                 chord: float = 0.0, normal: bool = True):
+        self.ws, self.fr, self.R, self.depth_lim = ws, fr, R, depth_lim
+        self.spec_path, self.chord, self.normal = spec_path, chord, normal
+        self.ug = u_grid(fr, R)
+        self.inside_u = (self.ug >= 0) & (self.ug <= fr.Lu)
+        self.uq = self.ug[self.inside_u]
+        self.target = SCALLOP_SAFETY * scallop
+        self.uf = fine_grid(self.ug, R, self.target)
+        self.s_flat = flat_stepover(R, self.target)
+        self.s_min = MIN_STEP_SHARE * self.s_flat
+        self.Lv = fr.Lv
+        self.unreach = [0.0, math.nan, math.nan]
+        self.relaxed = None
+        self.ahead: list = []
+        self.floor_used = False
+        self.floor_ahead: dict = {}
+
+    # ------------------------------------------------------------------ the loop
+    def place(self, max_passes: int) -> PassPlan:
+        passes = [self.first_pass()]
+        s_next = self.s_flat
+        while True:
+            pa, older = passes[-1], passes[-2:-1]
+            floor_last, self.floor_used = self.floor_used, False
+            self.floor_ahead.clear()
+            s = max(min(s_next, self.s_flat), self.s_min)
+            allowed = (np.zeros(self.uq.shape), np.full(self.uq.shape, self.target))
+            if pa.v + s >= self.Lv:
+                end, s, allowed = self.last_pass(pa, older, s, allowed)
+                if end is not None:
+                    passes.append(end)
+                    break
+            pb, ratio = self.next_pass(pa, older, s, allowed, floor_last)
+            passes.append(pb)
+            if len(passes) > max_passes:
+                raise SpecError(f"needs more than {max_passes} passes; raise the scallop",
+                                file=self.spec_path, key="machining.scallop")
+            # predict the next stepover from this one's margin (cusp ~ s^2)
+            s_next = max(pb.v - pa.v, self.s_min) * min(GROWTH, 0.97 / math.sqrt(max(ratio, 1e-12)))
+        comb = edge_comb(self.ws, self.fr, self.R, self.ug, self.uf, passes, self.target, self.chord,
+                         self.normal, self.make, self.deep)
+        if comb:
+            passes = sorted(passes + comb, key=lambda p: p.v)
+        return PassPlan(passes, self.ug, self.uf, self.s_flat, tuple(self.unreach), self.relaxed)
+
+    # ------------------------------------------------------------------ the steps
+    def first_pass(self):
+        """The pass on or beyond the edge v = 0 that mills it (v = 0 if none does)."""
+        p0, ml0 = self.edge_pass(0.0, -1.0, [])
+        if p0 is None:
+            p0, ml0 = self.make([0.0])[0], math.inf
+        if ml0 > self.target and math.isfinite(ml0) and ml0 > self.unreach[0]:
+            self.unreach[:] = [ml0, float(self.uq[0]) if self.uq.size else 0.0, 0.0]
+        return p0
+
+    def last_pass(self, pa, older, s, allowed):
+        """The pass on or beyond the edge v = Lv, when the material up to it is within
+        the bound (or the gap is too narrow for another pass): (that pass, s, allowed).
+        Else (None, the stepover toward it, the bound): a pass between pa and the edge
+        pass, beyond the edge if need be (where the ground falls toward the edge the edge
+        pass lies up to R out, its contact inside; passes short of the edge alone never
+        come close enough to it); :meth:`check` bounds the material from a pass beyond
+        the edge to the edge too."""
+        Lv, target = self.Lv, self.target
+        pb, ml = self.edge_pass(Lv, 1.0, [pa] + older)
+        if pb is None:
+            pb, ml = self.make([Lv])[0], math.inf
+        r = self.check(pa, pb, older, allowed, last=True)
+        if r > 1.0:
+            allowed = self.above_floor(self.floor_of(pa, older))
+            r = self.check(pa, pb, older, allowed, last=True)
+        if r <= 1.0 or max(pb.v, Lv) - pa.v <= 2 * self.s_min:
+            if r > 1.0 and (self.relaxed is None or r * target > self.relaxed[0]):
+                self.relaxed = (r * target, float(self.uq[-1]) if self.uq.size else 0.0, Lv)
+            if target < ml < math.inf and ml > self.unreach[0]:
+                self.unreach[:] = [ml, float(self.uq[-1]) if self.uq.size else 0.0, Lv]
+            return pb, s, allowed
+        self.ahead = []
+        return None, min(s, 0.6 * (max(pb.v, Lv) - pa.v)), allowed
+
+    def candidate(self, pa, s, floor_last):
+        """The pass s beyond pa: computed ahead, or now. At the flat stepover the next
+        passes likely follow at the same stepover: computed with this one (one call);
+        elsewhere the next stepover depends on this pass's margin, and speculative
+        passes would be wasted."""
+        ahead = self.ahead
+        cand = ahead.pop(0) if ahead and abs(ahead[0].v - (pa.v + s)) < 1e-12 else None
+        if cand is None:
+            look = (1, 2, 3) if s >= self.s_flat else (1,)
+            vl = [pa.v + k * s for k in look if k == 1 or pa.v + k * s < self.Lv]
+            vf = _beside(pa.v, MIN_STEP_SHARE * self.s_flat, self.Lv)
+            cands = self.make(vl + [vf] if floor_last else vl)
+            if floor_last:
+                self.floor_ahead[vf] = cands.pop()
+            cand, self.ahead = cands[0], cands[1:]
+        return cand
+
+    def next_pass(self, pa, older, s, allowed, floor_last):
+        """(the next pass after pa, its ratio to the bound): the candidate s beyond pa if
+        within the bound, else :meth:`closer`."""
+        cand = self.candidate(pa, s, floor_last)
+        ratio = self.check(pa, cand, older, allowed)
+        if ratio <= 1.0:
+            return cand, ratio
+        return self.closer(pa, older, s, allowed, cand, ratio)
+
+    def closer(self, pa, older, s, allowed, cand, ratio):
+        """The candidate failed: first allow the material even a pass right beside pa
+        leaves (reported as unreachable), then shrink the stepover (predicted from the
+        ratio, four trials a round), and relax at the floor (or after 8 rounds): the
+        largest stepover within 10 % of the best ratio (smaller ones do not help)."""
+        target, s_min = self.target, self.s_min
+        tried = [(ratio, cand)]
+        floor_done = False
+        tries = 0
+        while True:
+            self.ahead = []
+            tries += 1
+            if not floor_done:
+                floor_done = True
+                fl = self.floor_of(pa, older)
+                if (fl > target).any():
+                    allowed = self.above_floor(fl)
+                    ratio = self.check(pa, cand, older, allowed)
+                    tried.append((ratio, cand))
+                    if ratio <= 1.0:
+                        return cand, ratio
+            f = min(0.97, max(0.3, 0.99 / math.sqrt(max(ratio, 1e-12))))
+            s = max(s * f, s_min)
+            trial = sorted({max(s * g, s_min) for g in (1.0, 0.85, 0.7, 0.55)}, reverse=True)
+            for c in self.make([pa.v + t for t in trial]):
+                ratio = self.check(pa, c, older, allowed)
+                tried.append((ratio, c))
+                if ratio <= 1.0:
+                    return c, ratio
+            if trial[-1] <= s_min * (1 + 1e-9) or tries >= 8:
+                rmin = min(r for r, _ in tried)
+                ratio, pb = max(((r, c) for r, c in tried if r <= 1.1 * rmin), key=lambda rc: rc[1].v)
+                if self.relaxed is None or ratio * target > self.relaxed[0]:
+                    self.relaxed = (ratio * target, float(self.uq[0]) if self.uq.size else 0.0, pa.v)
+                return pb, ratio
+            s = trial[-1]
+
+    # ------------------------------------------------------------------ the passes
+    def make(self, vlist):
+        """The passes at ``vlist`` across (one compensation call)."""
+        return compensate_passes(self.ws, self.fr, self.R, self.ug, self.uf, vlist, self.depth_lim, self.target)
+
+    def deep(self, p) -> bool:
+        """The pass goes below the depth limit."""
+        k = p.keep
+        return bool(k.any() and p.Z[k].min() < -self.depth_lim)
+
+    def edge_pass(self, edge, sign, older):
+        """The first pass on or beyond an edge that mills it (v = edge + sign f R)."""
+        cands = self.make([edge + sign * f * self.R for f in EDGE_OUT])
+        best, best_ml = None, math.inf
+        for c in cands:
+            if self.deep(c) or not c.keep.any():
+                continue
+            ml = self.edge_left(c, older, edge).max(initial=0.0)
+            if ml <= self.target:
+                return c, 0.0
+            if ml < best_ml:
+                best, best_ml = c, ml
+        return best, best_ml
+
+    # ------------------------------------------------------------------ the bound
+    def left(self, vs, cutters):
+        """The material the ``cutters`` leave at (uq, vs) (:func:`sweep_material`)."""
+        ml = sweep_material(self.ws, self.fr, self.R, self.uq, vs, cutters, self.uf, 0.5 * self.target,
+                            self.chord, self.normal)
         return np.nan_to_num(ml, nan=np.inf, posinf=np.inf)
 
-    def peak(vs, cutters):
+    def peak(self, vs, cutters):
         """(per u, the largest material between the rows of vs; the material at vs).
         Refined around each column's largest sample where that exceeds REFINE_SHARE of
         the target: on ground steep across the passes the cusp is a sharp V (its flanks
         rise vertically ~ alpha / cos^2 theta over a horizontal step), and the 9 rows
         between the contact curves missed its crest by up to a quarter of the target (a
         tanh wall of slope 7: 0.053 mm left against the 0.0475 planned)."""
-        ml = left(vs, cutters)
+        ml = self.left(vs, cutters)
         top = ml.max(axis=0)
-        if not normal:      # vertically the crest is held by the floor rules as before
+        if not self.normal:      # vertically the crest is held by the floor rules as before
             return top, ml
-        cols = np.nonzero(np.isfinite(top) & (top > REFINE_SHARE * target))[0]
+        cols = np.nonzero(np.isfinite(top) & (top > REFINE_SHARE * self.target))[0]
         if cols.size:
             i = np.argmax(ml[:, cols], axis=0)
             h = (vs[-1, cols] - vs[0, cols]) / (vs.shape[0] - 1)
             off = np.linspace(-1.0, 1.0, 9)[1:-1]
-            vr = np.clip(vs[i, cols][None, :] + off[:, None] * h[None, :], 0.0, Lv)
-            m2 = sweep_material(ws, fr, R, uq[cols], vr, cutters, uf, 0.5 * target, chord, normal)
+            vr = np.clip(vs[i, cols][None, :] + off[:, None] * h[None, :], 0.0, self.Lv)
+            m2 = sweep_material(self.ws, self.fr, self.R, self.uq[cols], vr, cutters, self.uf,
+                                0.5 * self.target, self.chord, self.normal)
             top[cols] = np.maximum(top[cols], np.nan_to_num(m2, nan=np.inf, posinf=np.inf).max(axis=0))
         return top, ml
 
-    def edge_left(p, older, edge):
-        return peak(_between(p.cv[inside_u], np.full(uq.shape, edge), Lv), [p] + older)[0]
+    def edge_left(self, p, older, edge):
+        """Per u, the material between pass p and the edge."""
+        return self.peak(between_rows(p.cv[self.inside_u], np.full(self.uq.shape, edge), self.Lv), [p] + older)[0]
 
-    def note_floor(fl, vs):
-        if fl.size and fl.max() > unreach[0]:
-            i, j = np.unravel_index(int(np.argmax(fl)), fl.shape)
-            unreach[:] = [float(fl[i, j]), float(uq[j]), float(vs[i, j])]
-
-    def check(pa, pb, older, allowed, last=False):
+    def check(self, pa, pb, older, allowed, last=False):
         """Largest ratio, per position along u, of the material between pa and pb
         (and beyond pb to the edge when pb is the ``last`` pass) to ``allowed`` = (base,
         limit): (material - base) / (limit - base), base the unreachable material
         (0 where there is none). <= 1: within the bound; a cusp's share of what is
         allowed above the base, ~ s^2 (the next stepover is predicted from it)."""
         base, lim = allowed
-        vs = _between(pa.cv[inside_u], pb.cv[inside_u], Lv)
-        ml = peak(vs, [pb, pa] + older)[0]
+        vs = between_rows(pa.cv[self.inside_u], pb.cv[self.inside_u], self.Lv)
+        ml = self.peak(vs, [pb, pa] + older)[0]
         if last:
-            ml = np.maximum(ml, edge_left(pb, [pa] + older, Lv))
+            ml = np.maximum(ml, self.edge_left(pb, [pa] + older, self.Lv))
         return float(((ml - base) / (lim - base)).max(initial=0.0))
 
-    def above_floor(fl):
+    def above_floor(self, fl):
         """(base, limit): FLOOR_EXCESS (vertically FLOOR_EXCESS_VERTICAL) x target above
         the unreachable material fl where that exceeds the target, else the target."""
-        lim = np.maximum(target, fl + (FLOOR_EXCESS if normal else FLOOR_EXCESS_VERTICAL) * target)
+        target = self.target
+        lim = np.maximum(target, fl + (FLOOR_EXCESS if self.normal else FLOOR_EXCESS_VERTICAL) * target)
         return np.where(lim > target, fl, 0.0), lim
 
-    def floor_of(pa, older):
+    def floor_of(self, pa, older):
         """Per u, the material a pass right beside pa leaves too: beyond the ball's
         reach (a valley tighter than the tool, a V crease); no stepover removes it."""
-        floor_used[0] = True
-        vf = _beside(pa.v, MIN_STEP_SHARE * s_flat, Lv)
-        pt = floor_ahead.pop(vf, None) or make([vf])[0]
-        vs = _between(pa.cv[inside_u], pt.cv[inside_u], Lv)
-        fl = left(vs, [pt, pa] + older)      # not refined: a lower floor allows less
-        note_floor(np.where(fl > FLOOR_SHARE * target, fl, 0.0), vs)
+        self.floor_used = True
+        vf = _beside(pa.v, MIN_STEP_SHARE * self.s_flat, self.Lv)
+        pt = self.floor_ahead.pop(vf, None) or self.make([vf])[0]
+        vs = between_rows(pa.cv[self.inside_u], pt.cv[self.inside_u], self.Lv)
+        fl = self.left(vs, [pt, pa] + older)      # not refined: a lower floor allows less
+        self.note_floor(np.where(fl > FLOOR_SHARE * self.target, fl, 0.0), vs)
         return fl.max(axis=0)
 
-    def deep(p):
-        k = p.keep
-        return bool(k.any() and p.Z[k].min() < -depth_lim)
-
-    def edge_pass(edge, sign, older):
-        """The first pass on or beyond an edge that mills it (v = edge + sign f R)."""
-        cands = make([edge + sign * f * R for f in EDGE_OUT])
-        best, best_ml = None, math.inf
-        for c in cands:
-            if deep(c) or not c.keep.any():
-                continue
-            ml = edge_left(c, older, edge).max(initial=0.0)
-            if ml <= target:
-                return c, 0.0
-            if ml < best_ml:
-                best, best_ml = c, ml
-        return best, best_ml
-
-    p0, ml0 = edge_pass(0.0, -1.0, [])
-    if p0 is None:
-        p0, ml0 = make([0.0])[0], math.inf
-    if ml0 > target and math.isfinite(ml0) and ml0 > unreach[0]:
-        unreach[:] = [ml0, float(uq[0]) if uq.size else 0.0, 0.0]
-    passes = [p0]
-    s_next = s_flat
-    ahead = []
-    # the pass right beside pa (floor_of) is computed with the next candidate, in the
-    # same call, where the previous step needed one too (unreachable regions run on)
-    floor_used, floor_ahead = [False], {}
-    while True:
-        pa = passes[-1]
-        older = passes[-2:-1]
-        floor_last, floor_used[0] = floor_used[0], False
-        floor_ahead.clear()
-        s = max(min(s_next, s_flat), s_min)
-        allowed = (np.zeros(uq.shape), np.full(uq.shape, target))
-        if pa.v + s >= Lv:
-            # the last pass: on or beyond the edge v = Lv, milling it
-            pb, ml = edge_pass(Lv, 1.0, [pa] + older)
-            if pb is None:
-                pb, ml = make([Lv])[0], math.inf
-            r = check(pa, pb, older, allowed, last=True)
-            if r > 1.0:
-                allowed = above_floor(floor_of(pa, older))
-                r = check(pa, pb, older, allowed, last=True)
-            if r <= 1.0 or max(pb.v, Lv) - pa.v <= 2 * s_min:
-                if r > 1.0 and (relaxed is None or r * target > relaxed[0]):
-                    relaxed = (r * target, float(uq[-1]) if uq.size else 0.0, Lv)
-                if target < ml < math.inf and ml > unreach[0]:
-                    unreach[:] = [ml, float(uq[-1]) if uq.size else 0.0, Lv]
-                passes.append(pb)
-                break
-            # a pass between pa and the edge pass, beyond the edge if need be (where the
-            # ground falls toward the edge the edge pass lies up to R out, its contact
-            # inside; passes short of the edge alone never come close enough to it);
-            # check() bounds the material from a pass beyond the edge to the edge too
-            s = min(s, 0.6 * (max(pb.v, Lv) - pa.v))
-            ahead = []
-        cand = ahead.pop(0) if ahead and abs(ahead[0].v - (pa.v + s)) < 1e-12 else None
-        if cand is None:
-            # at the flat stepover the next passes likely follow at the same stepover:
-            # computed with this one (one call); elsewhere the next stepover depends on
-            # this pass's margin, and speculative passes would be wasted
-            look = (1, 2, 3) if s >= s_flat else (1,)
-            vl = [pa.v + k * s for k in look if k == 1 or pa.v + k * s < Lv]
-            vf = _beside(pa.v, MIN_STEP_SHARE * s_flat, Lv)
-            cands = make(vl + [vf] if floor_last else vl)
-            if floor_last:
-                floor_ahead[vf] = cands.pop()
-            cand, ahead = cands[0], cands[1:]
-        ratio = check(pa, cand, older, allowed)
-        pb = cand if ratio <= 1.0 else None
-        tried = [(ratio, cand)]
-        floor_done = False
-        tries = 0
-        while pb is None:
-            ahead = []
-            tries += 1
-            if not floor_done:
-                # material even a pass right beside pa leaves is allowed (reported)
-                floor_done = True
-                fl = floor_of(pa, older)
-                if (fl > target).any():
-                    allowed = above_floor(fl)
-                    ratio = check(pa, cand, older, allowed)
-                    tried.append((ratio, cand))
-                    if ratio <= 1.0:
-                        pb = cand
-                        break
-            f = min(0.97, max(0.3, 0.99 / math.sqrt(max(ratio, 1e-12))))
-            s = max(s * f, s_min)
-            trial = sorted({max(s * g, s_min) for g in (1.0, 0.85, 0.7, 0.55)}, reverse=True)
-            cands = make([pa.v + t for t in trial])
-            for c in cands:
-                ratio = check(pa, c, older, allowed)
-                tried.append((ratio, c))
-                if ratio <= 1.0:
-                    pb = c
-                    break
-            if pb is None and (trial[-1] <= s_min * (1 + 1e-9) or tries >= 8):
-                # the bound is not met even right beside pa: relax, at the largest
-                # stepover within 10 % of the best ratio (smaller ones do not help)
-                rmin = min(r for r, _ in tried)
-                ratio, pb = max(((r, c) for r, c in tried if r <= 1.1 * rmin),
-                                key=lambda rc: rc[1].v)
-                if relaxed is None or ratio * target > relaxed[0]:
-                    relaxed = (ratio * target, float(uq[0]) if uq.size else 0.0, pa.v)
-            s = trial[-1]
-        passes.append(pb)
-        if len(passes) > max_passes:
-            raise SpecError(f"needs more than {max_passes} passes; raise the scallop",
-                            file=spec_path, key="machining.scallop")
-        # predict the next stepover from this one's margin (cusp ~ s^2)
-        s_next = max(pb.v - pa.v, s_min) * min(GROWTH, 0.97 / math.sqrt(max(ratio, 1e-12)))
-    comb = edge_comb(ws, fr, R, ug, uf, passes, target, chord, normal, make, deep)
-    if comb:
-        passes = sorted(passes + comb, key=lambda p: p.v)
-    return PassPlan(passes, ug, uf, s_flat, tuple(unreach), relaxed)
+    def note_floor(self, fl, vs):
+        """Record the most unreachable material ``fl`` at (uq, vs), and where."""
+        if fl.size and fl.max() > self.unreach[0]:
+            i, j = np.unravel_index(int(np.argmax(fl)), fl.shape)
+            self.unreach[:] = [float(fl[i, j]), float(self.uq[j]), float(vs[i, j])]
 
 
 def edge_comb(ws, fr, R, ug, uf, passes, target, chord, normal, make, deep):

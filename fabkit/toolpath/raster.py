@@ -32,7 +32,7 @@ from .passes import (SCALLOP_SAFETY, Frame, PassPlan, compensate_passes, flat_st
                      place_passes, sweep_material, tilted_plane_cusp)
 from .path import RAPID, Toolpath
 from .rough import rough_runs
-from .spacing import AIR_CUT_FRACTION, CHORD_SAFETY, _runs, space_points
+from .spacing import AIR_CUT_FRACTION, CHORD_SAFETY, cut_runs, space_points
 
 LINK_CLEARANCE = 1.0    # mm above material for short links and approaches (<= safe_height)
 
@@ -286,7 +286,7 @@ def _program(spec, ws, fr, plan, est, tol):
     keep = np.vstack([p.keep for p in passes])
     sp, su, sz, nodes = space_points(ws, fr, R, V, plan.ug, Z, dZ, keep, tolerance,
                                      tol.max_program_points, spec.path)
-    runs = _runs(sp, su, sz, nodes, AIR_CUT_FRACTION * tolerance)   # per pass: (k, 2) [u, z]
+    runs = cut_runs(sp, su, sz, nodes, AIR_CUT_FRACTION * tolerance)   # per pass: (k, 2) [u, z]
     passes_cut = [p for p in range(len(V)) if runs[p]]
     finish = order_runs(fr, m, V, runs, passes_cut)
     rough = rough_runs(spec, ws, fr, R, V, runs, passes_cut, depth_lim) \

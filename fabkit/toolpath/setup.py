@@ -24,7 +24,7 @@ import numpy as np
 
 from .. import __version__
 
-MM_PER_INCH = 25.4
+from ..units import MM_PER_INCH
 
 #: grbl 1.1's default settings, for comparison on the sheet: $110-$112 max rate
 #: (mm/min), $30 max spindle speed (rpm), $130-$132 max travel (mm)

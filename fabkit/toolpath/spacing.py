@@ -144,7 +144,7 @@ def _chord_err(u, z, ua, za, ub, zb):
     return np.abs(z - (za + t * (zb - za)))
 
 
-def _runs(sp, su, sz, nodes, air_depth=AIR_EPS):
+def cut_runs(sp, su, sz, nodes, air_depth=AIR_EPS):
     """Per pass, the runs of consecutive cut segments as (k, 2) arrays of [u, z]. A
     sample whose tip is less than ``air_depth`` mm below the top face (or -inf: the
     ball misses the stock) cuts air; a run starts at the node before the material

@@ -31,7 +31,7 @@ from ..errors import DesignError, SpecError
 from ..tolerances import DEFAULT, Tolerances
 
 RAPID, FEED = 0, 1
-MM_PER_INCH = 25.4
+from ..units import MM_PER_INCH  # noqa: E402,F401
 _WORD = re.compile(r"([A-Z])\s*([-+]?(?:\d+\.?\d*|\.\d+))")
 _LINE = re.compile(r"(?:\s*[A-Z]\s*[-+]?(?:\d+\.?\d*|\.\d+))*\s*")
 _COMMENT = re.compile(r"\([^()]*\)")

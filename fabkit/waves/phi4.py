@@ -62,8 +62,10 @@ import numpy as np
 SQRT2 = math.sqrt(2.0)
 OMEGA_SHAPE = math.sqrt(1.5)            # shape-mode frequency omega_1
 KINK_ENERGY = 2.0 * SQRT2 / 3.0         # rest energy of one kink
-ESCAPED, CAPTURED = 0, 1
-OUTCOMES = ("escaped", "captured")
+from ..physics.outcomes import CAPTURED, ESCAPED  # noqa: E402
+from ..physics.outcomes import OUTCOMES as _ALL_OUTCOMES  # noqa: E402
+
+OUTCOMES = _ALL_OUTCOMES[:CAPTURED + 1]     # a collision escapes or is captured
 
 
 @dataclass(frozen=True)

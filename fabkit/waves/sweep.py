@@ -23,7 +23,7 @@ import time
 import numpy as np
 
 from ..errors import SpecError
-from ..physics.sweep import Launches, _critical_task, _edge_task, critical_bracket, find_runs, run_tasks
+from ..physics.sweep import Launches, critical_task, edge_task, critical_bracket, find_runs, run_tasks
 from .phi4 import DEFAULT_CONFIG, OUTCOMES, Phi4Config, check_resolution, collide
 
 
@@ -72,7 +72,7 @@ def split_runs(v: np.ndarray, runs: list[tuple[int, int, int]], probe, gap_rel_t
     unseen inside a run. Returns the connected sub-runs in order, each ``{run, lo_in,
     hi_in, lo_out, hi_out, samples}``: its outermost two-bounce launches, the launches just
     outside it (None at the range's ends) and the number of samples it holds."""
-    from ..physics.sweep import _two_bounce
+    from ..physics.sweep import two_bounce
 
     plan = []
     for _, i, j in runs:
@@ -86,7 +86,7 @@ def split_runs(v: np.ndarray, runs: list[tuple[int, int, int]], probe, gap_rel_t
     sizes = [len(x) for x in plan]
     inside = np.zeros(0, dtype=bool)
     if sum(sizes):
-        inside = np.asarray(_two_bounce(probe(np.concatenate(plan))), dtype=bool)
+        inside = np.asarray(two_bounce(probe(np.concatenate(plan))), dtype=bool)
     out, at = [], 0
     for (n_b, i, j), pts, m in zip(runs, plan, sizes):
         x = np.concatenate([v[i:j + 1], pts])
@@ -183,12 +183,12 @@ def phi4_sweep(v_in, cfg: Phi4Config = DEFAULT_CONFIG, *, rel_tol: float = 2e-5,
     tasks = []
     if refine:
         if lo is not None:
-            tasks.append(_critical_task(lo, hi, rel_tol, k))
+            tasks.append(critical_task(lo, hi, rel_tol, k))
         for w, sub in (two if refine_windows else []):
             a = sub["lo_out"] if sub["lo_out"] is not None else sub["lo_in"]
             b = sub["hi_out"] if sub["hi_out"] is not None else sub["hi_in"]
-            tasks.append(_edge_task(a, sub["lo_in"], -1, edge_rel_tol, k_edge))
-            tasks.append(_edge_task(sub["hi_in"], b, +1, edge_rel_tol, k_edge))
+            tasks.append(edge_task(a, sub["lo_in"], -1, edge_rel_tol, k_edge))
+            tasks.append(edge_task(sub["hi_in"], b, +1, edge_rel_tol, k_edge))
 
     done = run_tasks(keep, tasks)
     if refine and lo is not None:

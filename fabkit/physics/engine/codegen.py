@@ -191,7 +191,7 @@ def print_function(name: str, f: Formula, exprs: list, n_model_params: int) -> s
 
     printer = PythonCodePrinter({"fully_qualified_modules": True, "standard": "python3"})
     temps = sp.numbered_symbols("_t")
-    # unevaluated, as expr._cse_unevaluated: evaluating the rebuilt tree asks sympy's
+    # unevaluated, as expr.cse_unevaluated: evaluating the rebuilt tree asks sympy's
     # assumptions about nested functions of the cse symbols (exponential in the nesting)
     with sp.evaluate(False):
         subs, reduced = sp.cse(exprs, symbols=temps)

@@ -49,8 +49,9 @@ from numba import njit
 
 jit = njit(cache=True, nogil=True, error_model="numpy")
 
-# outcomes (models.OUTCOMES) and the output columns
-ESCAPED, CAPTURED, FLEW_OFF, LOST_CONTACT, BRIDGED = 0, 1, 2, 3, 4
+# outcomes (physics/outcomes.py) and the output columns
+from fabkit.physics.outcomes import BRIDGED, CAPTURED, ESCAPED, FLEW_OFF, LOST_CONTACT  # noqa: E402,F401  (absolute: this text is compiled into a generated module)
+
 F_VOUT, F_T, F_X, F_Y, F_VX, F_VY, F_ZMAX, F_YMAX, F_EERR, F_SLIP = 0, 1, 2, 3, 4, 5, 6, 7, 8, 9
 I_OUT, I_NB, I_STEPS, I_REJ, I_STATUS, I_NREC = 0, 1, 2, 3, 4, 5
 # the configuration vector C
