@@ -678,15 +678,15 @@ def _compensate(surface, X, Y, R, return_info, rings, angles, starts, iters):
     R = float(R)
     kern = ws.kernel() if n else None
     if kern is not None:
-        # candidates (i)-(iv) in compiled code (dropcut.py: the same operations per position)
+        # candidates (i)-(v) in compiled code (dropcut.py: the same operations per position)
         best = _Best(n)
         bridged = np.zeros(n, dtype=bool)
         converged = np.zeros(n, dtype=bool)
         tab = _tables(R, tuple(rings), angles)
         G = np.array([ws.s, ws.x0, ws.y0, ws.top, ws.L, ws.W], dtype=float)
-        kern.drop(cx, cy, R, G, kern.P, *tab, int(starts), int(iters), best.val, best.px, best.py,
-                  best.kind, bridged, converged)
-        todo = np.nonzero(best.kind != TOP)[0]
+        kern.drop(cx, cy, R, G, kern.P, *tab[:7], int(starts), int(iters), best.val, best.px, best.py,
+                  best.kind, bridged, converged, tab[7])
+        todo = np.zeros(0, dtype=np.intp)          # (v) is done too
     else:
         best, bridged, converged, todo = _candidates(ws, cx, cy, R, rings, angles, starts, iters)
 
@@ -720,13 +720,20 @@ def _compensate(surface, X, Y, R, return_info, rings, angles, starts, iters):
 @functools.lru_cache(maxsize=8)
 def _tables(R, rings, angles):
     """The kernel's fixed tables: the samples' offsets (x, y), their sqrt(R^2 - r^2),
-    r^2 and quadrant, the edges' even samples and slope offsets."""
+    r^2 and quadrant, the edges' even samples and slope offsets, and those of (v)."""
     off = _polar(R, rings, angles)
     r2 = (off ** 2).sum(axis=1)
     sq = np.sqrt(R * R - r2)
     quad = (np.floor(np.arctan2(off[:, 1], off[:, 0]) / (0.5 * np.pi)).astype(np.int64) + 4) % 4
     out = (np.ascontiguousarray(off[:, 0]), np.ascontiguousarray(off[:, 1]), sq, r2, quad,
            np.linspace(0.0, 1.0, 17), _EDGE_OFF.copy())
+    # (v): _kinked's 8 directions, _rises_inward's 7 directions and 3 distances, _ridge's circle
+    a = np.pi * np.arange(8) / 8
+    b = np.radians([-90.0, -60.0, -30.0, 0.0, 30.0, 60.0, 90.0])
+    c = 2 * np.pi * np.arange(32) / 32
+    v5 = (np.cos(a), np.sin(a), np.cos(b), np.sin(b), np.repeat([1 / 64, 1 / 1024, 1 / 16384], b.size),
+          np.cos(c), np.sin(c))
+    out = out + (tuple(np.ascontiguousarray(v, dtype=float) for v in v5),)
     return out           # (writeable: the kernel's one compiled signature takes writeable arrays)
 
 

@@ -34,6 +34,10 @@ K_INTERIOR = 1
 K_TOP = 2
 K_CREASE = 3
 K_EDGE = 4
+K_RIDGE = 5
+GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
+RIDGE_ITERS = 34
+KINK_ITERS = 24
 XTOL = 1e-10
 BIG = 1.7976931348623157e308
 
@@ -402,11 +406,193 @@ def _edge(i, cx, cy, R, axis, level, length, G, P, U, EOFF, iters, VAL, PX, PY, 
 
 
 @jit
+def _kinked(cx, cy, R, px, py, G, P, V5):
+    """compensate._kinked for one position."""
+    KUX, KUY = V5[0], V5[1]
+    f0, _h = _value(cx, cy, R, px, py, G, P)
+    d2 = np.empty((4, KUX.size))
+    for m in range(4):
+        d = R / (25.0 * 4.0 ** m)
+        for j in range(KUX.size):
+            fp, _h = _value(cx, cy, R, px + d * KUX[j], py + d * KUY[j], G, P)
+            fm, _h = _value(cx, cy, R, px - d * KUX[j], py - d * KUY[j], G, P)
+            d2[m, j] = fp + fm - 2 * f0 if (_fin(fp) and _fin(fm)) else 0.0
+    for j in range(KUX.size):
+        for m in range(3):
+            big = d2[m, j]
+            small = d2[m + 1, j]
+            if (d2[0, j] < -1e-3 * R / 25) and ((big > 10.0 * small) or (big < 26.0 * small)):
+                return True
+    return False
+
+
+@jit
+def _rises_inward(cx, cy, R, px, py, val, G, P, V5):
+    """compensate._rises_inward for one position."""
+    L = G[4]
+    W = G[5]
+    RC, RS, RD = V5[2], V5[3], V5[4]
+    tiny = 1e-9 * max(L, W, 1.0)
+    nx = (1.0 if px <= tiny else 0.0) - (1.0 if px >= L - tiny else 0.0)
+    ny = (1.0 if py <= tiny else 0.0) - (1.0 if py >= W - tiny else 0.0)
+    nn = math.hypot(nx, ny)
+    if not nn > 0:
+        return False
+    nx = nx / nn
+    ny = ny / nn
+    na = RC.size
+    for j in range(RD.size):
+        c = RC[j % na]
+        sn = RS[j % na]
+        d = R * RD[j]
+        dx = (nx * c - ny * sn) * d
+        dy = (nx * sn + ny * c) * d
+        f, _h = _value(cx, cy, R, px + dx, py + dy, G, P)
+        if f > val + 1e-12 * R:
+            return True
+    return False
+
+
+@jit
+def _fd(t, cx, cy, R, bx, by, nx, ny, G, P):
+    x = bx + t * nx
+    y = by + t * ny
+    H, hx, hy, _a, _b, _c = _all(x, y, G, P)
+    ddx = x - cx
+    ddy = y - cy
+    d2 = ddx * ddx + ddy * ddy
+    ok = _inside(x, y, G) and d2 <= R * R
+    q = math.sqrt(_fmax(R * R - d2, 0.0))
+    top = H >= 0
+    v = (0.0 if top else H) + q
+    g = (0.0 if top else hx * nx + hy * ny) - ((x - cx) * nx + (y - cy) * ny) / _fmax(q, 1e-300)
+    if not (ok and _fin(v)):
+        v = -math.inf
+    return v, (g if _fin(g) else 0.0)
+
+
+@jit
+def _kink_max(cx, cy, R, bx, by, nx, ny, T, G, P):
+    """compensate._kink_max for one segment: (t, value)."""
+    a = -T
+    b = T
+    fa, ga = _fd(a, cx, cy, R, bx, by, nx, ny, G, P)
+    fb, gb = _fd(b, cx, cy, R, bx, by, nx, ny, G, P)
+    bt = a if fa >= fb else b
+    bf = _fmax(fa, fb)
+    for i in range(KINK_ITERS):
+        tm = (fb - fa + ga * a - gb * b) / (ga - gb)
+        mid = 0.5 * (a + b)
+        bad = (not _fin(tm)) or (tm <= a) or (tm >= b) or (not _fin(fa)) or (not _fin(fb)) \
+            or (ga <= 0) or (gb >= 0) or (i % 3 == 2)
+        t = mid if bad else tm
+        ft, gt = _fd(t, cx, cy, R, bx, by, nx, ny, G, P)
+        if ft > bf:
+            bt = t
+            bf = ft
+        right = (gt > 0) and _fin(ft)
+        if not _fin(ft):
+            right = fb > fa
+        if right:
+            a = t
+            fa = ft
+            ga = gt
+        else:
+            b = t
+            fb = ft
+            gb = gt
+    return bt, bf
+
+
+@jit
+def _ridge(cx, cy, R, px, py, G, P, V5):
+    """compensate._ridge for one position: (value, x, y)."""
+    QC, QS = V5[5], V5[6]
+    nq = QC.size
+    rho = R / 8.0
+    i1 = 0
+    f1 = -math.inf
+    Fq = np.empty(nq)
+    for j in range(nq):
+        Fq[j], _h = _value(cx, cy, R, px + rho * QC[j], py + rho * QS[j], G, P)
+        if j == 0 or Fq[j] > f1:
+            f1 = Fq[j]
+            i1 = j
+    i2 = 0
+    f2 = 0.0
+    half = nq // 2
+    for j in range(nq):
+        far = abs((j - i1 + half) % nq - half) >= nq // 4
+        v = Fq[j] if far else -math.inf
+        if j == 0 or v > f2:
+            f2 = v
+            i2 = j
+    tx = (px + rho * QC[i1]) - (px + rho * QC[i2])
+    ty = (py + rho * QS[i1]) - (py + rho * QS[i2])
+    tn = math.hypot(tx, ty)
+    if tn > 0:
+        tx = tx / tn
+        ty = ty / tn
+    else:
+        tx = 1.0
+        ty = 0.0
+    nx = -ty
+    ny = tx
+    S = 0.5 * R
+    T = 0.25 * R
+    bv = -math.inf
+    bxr = px
+    byr = py
+    # golden section over s in [-S, S] of the maxima across (compensate._golden_max)
+    a = 0.0 - S
+    b = 0.0 + S
+    c = b - GOLDEN * (b - a)
+    d = a + GOLDEN * (b - a)
+    fc = 0.0
+    fd = 0.0
+    for m in range(2 + RIDGE_ITERS):
+        if m == 0:
+            s = c
+        elif m == 1:
+            s = d
+        else:
+            left = fc >= fd
+            if left:
+                b = d
+            else:
+                a = c
+            s = b - GOLDEN * (b - a) if left else a + GOLDEN * (b - a)
+        bx = px + s * tx
+        by = py + s * ty
+        t, v = _kink_max(cx, cy, R, bx, by, nx, ny, T, G, P)
+        if v > bv:
+            bv = v
+            bxr = bx + t * nx
+            byr = by + t * ny
+        if m == 0:
+            fc = v
+        elif m == 1:
+            fd = v
+        else:
+            if left:
+                d = c
+                c = s
+                fd = fc
+                fc = v
+            else:
+                c = d
+                d = s
+                fc = fd
+                fd = v
+    return bv, bxr, byr
+
+
+@jit
 def drop_batch(CX, CY, R, G, P, OFFX, OFFY, SQ, R2, QUAD, U, EOFF, starts, iters,
-               VAL, PX, PY, KIND, BRIDGED, CONV):
-    """Candidates (i)-(iv) of every position (CX[i], CY[i]): the running maximum in
+               VAL, PX, PY, KIND, BRIDGED, CONV, V5):
+    """Candidates (i)-(v) of every position (CX[i], CY[i]): the running maximum in
     VAL, PX, PY, KIND; BRIDGED; CONV: some interior start converged (positions on
-    the top face: True)."""
+    the top face: True). V5: the tables of (v) (compensate._tables)."""
     L = G[4]
     W = G[5]
     K = OFFX.size
@@ -519,3 +705,18 @@ def drop_batch(CX, CY, R, G, P, OFFX, OFFY, SQ, R2, QUAD, U, EOFF, starts, iters
         _edge(i, cx, cy, R, 1, W, L, G, P, U, EOFF, iters, VAL, PX, PY, KIND)
         _edge(i, cx, cy, R, 0, 0.0, W, G, P, U, EOFF, iters, VAL, PX, PY, KIND)
         _edge(i, cx, cy, R, 0, L, W, G, P, U, EOFF, iters, VAL, PX, PY, KIND)
+    # (v) a ridge: where no start converged and the best point is a sample or an
+    # interior point at a kink, or an edge point with F rising inwards
+    for i in range(CX.size):
+        if CONV[i]:
+            continue
+        kd = KIND[i]
+        if kd == K_SAMPLE or kd == K_INTERIOR:
+            stuck = _kinked(CX[i], CY[i], R, PX[i], PY[i], G, P, V5)
+        elif kd == K_EDGE:
+            stuck = _rises_inward(CX[i], CY[i], R, PX[i], PY[i], VAL[i], G, P, V5)
+        else:
+            stuck = False
+        if stuck:
+            v, x, y = _ridge(CX[i], CY[i], R, PX[i], PY[i], G, P, V5)
+            _offer(i, v, x, y, K_RIDGE, VAL, PX, PY, KIND)

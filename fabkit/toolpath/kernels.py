@@ -119,4 +119,4 @@ def _warm(k: Kernel) -> None:
     z = np.zeros(1)
     k.drop(z, z, 1.0, np.array([1.0, 0.0, 0.0, 0.0, 1.0, 1.0]), k.P, z, z, z, z,
            np.zeros(1, dtype=np.int64), z, z, 1, 1, np.zeros(1), np.zeros(1), np.zeros(1),
-           np.zeros(1, dtype=np.int8), np.zeros(1, dtype=bool), np.zeros(1, dtype=bool))
+           np.zeros(1, dtype=np.int8), np.zeros(1, dtype=bool), np.zeros(1, dtype=bool), (z,) * 7)
