@@ -720,3 +720,69 @@ def drop_batch(CX, CY, R, G, P, OFFX, OFFY, SQ, R2, QUAD, U, EOFF, starts, iters
         if stuck:
             v, x, y = _ridge(CX[i], CY[i], R, PX[i], PY[i], G, P, V5)
             _offer(i, v, x, y, K_RIDGE, VAL, PX, PY, KIND)
+
+
+# ----------------------------------------------------------------------------
+# the verification's swept cut (verify.capsule_lower over SegmentGrid's cells)
+# ----------------------------------------------------------------------------
+@jit
+def _capsule_lower(px, py, ax, ay, az, bx, by, bz, R):
+    """verify.capsule_lower for one point and one segment."""
+    ca_z = az + R
+    cb_z = bz + R
+    dxa = px - ax
+    dya = py - ay
+    dxb = px - bx
+    dyb = py - by
+    R2 = R * R
+    za = ca_z - math.sqrt(R2 - dxa * dxa - dya * dya)
+    zb = cb_z - math.sqrt(R2 - dxb * dxb - dyb * dyb)
+    if za != za:
+        za = math.inf
+    if zb != zb:
+        zb = math.inf
+    z = za if za <= zb else zb
+    d0 = bx - ax
+    d1 = by - ay
+    d2 = bz - az
+    dd = d0 * d0 + d1 * d1 + d2 * d2
+    if not dd > 0:
+        return z
+    inv = 1.0 / math.sqrt(dd)
+    ux = d0 * inv
+    uy = d1 * inv
+    uz = d2 * inv
+    k = dxa * ux + dya * uy
+    qa = 1.0 - uz * uz
+    beta = k * uz
+    c = dxa * dxa + dya * dya - k * k - R2
+    disc = beta * beta - qa * c
+    if not ((qa > 1e-12) and (disc >= 0)):
+        return z
+    sd = math.sqrt(disc)
+    if beta >= 0:
+        zl = c / (beta + sd)
+    else:
+        zl = (beta - sd) / qa
+    t = (dxa * d0 + dya * d1 + zl * d2) / dd
+    if _fin(zl) and t >= 0.0 and t <= 1.0:
+        w = ca_z + zl
+        return _fmin(z, w)
+    return z
+
+
+@jit
+def lowest_batch(px, py, cid, ptr, seg, A, B, R, before, use_before, out):
+    """verify.SegmentGrid.lowest: out[i] = min(out[i], lowest swept z of the segments
+    binned in point i's cell (only those with index < before[i] with use_before))."""
+    for i in range(px.size):
+        c = cid[i]
+        m = out[i]
+        for p in range(ptr[c], ptr[c + 1]):
+            s = seg[p]
+            if use_before and s >= before[i]:
+                continue
+            z = _capsule_lower(px[i], py[i], A[s, 0], A[s, 1], A[s, 2], B[s, 0], B[s, 1], B[s, 2], R)
+            if z < m:
+                m = z
+        out[i] = m

@@ -81,6 +81,19 @@ def _load(path: Path):
     return mod
 
 
+def module():
+    """The kernel module alone (formula-free entry points: the swept cut's
+    ``lowest_batch``), or None (numba missing, ``FABKIT_NO_KERNELS``)."""
+    if not enabled():
+        return None
+    with _LOCK:
+        try:
+            import numba  # noqa: F401
+        except ImportError:  # pragma: no cover - numba is a dependency
+            return None
+        return _load(_kernel_path())
+
+
 def kernel_for(surface) -> Kernel | None:
     """The compiled drop cutter for ``surface`` (a Surface with compiled functions
     ``fns`` from a formula), built on first use; None where there is none (no
