@@ -3,9 +3,9 @@ and the number of passes (issue 28: cost grows with the work and nothing else).
 
     python benchmarks/scaling.py [--out benchmarks/scaling.png] [--json FILE]
 
-Jobs: a smooth dish h = -0.01 (x^2 + y^2) - 0.02 x y (mm, the bowl spec's 1/8 in
-ball, passes along x, verification on), (a) square footprints of side 10-40 mm at
-scallop 0.05 mm, (b) the 20 mm square at scallop 0.2-0.0125 mm. Each job runs in a
+Jobs: a smooth dish h = -0.002 (x^2 + y^2) - 0.004 x y (mm, the bowl spec's 1/8 in
+ball, passes along x, verification on), (a) square footprints of side 20-120 mm at
+scallop 0.05 mm, (b) the 40 mm square at scallop 0.2-0.01 mm. Each job runs in a
 fresh process (benchmarks/bench_gcode.py's child: the command's stage timers read CPU
 time); its CPU time (user + sys) is plotted with the import floor measured in the same
 run (``import numpy, scipy.integrate, sympy``) and the guard's estimate; the load
@@ -28,7 +28,7 @@ from bench_gcode import CHILD, FLOOR, _child  # noqa: E402
 SPEC = """name: dish
 units: mm
 surface:
-  height: -0.01*(x**2 + y**2) - 0.02*x*y
+  height: -0.002*(x**2 + y**2) - 0.004*x*y
   x: [{x0}, {x1}]
   y: [{x0}, {x1}]
   top: 0
@@ -77,8 +77,8 @@ def main() -> int:
     rows = []
     floors = []
     with tempfile.TemporaryDirectory() as tmp:
-        jobs = [("area", s, 0.05) for s in (10, 20, 30, 40)] + \
-               [("scallop", 20, c) for c in (0.2, 0.1, 0.025, 0.0125)]
+        jobs = [("area", s, 0.05) for s in (20, 40, 80, 120)] + \
+               [("scallop", 40, c) for c in (0.2, 0.1, 0.02, 0.01)]
         for i, (kind, side, sc) in enumerate(jobs):
             if i % 3 == 0:
                 floors.append(_child(["-c", FLOOR], tmp))
@@ -86,7 +86,7 @@ def main() -> int:
     floor = min(f["cpu"] for f in floors)
     loads = ", ".join(f"{f['load']:.1f}" for f in floors)
     print(f"import floor: {floor:.2f} s CPU (best of {len(floors)}; load {loads})")
-    base = next(r for r in rows if r["side"] == 20 and r["scallop"] == 0.05)
+    base = next(r for r in rows if r["side"] == 40 and r["scallop"] == 0.05)
     rows.append({"series": "scallop", **{k: v for k, v in base.items() if k != "series"}})
     if a.json:
         Path(a.json).write_text(json.dumps({"floor": floor, "rows": rows}, indent=1))
@@ -97,7 +97,7 @@ def main() -> int:
 
     fig, ax = plt.subplots(1, 3, figsize=(13, 4.2))
     for k, (key, xl, f) in enumerate((("area", "footprint area (mm$^2$), scallop 0.05 mm", lambda r: r["area"]),
-                                      ("scallop", "1 / scallop (1/mm), 20 x 20 mm", lambda r: 1 / r["scallop"]),
+                                      ("scallop", "1 / scallop (1/mm), 40 x 40 mm", lambda r: 1 / r["scallop"]),
                                       (None, "passes (all jobs)", lambda r: r["passes"]))):
         sel = sorted((r for r in rows if key is None or r["series"] == key), key=f)
         if key is None:
@@ -114,7 +114,7 @@ def main() -> int:
         a_.set_ylim(bottom=0)
         a_.grid(alpha=0.3)
     ax[0].legend(fontsize=8)
-    fig.suptitle("fabkit gcode: CPU time against the work (dish -0.01(x$^2$+y$^2$) - 0.02xy, 1/8 in ball, "
+    fig.suptitle("fabkit gcode: CPU time against the work (dish -0.002(x$^2$+y$^2$) - 0.004xy, 1/8 in ball, "
                  "warm kernels)", fontsize=10)
     fig.tight_layout()
     fig.savefig(a.out, dpi=90)
