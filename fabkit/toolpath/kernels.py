@@ -11,7 +11,8 @@ both.
 
 ``FABKIT_NO_KERNELS=1`` turns the kernels off (the numpy drop cutter runs instead:
 the same heights; for comparisons). Surfaces without a formula (no ``fns`` with its
-text) use the numpy code.
+text), a cache that cannot be written and a formula numba cannot compile use the
+numpy code.
 """
 
 from __future__ import annotations
@@ -91,7 +92,10 @@ def module():
             import numba  # noqa: F401
         except ImportError:  # pragma: no cover - numba is a dependency
             return None
-        return _load(_kernel_path())
+        try:
+            return _load(_kernel_path())
+        except OSError:         # no writable cache: the numpy code runs instead
+            return None
 
 
 def kernel_for(surface) -> Kernel | None:
@@ -111,13 +115,20 @@ def kernel_for(surface) -> Kernel | None:
         except ImportError:  # pragma: no cover - numba is a dependency
             k = None
         else:
+            from numba.core.errors import NumbaError
+
             from ..physics.engine.batch import _formula
 
             t0 = time.process_time()
-            f, spath = _formula(fns, _template())
-            kpath = _kernel_path()
-            k = Kernel(_load(kpath), _load(spath), f.values)
-            _warm(k)
+            try:
+                f, spath = _formula(fns, _template())
+                kpath = _kernel_path()
+                k = Kernel(_load(kpath), _load(spath), f.values)
+                _warm(k)
+            except (OSError, NumbaError):
+                # no writable cache, or a formula numba cannot compile: the numpy code
+                # (the same heights) runs instead
+                k = None
             last_build_s = time.process_time() - t0
         if len(_BY_FNS) > 64:
             _BY_FNS.clear()
