@@ -2,7 +2,7 @@
 verify split, program lines and the verified gouge and material left.
 
     python benchmarks/bench_gcode.py [SPEC] [--repeat 3]
-    python benchmarks/bench_gcode.py --floor [SPEC ...] [--repeat 3] [--max-time S]
+    python benchmarks/bench_gcode.py --floor [SPEC ...] [--repeat 3] [--max-time S] [--numpy]
 
 Outputs go to a scratch folder. Target: specs/surface.yaml in under 20 s on the
 2-core reference machine.
@@ -15,6 +15,10 @@ which a loaded machine inflates), peak resident memory, the ratio to the floor's
 CPU time (best of --repeat each), the load average at each run, and the stages'
 CPU seconds (the command's timers read time.process_time in the child) beside
 the time guard's estimate (toolpath.guards; its ratio measured / estimated).
+``--numpy`` adds a run of each SPEC without the compiled kernels (``FABKIT_NO_KERNELS=1``,
+the numpy code they transcribe) right after it, and checks the programs are the same
+bytes. The kernels' cache is ``FABKIT_CACHE_DIR`` (warm it with one run first: the
+cold build is not what this measures).
 """
 
 from __future__ import annotations
@@ -51,14 +55,15 @@ sys.exit(main(sys.argv[1:]))
 """
 
 
-def _child(argv, cwd) -> dict:
+def _child(argv, cwd, env=None) -> dict:
     """CPU seconds (user + sys), peak RSS (MB), load average, stdout/stderr of one child
     (its own rusage, from os.wait4)."""
     import subprocess
 
     load = os.getloadavg()[0]
     with tempfile.TemporaryFile("w+") as fo, tempfile.TemporaryFile("w+") as fe:
-        p = subprocess.Popen([sys.executable, *argv], cwd=cwd, stdout=fo, stderr=fe, text=True)
+        p = subprocess.Popen([sys.executable, *argv], cwd=cwd, stdout=fo, stderr=fe, text=True,
+                             env=None if env is None else {**os.environ, **env})
         _, status, ru = os.wait4(p.pid, 0)
         p.returncode = os.waitstatus_to_exitcode(status)
         fo.seek(0)
@@ -73,22 +78,30 @@ def floor_main(a) -> int:
     specs = [str(Path(s).resolve()) for s in (a.spec or [str(ROOT / "specs" / "surface.yaml")])]
     extra = ["--max-time", str(a.max_time)] if a.max_time else []
     floors = []
-    rows = {s: [] for s in specs}
+    modes = [("", {})] + ([(" (numpy)", {"FABKIT_NO_KERNELS": "1"})] if a.numpy else [])
+    rows = {s + tag: [] for s in specs for tag, _ in modes}
+    same = {}
     with tempfile.TemporaryDirectory() as tmp:
         for _ in range(a.repeat):
             floors.append(_child(["-c", FLOOR], tmp))
             for s in specs:
-                r = _child(["-c", CHILD, "gcode", s, "--no-progress", "--json", "-o",
-                            str(Path(tmp) / (Path(s).stem + ".ngc")), *extra], tmp)
-                if r["code"] not in (0, 1):
-                    print(f"{s}: exit {r['code']}: {r['err'].strip().splitlines()[-1:]}", file=sys.stderr)
-                    return r["code"]
-                rows[s].append(r)
+                progs = []
+                for tag, env in modes:       # alternated: kernels, then the numpy drop cutter
+                    out = Path(tmp) / (Path(s).stem + tag.strip(" ()") + ".ngc")
+                    r = _child(["-c", CHILD, "gcode", s, "--no-progress", "--json", "-o", str(out), *extra],
+                               tmp, {"SOURCE_DATE_EPOCH": "1700000000", **env})
+                    if r["code"] not in (0, 1):
+                        print(f"{s}: exit {r['code']}: {r['err'].strip().splitlines()[-1:]}", file=sys.stderr)
+                        return r["code"]
+                    rows[s + tag].append(r)
+                    progs.append(out.read_bytes())
+                if len(progs) > 1:
+                    same[s] = same.get(s, True) and progs[0] == progs[1]
     floor = min(f["cpu"] for f in floors)
     fl = ", ".join(f"{f['cpu']:.2f}" for f in floors)
     ld = ", ".join(f"{f['load']:.1f}" for f in floors)
     print(f"import floor ({FLOOR}): {floor:.2f} s CPU (best of {a.repeat}; {fl}; load {ld})")
-    for s in specs:
+    for s in rows:
         best = min(rows[s], key=lambda r: r["cpu"])
         j = json.loads(best["out"])
         t = j["timings_s"]
@@ -101,6 +114,8 @@ def floor_main(a) -> int:
         if est:
             print(f"    guard's estimate {est['seconds']:.2f} s, {est['bytes'] / 1e6:.0f} MB: measured / estimated "
                   f"{best['cpu'] / est['seconds']:.2f} (time), {best['rss_mb'] * 1e6 / est['bytes']:.2f} (memory)")
+    for s, ok in same.items():
+        print(f"{Path(s).name}: programs with and without the kernels {'byte-identical' if ok else 'DIFFER'}")
     return 0
 
 
@@ -111,6 +126,9 @@ def main() -> int:
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--floor", action="store_true", help="CPU-time ratios to the import floor, in subprocesses")
     ap.add_argument("--max-time", type=float, default=None, help="passed to fabkit gcode (--floor)")
+    ap.add_argument("--numpy", action="store_true",
+                    help="--floor: also run each spec with FABKIT_NO_KERNELS=1 (the numpy drop cutter and "
+                         "swept cut), alternated, and compare the programs")
     a = ap.parse_args()
     if a.floor:
         return floor_main(a)

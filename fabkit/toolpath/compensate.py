@@ -86,6 +86,15 @@ class WorkSurface:
         fns = getattr(surface, "fns", None)
         self._raw_h = getattr(fns, "raw_h", None)
         self._raw_all = getattr(fns, "raw_all", None)
+        self._kernel = False            # resolved on first use (kernels.kernel_for)
+
+    def kernel(self):
+        """The compiled drop cutter of this surface's formula (:mod:`.kernels`), or None."""
+        if self._kernel is False:
+            from .kernels import kernel_for
+
+            self._kernel = kernel_for(self.surface)
+        return self._kernel
 
     def _xy(self, X, Y):
         return X / self.s + self.x0, Y / self.s + self.y0
@@ -667,8 +676,73 @@ def _compensate(surface, X, Y, R, return_info, rings, angles, starts, iters):
     cx, cy = X.ravel().copy(), Y.ravel().copy()
     n = cx.size
     R = float(R)
+    kern = ws.kernel() if n else None
+    if kern is not None:
+        # candidates (i)-(v) in compiled code (dropcut.py: the same operations per position)
+        best = _Best(n)
+        bridged = np.zeros(n, dtype=bool)
+        converged = np.zeros(n, dtype=bool)
+        tab = _tables(R, tuple(rings), angles)
+        G = np.array([ws.s, ws.x0, ws.y0, ws.top, ws.L, ws.W], dtype=float)
+        kern.drop(cx, cy, R, G, kern.P, *tab[:7], int(starts), int(iters), best.val, best.px, best.py,
+                  best.kind, bridged, converged, tab[7])
+        todo = np.zeros(0, dtype=np.intp)          # (v) is done too
+    else:
+        best, bridged, converged, todo = _candidates(ws, cx, cy, R, rings, angles, starts, iters)
+
+    # (v) a ridge: where no start converged to a strict maximum and the best point is
+    # neither on the crease nor the top (the crease is a convex kink too, with its own
+    # exact candidate), nor on an edge the tool overhangs with F falling inwards from it
+    # (there Newton leaves the footprint and the edge candidates are exact)
+    if todo.size:
+        kt = best.kind[todo]
+        stuck = ~converged[todo] & np.isin(kt, (SAMPLE, INTERIOR))
+        si = np.nonzero(stuck)[0]
+        if si.size:
+            stuck[si] = _kinked(ws, cx[todo[si]], cy[todo[si]], R, best.px[todo[si]],
+                                best.py[todo[si]])
+        ek = np.nonzero(~converged[todo] & (kt == EDGE))[0]
+        if ek.size:
+            stuck[ek] = _rises_inward(ws, cx[todo[ek]], cy[todo[ek]], R, best.px[todo[ek]],
+                                      best.py[todo[ek]], best.val[todo[ek]])
+        if stuck.any():
+            g = todo[stuck]
+            v, qx, qy = _ridge(ws, cx[g], cy[g], R, best.px[g], best.py[g])
+            best.offer(g, v, qx, qy, RIDGE)
+
+    Z = (best.val - R).reshape(shape)
+    if not return_info:
+        return Z
+    return Z, CompensationInfo(best.px.reshape(shape), best.py.reshape(shape),
+                               best.kind.reshape(shape), bridged.reshape(shape))
+
+
+@functools.lru_cache(maxsize=8)
+def _tables(R, rings, angles):
+    """The kernel's fixed tables: the samples' offsets (x, y), their sqrt(R^2 - r^2),
+    r^2 and quadrant, the edges' even samples and slope offsets, and those of (v)."""
+    off = _polar(R, rings, angles)
+    r2 = (off ** 2).sum(axis=1)
+    sq = np.sqrt(R * R - r2)
+    quad = (np.floor(np.arctan2(off[:, 1], off[:, 0]) / (0.5 * np.pi)).astype(np.int64) + 4) % 4
+    out = (np.ascontiguousarray(off[:, 0]), np.ascontiguousarray(off[:, 1]), sq, r2, quad,
+           np.linspace(0.0, 1.0, 17), _EDGE_OFF.copy())
+    # (v): _kinked's 8 directions, _rises_inward's 7 directions and 3 distances, _ridge's circle
+    a = np.pi * np.arange(8) / 8
+    b = np.radians([-90.0, -60.0, -30.0, 0.0, 30.0, 60.0, 90.0])
+    c = 2 * np.pi * np.arange(32) / 32
+    v5 = (np.cos(a), np.sin(a), np.cos(b), np.sin(b), np.repeat([1 / 64, 1 / 1024, 1 / 16384], b.size),
+          np.cos(c), np.sin(c))
+    out = out + (tuple(np.ascontiguousarray(v, dtype=float) for v in v5),)
+    return out           # (writeable: the kernel's one compiled signature takes writeable arrays)
+
+
+def _candidates(ws, cx, cy, R, rings, angles, starts, iters):
+    """Candidates (i)-(iv) over all positions in numpy: (best, bridged, converged, todo)."""
+    n = cx.size
     best = _Best(n)
     bridged = np.zeros(n, dtype=bool)
+    converged = np.zeros(n, dtype=bool)
 
     # (ii) c on the top face: nothing can be higher
     Hc = ws.H(cx, cy)
@@ -701,7 +775,6 @@ def _compensate(surface, X, Y, R, return_info, rings, angles, starts, iters):
         px, py, conv = (np.concatenate(c) for c in zip(*parts)) if len(parts) > 1 else parts[0]
         v, Hp = _value(ws, ax, ay, R, px, py, with_H=True)
         best.offer(todo, v.reshape(-1, k), px.reshape(-1, k), py.reshape(-1, k), INTERIOR)
-        converged = np.zeros(n, dtype=bool)
         # (a stationary point outside the footprint, on the surface's continuation, is no candidate)
         converged[todo] = (conv & np.isfinite(v)).reshape(-1, k).any(axis=1)
         # bridged: two converged local maxima in the smooth part, distinct points
@@ -753,29 +826,4 @@ def _compensate(surface, X, Y, R, return_info, rings, angles, starts, iters):
     ei = np.nonzero(edge)[0]
     if ei.size:
         _edges(ws, cx[ei], cy[ei], R, best, ei, nsamp=17, iters=iters)
-
-    # (v) a ridge: where no start converged to a strict maximum and the best point is
-    # neither on the crease nor the top (the crease is a convex kink too, with its own
-    # exact candidate), nor on an edge the tool overhangs with F falling inwards from it
-    # (there Newton leaves the footprint and the edge candidates are exact)
-    if todo.size:
-        kt = best.kind[todo]
-        stuck = ~converged[todo] & np.isin(kt, (SAMPLE, INTERIOR))
-        si = np.nonzero(stuck)[0]
-        if si.size:
-            stuck[si] = _kinked(ws, cx[todo[si]], cy[todo[si]], R, best.px[todo[si]],
-                                best.py[todo[si]])
-        ek = np.nonzero(~converged[todo] & (kt == EDGE))[0]
-        if ek.size:
-            stuck[ek] = _rises_inward(ws, cx[todo[ek]], cy[todo[ek]], R, best.px[todo[ek]],
-                                      best.py[todo[ek]], best.val[todo[ek]])
-        if stuck.any():
-            g = todo[stuck]
-            v, qx, qy = _ridge(ws, cx[g], cy[g], R, best.px[g], best.py[g])
-            best.offer(g, v, qx, qy, RIDGE)
-
-    Z = (best.val - R).reshape(shape)
-    if not return_info:
-        return Z
-    return Z, CompensationInfo(best.px.reshape(shape), best.py.reshape(shape),
-                               best.kind.reshape(shape), bridged.reshape(shape))
+    return best, bridged, converged, todo

@@ -10,9 +10,9 @@ spacing the curvature along the passes needs, roughing levels from the depth and
 ``machining.stepdown``, and the CPU time of the whole job (planning, verification,
 setup sheet, start-up) from those counts, the verify points and the share of the
 footprint near a concave crease tighter than the ball, with per-unit costs measured
-on the 2-core reference machine (a model, not a measurement: the measured CPU time
-was 0.76-1.43 of it on the jobs it was fitted to, up to 2.3 on a plane steep along
-the passes, see the constants). The time guard is
+on the 2-core reference machine (a model, not a measurement: with the compiled
+kernels the measured CPU time was 0.8-1.25 of it on the jobs it was fitted to, see
+the constants). The time guard is
 a budget: ``machining.max_time`` or ``--max-time`` (default
 :attr:`fabkit.tolerances.Tolerances.max_plan_seconds`).
 """
@@ -40,18 +40,24 @@ from ..errors import SpecError
 # plane steep along the passes in a second run (2.28: its CPU time varied 10.1-14.9 s
 # between runs, and its per-pass cost is not explained by these terms; see
 # benchmarks/notes_gcode_profile.md)
-SEC_PER_PASS = 4.8e-3          # pass placement, per pass: fixed cost (two bounds, a few calls)
-SEC_PER_PASS_NODE = 1.2e-5     # per node along a pass: exact tip heights (incl. trial passes)
-SEC_PER_BALL = 9e-7            # per column and fine ball position within R along the pass
-SEC_STEEP_PASS = 3e-2          # passes over ground steep along the pass: the bound's stage 3
-SEC_STEEP_COLUMN = 1e-4        # and per steep column
-SEC_PER_POINT = 1.75e-4        # point spacing, links, roughing, writing, the sheet, per program point
-SEC_FIXED = 3.75               # start-up, spec, derivatives, depth, the planner's and the sheet's fixed costs (4.25
-                               # measured with the matplotlib preview, 0.8 s dearer)
-SEC_PER_VERIFY_POINT = 2.75e-5  # verification per verify point: swept cut and reachable height
-SEC_PER_TIGHT_POINT = 1.2e-3   # per verify point within R of a concave crease or valley tighter
-                               # than the ball: the reachable height's compass search (8.9e-4
-                               # on the 3*abs(x) block, 1.6e-3 on the oblique V: between)
+#: with the compiled drop cutter and swept cut (toolpath/dropcut.py) every planning term
+#: was scaled by PLAN_SCALE, the fixed cost and the verification refitted, to the measured
+#: CPU time of the whole command on plane, block, steep, vee, tiny, bowl, surface, the
+#: paper's surface at scallop 0.02 mm and four dishes (benchmarks/notes_gcode_profile.md,
+#: "With the compiled kernels"): measured / estimated 0.8-1.25 there
+PLAN_SCALE = 0.72
+SEC_PER_PASS = 4.8e-3 * PLAN_SCALE          # pass placement, per pass: fixed cost (two bounds, a few calls)
+SEC_PER_PASS_NODE = 1.2e-5 * PLAN_SCALE     # per node along a pass: exact tip heights (incl. trial passes)
+SEC_PER_BALL = 9e-7 * PLAN_SCALE            # per column and fine ball position within R along the pass
+SEC_STEEP_PASS = 3e-2 * PLAN_SCALE          # passes over ground steep along the pass: the bound's stage 3
+SEC_STEEP_COLUMN = 1e-4 * PLAN_SCALE        # and per steep column
+SEC_PER_POINT = 1.75e-4 * PLAN_SCALE        # point spacing, links, roughing, writing, the sheet, per program point
+SEC_FIXED = 3.0                # start-up (imports, loading the compiled kernels), spec, derivatives, depth,
+                               # the planner's and the sheet's fixed costs
+SEC_PER_VERIFY_POINT = 1.4e-5  # verification per verify point: swept cut and reachable height
+SEC_PER_TIGHT_POINT = 7.6e-4   # per verify point within R of a concave crease or valley tighter
+                               # than the ball: the reachable height's compass search (7.6e-4
+                               # on the 3*abs(x) block, 7.0e-4 on the oblique V)
 STEEP_ALONG = 1.5              # as fabkit.toolpath.passes.STEEP_ALONG
 # memory (peak resident, bytes): the process with the verification and the setup sheet
 # (measured 470-810 MB end to end on the jobs above, programs of 900-91 000 lines;
@@ -60,7 +66,7 @@ STEEP_ALONG = 1.5              # as fabkit.toolpath.passes.STEEP_ALONG
 # samples per point at the peak of the point spacing's batched drop cutter): measured /
 # estimated 0.72-1.44 on those jobs (1.15 GB measured, 0.95 GB estimated on the 1/8 in
 # ball at scallop 0.02 mm)
-BYTES_BASE = 560e6
+BYTES_BASE = 230e6             # 560e6 before the kernels: the swept cut's pair arrays are gone
 BYTES_PER_POINT = 5000.0
 MAX_BYTES = 1.8e9              # refused beyond this (the process stays under 2 GB)
 MAX_SLOPE = 20.0               # slopes beyond this count as this (the wall is cut by the rim)

@@ -334,6 +334,17 @@ class SegmentGrid:
         ``before``: (m,) int, only segments with index < before[i] count."""
         out = np.full(len(px), np.inf)
         cid = self.cell_of(px, py)
+        from .kernels import module
+
+        kern = module()
+        if kern is not None and len(px):
+            # compiled: the same closed form per point and segment, no pair arrays
+            b = np.zeros(1, dtype=np.int64) if before is None else np.ascontiguousarray(before, dtype=np.int64)
+            kern.lowest_batch(np.ascontiguousarray(px, dtype=float), np.ascontiguousarray(py, dtype=float),
+                              cid.astype(np.int64), self.ptr.astype(np.int64), self.seg.astype(np.int64),
+                              np.ascontiguousarray(self.a, dtype=float), np.ascontiguousarray(self.b, dtype=float),
+                              float(self.R), b, before is not None, out)
+            return out
         cnt = self.ptr[cid + 1] - self.ptr[cid]
         pos = 0
         m = len(px)

@@ -1,0 +1,146 @@
+"""The toolpath's compiled kernels: loading (or building) them for a surface.
+
+The drop cutter's kernel (the template :mod:`.dropcut`) is written once per
+installation into the user cache of the simulator's engine
+(:func:`fabkit.physics.engine.codegen.cache_dir`, ``FABKIT_CACHE_DIR`` if set), where
+numba compiles it with ``cache=True``; the surface's functions (h and its exact first
+and second derivatives) are generated from the formula by the engine's own code
+generator (:func:`fabkit.physics.engine.codegen.write_surface`, a template of their
+own: ``jet`` and ``height``) and compiled once per formula. Later runs only load
+both.
+
+``FABKIT_NO_KERNELS=1`` turns the kernels off (the numpy drop cutter runs instead:
+the same heights; for comparisons). Surfaces without a formula (no ``fns`` with its
+text), a cache that cannot be written and a formula numba cannot compile use the
+numpy code.
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+import time
+from pathlib import Path
+
+_HERE = Path(__file__).resolve().parent
+KERNEL_TEMPLATE = "dropcut.py"
+
+_LOCK = threading.RLock()
+_MODS: dict = {}            # path -> module
+_BY_FNS: dict = {}          # id(fns) -> (fns, Kernel | None)
+#: seconds the last cold build took (compile of the kernel and the formula's functions)
+last_build_s: float | None = None
+
+
+def _template():
+    from ..physics.engine import codegen
+
+    return codegen.Template(
+        "toolpath", KERNEL_TEMPLATE,
+        (("jet", ((), ("x",), ("y",), ("x", "x"), ("x", "y"), ("y", "y"))), ("height", ((),))),
+        0)
+
+
+class Kernel:
+    """The drop cutter's kernel bound to one formula: ``P = (Pa, jet, height)``."""
+
+    def __init__(self, module, surface_module, values):
+        import numpy as np
+
+        self.module = module
+        self.P = (np.array(values, dtype=float), surface_module.jet, surface_module.height)
+
+    def drop(self, *args):
+        return self.module.drop_batch(*args)
+
+
+def enabled() -> bool:
+    return os.environ.get("FABKIT_NO_KERNELS", "") in ("", "0")
+
+
+def _kernel_path() -> Path:
+    from ..physics.engine import codegen
+
+    src = (_HERE / KERNEL_TEMPLATE).read_text()
+    key = codegen._digest(["toolpath-kernel", src, *codegen._versions()])
+
+    def make():
+        from .. import __version__
+
+        return codegen._HEADER.format(version=__version__, what="the toolpath's drop cutter kernel") \
+            + "\n\n# ---- " + KERNEL_TEMPLATE + " " + "-" * 60 + "\n" + src
+
+    return codegen._write_once(codegen.cache_dir() / f"fk_toolpath_{key}.py", make)
+
+
+def _load(path: Path):
+    from ..physics.engine.batch import _import
+
+    mod = _MODS.get(str(path))
+    if mod is None:
+        mod = _MODS[str(path)] = _import(path)
+    return mod
+
+
+def module():
+    """The kernel module alone (formula-free entry points: the swept cut's
+    ``lowest_batch``), or None (numba missing, ``FABKIT_NO_KERNELS``)."""
+    if not enabled():
+        return None
+    with _LOCK:
+        try:
+            import numba  # noqa: F401
+        except ImportError:  # pragma: no cover - numba is a dependency
+            return None
+        try:
+            return _load(_kernel_path())
+        except OSError:         # no writable cache: the numpy code runs instead
+            return None
+
+
+def kernel_for(surface) -> Kernel | None:
+    """The compiled drop cutter for ``surface`` (a Surface with compiled functions
+    ``fns`` from a formula), built on first use; None where there is none (no
+    formula, numba missing, or ``FABKIT_NO_KERNELS``)."""
+    global last_build_s
+    fns = getattr(surface, "fns", None)
+    if fns is None or not enabled() or getattr(fns, "symbolic", None) is None:
+        return None
+    hit = _BY_FNS.get(id(fns))
+    if hit is not None and hit[0] is fns:
+        return hit[1]
+    with _LOCK:
+        try:
+            import numba  # noqa: F401
+        except ImportError:  # pragma: no cover - numba is a dependency
+            k = None
+        else:
+            from numba.core.errors import NumbaError
+
+            from ..physics.engine.batch import _formula
+
+            t0 = time.process_time()
+            try:
+                f, spath = _formula(fns, _template())
+                kpath = _kernel_path()
+                k = Kernel(_load(kpath), _load(spath), f.values)
+                _warm(k)
+            except (OSError, NumbaError):
+                # no writable cache, or a formula numba cannot compile: the numpy code
+                # (the same heights) runs instead
+                k = None
+            last_build_s = time.process_time() - t0
+        if len(_BY_FNS) > 64:
+            _BY_FNS.clear()
+        _BY_FNS[id(fns)] = (fns, k)
+        return k
+
+
+def _warm(k: Kernel) -> None:
+    """Compile (or load from the cache) the kernel's one signature: one position."""
+    import numpy as np
+
+    z = np.zeros(1)
+    k.drop(z, z, 1.0, np.array([1.0, 0.0, 0.0, 0.0, 1.0, 1.0]), k.P, z, z, z, z,
+           np.zeros(1, dtype=np.int64), z, z, 1, 1, np.zeros(1), np.zeros(1), np.zeros(1),
+           np.zeros(1, dtype=np.int8), np.zeros(1, dtype=bool), np.zeros(1, dtype=bool), (z,) * 7)
