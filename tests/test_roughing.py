@@ -134,6 +134,30 @@ def test_flat_bowl_levels_region_and_allowance(tmp_path):
     assert op.info["time_by_length_feed_s"] == pytest.approx(60 * (cut / 2500 + plg / 600))
 
 
+@pytest.mark.parametrize("strategy,entry", [("offset", "ramp"), ("offset", "plunge"), ("raster", "helix")])
+def test_strategies_and_entries_keep_the_allowance(tmp_path, strategy, entry):
+    rg = {"tool": 1, "stepdown": 5, "stepover": 6, "leave": 0.5, "strategy": strategy, "entry": entry}
+    spec, surf = load(tmp_path, bowl_raw(roughing=rg))
+    op = plan_rough(spec, surf)
+    assert op.levels == 5 and op.info["strategy"] == strategy
+    e = op.info["entries"]
+    if strategy == "offset":
+        # one closed pocket per level, entered as asked
+        assert e["helix"] == 0 and e[{"ramp": "ramp", "plunge": "plunge_entries"}[entry]] == 5
+    else:
+        # rows: a helix has no room at a row's end; the rows not over cleared ground are ramped into
+        assert e["helix"] == 0 and e["ramp"] >= 5
+    pts = feed_points(op.toolpath)
+    assert worst_allowance(pts, op.tool, bowl_design, 2 * HALF, 2 * HALF, 0.5) >= -1e-9
+    # ramps descend at 5 degrees at most
+    P, K = op.toolpath.points, op.toolpath.kinds
+    d = np.diff(P, axis=0)
+    run = np.hypot(d[:, 0], d[:, 1])
+    down = (K[1:] == 2) | ((K[1:] == 1) & (run > 1e-9))
+    slope = -d[down, 2] / np.maximum(run[down], 1e-12)
+    assert slope.max() <= math.tan(math.radians(5.0)) + 1e-6
+
+
 def bull_radius(z, leave, R, r):
     """Largest tip radius about the bowl's axis where a bull nose (R, corner r) at level
     z leaves the allowance: a (rho + t)^2 - d + leave <= z + lift(t) for t in [0, R]

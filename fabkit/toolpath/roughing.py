@@ -666,7 +666,7 @@ def _cut_outside_in(tree, P, z, z_above, path, enter, link_to, fig, F, R, e_out)
 
 def _raster_pocket(P, z, z_above, s, R, spec, path, enter, link_to, fig, F, open_, simp=0.0):
     """Rows along machining.direction, s apart, then the pocket's boundary loops. A
-    row whose start is not within R/2 of this level's cuts is entered as asked (a
+    row whose start is not within 0.95 R of this level's cuts is entered as asked (a
     helix has no room at a row's end: a ramp along the row)."""
     from shapely.geometry import LineString, MultiLineString, Point
 
@@ -689,7 +689,9 @@ def _raster_pocket(P, z, z_above, s, R, spec, path, enter, link_to, fig, F, open
         if len(seg) < 2:
             continue
         a = path.at
-        near = cut_lines and MultiLineString([c.tolist() for c in cut_lines]).distance(Point(seg[0])) <= 0.5 * R
+        # the centre over ground this level cleared (the disc of an earlier row covers it
+        # with 5 % of R to spare: an end mill does not cut at its very centre)
+        near = cut_lines and MultiLineString([c.tolist() for c in cut_lines]).distance(Point(seg[0])) <= 0.95 * R
         if a is not None and abs(a[2] - z) < 1e-9 and near:
             _go(path, P, seg[0], z, z_above, link_to, enter, fig)
         elif open_ and (seg[0][0] < 0 or seg[0][1] < 0 or seg[0][0] > F.bounds[2] or seg[0][1] > F.bounds[3]):
