@@ -319,10 +319,25 @@ def _walk(path: np.ndarray, length: float, closed: bool) -> np.ndarray:
 # ----------------------------------------------------------------------------
 # roughing
 # ----------------------------------------------------------------------------
-class _Level:
-    """What one level cleared: the cut lines' discs (∪ the air beyond the footprint)."""
+def _cleared_radius(tool: Tool, height: float) -> float:
+    """The distance from a cut's path within which the tool leaves material at most
+    ``height`` above its tip: R for a flat end mill, less on a corner radius."""
+    r, f = tool.corner_radius, tool.flat_radius
+    if r <= 0:
+        return tool.radius
+    h = min(height, r)
+    return f + math.sqrt(max(r * r - (r - h) ** 2, 0.0))
 
-    def __init__(self, z, lines, R, outside):
+
+class _Level:
+    """What one level cleared: the cut lines' discs (∪ the air beyond the footprint).
+
+    ``cleared``: the material there is at most the level + ``tolerance`` (a bull nose's
+    or ball's discs shrink to where the corner stands within it; between loops further
+    apart the cusps count as uncut: rest passes are then conservative); ``free`` (links
+    1 mm above the level): within half the link clearance."""
+
+    def __init__(self, z, lines, tool, outside, tolerance, clr):
         from shapely.geometry import MultiLineString, Point
         from shapely.ops import unary_union
         import shapely
@@ -332,13 +347,16 @@ class _Level:
         for ln in lines:
             if len(ln) >= 2:
                 geoms.append(ln)
+        empty = Point(0, 0).buffer(0)
         if geoms:
             ml = MultiLineString([g.tolist() for g in geoms])
-            # inscribed polygon: contained in the true swept discs
-            self.cleared = ml.buffer(R, quad_segs=QUAD_SEGS)
+            # inscribed polygons: contained in the true swept discs
+            self.cleared = ml.buffer(_cleared_radius(tool, tolerance), quad_segs=QUAD_SEGS)
+            low = self.cleared if tool.corner_radius <= 0 else \
+                ml.buffer(_cleared_radius(tool, 0.5 * clr), quad_segs=QUAD_SEGS)
         else:
-            self.cleared = Point(0, 0).buffer(0)
-        self.free = unary_union([self.cleared, outside])
+            self.cleared = low = empty
+        self.free = unary_union([low, outside])
         shapely.prepare(self.free)
 
 
@@ -481,7 +499,7 @@ def plan_rough(spec, surface, tool: Tool | None = None, *, ws=None, sets=None, t
             else:
                 _cut_inside_out(tree, P, z, z_above, path, enter, link_to, fig, R, rg.entry, polylabel, s)
         tg = time.process_time()
-        above = _Level(z, path.level_lines, R, outside)
+        above = _Level(z, path.level_lines, tool, outside, tolerance, clr)
         cleared_levels.append(above)
         t_geom += time.process_time() - tg
     if path.pts:
