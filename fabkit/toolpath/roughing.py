@@ -895,6 +895,7 @@ def plan_rest(spec, surface, rough: Operation, finish: Toolpath, *, ws=None) -> 
         zone = ok & (zone | np.c_[zone[:, 1:], np.zeros((len(zone), 1), bool)]
                      | np.c_[np.zeros((len(zone), 1), bool), zone[:, :-1]])
         runs = []
+        levels_cut = set()
         if zone.any():
             low = float(floor[zone].min())
             nlev = int(math.ceil(-low / step_r)) if low < 0 else 0
@@ -911,13 +912,26 @@ def plan_rest(spec, surface, rough: Operation, finish: Toolpath, *, ws=None) -> 
                     near &= zone[r]
                     edges = np.diff(np.r_[0, near.astype(np.int8), 0])
                     pieces = []
+                    spans = []
                     for i0, i1 in zip(np.nonzero(edges == 1)[0], np.nonzero(edges == -1)[0]):
-                        if i1 - i0 >= 2:
-                            pieces.append((np.column_stack([X[r, i0:i1], Y[r, i0:i1], tip[r, i0:i1]]),
-                                           Sb[r, i0:i1]))
+                        if i1 - i0 < 2:
+                            continue
+                        # runs of a pass at most 4 R apart are joined along the nodes between at
+                        # their tips: there the ball touches nothing (air above the roughed stock,
+                        # or ground the level above took lower) and never the allowance
+                        if spans and ug[i0] - ug[spans[-1][1] - 1] <= 4 * Rr \
+                                and np.isfinite(tip[r, spans[-1][1]:i0]).all() and keep[r, spans[-1][1]:i0].all():
+                            spans[-1] = (spans[-1][0], i1)
+                        else:
+                            spans.append((i0, i1))
+                    for i0, i1 in spans:
+                        pieces.append((np.column_stack([X[r, i0:i1], Y[r, i0:i1], tip[r, i0:i1]]),
+                                       Sb[r, i0:i1]))
                     if r % 2:
                         pieces = [(q[::-1], sb[::-1]) for q, sb in pieces[::-1]]
                     runs.extend(pieces)
+                    if pieces:
+                        levels_cut.add(j)
         if not runs:
             continue
         runs = _refine_runs(ws, runs, Rr, leave, lim, 0.5 * tolerance)
@@ -938,7 +952,7 @@ def plan_rest(spec, surface, rough: Operation, finish: Toolpath, *, ws=None) -> 
         tp = Toolpath(pts, kinds, tool_radius=Rr, safe_z=safe_z)
         feed, plunge = _feeds(spec, tool)
         info = _figures(pts, kinds, feed, plunge)
-        levels_cut = nlev
+        levels_cut = len(levels_cut)
         info.update({
             "tool": tool.describe(), "levels": levels_cut, "stepdown_mm": step_r, "stepover_mm": spacing,
             "leave_mm": leave, "cusp_mm": cusp, "runs": len(runs),
