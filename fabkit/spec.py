@@ -356,6 +356,9 @@ class Spec:
         for key, value in overrides.items():
             parts = key.split(".")
             node = raw
+            if parts[0] in LIST_SECTIONS:
+                raise SpecError("a key of a list section cannot be set or varied (edit the spec)",
+                                file=self.path, key=key)
             for p in parts[:-1]:
                 if not isinstance(node.get(p), dict):
                     node[p] = {}

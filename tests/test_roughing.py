@@ -158,6 +158,20 @@ def test_strategies_and_entries_keep_the_allowance(tmp_path, strategy, entry):
     assert slope.max() <= math.tan(math.radians(5.0)) + 1e-6
 
 
+def test_levels_stop_at_the_depth_limit(tmp_path):
+    # the bowl is 30 mm deep; with stock.depth_limit 17 mm the levels stop at -15 and -17
+    raw = bowl_raw()
+    raw["stock"]["depth_limit"] = 17.0
+    spec, surf = load(tmp_path, raw)
+    op = plan_rough(spec, surf)
+    assert op.info["level_z_mm"] == [-5.0, -10.0, -15.0, -17.0] and op.info["stopped_at_limit"]
+    assert op.toolpath.points[:, 2].min() == pytest.approx(-17.0)
+    # the tool's reach binds the same way
+    raw = bowl_raw(tools=[{"number": 1, "shape": "flat", "diameter": 12.7, "reach": 12}])
+    spec, surf = load(tmp_path, raw)
+    assert plan_rough(spec, surf).info["level_z_mm"] == [-5.0, -10.0, -12.0]
+
+
 def bull_radius(z, leave, R, r):
     """Largest tip radius about the bowl's axis where a bull nose (R, corner r) at level
     z leaves the allowance: a (rho + t)^2 - d + leave <= z + lift(t) for t in [0, R]
@@ -314,6 +328,14 @@ def test_spec_tools_and_finish_tool(tmp_path):
     spec2, _ = load(tmp_path, raw)
     assert spec2.roughing.stepover == pytest.approx(0.45 * 12.7)
     assert spec2.roughing.entry == "helix" and spec2.roughing.strategy == "offset"
+
+
+def test_list_keys_cannot_be_overridden(tmp_path):
+    spec, _ = load(tmp_path, bowl_raw())
+    with pytest.raises(SpecError) as e:
+        spec.with_overrides({"tools.diameter": 10})
+    assert e.value.key == "tools.diameter"
+    assert spec.with_overrides({"roughing.stepdown": 4}).roughing.stepdown == 4.0
 
 
 def test_spec_without_roughing_is_unchanged():
