@@ -48,9 +48,12 @@ neighbours). A rest ball's passes follow the finishing passes (their exact
 drop-cutter heights; another ball's own, :func:`compensate`), at most R apart, in
 Z levels of its depth of cut less the cusp between its passes, tip at
 max(level, design contact + leave), only where its drop onto the roughed stock
-stands more than the roughing's cusp (stepdown) above the allowance: the valleys
-and corners the roughing tool could not reach. After them the finishing ball
-engages at most leave + stepdown + cusp (<= its depth of cut, checked).
+stands more than min(stepdown, finish depth_of_cut - leave) + tolerance above the
+allowance (a grid bound, then the exact drop onto the levels' polygons; one node
+either side): the valleys and corners the roughing tool could not reach. A ball's
+engagement is the stock's thickness it cuts through, max over q under it of
+S(q) - (tip + lift(|q - c|)): elsewhere the finishing ball's is at most leave + that
+threshold <= its depth of cut; where the rest passes ran, leave + their cusp.
 """
 
 from __future__ import annotations
@@ -1017,10 +1020,16 @@ def _refine_runs(ws, runs, Rr, leave, lim, tolerance, rounds=8):
 
 def plan_operations(spec, surface, finish: Toolpath) -> list[Operation]:
     """The operations before the finish: [rough, rest...] (empty without a
-    ``roughing`` section). ``finish``: the finishing toolpath (its pass plan gives
-    the rest passes' geometry)."""
+    ``roughing`` section; an operation with nothing to cut is left out). ``finish``:
+    the finishing toolpath (its pass plan gives the rest passes' geometry).
+
+    The rough operation also carries ``cleared`` (per level: ``z`` and the ``cleared``
+    region, shapely) and ``sets`` (the design grid); :func:`stock_after` gives the
+    stock's height field after it."""
     if not spec.has("roughing"):
         return []
     ws = WorkSurface(surface)
     rough = plan_rough(spec, surface, ws=ws)
-    return [rough] + plan_rest(spec, surface, rough, finish, ws=ws)
+    rest = plan_rest(spec, surface, rough, finish, ws=ws)
+    # an operation with nothing to cut (a design shallower than leave + one stepdown) is left out
+    return ([rough] if rough.levels else []) + rest
