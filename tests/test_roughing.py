@@ -26,7 +26,7 @@ import yaml
 from fabkit.errors import SpecError
 from fabkit.spec import load_spec, validate
 from fabkit.surface import Surface
-from fabkit.toolpath.path import CUT, PLUNGE
+from fabkit.toolpath.path import CUT, PLUNGE, RAPID
 from fabkit.toolpath.roughing import (finish_tool, plan_operations, plan_rough, spec_tools)
 from fabkit.toolpath.tools import Tool
 
@@ -245,18 +245,39 @@ def _under(pts, h, n, R):
     return ii, jj, rho, ok
 
 
-def simulate(ops, n, h):
+def simulate(ops, n, h, rapid_hits=None):
     """Independent height-field cut simulation: the stock's top at the nodes of a grid
     of step h after the operations' feed moves (sampled every h/2), each tool's own
-    shape (tip + lift at the exact distance)."""
+    shape (tip + lift at the exact distance), in the program's order. ``rapid_hits``
+    (a list): the most material (mm) any rapid move's tool meets, per operation."""
     S = np.zeros((n, n))
     for op in ops:
-        pts = feed_points(op.toolpath, step=h / 2)
-        for a in range(0, len(pts), 2000):
-            c = pts[a:a + 2000]
-            ii, jj, rho, ok = _under(c, h, n, op.tool.radius)
-            z = c[:, 2:3] + op.tool.lift(np.minimum(rho, op.tool.radius))
-            np.minimum.at(S, (ii[ok], jj[ok]), z[ok])
+        P, K = op.toolpath.points, op.toolpath.kinds
+        rapid = K == RAPID
+        # batches of consecutive moves of one class (feed or rapid), in order
+        cuts = np.nonzero(np.diff(np.r_[-1, rapid[1:].astype(int)]))[0] + 1
+        bounds = list(cuts) + [len(P)]
+        worst = 0.0
+        R = op.tool.radius
+        for a, b in zip(bounds[:-1], bounds[1:]):
+            segs = []
+            for i in range(a, b):
+                p0, p1 = P[i - 1], P[i]
+                k = max(1, int(math.ceil(np.linalg.norm(p1 - p0) / (h / 2))))
+                t = np.linspace(0.0, 1.0, k + 1)[:, None]
+                segs.append(p0 + t * (p1 - p0))
+            c = np.vstack(segs)
+            for lo in range(0, len(c), 2000):
+                cc = c[lo:lo + 2000]
+                ii, jj, rho, ok = _under(cc, h, n, R)
+                z = cc[:, 2:3] + op.tool.lift(np.minimum(rho, R))
+                if rapid[a]:
+                    top = S[np.clip(ii, 0, n - 1), np.clip(jj, 0, n - 1)]
+                    worst = max(worst, float(np.where(ok, top - z, 0.0).max()))
+                else:
+                    np.minimum.at(S, (ii[ok], jj[ok]), z[ok])
+        if rapid_hits is not None:
+            rapid_hits.append(worst)
     return S
 
 
@@ -305,8 +326,12 @@ def test_groove_narrower_than_the_tool_gets_rest_passes(tmp_path):
     h = 0.25
     n = int(round(100 / h)) + 1
     fb = finish_tool(spec)
-    S = simulate(ops, n, h)
+    hits = []
+    S = simulate(ops, n, h, hits)
     assert engagement(S, h, finish, fb) <= spec.tool.depth_of_cut + 0.05
+    # no rapid move of the rough or the rest meets material (links above the level
+    # above or the roughed stock's drop)
+    assert max(hits) <= 1e-9, hits
     S1 = simulate([rough], n, h)
     assert engagement(S1, h, finish, fb) > spec.tool.depth_of_cut + 1.0
     assert engagement(S1, h, finish, fb) > spec.tool.depth_of_cut + 1.0

@@ -938,14 +938,22 @@ def plan_rest(spec, surface, rough: Operation, finish: Toolpath, *, ws=None) -> 
         if not runs:
             continue
         runs = _refine_runs(ws, runs, Rr, leave, lim, 0.5 * tolerance)
+        fig_low = 0
+        zlink = _link_heights(S, x, y, runs, tool, clr)
         path = _Path()
-        for q, sb in runs:
+        for n, (q, sb) in enumerate(runs):
             start = q[0]
-            if path.at is not None:
-                path.add((path.at[0], path.at[1], safe_z), RAPID)
-            path.add((start[0], start[1], safe_z), RAPID)
-            above = max(float(sb[0]), float(start[2])) + clr
-            path.add((start[0], start[1], min(above, safe_z)), RAPID)
+            above = min(max(float(sb[0]), float(start[2])) + clr, safe_z)
+            zl = zlink[n]
+            if path.at is not None and zl is not None and zl < safe_z:
+                fig_low += 1
+                path.add((path.at[0], path.at[1], max(zl, path.at[2])), RAPID)
+                path.add((start[0], start[1], max(zl, path.at[2])), RAPID)
+            else:
+                if path.at is not None:
+                    path.add((path.at[0], path.at[1], safe_z), RAPID)
+                path.add((start[0], start[1], safe_z), RAPID)
+            path.add((start[0], start[1], above), RAPID)
             path.add(tuple(start), PLUNGE)
             for p in q[1:]:
                 path.add(tuple(p), CUT)
@@ -961,6 +969,7 @@ def plan_rest(spec, surface, rough: Operation, finish: Toolpath, *, ws=None) -> 
             "leave_mm": leave, "cusp_mm": cusp, "runs": len(runs),
             "passes": len({(round(float(q[0, 0]), 6), round(float(q[0, 1]), 6)) for q, _ in runs}),
             "entry": "plunge (into ground the rest ball's drop shows clear above the cut)",
+            "links": {"low": fig_low, "safe_height": len(runs) - 1 - fig_low},
             "zone_threshold_mm": threshold, "zone_positions": int(zone.sum()),
             "depth_of_cut_mm": doc, "stock_grid_step_mm": float(max(x[1] - x[0], y[1] - y[0])),
             "plan_seconds": time.process_time() - t0,
@@ -1016,6 +1025,31 @@ def _refine_runs(ws, runs, Rr, leave, lim, tolerance, rounds=8):
             k += len(q) - 1
         runs = new_runs
     return runs
+
+
+def _link_heights(S, x, y, runs, tool, clr, step=1.0):
+    """Per run, the height of the straight link from the run before: ``clr`` above the
+    highest of the two ends and the tool's drop onto the roughed stock along the link
+    (grid bound, every ``step`` mm; the rest only lowers the stock). None for the first."""
+    out = [None] * len(runs)
+    XS, YS, own = [], [], []
+    for n in range(1, len(runs)):
+        a, b = runs[n - 1][0][-1], runs[n][0][0]
+        d = math.hypot(b[0] - a[0], b[1] - a[1])
+        k = max(2, int(math.ceil(d / step)) + 1)
+        t = np.linspace(0.0, 1.0, k)
+        XS.append(a[0] + t * (b[0] - a[0]))
+        YS.append(a[1] + t * (b[1] - a[1]))
+        own.append(np.full(k, n))
+    if not XS:
+        return out
+    drop = drop_on_grid(S, x, y, np.concatenate(XS), np.concatenate(YS), tool)
+    high = np.full(len(runs), -np.inf)
+    np.maximum.at(high, np.concatenate(own), drop)
+    for n in range(1, len(runs)):
+        a, b = runs[n - 1][0][-1], runs[n][0][0]
+        out[n] = max(float(high[n]), float(a[2]), float(b[2]), float(runs[n][1][0])) + clr
+    return out
 
 
 def plan_operations(spec, surface, finish: Toolpath) -> list[Operation]:
