@@ -138,6 +138,37 @@ SCHEMA: dict[str, dict[str, Any]] = {
         "number": Num(default=None, ge=1, le=99_999, integer=True,
                       doc="tool-table number: LinuxCNC gets T<n> M6 G43 H<n>; grbl (no M6) a comment. "
                           "Default: no tool call"),
+        "depth_of_cut": Num(default=None, gt=0, le=1000, length="mm",
+                            doc="mm the tool may engage axially (rest passes keep the finish within it); "
+                                "default: its diameter"),
+    },
+    # further tools (a list of mappings, each with these keys): roughing and rest tools
+    "tools": {
+        "number": Num(ge=1, le=99_999, integer=True, doc="tool-table number, unique, not tool.number"),
+        "shape": Choice(("flat", "bull", "ball"), doc="flat end mill | bull nose | ball-end mill"),
+        "diameter": Num(gt=0, le=200, length="mm"),
+        "corner_radius": Num(default=None, gt=0, le=100, length="mm",
+                             doc="bull nose only: 0 < r <= diameter/2"),
+        "reach": Num(default=None, gt=0, le=10_000, length="mm",
+                     doc="flute length / usable length: no level deeper; default: unlimited"),
+        "depth_of_cut": Num(default=None, gt=0, le=1000, length="mm", doc="default: the diameter"),
+        "feed": Num(default=None, gt=0, le=1e6, doc="mm/min; default: machining.feed"),
+        "plunge": Num(default=None, gt=0, le=1e6, doc="mm/min; default: machining.plunge"),
+        "spindle": Num(default=None, gt=0, le=1e6, doc="rpm; default: machining.spindle"),
+    },
+    # roughing with its own tool, then rest passes, then the finish (fabkit/toolpath/roughing.py)
+    "roughing": {
+        "tool": Num(ge=1, le=99_999, integer=True, doc="the roughing tool: a number from `tools`"),
+        "stepdown": Num(gt=0, le=1000, length="mm", doc="mm between Z levels (<= the tool's depth_of_cut)"),
+        "stepover": Num(default=None, gt=0, le=1000, length="mm",
+                        doc="mm between offsets / rows; default 0.45 x the tool's diameter"),
+        "leave": Num(default=0.5, ge=0, le=100, length="mm", doc="mm left above the design for the finish"),
+        "strategy": Choice(("offset", "raster"), default="offset",
+                           doc="offset: contour-parallel loops per level; raster: rows per level"),
+        "entry": Choice(("helix", "ramp", "plunge"), default="helix",
+                        doc="how the tool enters a closed pocket at a new level"),
+        "rest": NumList(default=None, ge=1, min_len=0, max_len=20,
+                        doc="tool numbers for rest passes, in order; default: the finishing tool"),
     },
     "machining": {
         "scallop": Num(default=0.05, gt=0, le=100, length="mm"),
@@ -242,6 +273,11 @@ SCHEMA: dict[str, dict[str, Any]] = {
     },
 }
 TOP_KEYS = {"name": Text(default=None), "units": Choice(("mm", "cm", "in"), default="mm")}
+#: sections written as a list of mappings (each item validated against the section's fields);
+#: ``spec.tools`` is then a tuple of :class:`Section`, one per item
+LIST_SECTIONS = ("tools",)
+#: the most tools a spec may list
+MAX_TOOLS = 20
 
 
 # ----------------------------------------------------------------------------
@@ -320,6 +356,9 @@ class Spec:
         for key, value in overrides.items():
             parts = key.split(".")
             node = raw
+            if parts[0] in LIST_SECTIONS:
+                raise SpecError("a key of a list section cannot be set or varied (edit the spec)",
+                                file=self.path, key=key)
             for p in parts[:-1]:
                 if not isinstance(node.get(p), dict):
                     node[p] = {}
@@ -655,29 +694,130 @@ def validate(raw: Any, file: str = "<spec>") -> Spec:
         if sec not in raw:
             continue
         body = raw[sec]
+        if sec in LIST_SECTIONS:
+            sections[sec] = _list_section(sec, fields, body, file, units)
+            continue
         if body is None:
             body = {}
         if not isinstance(body, dict):
             raise SpecError(f"must be a mapping, got {_show(body)}", file=file, key=sec)
-        values = {}
-        for key in body:
-            if not isinstance(key, str) or key not in fields:
-                raise SpecError(f"unknown key{_suggest(key, fields)}", file=file, key=f"{sec}.{key}")
-        for key, f in fields.items():
-            dotted = f"{sec}.{key}"
-            if key in body:
-                values[key] = _field(f, body[key], dotted, file, units)
-            else:
-                d = _default(f)
-                if d is REQUIRED:
-                    raise SpecError("missing key", file=file, key=dotted)
-                values[key] = d
-        sections[sec] = Section(sec, values)
+        sections[sec] = _section(sec, sec, fields, body, file, units)
     _cross_checks(sections, file, units)
     return Spec(path=file, name=name, units=units, sections=sections, raw=raw)
 
 
+def _section(name: str, where: str, fields: dict, body: dict, file: str, units: str) -> Section:
+    """One mapping validated against ``fields``; ``where`` prefixes its keys in errors."""
+    values = {}
+    for key in body:
+        if not isinstance(key, str) or key not in fields:
+            raise SpecError(f"unknown key{_suggest(key, fields)}", file=file, key=f"{where}.{key}")
+    for key, f in fields.items():
+        dotted = f"{where}.{key}"
+        if key in body:
+            values[key] = _field(f, body[key], dotted, file, units)
+        else:
+            d = _default(f)
+            if d is REQUIRED:
+                raise SpecError("missing key", file=file, key=dotted)
+            values[key] = d
+    return Section(name, values)
+
+
+def _list_section(sec: str, fields: dict, body: Any, file: str, units: str) -> tuple:
+    """A list of mappings (``tools``): a tuple of Sections, errors naming ``tools[i].key``."""
+    if not isinstance(body, list) or not body:
+        raise SpecError(f"must be a non-empty list of mappings, got {_show(body)}", file=file, key=sec)
+    if len(body) > MAX_TOOLS:
+        raise SpecError(f"at most {MAX_TOOLS} entries, got {len(body)}", file=file, key=sec)
+    out = []
+    for i, item in enumerate(body):
+        where = f"{sec}[{i}]"
+        if not isinstance(item, dict):
+            raise SpecError(f"must be a mapping, got {_show(item)}", file=file, key=where)
+        out.append(_section(sec, where, fields, item, file, units))
+    return tuple(out)
+
+
+def _tool_checks(s: dict, file: str) -> None:
+    """tool / tools / roughing together: unique numbers, bull corner radii, depths of
+    cut, the roughing tool and rest tools known, roughing not with machining.stepdown."""
+    if "tool" in s and s["tool"].depth_of_cut is None:
+        s["tool"]._values["depth_of_cut"] = s["tool"].diameter
+    numbers: dict[int, str] = {}
+    if "tool" in s and s["tool"].number is not None:
+        numbers[s["tool"].number] = "tool.number"
+    for i, t in enumerate(s.get("tools", ())):
+        w = f"tools[{i}]"
+        if t.number in numbers:
+            raise SpecError(f"tool number {t.number} is already {numbers[t.number]}", file=file, key=f"{w}.number")
+        numbers[t.number] = f"{w}.number"
+        R = 0.5 * t.diameter
+        if t.shape == "bull":
+            if t.corner_radius is None:
+                raise SpecError("a bull nose needs its corner_radius (0 < r <= diameter/2)", file=file,
+                                key=f"{w}.corner_radius")
+            if not t.corner_radius <= R:
+                raise SpecError(f"must be <= diameter/2 ({R:g} mm), got {t.corner_radius:g}", file=file,
+                                key=f"{w}.corner_radius")
+        elif t.corner_radius is not None:
+            raise SpecError(f"only a bull nose has a corner_radius (this tool is {t.shape})", file=file,
+                            key=f"{w}.corner_radius")
+        if t.reach is None:
+            t._values["reach"] = math.inf
+        if t.depth_of_cut is None:
+            t._values["depth_of_cut"] = t.diameter
+    if "roughing" not in s:
+        return
+    r = s["roughing"]
+    if "machining" in s and s["machining"].stepdown is not None:
+        raise SpecError("roughing with its own tool (the roughing section) and machining.stepdown (roughing with "
+                        "the finishing ball) are exclusive: remove one", file=file, key="roughing")
+    listed = {t.number: (i, t) for i, t in enumerate(s.get("tools", ()))}
+    if r.tool not in listed:
+        where = "tool.number, the finishing tool" if r.tool in numbers else "not in `tools`"
+        raise SpecError(f"tool {r.tool}: {where}; roughing.tool must be a number from `tools` "
+                        f"({', '.join(str(n) for n in listed) or 'none listed'})", file=file, key="roughing.tool")
+    i, t = listed[r.tool]
+    if r.stepdown > t.depth_of_cut:
+        raise SpecError(f"must be <= the roughing tool's depth_of_cut ({t.depth_of_cut:g} mm, tools[{i}]), got "
+                        f"{r.stepdown:g}", file=file, key="roughing.stepdown")
+    if r.stepover is None:
+        r._values["stepover"] = 0.45 * t.diameter
+    elif r.stepover > t.diameter:
+        raise SpecError(f"must be <= the roughing tool's diameter ({t.diameter:g} mm), got {r.stepover:g}",
+                        file=file, key="roughing.stepover")
+    if "stock" in s:
+        from .tolerances import DEFAULT
+
+        levels = s["stock"].thickness / r.stepdown
+        if levels > DEFAULT.max_rough_levels:
+            raise SpecError(f"{r.stepdown:g} mm would rough up to {levels:.3g} levels, more than the limit "
+                            f"{DEFAULT.max_rough_levels}; raise the stepdown", file=file, key="roughing.stepdown")
+    finish_no = s["tool"].number if "tool" in s else None
+    rest = r.rest
+    if rest is None:
+        rest = ()
+        r._values["rest"] = None
+    out = []
+    for j, n in enumerate(rest):
+        key = f"roughing.rest[{j}]"
+        if n != int(n):
+            raise SpecError(f"must be a tool number, got {n:g}", file=file, key=key)
+        n = int(n)
+        if n == r.tool:
+            raise SpecError(f"tool {n} is the roughing tool; rest passes need a smaller tool", file=file, key=key)
+        if n not in listed and n != finish_no:
+            raise SpecError(f"tool {n} is not in `tools` (nor tool.number)", file=file, key=key)
+        if n in listed and listed[n][1].shape != "ball":
+            raise SpecError(f"tool {n} is a {listed[n][1].shape} end mill: rest passes follow the finishing "
+                            "passes and need a ball-end mill", file=file, key=key)
+        out.append(n)
+    r._values["rest"] = tuple(out) if r.rest is not None else None
+
+
 def _cross_checks(s: dict[str, Section], file: str, units: str = "mm") -> None:
+    _tool_checks(s, file)
     if "surface" in s:
         from .expr import check_syntax
 

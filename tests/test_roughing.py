@@ -1,0 +1,410 @@
+"""Roughing with its own tool and rest passes (fabkit/toolpath/roughing.py), against
+closed forms and an independent cut simulation written here.
+
+- A paraboloid bowl H = a rho^2 - d: at level z a flat end mill's tip may stand
+  within rho_z - R of the axis, rho_z = sqrt((z - leave + d) / a) (the region
+  {H + leave > z} dilated by R is the outside of that circle); the levels are the
+  multiples of the stepdown above the bowl's floor + leave; a closed pocket is
+  entered by a helix.
+- A bull nose in the same bowl: the largest allowed radius solved here by bisection
+  on the exact constraint a (rho + t)^2 - d + leave <= z + lift(t), t in [0, R].
+- Every tip position checked by brute force over the disc under the tool.
+- A groove narrower than the flat end mill in the bowl's floor gets rest passes, and
+  an independent height-field simulation of rough + rest shows the finishing ball
+  never engages more than its depth of cut.
+- Spec errors: one line naming the file and key, exit 2, via the CLI.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import yaml
+
+from fabkit.errors import SpecError
+from fabkit.spec import load_spec, validate
+from fabkit.surface import Surface
+from fabkit.toolpath.path import CUT, PLUNGE, RAPID
+from fabkit.toolpath.roughing import (finish_tool, plan_operations, plan_rough, spec_tools)
+from fabkit.toolpath.tools import Tool
+
+from conftest import SPECS, run_cli
+
+A, DEPTH, HALF = 0.01, 30.0, 50.0   # bowl: H = A rho^2 - DEPTH (mm, top 0), footprint 100 x 100 mm
+
+
+def bowl_raw(height=f"{A}*(x**2 + y**2) - {DEPTH}", tools=None, roughing=None, **machining):
+    raw = {
+        "name": "bowl", "units": "mm",
+        "surface": {"height": height, "x": [-HALF, HALF], "y": [-HALF, HALF], "top": 0.0},
+        "stock": {"thickness": 50.0},
+        "tool": {"shape": "ball", "diameter": 6.35, "number": 2},
+        "tools": tools or [{"number": 1, "shape": "flat", "diameter": 12.7, "reach": 60}],
+        "roughing": roughing or {"tool": 1, "stepdown": 5, "stepover": 6, "leave": 0.5},
+        "machining": {"scallop": 0.1, "tolerance": 0.01, **machining},
+    }
+    return raw
+
+
+def load(tmp_path, raw):
+    p = tmp_path / "spec.yaml"
+    p.write_text(yaml.safe_dump(raw, sort_keys=False))
+    spec = load_spec(p)
+    return spec, Surface.from_spec(spec)
+
+
+def feed_points(tp, step=0.25):
+    """Tip positions along every feed move (CUT and PLUNGE), every ``step`` mm, work mm."""
+    P, K = tp.points, tp.kinds
+    out = []
+    for i in range(1, len(P)):
+        if K[i] not in (CUT, PLUNGE):
+            continue
+        a, b = P[i - 1], P[i]
+        n = max(1, int(math.ceil(np.linalg.norm(b - a) / step)))
+        t = np.linspace(0.0, 1.0, n + 1)[:, None]
+        out.append(a + t * (b - a))
+    return np.vstack(out)
+
+
+def worst_allowance(points, tool: Tool, design, L, W, leave, rings=24, angles=72):
+    """min over tip positions c and stock points q under the tool of
+    z + lift(|q - c|) - (design(q) + leave): >= 0 where the allowance holds. q on
+    rings of the disc (and its centre), inside the footprint only."""
+    R = tool.radius
+    rho = np.r_[0.0, R * np.sqrt(np.linspace(0, 1, rings + 1)[1:])]
+    ang = 2 * np.pi * np.arange(angles) / angles
+    ox = (rho[:, None] * np.cos(ang)[None, :]).ravel()
+    oy = (rho[:, None] * np.sin(ang)[None, :]).ravel()
+    lift = tool.lift(np.hypot(ox, oy))
+    worst = np.inf
+    for a in range(0, len(points), 2000):
+        c = points[a:a + 2000]
+        qx, qy = c[:, :1] + ox, c[:, 1:2] + oy
+        inside = (qx >= 0) & (qx <= L) & (qy >= 0) & (qy <= W)
+        gap = c[:, 2:3] + lift - (np.minimum(design(qx, qy), 0.0) + leave)
+        worst = min(worst, float(np.where(inside, gap, np.inf).min()))
+    return worst
+
+
+def bowl_design(X, Y):
+    """The bowl in work mm (origin at the footprint corner), written here."""
+    return A * ((X - HALF) ** 2 + (Y - HALF) ** 2) - DEPTH
+
+
+def levels_of(tp):
+    z = tp.points[tp.kinds == CUT, 2]
+    return np.unique(np.round(z[z < -1e-9], 6))
+
+
+def test_flat_bowl_levels_region_and_allowance(tmp_path):
+    spec, surf = load(tmp_path, bowl_raw())
+    op = plan_rough(spec, surf)
+    leave, R, step = 0.5, 6.35, 5.0
+    # levels: every stepdown above the floor + leave (-29.5): -5 ... -25
+    expect = [-step * k for k in range(1, 6)]
+    assert op.levels == 5 and op.info["level_z_mm"] == expect
+    assert list(levels_of(op.toolpath)) == sorted(expect)
+    pts = feed_points(op.toolpath)
+    # the allowed region at each level: the disc of radius rho_z - R about the axis
+    for z in expect:
+        at = pts[np.abs(pts[:, 2] - z) < 1e-9]
+        r = np.hypot(at[:, 0] - HALF, at[:, 1] - HALF)
+        rho_z = math.sqrt((z - leave + DEPTH) / A)
+        # the outermost loop on the boundary, short of it by at most the stated vertical
+        # excess over the slope there, the dilation's circumscribed chord and 1 um
+        slack = (op.info["allowance_excess_mm"] / (2 * A * rho_z) + R * (1 / math.cos(math.pi / 64) - 1)
+                 + op.info["loop_inset_mm"] + 1e-3)
+        assert rho_z - R - slack <= r.max() <= rho_z - R + 1e-6, (z, r.max(), rho_z - R)
+    # no tip position leaves less than the allowance; the walls' contacts leave it exactly
+    worst = worst_allowance(pts, op.tool, bowl_design, 2 * HALF, 2 * HALF, leave)
+    chord = R * (1 / math.cos(math.pi / 64) - 1) + op.info["loop_inset_mm"]
+    assert -1e-9 <= worst <= op.info["allowance_excess_mm"] + 2 * A * (HALF + R) * chord + 1e-3
+    # a closed pocket per level: entered by a helix, and the allowance excess stated
+    assert op.info["entries"]["helix"] == 5 and op.info["entries"]["plunge_entries"] == 0
+    assert op.info["allowance_excess_mm"] <= spec.machining.tolerance + 1e-12
+    assert op.info["cusp_mm"] == step
+    # cut length, time by length / feed: recomputed here
+    P, K = op.toolpath.points, op.toolpath.kinds
+    seg = np.linalg.norm(np.diff(P, axis=0), axis=1)
+    cut, plg = seg[K[1:] == CUT].sum(), seg[K[1:] == PLUNGE].sum()
+    assert op.info["cutting_length_mm"] == pytest.approx(cut + plg)
+    assert op.info["time_by_length_feed_s"] == pytest.approx(60 * (cut / 2500 + plg / 600))
+
+
+@pytest.mark.parametrize("strategy,entry", [("offset", "ramp"), ("offset", "plunge"), ("raster", "helix")])
+def test_strategies_and_entries_keep_the_allowance(tmp_path, strategy, entry):
+    rg = {"tool": 1, "stepdown": 5, "stepover": 6, "leave": 0.5, "strategy": strategy, "entry": entry}
+    spec, surf = load(tmp_path, bowl_raw(roughing=rg))
+    op = plan_rough(spec, surf)
+    assert op.levels == 5 and op.info["strategy"] == strategy
+    e = op.info["entries"]
+    if strategy == "offset":
+        # one closed pocket per level, entered as asked
+        assert e["helix"] == 0 and e[{"ramp": "ramp", "plunge": "plunge_entries"}[entry]] == 5
+    else:
+        # rows: a helix has no room at a row's end; the rows not over cleared ground are ramped into
+        assert e["helix"] == 0 and e["ramp"] >= 5
+    pts = feed_points(op.toolpath)
+    assert worst_allowance(pts, op.tool, bowl_design, 2 * HALF, 2 * HALF, 0.5) >= -1e-9
+    # ramps descend at 5 degrees at most
+    P, K = op.toolpath.points, op.toolpath.kinds
+    d = np.diff(P, axis=0)
+    run = np.hypot(d[:, 0], d[:, 1])
+    down = (K[1:] == 2) | ((K[1:] == 1) & (run > 1e-9))
+    slope = -d[down, 2] / np.maximum(run[down], 1e-12)
+    assert slope.max() <= math.tan(math.radians(5.0)) + 1e-6
+
+
+def test_levels_stop_at_the_depth_limit(tmp_path):
+    # the bowl is 30 mm deep; with stock.depth_limit 17 mm the levels stop at -15 and -17
+    raw = bowl_raw()
+    raw["stock"]["depth_limit"] = 17.0
+    spec, surf = load(tmp_path, raw)
+    op = plan_rough(spec, surf)
+    assert op.info["level_z_mm"] == [-5.0, -10.0, -15.0, -17.0] and op.info["stopped_at_limit"]
+    assert op.toolpath.points[:, 2].min() == pytest.approx(-17.0)
+    # the tool's reach binds the same way
+    raw = bowl_raw(tools=[{"number": 1, "shape": "flat", "diameter": 12.7, "reach": 12}])
+    spec, surf = load(tmp_path, raw)
+    assert plan_rough(spec, surf).info["level_z_mm"] == [-5.0, -10.0, -12.0]
+
+
+def bull_radius(z, leave, R, r):
+    """Largest tip radius about the bowl's axis where a bull nose (R, corner r) at level
+    z leaves the allowance: a (rho + t)^2 - d + leave <= z + lift(t) for t in [0, R]
+    (the worst q lies outward along the radius), by bisection on a dense t."""
+    tool = Tool("bull", 2 * R, r)
+    t = np.linspace(0.0, R, 20001)
+    lift = tool.lift(t)
+
+    def ok(rho):
+        return bool(np.all(A * (rho + t) ** 2 - DEPTH + leave <= z + lift))
+
+    lo, hi = 0.0, HALF
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if ok(mid) else (lo, mid)
+    return lo
+
+
+def test_bull_nose_bowl_against_bisection(tmp_path):
+    tools = [{"number": 1, "shape": "bull", "diameter": 12.7, "corner_radius": 3.0, "reach": 60}]
+    spec, surf = load(tmp_path, bowl_raw(tools=tools))
+    op = plan_rough(spec, surf)
+    pts = feed_points(op.toolpath)
+    excess = op.info["allowance_excess_mm"]
+    assert excess <= 3.0 / 24 + spec.machining.tolerance + 1e-12
+    for z in op.info["level_z_mm"]:
+        at = pts[np.abs(pts[:, 2] - z) < 1e-9]
+        r = np.hypot(at[:, 0] - HALF, at[:, 1] - HALF).max()
+        exact = bull_radius(z, 0.5, 6.35, 3.0)
+        # never beyond the exact radius; and the tool standing there leaves at most the
+        # stated excess (plus the dilation's chord on the slope) above the allowance
+        assert r <= exact + 1e-6, (z, r, exact)
+        t = np.linspace(0.0, 6.35, 20001)
+        gap = float(np.min(z + Tool("bull", 12.7, 3.0).lift(t) - (A * (r + t) ** 2 - DEPTH + 0.5)))
+        chord = 2 * A * (r + 6.35) * (6.35 * (1 / math.cos(math.pi / 64) - 1) + op.info["loop_inset_mm"])
+        assert -1e-9 <= gap <= excess + chord + 1e-3, (z, gap, excess)
+    assert worst_allowance(pts, op.tool, bowl_design, 2 * HALF, 2 * HALF, 0.5) >= -1e-9
+    # a bull nose leaves a cusp between loops when the stepover exceeds its flat: 6 > 2 x 3.35: none
+    assert op.info["cusp_mm"] == pytest.approx(5.0)
+
+
+def test_open_pocket_entered_from_outside(tmp_path):
+    # a plane falling to the x = 0 edge: the pocket opens beyond the stock; no helix
+    spec, surf = load(tmp_path, bowl_raw(height="-0.2*(50 - x)"))
+    op = plan_rough(spec, surf)
+    assert op.info["entries"]["helix"] == 0 and op.info["entries"]["from_outside"] == op.levels
+    # H = -0.2 (100 - X) - ... in work mm: H(X) = -0.2 (100 - X); allowed X <= X_z - R,
+    # X_z where H + leave = z: X_z = 100 + (z - leave) / 0.2
+    pts = feed_points(op.toolpath)
+    for z in op.info["level_z_mm"]:
+        at = pts[np.abs(pts[:, 2] - z) < 1e-9]
+        at = at[(at[:, 1] >= 0) & (at[:, 1] <= 100)]    # beyond, the disc overhangs the side
+        xz = 100 + (z - 0.5) / 0.2
+        slack = (op.info["allowance_excess_mm"] / 0.2 + 6.35 * (1 / math.cos(math.pi / 64) - 1)
+                 + op.info["loop_inset_mm"] + 1e-3)
+        assert xz - 6.35 - slack <= at[:, 0].max() <= xz - 6.35 + 1e-6
+    design = lambda X, Y: -0.2 * (100 - X)
+    assert worst_allowance(pts, op.tool, design, 100, 100, 0.5) >= -1e-9
+    # the levels: 20 mm deep at X = 0, floor + leave at -19.5: -5, -10, -15
+    assert op.levels == 3
+
+
+def _under(pts, h, n, R):
+    """Grid nodes (step h, n x n) within R of each tip: (ii, jj, rho), exact distances."""
+    m = int(math.ceil(R / h)) + 1
+    di, dj = np.meshgrid(np.arange(-m, m + 1), np.arange(-m, m + 1), indexing="ij")
+    ii = np.rint(pts[:, 1:2] / h).astype(int) + di.ravel()
+    jj = np.rint(pts[:, 0:1] / h).astype(int) + dj.ravel()
+    rho = np.hypot(jj * h - pts[:, 0:1], ii * h - pts[:, 1:2])
+    ok = (rho <= R) & (ii >= 0) & (ii < n) & (jj >= 0) & (jj < n)
+    return ii, jj, rho, ok
+
+
+def simulate(ops, n, h, rapid_hits=None):
+    """Independent height-field cut simulation: the stock's top at the nodes of a grid
+    of step h after the operations' feed moves (sampled every h/2), each tool's own
+    shape (tip + lift at the exact distance), in the program's order. ``rapid_hits``
+    (a list): the most material (mm) any rapid move's tool meets, per operation."""
+    S = np.zeros((n, n))
+    for op in ops:
+        P, K = op.toolpath.points, op.toolpath.kinds
+        rapid = K == RAPID
+        # batches of consecutive moves of one class (feed or rapid), in order
+        cuts = np.nonzero(np.diff(np.r_[-1, rapid[1:].astype(int)]))[0] + 1
+        bounds = list(cuts) + [len(P)]
+        worst = 0.0
+        R = op.tool.radius
+        for a, b in zip(bounds[:-1], bounds[1:]):
+            segs = []
+            for i in range(a, b):
+                p0, p1 = P[i - 1], P[i]
+                k = max(1, int(math.ceil(np.linalg.norm(p1 - p0) / (h / 2))))
+                t = np.linspace(0.0, 1.0, k + 1)[:, None]
+                segs.append(p0 + t * (p1 - p0))
+            c = np.vstack(segs)
+            for lo in range(0, len(c), 2000):
+                cc = c[lo:lo + 2000]
+                ii, jj, rho, ok = _under(cc, h, n, R)
+                z = cc[:, 2:3] + op.tool.lift(np.minimum(rho, R))
+                if rapid[a]:
+                    top = S[np.clip(ii, 0, n - 1), np.clip(jj, 0, n - 1)]
+                    worst = max(worst, float(np.where(ok, top - z, 0.0).max()))
+                else:
+                    np.minimum.at(S, (ii[ok], jj[ok]), z[ok])
+        if rapid_hits is not None:
+            rapid_hits.append(worst)
+    return S
+
+
+def engagement(S, h, tp, tool):
+    """The most material (mm, vertical) the tool removes at any node under it along the
+    toolpath ``tp`` from the stock S: max of S(q) - (tip + lift(|q - c|)), the stock's
+    thickness it cuts through (0 where it cuts nothing). The stock is updated as it goes."""
+    S = S.copy()
+    n = len(S)
+    pts = feed_points(tp, step=h / 2)
+    worst = 0.0
+    for a in range(0, len(pts), 500):
+        c = pts[a:a + 500]
+        ii, jj, rho, ok = _under(c, h, n, tool.radius)
+        z = c[:, 2:3] + tool.lift(np.minimum(rho, tool.radius))
+        top = S[np.clip(ii, 0, n - 1), np.clip(jj, 0, n - 1)]
+        worst = max(worst, float(np.where(ok, top - z, 0.0).max()))
+        np.minimum.at(S, (ii[ok], jj[ok]), z[ok])
+    return worst
+
+
+def test_groove_narrower_than_the_tool_gets_rest_passes(tmp_path):
+    from fabkit.toolpath.raster import plan_toolpath
+
+    # the bowl with a groove 4 mm wide (1/e half width 2 mm) and 12 mm deep along y in its floor
+    height = f"{A}*(x**2 + y**2) - {DEPTH} - 12*exp(-(x/2)**2)"
+    spec, surf = load(tmp_path, bowl_raw(height=height))
+    finish = plan_toolpath(spec, surf)
+    ops = plan_operations(spec, surf, finish)
+    assert [o.kind for o in ops] == ["rough", "rest"]
+    rough, rest = ops
+    assert rest.tool == finish_tool(spec)
+    # the rest passes cut in the groove, below everything the roughing reached there
+    rp = feed_points(rest.toolpath)
+    groove = np.abs(rp[:, 0] - HALF) < 2.0
+    assert groove.any()
+    rough_pts = feed_points(rough.toolpath)
+    near = np.abs(rough_pts[:, 0] - HALF) < 2.0
+    assert rp[groove, 2].min() < rough_pts[near, 2].min() - 5.0
+    # the rest ball leaves the allowance too (brute force over its disc)
+    design = lambda X, Y: bowl_design(X, Y) - 12 * np.exp(-((X - HALF) / 2) ** 2)
+    assert worst_allowance(rp, rest.tool, design, 100, 100, 0.5) >= -spec.machining.tolerance
+    assert worst_allowance(rough_pts, rough.tool, design, 100, 100, 0.5) >= -1e-9
+    # independent simulation: after rough + rest the finishing ball cuts through at most
+    # its depth of cut of stock anywhere; after the rough alone it would cut more
+    h = 0.25
+    n = int(round(100 / h)) + 1
+    fb = finish_tool(spec)
+    hits = []
+    S = simulate(ops, n, h, hits)
+    assert engagement(S, h, finish, fb) <= spec.tool.depth_of_cut + 0.05
+    # no rapid move of the rough or the rest meets material (links above the level
+    # above or the roughed stock's drop)
+    assert max(hits) <= 1e-9, hits
+    S1 = simulate([rough], n, h)
+    assert engagement(S1, h, finish, fb) > spec.tool.depth_of_cut + 1.0
+    assert engagement(S1, h, finish, fb) > spec.tool.depth_of_cut + 1.0
+
+
+def test_spec_tools_and_finish_tool(tmp_path):
+    tools = [{"number": 1, "shape": "flat", "diameter": "1/2 in", "reach": 70, "feed": 3000},
+             {"number": 3, "shape": "bull", "diameter": 6, "corner_radius": 1, "depth_of_cut": 4}]
+    spec, _ = load(tmp_path, bowl_raw(tools=tools))
+    t = spec_tools(spec)
+    assert set(t) == {1, 2, 3}
+    assert t[1] == Tool("flat", 12.7, 0.0, reach=70.0, number=1, feed=3000.0)
+    assert t[3].corner_radius == 1.0 and spec.tools[1].depth_of_cut == 4.0
+    assert spec.tools[0].depth_of_cut == pytest.approx(12.7)       # default: the diameter
+    assert spec.tool.depth_of_cut == pytest.approx(6.35)
+    assert finish_tool(spec) == Tool.ball(6.35, reach=math.inf, number=2)
+    assert spec.roughing.stepover == 6.0 and spec.roughing.rest is None
+    raw = bowl_raw(roughing={"tool": 1, "stepdown": 5})
+    spec2, _ = load(tmp_path, raw)
+    assert spec2.roughing.stepover == pytest.approx(0.45 * 12.7)
+    assert spec2.roughing.entry == "helix" and spec2.roughing.strategy == "offset"
+
+
+def test_list_keys_cannot_be_overridden(tmp_path):
+    spec, _ = load(tmp_path, bowl_raw())
+    with pytest.raises(SpecError) as e:
+        spec.with_overrides({"tools.diameter": 10})
+    assert e.value.key == "tools.diameter"
+    assert spec.with_overrides({"roughing.stepdown": 4}).roughing.stepdown == 4.0
+
+
+def test_spec_without_roughing_is_unchanged():
+    raw = yaml.safe_load((SPECS / "surface.yaml").read_text())
+    spec = validate(raw, "surface.yaml")
+    assert not spec.has("roughing") and not spec.has("tools")
+    assert spec.tool.depth_of_cut == pytest.approx(6.35)
+
+
+BAD = [
+    ({"tools": [{"number": 1, "shape": "flat", "diameter": -1}]}, "tools[0].diameter", "must be > 0"),
+    ({"tools": [{"number": 1, "shape": "flat", "diameter": 12}, {"number": 1, "shape": "ball", "diameter": 3}]},
+     "tools[1].number", "already tools[0].number"),
+    ({"tools": [{"number": 2, "shape": "flat", "diameter": 12}]}, "tools[0].number", "already tool.number"),
+    ({"tools": [{"number": 1, "shape": "bull", "diameter": 6, "corner_radius": 4}]},
+     "tools[0].corner_radius", "<= diameter/2"),
+    ({"tools": [{"number": 1, "shape": "bull", "diameter": 6}]}, "tools[0].corner_radius", "needs"),
+    ({"tools": [{"number": 1, "shape": "flat", "diameter": 12, "colour": "red"}]}, "tools[0].colour", "unknown key"),
+    ({"tools": ["flat"]}, "tools[0]", "must be a mapping"),
+    ({"tools": {"number": 1}}, "tools", "list of mappings"),
+    ({"roughing": {"tool": 7, "stepdown": 5}}, "roughing.tool", "not in `tools`"),
+    ({"roughing": {"tool": 1, "stepdown": 5, "rest": [9]}}, "roughing.rest[0]", "not in `tools`"),
+    ({"roughing": {"tool": 1, "stepdown": 13}}, "roughing.stepdown", "depth_of_cut"),
+    ({"roughing": {"tool": 1, "stepdown": 5, "entry": "dive"}}, "roughing.entry", "helix | ramp | plunge"),
+    ({"machining": {"stepdown": 3}}, "roughing", "exclusive"),
+]
+
+
+@pytest.mark.parametrize("change,key,words", BAD, ids=[b[1] for b in BAD])
+def test_spec_errors_one_line_exit_2(tmp_path, change, key, words):
+    raw = bowl_raw()
+    for sec, body in change.items():
+        if isinstance(body, dict) and isinstance(raw.get(sec), dict):
+            raw[sec] = {**raw[sec], **body}
+        else:
+            raw[sec] = body
+    p = tmp_path / "bad.yaml"
+    p.write_text(yaml.safe_dump(raw, sort_keys=False))
+    with pytest.raises(SpecError) as e:
+        load_spec(p)
+    assert e.value.key == key and words in e.value.detail
+    out_dir = tmp_path / "out"
+    code, out, err = run_cli(["gcode", p, "--out", out_dir])
+    assert code == 2
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and f"{p}: {key}: " in lines[0], err
+    assert not out_dir.exists() or not any(out_dir.iterdir())
