@@ -111,3 +111,28 @@ def test_the_compile_notice_becomes_the_running_stage(small, monkeypatch):
     assert "\ncompiling" not in err and not err.startswith("compiling")
     code, out, err = _run(["sweep", small, "--v-in", "30", "80", "16", "--no-progress"], Terminal())
     assert code == 0 and err == "compiling the simulator for this surface (once, about 20 s)\n"
+
+
+def test_a_launch_bar_never_reads_100_percent_while_the_refinement_runs(monkeypatch):
+    """explore and phi4's sweep launch more than they estimate (the refinement): the bar's
+    total moves ahead of the count and the bar says it is refining, instead of sitting at
+    100 % for tens of seconds."""
+    import re
+    import sys
+
+    from fabkit.commands import _common
+
+    monkeypatch.setattr(_common, "BAR_DELAY_S", 0.0)
+    err = Terminal()
+    monkeypatch.setattr(sys, "stderr", err)
+    cb, close = _common.progress_bar(10, False, "explore")
+    import time
+
+    for done in (4, 10, 13, 20, 31):
+        time.sleep(0.12)          # tqdm redraws at most every 0.1 s
+        cb(done)
+    close()
+    frames = [f for f in err.getvalue().replace("\r", "\n").split("\n") if "%" in f]
+    percents = [int(m.group(1)) for f in frames for m in [re.search(r"(\d+)%", f)] if m]
+    assert percents and max(percents) < 100, frames
+    assert any("explore: refining" in f and "31/" in f for f in frames), frames

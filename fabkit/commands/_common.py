@@ -181,14 +181,18 @@ def progress_bar(total: int, disabled: bool, desc: str, unit: str = "launch"):
         return None, lambda: None
     from tqdm import tqdm
 
-    bar = tqdm(total=max(1, int(total)), desc=desc, unit=unit, file=sys.stderr, delay=2.0, leave=False)
+    bar = tqdm(total=max(1, int(total)), desc=desc, unit=unit, file=sys.stderr, delay=BAR_DELAY_S, leave=False)
     lock = threading.Lock()
 
     def cb(done, _total=None):
         with lock:
             done = int(done)
-            if done > bar.total:
-                bar.total = done
+            if done >= bar.total:
+                # more launches than estimated: the refinement runs. The bar must not sit at
+                # 100 % while work goes on, so the total moves ahead of the count and the bar
+                # names the stage (the true total is unknown until the refinement ends)
+                bar.total = max(done + 1, int(done * 1.25))
+                bar.set_description_str(f"{desc}: refining", refresh=False)
             bar.update(max(0, done - bar.n))
 
     return cb, bar.close
