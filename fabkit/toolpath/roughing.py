@@ -521,7 +521,11 @@ def plan_rough(spec, surface, tool: Tool | None = None, *, ws=None, sets=None, t
         "entries": {k2: fig[k2] for k2 in ("helix", "ramp", "plunge_entries", "from_outside", "from_cleared")},
         "links": {"low": fig["lifts_low"], "safe_height": fig["lifts_safe"]},
         "grid_step_mm": float(max(sets.hx, sets.hy)), "level_set_error_mm": 2 * sets.err,
-        "allowance_excess_mm": 2 * sets.err + delta, "loop_inset_mm": 2 * simp, "depth_limit_mm": lim,
+        "allowance_excess_mm": 2 * sets.err + delta, "loop_inset_mm": 2 * simp,
+        # horizontal: the dilations' circumscribed polygons and the loops' inset keep the
+        # tool up to this much farther from the level set than it could stand; on a wall of
+        # slope m the material left grows by m times it (the stock check adds it)
+        "allowance_offset_mm": R * (1.0 / math.cos(math.pi / (4 * QUAD_SEGS)) - 1.0) + 2 * simp, "depth_limit_mm": lim,
         "stopped_at_limit": bool(levels and levels[-1] <= -lim + 1e-9 and bottom < -lim),
         "plan_seconds": time.process_time() - t0,
     })
@@ -769,13 +773,14 @@ def stock_after(rough: Operation) -> np.ndarray:
     return maximum_filter(S, size=3, mode="nearest")
 
 
-def drop_on_grid(S, x, y, X, Y, tool: Tool) -> np.ndarray:
+def drop_on_grid(S, x, y, X, Y, tool: Tool, slack: float = 0.0) -> np.ndarray:
     """The tip height at which ``tool`` standing at (X, Y) first touches the stock
     height field S (grid x, y; no material beyond it): max over grid nodes q within
     the tool's radius + one cell diagonal of S(q) - lift(|q - c| - diagonal), an
-    upper bound of the exact drop (the node stands for its cell). -inf: no material."""
+    upper bound of the exact drop (the node stands for its cell). -inf: no material.
+    ``slack`` (mm): the bound holds for every centre within it of (X, Y) too."""
     hx, hy = x[1] - x[0], y[1] - y[0]
-    diag = math.hypot(hx, hy)
+    diag = math.hypot(hx, hy) + slack
     R = tool.radius
     ni, nj = int(math.ceil((R + diag) / hy)), int(math.ceil((R + diag) / hx))
     di, dj = np.meshgrid(np.arange(-ni, ni + 1), np.arange(-nj, nj + 1), indexing="ij")
@@ -888,10 +893,15 @@ def plan_rest(spec, surface, rough: Operation, finish: Toolpath, *, ws=None) -> 
             zone = keep & np.isfinite(Z) & np.isfinite(Sb) & (Sb - (Z + leave) > threshold)
         # the grid's bound is loose beside the levels' walls: where it asks for rest
         # passes, the drop onto the levels' polygons instead (exact to their chords)
+        # (the drop onto the levels skips the levels that cannot lift it above the zone's
+        # threshold: below the threshold it is no bound; there the grid's bound stays, as
+        # the links and the descent to a run's start need an upper bound of the stock)
         if zone.any():
-            Sb[zone] = drop_on_levels(rough, ws, X[zone], Y[zone], tool, (Z + leave + threshold)[zone])
+            d = drop_on_levels(rough, ws, X[zone], Y[zone], tool, (Z + leave + threshold)[zone])
             with np.errstate(invalid="ignore"):
-                zone &= Sb - (Z + leave) > threshold
+                hit = d - (Z + leave)[zone] > threshold
+            Sb[zone] = np.where(hit, d, Sb[zone])
+            zone[zone] = hit
         # one node more on either side: the finish's own points lie between the nodes
         # (1 mm apart), and across a groove the material it meets changes within one
         ok = keep & np.isfinite(Z) & np.isfinite(Sb)
@@ -971,7 +981,7 @@ def plan_rest(spec, surface, rough: Operation, finish: Toolpath, *, ws=None) -> 
             "entry": "plunge (into ground the rest ball's drop shows clear above the cut)",
             "links": {"low": fig_low, "safe_height": len(runs) - 1 - fig_low},
             "zone_threshold_mm": threshold, "zone_positions": int(zone.sum()),
-            "depth_of_cut_mm": doc, "stock_grid_step_mm": float(max(x[1] - x[0], y[1] - y[0])),
+            "depth_of_cut_mm": doc, "finish_depth_of_cut_mm": doc_f, "stock_grid_step_mm": float(max(x[1] - x[0], y[1] - y[0])),
             "plan_seconds": time.process_time() - t0,
         })
         tp.info = info
@@ -1043,7 +1053,8 @@ def _link_heights(S, x, y, runs, tool, clr, step=1.0):
         own.append(np.full(k, n))
     if not XS:
         return out
-    drop = drop_on_grid(S, x, y, np.concatenate(XS), np.concatenate(YS), tool)
+    # samples at most ``step`` apart: every centre of the link within step/2 of one
+    drop = drop_on_grid(S, x, y, np.concatenate(XS), np.concatenate(YS), tool, slack=0.5 * step)
     high = np.full(len(runs), -np.inf)
     np.maximum.at(high, np.concatenate(own), drop)
     for n in range(1, len(runs)):

@@ -449,24 +449,40 @@ def verify_job(surface, operations, tolerance: float, *, spacing: float | None =
         gouge = float(-above.flat[ig])
         removed = before - z
         irm = int(np.argmax(removed))
+        extra_v = extra_h = 0.0
+        fin_doc = (depth_of_cut or {}).get("finish", op.info.get("finish_depth_of_cut"))
         if op.kind == "finish":
             allowed = float(scallop if scallop is not None else op.info.get("scallop", 0.0))
             leave, cusp = 0.0, allowed
+        elif op.kind == "rest" and fin_doc is not None:
+            # rest passes cut only where the roughing tool could not reach: elsewhere its
+            # staircase stays. What they owe the finish: at most the finishing tool's depth
+            # of cut where their tool reaches (and never less than the allowance)
+            leave = float(op.leave)
+            cusp = max(float(fin_doc) - leave, 0.0)
         else:
             leave = float(op.leave)
             cusp = float(op.info.get("cusp", op.info.get("stepdown", 0.0)))
-        lo, hi = leave - tol, leave + cusp + tol
+            # the planner's stated allowance error: vertical, and horizontal (times the slope)
+            extra_v = float(op.info.get("allowance_excess", 0.0))
+            extra_h = float(op.info.get("allowance_offset", 0.0))
+        lo, hi = leave - tol, leave + cusp + extra_v + tol
+        slack = cusp + tol + extra_v
+        if extra_h > 0:
+            from scipy.ndimage import maximum_filter
+
+            slack = slack + extra_h * maximum_filter(np.hypot(gx, gy), size=3, mode="nearest")
         # the target is design + leave, clipped at the top face (no material above it);
-        # the bounds hold relative to the target: [T - tol, T + cusp + tol] - design
+        # the bounds hold relative to the target: [T - tol, T + slack] - design
         target = np.minimum(dz + leave, 0.0)
         want = target - dz
-        lo_n, hi_n = want - tol, want + cusp + tol
+        lo_n, hi_n = want - tol, want + slack
         # material above the bound is excused where the tool cannot reach the target:
-        # the allowance then holds above the tool's reach (z - max(T, reach) <= cusp + tol)
+        # the allowance then holds above the tool's reach (z - max(T, reach) <= slack)
         high = above * (normal_scale if op.kind == "finish" else 1.0) > hi_n
         reach = reach_height(target, stock, op.tool, high)
         scale = normal_scale if op.kind == "finish" else 1.0
-        excess = np.where(high, (z - np.fmax(target, reach)) * scale - (cusp + tol), -np.inf)
+        excess = np.where(high, (z - np.fmax(target, reach)) * scale - slack, -np.inf)
         over = high & (excess > 0)
         unre = high & ~over
         low = above < lo_n
@@ -506,7 +522,8 @@ def verify_job(surface, operations, tolerance: float, *, spacing: float | None =
                             f"Y{_at(stock, k)[1]:.3f}, below the allowance's bound {float(lo_n.flat[k]):.4f} mm")
         if over.any():
             failures.append(f"{name}: material left {rep.over_reachable:.4f} mm above its bound ({hi:.4f} mm "
-                            f"above the design) where the tool reaches, at X{rep.over_at[0]:.3f} "
+                            + (f"+ {extra_h:.4f} x the slope " if extra_h > 0 else "")
+                            + f"above the design) where the tool reaches, at X{rep.over_at[0]:.3f} "
                             f"Y{rep.over_at[1]:.3f}, over {rep.over_area:.1f} mm^2")
         if limit is not None and rep.max_removed > limit + 1e-9:
             failures.append(f"{name}: removes {rep.max_removed:.3f} mm at X{rep.removed_at[0]:.3f} "
