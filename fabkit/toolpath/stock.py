@@ -468,10 +468,16 @@ def verify_job(surface, operations, tolerance: float, *, spacing: float | None =
             extra_h = float(op.info.get("allowance_offset", 0.0))
         lo, hi = leave - tol, leave + cusp + extra_v + tol
         slack = cusp + tol + extra_v
-        if extra_h > 0:
+        reach_err = 0.0
+        if op.kind != "finish":
             from scipy.ndimage import maximum_filter
 
-            slack = slack + extra_h * maximum_filter(np.hypot(gx, gy), size=3, mode="nearest")
+            slope = maximum_filter(np.hypot(gx, gy), size=3, mode="nearest")
+            slack = slack + extra_h * slope
+            # the reach takes contacts at the nodes only: a flat bottom's rim or a corner
+            # touching a wall between nodes is missed, the reach up to the slope x half a
+            # cell's diagonal too low (not the finish's: its bound stays the chordal one)
+            reach_err = slope * 0.5 * math.hypot(stock.hx, stock.hy)
         # the target is design + leave, clipped at the top face (no material above it);
         # the bounds hold relative to the target: [T - tol, T + slack] - design
         target = np.minimum(dz + leave, 0.0)
@@ -482,7 +488,7 @@ def verify_job(surface, operations, tolerance: float, *, spacing: float | None =
         high = above * (normal_scale if op.kind == "finish" else 1.0) > hi_n
         reach = reach_height(target, stock, op.tool, high)
         scale = normal_scale if op.kind == "finish" else 1.0
-        excess = np.where(high, (z - np.fmax(target, reach)) * scale - slack, -np.inf)
+        excess = np.where(high, (z - np.fmax(target, reach + reach_err)) * scale - slack, -np.inf)
         over = high & (excess > 0)
         unre = high & ~over
         low = above < lo_n
@@ -525,7 +531,12 @@ def verify_job(surface, operations, tolerance: float, *, spacing: float | None =
                             + (f"+ {extra_h:.4f} x the slope " if extra_h > 0 else "")
                             + f"above the design) where the tool reaches, at X{rep.over_at[0]:.3f} "
                             f"Y{rep.over_at[1]:.3f}, over {rep.over_area:.1f} mm^2")
-        if limit is not None and rep.max_removed > limit + 1e-9:
+        if limit is not None and op.kind == "rest":
+            # rest passes cut in Z levels: what one move removes at a node is their depth of cut
+            if rep.max_engagement > limit + 1e-9:
+                failures.append(f"{name}: one move (number {res.engagement_at}) removes {rep.max_engagement:.3f} mm "
+                                f"at a node, more than its depth of cut {limit:g} mm")
+        elif limit is not None and rep.max_removed > limit + 1e-9:
             failures.append(f"{name}: removes {rep.max_removed:.3f} mm at X{rep.removed_at[0]:.3f} "
                             f"Y{rep.removed_at[1]:.3f}, more than its depth of cut {limit:g} mm")
         if rep.deepest_cut > op.tool.reach + 1e-9:
