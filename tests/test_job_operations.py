@@ -295,6 +295,10 @@ def test_gcode_json_keeps_every_key(cli, tmp_path, monkeypatch):
     fake.plan_operations = lambda spec, surface, finish: _rough_ops()
     fake.finish_tool = lambda spec: Tool.ball(spec.tool.diameter, number=spec.tool.number)
     monkeypatch.setitem(sys.modules, "fabkit.toolpath.roughing", fake)
+    import fabkit.toolpath as pkg
+
+    # `from . import roughing` takes the package's attribute once the real module was imported
+    monkeypatch.setattr(pkg, "roughing", fake, raising=False)
     monkeypatch.setattr(job, "has_roughing", lambda spec: True)
     monkeypatch.setattr(job, "_stock_verification", lambda spec, surface, ops, readback: (None, {}))
     code, out, err = cli("gcode", spec, "-o", "two.ngc", "--json")

@@ -75,11 +75,12 @@ __all__ = ["spec_tools", "finish_tool", "depth_of_cut", "plan_operations", "plan
 
 ENTRY_ANGLE_DEG = 5.0       # helix and ramp descent angle (foam and wood: 3-10 degrees)
 HELIX_FRACTION = 0.5        # helix radius: at most this x the tool radius
-QUAD_SEGS = 16              # polygon segments per quarter circle in the dilations
+QUAD_SEGS = 32              # polygon segments per quarter circle in the dilations
 LADDER_MAX = 24             # lift steps of a bull nose / ball allowance
 GRID_MAX_NODES = 1_500_000  # the design grid of the level sets
 LINK_CLEARANCE = 1.0        # mm above the level above for links and the start of entries
 HELIX_SEGS = 24             # points per helix turn
+LOOP_INSET = 1.0            # x machining.tolerance: loops eroded by it and simplified within it
 
 
 # ----------------------------------------------------------------------------
@@ -396,7 +397,7 @@ def plan_rough(spec, surface, tool: Tool | None = None, *, ws=None, sets=None, t
         levels.append(z)
         k += 1
     e_out = max(0.0, R - 0.5 * s)
-    simp = tolerance          # loops eroded by it and simplified within it (_rings)
+    simp = LOOP_INSET * tolerance     # loops eroded by it and simplified within it (_rings)
     F = box(0.0, 0.0, L, W)
     outer = box(-e_out, -e_out, L + e_out, W + e_out)
     big = box(-10 * R - L, -10 * R - W, 2 * L + 10 * R, 2 * W + 10 * R)

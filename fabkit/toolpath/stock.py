@@ -23,13 +23,19 @@ design surface (:class:`~fabkit.toolpath.compensate.WorkSurface`, min(H, 0), as
 :func:`~fabkit.toolpath.verify.verify_cut` uses):
 
 * gouge: stock below the design by more than the tolerance, after any operation;
-* roughing and rest: material above the design within [leave - tolerance,
-  leave + cusp + tolerance] where the operation's tool reaches design + leave (cusp:
-  ``info["cusp"]``, the Z-level staircase plus the stepover cusp; else
-  ``info["stepdown"]``); above it where the tool cannot reach is reported apart;
+* roughing: material above the design within [leave - tolerance, leave + cusp +
+  tolerance + the planner's stated allowance error] where the operation's tool reaches
+  design + leave (cusp: ``info["cusp"]``, the Z-level staircase plus the stepover cusp;
+  else ``info["stepdown"]``; the error: ``info["allowance_excess"]`` vertical plus
+  ``info["allowance_offset"]`` x the design's slope); above it where the tool cannot
+  reach is reported apart;
+* rest: material above the design within [leave - tolerance, the finishing tool's depth
+  of cut + tolerance] where the rest tool reaches design + leave (rest passes leave the
+  roughing's staircase where the roughing tool reached);
 * finishing: material left at most scallop + tolerance where the ball reaches;
-* per operation the largest thickness it removes at a node (and the largest one move
-  removes) against the tool's allowed depth of cut when one is given.
+* per operation the largest thickness it removes at a node (for rest passes, in Z
+  levels: the largest one move removes) against the tool's allowed depth of cut when
+  one is given.
 
 Where a tool "reaches" is the grey-scale opening of the target surface by the tool
 over the grid nodes (:func:`~fabkit.toolpath.stock_kernels.reach_at`): centres and
