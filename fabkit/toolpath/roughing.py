@@ -50,7 +50,9 @@ Z levels of its depth of cut less the cusp between its passes, tip at
 max(level, design contact + leave), only where its drop onto the roughed stock
 stands more than min(stepdown, finish depth_of_cut - leave) + tolerance above the
 allowance (a grid bound, then the exact drop onto the levels' polygons; one node
-either side): the valleys and corners the roughing tool could not reach. A ball's
+either side), and, either side of a finishing pass between two rest passes, where that
+pass would engage more than the finishing depth of cut: the valleys and corners the
+roughing tool could not reach, and staircases deeper than the finish may cut. A ball's
 engagement is the stock's thickness it cuts through, max over q under it of
 S(q) - (tip + lift(|q - c|)): elsewhere the finishing ball's is at most leave + that
 threshold <= its depth of cut; where the rest passes ran, leave + their cusp.
@@ -903,6 +905,10 @@ def plan_rest(spec, surface, rough: Operation, finish: Toolpath, *, ws=None) -> 
                 hit = d - (Z + leave)[zone] > threshold
             Sb[zone] = np.where(hit, d, Sb[zone])
             zone[zone] = hit
+        if is_fin and len(sel) < len(V):
+            # the passes between: where the finishing ball would engage more than its depth of cut
+            zone |= keep & np.isfinite(Z) & np.isfinite(Sb) & _between_zone(
+                plan, fr, sel, V, ug, S, x, y, tool, rough, ws, leave, doc_f - leave)
         # one node more on either side: the finish's own points lie between the nodes
         # (1 mm apart), and across a groove the material it meets changes within one
         ok = keep & np.isfinite(Z) & np.isfinite(Sb)
@@ -988,6 +994,39 @@ def plan_rest(spec, surface, rough: Operation, finish: Toolpath, *, ws=None) -> 
         tp.info = info
         ops.append(Operation("rest", tool, tp, leave=leave, levels=levels_cut, passes=len(runs), info=info))
     return ops
+
+
+def _between_zone(plan, fr, sel, V, ug, S, x, y, tool, rough, ws, leave, threshold):
+    """The zone asked by the finishing passes between the selected ones (sel): the
+    finishing ball's drop at a position is not continuous across a steep wall, so a pass
+    between two rest passes can meet more than the threshold where neither of them does
+    (``threshold``: finish depth_of_cut - leave, the ball's engagement past its depth of
+    cut; with roughing.stepdown 12.7 mm on the paper, 7.0 mm without this).
+    Such a node marks the rest passes either side of its pass (at the same node of the
+    common pass grid ``ug``). Returns a (len(sel), len(ug)) mask."""
+    others = np.setdiff1d(np.arange(len(V)), np.asarray(sel))
+    out = np.zeros((len(sel), len(ug)), bool)
+    if not len(others):
+        return out
+    U = np.broadcast_to(ug, (len(others), len(ug)))
+    X, Y = fr.xy(U, np.broadcast_to(V[others][:, None], U.shape))
+    X, Y = np.ascontiguousarray(X, float), np.ascontiguousarray(Y, float)
+    Z = np.vstack([plan.passes[i].Z for i in others])
+    keep = np.vstack([plan.passes[i].keep for i in others])
+    Sb = drop_on_grid(S, x, y, X, Y, tool)
+    with np.errstate(invalid="ignore"):
+        z = keep & np.isfinite(Z) & np.isfinite(Sb) & (Sb - (Z + leave) > threshold)
+    if z.any():
+        d = drop_on_levels(rough, ws, X[z], Y[z], tool, (Z + leave + threshold)[z])
+        with np.errstate(invalid="ignore"):
+            z[z] = d - (Z + leave)[z] > threshold
+    hi = np.searchsorted(np.asarray(sel), others)           # the selected pass after each
+    for row in np.nonzero(z.any(axis=1))[0]:
+        h = int(hi[row])
+        for r in (h - 1, h):
+            if 0 <= r < len(sel):
+                out[r] |= z[row]
+    return out
 
 
 def _refine_runs(ws, runs, Rr, leave, lim, tolerance, rounds=8):
