@@ -408,7 +408,8 @@ def job_figures(operations, programs, profile, machine=None, raster_axis: int | 
 _ROUGHING_KINDS = ("rough", "rest")
 #: Operation.info keys the stock simulation reads (bounds of the allowance, depth of cut),
 #: also given by the roughing planner with a "_mm" suffix
-_STOCK_INFO_KEYS = ("cusp", "stepdown", "depth_of_cut", "leave")
+_STOCK_INFO_KEYS = ("cusp", "stepdown", "depth_of_cut", "leave", "allowance_excess", "allowance_offset",
+                    "finish_depth_of_cut")
 
 
 def _stock_verification(spec, surface, operations, readback):

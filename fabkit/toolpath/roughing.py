@@ -50,7 +50,9 @@ Z levels of its depth of cut less the cusp between its passes, tip at
 max(level, design contact + leave), only where its drop onto the roughed stock
 stands more than min(stepdown, finish depth_of_cut - leave) + tolerance above the
 allowance (a grid bound, then the exact drop onto the levels' polygons; one node
-either side): the valleys and corners the roughing tool could not reach. A ball's
+either side), and, either side of a finishing pass between two rest passes, where that
+pass would engage more than the finishing depth of cut: the valleys and corners the
+roughing tool could not reach, and staircases deeper than the finish may cut. A ball's
 engagement is the stock's thickness it cuts through, max over q under it of
 S(q) - (tip + lift(|q - c|)): elsewhere the finishing ball's is at most leave + that
 threshold <= its depth of cut; where the rest passes ran, leave + their cusp.
@@ -75,11 +77,12 @@ __all__ = ["spec_tools", "finish_tool", "depth_of_cut", "plan_operations", "plan
 
 ENTRY_ANGLE_DEG = 5.0       # helix and ramp descent angle (foam and wood: 3-10 degrees)
 HELIX_FRACTION = 0.5        # helix radius: at most this x the tool radius
-QUAD_SEGS = 16              # polygon segments per quarter circle in the dilations
+QUAD_SEGS = 32              # polygon segments per quarter circle in the dilations
 LADDER_MAX = 24             # lift steps of a bull nose / ball allowance
 GRID_MAX_NODES = 1_500_000  # the design grid of the level sets
 LINK_CLEARANCE = 1.0        # mm above the level above for links and the start of entries
 HELIX_SEGS = 24             # points per helix turn
+LOOP_INSET = 1.0            # x machining.tolerance: loops eroded by it and simplified within it
 
 
 # ----------------------------------------------------------------------------
@@ -396,7 +399,7 @@ def plan_rough(spec, surface, tool: Tool | None = None, *, ws=None, sets=None, t
         levels.append(z)
         k += 1
     e_out = max(0.0, R - 0.5 * s)
-    simp = tolerance          # loops eroded by it and simplified within it (_rings)
+    simp = LOOP_INSET * tolerance     # loops eroded by it and simplified within it (_rings)
     F = box(0.0, 0.0, L, W)
     outer = box(-e_out, -e_out, L + e_out, W + e_out)
     big = box(-10 * R - L, -10 * R - W, 2 * L + 10 * R, 2 * W + 10 * R)
@@ -521,7 +524,11 @@ def plan_rough(spec, surface, tool: Tool | None = None, *, ws=None, sets=None, t
         "entries": {k2: fig[k2] for k2 in ("helix", "ramp", "plunge_entries", "from_outside", "from_cleared")},
         "links": {"low": fig["lifts_low"], "safe_height": fig["lifts_safe"]},
         "grid_step_mm": float(max(sets.hx, sets.hy)), "level_set_error_mm": 2 * sets.err,
-        "allowance_excess_mm": 2 * sets.err + delta, "loop_inset_mm": 2 * simp, "depth_limit_mm": lim,
+        "allowance_excess_mm": 2 * sets.err + delta, "loop_inset_mm": 2 * simp,
+        # horizontal: the dilations' circumscribed polygons and the loops' inset keep the
+        # tool up to this much farther from the level set than it could stand; on a wall of
+        # slope m the material left grows by m times it (the stock check adds it)
+        "allowance_offset_mm": R * (1.0 / math.cos(math.pi / (4 * QUAD_SEGS)) - 1.0) + 2 * simp, "depth_limit_mm": lim,
         "stopped_at_limit": bool(levels and levels[-1] <= -lim + 1e-9 and bottom < -lim),
         "plan_seconds": time.process_time() - t0,
     })
@@ -769,13 +776,14 @@ def stock_after(rough: Operation) -> np.ndarray:
     return maximum_filter(S, size=3, mode="nearest")
 
 
-def drop_on_grid(S, x, y, X, Y, tool: Tool) -> np.ndarray:
+def drop_on_grid(S, x, y, X, Y, tool: Tool, slack: float = 0.0) -> np.ndarray:
     """The tip height at which ``tool`` standing at (X, Y) first touches the stock
     height field S (grid x, y; no material beyond it): max over grid nodes q within
     the tool's radius + one cell diagonal of S(q) - lift(|q - c| - diagonal), an
-    upper bound of the exact drop (the node stands for its cell). -inf: no material."""
+    upper bound of the exact drop (the node stands for its cell). -inf: no material.
+    ``slack`` (mm): the bound holds for every centre within it of (X, Y) too."""
     hx, hy = x[1] - x[0], y[1] - y[0]
-    diag = math.hypot(hx, hy)
+    diag = math.hypot(hx, hy) + slack
     R = tool.radius
     ni, nj = int(math.ceil((R + diag) / hy)), int(math.ceil((R + diag) / hx))
     di, dj = np.meshgrid(np.arange(-ni, ni + 1), np.arange(-nj, nj + 1), indexing="ij")
@@ -888,10 +896,19 @@ def plan_rest(spec, surface, rough: Operation, finish: Toolpath, *, ws=None) -> 
             zone = keep & np.isfinite(Z) & np.isfinite(Sb) & (Sb - (Z + leave) > threshold)
         # the grid's bound is loose beside the levels' walls: where it asks for rest
         # passes, the drop onto the levels' polygons instead (exact to their chords)
+        # (the drop onto the levels skips the levels that cannot lift it above the zone's
+        # threshold: below the threshold it is no bound; there the grid's bound stays, as
+        # the links and the descent to a run's start need an upper bound of the stock)
         if zone.any():
-            Sb[zone] = drop_on_levels(rough, ws, X[zone], Y[zone], tool, (Z + leave + threshold)[zone])
+            d = drop_on_levels(rough, ws, X[zone], Y[zone], tool, (Z + leave + threshold)[zone])
             with np.errstate(invalid="ignore"):
-                zone &= Sb - (Z + leave) > threshold
+                hit = d - (Z + leave)[zone] > threshold
+            Sb[zone] = np.where(hit, d, Sb[zone])
+            zone[zone] = hit
+        if is_fin and len(sel) < len(V):
+            # the passes between: where the finishing ball would engage more than its depth of cut
+            zone |= keep & np.isfinite(Z) & np.isfinite(Sb) & _between_zone(
+                plan, fr, sel, V, ug, S, x, y, tool, rough, ws, leave, doc_f - leave)
         # one node more on either side: the finish's own points lie between the nodes
         # (1 mm apart), and across a groove the material it meets changes within one
         ok = keep & np.isfinite(Z) & np.isfinite(Sb)
@@ -971,12 +988,45 @@ def plan_rest(spec, surface, rough: Operation, finish: Toolpath, *, ws=None) -> 
             "entry": "plunge (into ground the rest ball's drop shows clear above the cut)",
             "links": {"low": fig_low, "safe_height": len(runs) - 1 - fig_low},
             "zone_threshold_mm": threshold, "zone_positions": int(zone.sum()),
-            "depth_of_cut_mm": doc, "stock_grid_step_mm": float(max(x[1] - x[0], y[1] - y[0])),
+            "depth_of_cut_mm": doc, "finish_depth_of_cut_mm": doc_f, "stock_grid_step_mm": float(max(x[1] - x[0], y[1] - y[0])),
             "plan_seconds": time.process_time() - t0,
         })
         tp.info = info
         ops.append(Operation("rest", tool, tp, leave=leave, levels=levels_cut, passes=len(runs), info=info))
     return ops
+
+
+def _between_zone(plan, fr, sel, V, ug, S, x, y, tool, rough, ws, leave, threshold):
+    """The zone asked by the finishing passes between the selected ones (sel): the
+    finishing ball's drop at a position is not continuous across a steep wall, so a pass
+    between two rest passes can meet more than the threshold where neither of them does
+    (``threshold``: finish depth_of_cut - leave, the ball's engagement past its depth of
+    cut; with roughing.stepdown 12.7 mm on the paper, 7.0 mm without this).
+    Such a node marks the rest passes either side of its pass (at the same node of the
+    common pass grid ``ug``). Returns a (len(sel), len(ug)) mask."""
+    others = np.setdiff1d(np.arange(len(V)), np.asarray(sel))
+    out = np.zeros((len(sel), len(ug)), bool)
+    if not len(others):
+        return out
+    U = np.broadcast_to(ug, (len(others), len(ug)))
+    X, Y = fr.xy(U, np.broadcast_to(V[others][:, None], U.shape))
+    X, Y = np.ascontiguousarray(X, float), np.ascontiguousarray(Y, float)
+    Z = np.vstack([plan.passes[i].Z for i in others])
+    keep = np.vstack([plan.passes[i].keep for i in others])
+    Sb = drop_on_grid(S, x, y, X, Y, tool)
+    with np.errstate(invalid="ignore"):
+        z = keep & np.isfinite(Z) & np.isfinite(Sb) & (Sb - (Z + leave) > threshold)
+    if z.any():
+        d = drop_on_levels(rough, ws, X[z], Y[z], tool, (Z + leave + threshold)[z])
+        with np.errstate(invalid="ignore"):
+            z[z] = d - (Z + leave)[z] > threshold
+    hi = np.searchsorted(np.asarray(sel), others)           # the selected pass after each
+    for row in np.nonzero(z.any(axis=1))[0]:
+        h = int(hi[row])
+        for r in (h - 1, h):
+            if 0 <= r < len(sel):
+                out[r] |= z[row]
+    return out
 
 
 def _refine_runs(ws, runs, Rr, leave, lim, tolerance, rounds=8):
@@ -1043,7 +1093,8 @@ def _link_heights(S, x, y, runs, tool, clr, step=1.0):
         own.append(np.full(k, n))
     if not XS:
         return out
-    drop = drop_on_grid(S, x, y, np.concatenate(XS), np.concatenate(YS), tool)
+    # samples at most ``step`` apart: every centre of the link within step/2 of one
+    drop = drop_on_grid(S, x, y, np.concatenate(XS), np.concatenate(YS), tool, slack=0.5 * step)
     high = np.full(len(runs), -np.inf)
     np.maximum.at(high, np.concatenate(own), drop)
     for n in range(1, len(runs)):

@@ -23,13 +23,19 @@ design surface (:class:`~fabkit.toolpath.compensate.WorkSurface`, min(H, 0), as
 :func:`~fabkit.toolpath.verify.verify_cut` uses):
 
 * gouge: stock below the design by more than the tolerance, after any operation;
-* roughing and rest: material above the design within [leave - tolerance,
-  leave + cusp + tolerance] where the operation's tool reaches design + leave (cusp:
-  ``info["cusp"]``, the Z-level staircase plus the stepover cusp; else
-  ``info["stepdown"]``); above it where the tool cannot reach is reported apart;
+* roughing: material above the design within [leave - tolerance, leave + cusp +
+  tolerance + the planner's stated allowance error] where the operation's tool reaches
+  design + leave (cusp: ``info["cusp"]``, the Z-level staircase plus the stepover cusp;
+  else ``info["stepdown"]``; the error: ``info["allowance_excess"]`` vertical plus
+  ``info["allowance_offset"]`` x the design's slope); above it where the tool cannot
+  reach is reported apart;
+* rest: material above the design within [leave - tolerance, the finishing tool's depth
+  of cut + tolerance] where the rest tool reaches design + leave (rest passes leave the
+  roughing's staircase where the roughing tool reached);
 * finishing: material left at most scallop + tolerance where the ball reaches;
-* per operation the largest thickness it removes at a node (and the largest one move
-  removes) against the tool's allowed depth of cut when one is given.
+* per operation the largest thickness it removes at a node (for rest passes, in Z
+  levels: the largest one move removes) against the tool's allowed depth of cut when
+  one is given.
 
 Where a tool "reaches" is the grey-scale opening of the target surface by the tool
 over the grid nodes (:func:`~fabkit.toolpath.stock_kernels.reach_at`): centres and
@@ -449,24 +455,46 @@ def verify_job(surface, operations, tolerance: float, *, spacing: float | None =
         gouge = float(-above.flat[ig])
         removed = before - z
         irm = int(np.argmax(removed))
+        extra_v = extra_h = 0.0
+        fin_doc = (depth_of_cut or {}).get("finish", op.info.get("finish_depth_of_cut"))
         if op.kind == "finish":
             allowed = float(scallop if scallop is not None else op.info.get("scallop", 0.0))
             leave, cusp = 0.0, allowed
+        elif op.kind == "rest" and fin_doc is not None:
+            # rest passes cut only where the roughing tool could not reach: elsewhere its
+            # staircase stays. What they owe the finish: at most the finishing tool's depth
+            # of cut where their tool reaches (and never less than the allowance)
+            leave = float(op.leave)
+            cusp = max(float(fin_doc) - leave, 0.0)
         else:
             leave = float(op.leave)
             cusp = float(op.info.get("cusp", op.info.get("stepdown", 0.0)))
-        lo, hi = leave - tol, leave + cusp + tol
+            # the planner's stated allowance error: vertical, and horizontal (times the slope)
+            extra_v = float(op.info.get("allowance_excess", 0.0))
+            extra_h = float(op.info.get("allowance_offset", 0.0))
+        lo, hi = leave - tol, leave + cusp + extra_v + tol
+        slack = cusp + tol + extra_v
+        reach_err = 0.0
+        if op.kind != "finish":
+            from scipy.ndimage import maximum_filter
+
+            slope = maximum_filter(np.hypot(gx, gy), size=3, mode="nearest")
+            slack = slack + extra_h * slope
+            # the reach takes contacts at the nodes only: a flat bottom's rim or a corner
+            # touching a wall between nodes is missed, the reach up to the slope x half a
+            # cell's diagonal too low (not the finish's: its bound stays the chordal one)
+            reach_err = slope * 0.5 * math.hypot(stock.hx, stock.hy)
         # the target is design + leave, clipped at the top face (no material above it);
-        # the bounds hold relative to the target: [T - tol, T + cusp + tol] - design
+        # the bounds hold relative to the target: [T - tol, T + slack] - design
         target = np.minimum(dz + leave, 0.0)
         want = target - dz
-        lo_n, hi_n = want - tol, want + cusp + tol
+        lo_n, hi_n = want - tol, want + slack
         # material above the bound is excused where the tool cannot reach the target:
-        # the allowance then holds above the tool's reach (z - max(T, reach) <= cusp + tol)
+        # the allowance then holds above the tool's reach (z - max(T, reach) <= slack)
         high = above * (normal_scale if op.kind == "finish" else 1.0) > hi_n
         reach = reach_height(target, stock, op.tool, high)
         scale = normal_scale if op.kind == "finish" else 1.0
-        excess = np.where(high, (z - np.fmax(target, reach)) * scale - (cusp + tol), -np.inf)
+        excess = np.where(high, (z - np.fmax(target, reach + reach_err)) * scale - slack, -np.inf)
         over = high & (excess > 0)
         unre = high & ~over
         low = above < lo_n
@@ -506,9 +534,15 @@ def verify_job(surface, operations, tolerance: float, *, spacing: float | None =
                             f"Y{_at(stock, k)[1]:.3f}, below the allowance's bound {float(lo_n.flat[k]):.4f} mm")
         if over.any():
             failures.append(f"{name}: material left {rep.over_reachable:.4f} mm above its bound ({hi:.4f} mm "
-                            f"above the design) where the tool reaches, at X{rep.over_at[0]:.3f} "
+                            + (f"+ {extra_h:.4f} x the slope " if extra_h > 0 else "")
+                            + f"above the design) where the tool reaches, at X{rep.over_at[0]:.3f} "
                             f"Y{rep.over_at[1]:.3f}, over {rep.over_area:.1f} mm^2")
-        if limit is not None and rep.max_removed > limit + 1e-9:
+        if limit is not None and op.kind == "rest":
+            # rest passes cut in Z levels: what one move removes at a node is their depth of cut
+            if rep.max_engagement > limit + 1e-9:
+                failures.append(f"{name}: one move (number {res.engagement_at}) removes {rep.max_engagement:.3f} mm "
+                                f"at a node, more than its depth of cut {limit:g} mm")
+        elif limit is not None and rep.max_removed > limit + 1e-9:
             failures.append(f"{name}: removes {rep.max_removed:.3f} mm at X{rep.removed_at[0]:.3f} "
                             f"Y{rep.removed_at[1]:.3f}, more than its depth of cut {limit:g} mm")
         if rep.deepest_cut > op.tool.reach + 1e-9:
