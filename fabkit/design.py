@@ -129,17 +129,11 @@ def searchable_keys(spec) -> list[str]:
 def parse_bound(text: str, spec, flag: str = "--vary") -> Bound:
     """``KEY=LO:HI`` -> :class:`Bound`; SpecError naming ``--vary`` (did-you-mean
     for an unknown key)."""
-    from .vary import check_interval, parse_number, refuse_key
+    from .vary import check_interval, parse_number, split_key
     from .spec import SCHEMA
 
-    text = str(text)
-    if "=" not in text:
-        raise SpecError(f"expected KEY=LO:HI, got {text!r}", key=flag)
-    key, _, rhs = text.partition("=")
-    key, rhs = key.strip(), rhs.strip()
-    allowed = searchable_keys(spec)
-    if key not in allowed:
-        refuse_key(key, allowed, spec, flag, "not a number key (a search varies numbers)")
+    key, rhs = split_key(text, spec, flag, "KEY=LO:HI", searchable_keys(spec),
+                         "not a number key (a search varies numbers)")
     parts = rhs.split(":")
     if len(parts) != 2 or not all(p.strip() for p in parts):
         raise SpecError(f"{key}: expected LO:HI, got {rhs!r}", key=flag)

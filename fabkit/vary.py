@@ -132,6 +132,19 @@ def refuse_key(key: str, allowed, spec, flag: str, not_variable: str):
     raise SpecError(f"unknown key {key!r}{suggest(key, allowed)}", key=flag)
 
 
+def split_key(text, spec, flag: str, form: str, allowed, not_variable: str) -> tuple[str, str]:
+    """``KEY=REST`` -> (key, rest), the key one of ``allowed`` (else :func:`refuse_key`'s
+    error naming ``flag``); ``form`` is the expected shape, for the error."""
+    text = str(text)
+    if "=" not in text:
+        raise SpecError(f"expected {form}, got {text!r}", key=flag)
+    key, _, rhs = text.partition("=")
+    key, rhs = key.strip(), rhs.strip()
+    if key not in allowed:
+        refuse_key(key, allowed, spec, flag, not_variable)
+    return key, rhs
+
+
 def parse_vary(text: str, spec, flag: str = "--vary") -> Vary:
     """``KEY=LO:HI:N`` (N evenly spaced values, both ends included) or
     ``KEY=V1,V2,...`` (values as given; words for choice keys such as
@@ -140,14 +153,8 @@ def parse_vary(text: str, spec, flag: str = "--vary") -> Vary:
     keys must be whole. Raises SpecError naming ``--vary``."""
     from .spec import SCHEMA, Choice, Inertia, Num
 
-    text = str(text)
-    if "=" not in text:
-        raise SpecError(f"expected KEY=LO:HI:N (or KEY=V1,V2,...), got {text!r}", key=flag)
-    key, _, rhs = text.partition("=")
-    key, rhs = key.strip(), rhs.strip()
-    allowed = variable_keys(spec)
-    if key not in allowed:
-        refuse_key(key, allowed, spec, flag, "not a number or choice key (it cannot be varied on a grid)")
+    key, rhs = split_key(text, spec, flag, "KEY=LO:HI:N (or KEY=V1,V2,...)", variable_keys(spec),
+                         "not a number or choice key (it cannot be varied on a grid)")
     field = None
     if not key.startswith("surface.params."):
         sec, name = key.split(".")

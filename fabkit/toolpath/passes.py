@@ -5,16 +5,10 @@ Work coordinates, mm. A pass runs along ``u`` (X for ``direction: x``, Y for
 ``direction: y``) at a fixed ``v`` across.
 
 * Stepover, pass by pass: the next pass is the farthest (never beyond the
-  flat-ground stepover) for which the material left between the two balls, in each
-  cross-section u = const, stays <= 0.95 * scallop, measured along the design's
-  normal (``machining.scallop_measure: normal``, the default: the vertical height
-  times 1 / sqrt(1 + |grad H|^2)) or vertically. The bound is computed from the
-  actual ball centres of both passes on a grid along u (1 mm or R/2) at 9 points
-  between their contact lines (refined around the largest), balls within R along the
-  pass included, so it holds on steep walls (on a plane of slope angle theta across
-  the passes the cusp is R - sqrt(R^2 - (s / (2 cos theta))^2) along the normal,
-  1 / cos theta times that vertically) and on slopes along the pass (the contact
-  lies up to R ahead of the ball; the flat stepover holds for the normal measure).
+  flat-ground stepover) for which the scallop bound of :mod:`fabkit.toolpath.scallop`
+  (the material left between the two balls, from their actual centres, along the
+  design's normal or vertically) stays <= 0.95 * scallop; that module says how it
+  holds on steep walls and on slopes along the pass.
 * Reachable surface: where passes right between the two (three more, evenly
   spaced) leave more than a quarter of the target too, that material is beyond
   the ball's reach (a valley tighter than the tool, a V crease); the bound then
