@@ -393,13 +393,19 @@ def _run_case(cmd: str, kind: str, name: str, root: Path) -> dict:
     if expect == BAD:
         # refused input: in this process (the refusal is the spec parser's, before any work),
         # from the case's folder, bounded like the subprocess runs
+        # Python warnings (numpy's RuntimeWarning) reach a user's terminal as stderr lines:
+        # recorded here and added to stderr, so the one-line rule sees them
+        import warnings
+
         home = os.getcwd()
         os.chdir(folder)
         try:
-            with bounded(30):
+            with bounded(30), warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
                 code, out, err = run_cli([cmd, spec, *extra])
         finally:
             os.chdir(home)
+        err += "".join(f"{w.category.__name__}: {w.message}\n" for w in caught)
     else:
         code, out, err = run_subprocess([cmd, spec, *extra], folder, timeout=30, fail=False)
     after = set(folder.rglob("*"))

@@ -46,10 +46,10 @@ def _edge_min(fns, xa, ya, xb, yb, n=EDGE_SAMPLES) -> float:
     """Lower bound of h on the segment (xa, ya)-(xb, yb)."""
     s = np.linspace(0.0, 1.0, n)
     x, y = xa + (xb - xa) * s, ya + (yb - ya) * s
-    with np.errstate(all="ignore"):
-        h, _, _, hxx, hxy, hyy = fns.all(x, y)
     dx, dy = xb - xa, yb - ya
-    htt = hxx * dx * dx + 2 * hxy * dx * dy + hyy * dy * dy      # d2h/ds2 (s in [0, 1])
+    with np.errstate(all="ignore"):     # a surface that overflows here gives -inf below
+        h, _, _, hxx, hxy, hyy = fns.all(x, y)
+        htt = hxx * dx * dx + 2 * hxy * dx * dy + hyy * dy * dy      # d2h/ds2 (s in [0, 1])
     if not (np.isfinite(h).all() and np.isfinite(htt).all()):
         return -np.inf
     step = 1.0 / (n - 1)
