@@ -150,7 +150,7 @@ def rough_op(stock, design, tool, stepdown, stepover, leave):
             kinds.append(RAPID)
     tp = Toolpath(np.array(pts), np.array(kinds), R, safe)
     return Operation("rough", tool, tp, leave=leave, levels=len(levels), passes=0,
-                     info={"cusp": stepdown, "stepdown": stepdown})
+                     info={"cusp_mm": stepdown, "stepdown_mm": stepdown})
 
 
 if __name__ == "__main__":

@@ -220,8 +220,8 @@ def test_verify_job_allowance_scallop_and_depth_of_cut():
     rough_tool, ball = Tool("flat", 10.0, number=1), Tool.ball(6.0, number=2)
     leave, step = 0.5, 1.5
     scallop = 3.0 - np.sqrt(9.0 - (step / 2) ** 2)       # the ball's scallop between passes
-    ops = [Operation("rough", rough_tool, raster(rough_tool, -2.5, 8.0), leave=leave, info={"cusp": 0.0}),
-           Operation("finish", ball, raster(ball, -3.0, step), info={"scallop": 0.1, "depth_of_cut": 1.0})]
+    ops = [Operation("rough", rough_tool, raster(rough_tool, -2.5, 8.0), leave=leave, info={"cusp_mm": 0.0}),
+           Operation("finish", ball, raster(ball, -3.0, step), info={"scallop": 0.1, "depth_of_cut_mm": 1.0})]
     job = verify_job(FlatFloor(), ops, 0.01, spacing=0.25, measure="vertical")
     assert job.ok, job.failures
     assert "largest gouge 0.0000 mm" in job.message
@@ -234,7 +234,7 @@ def test_verify_job_allowance_scallop_and_depth_of_cut():
     assert f.max_removed == leave and f.max_gouge == 0.0
     np.testing.assert_array_equal(job.snapshots[0].z, np.full(job.snapshots[0].z.shape, -2.5))
     # the ball's allowed depth of cut below what it removes, and a finish 0.02 too deep
-    ops[1].info["depth_of_cut"] = 0.4
+    ops[1].info["depth_of_cut_mm"] = 0.4
     ops[1].toolpath = raster(ball, -3.02, step)
     job = verify_job(FlatFloor(), ops, 0.01, spacing=0.25, measure="vertical")
     assert not job.ok
@@ -262,7 +262,7 @@ def test_verify_job_narrow_valley_is_unreachable_not_a_failure():
             return np.where((np.abs(y - 15.0) < 2.0) & (np.abs(x - 20.0) < 15.0), -5.0, -3.0)
 
     tool = Tool("flat", 10.0)
-    ops = [Operation("rough", tool, raster(tool, -2.5, 8.0), leave=0.5, info={"cusp": 0.0})]
+    ops = [Operation("rough", tool, raster(tool, -2.5, 8.0), leave=0.5, info={"cusp_mm": 0.0})]
     job = verify_job(Slot(), ops, 0.01, spacing=0.25)
     assert job.ok, job.failures
     r = job.operations[0]
@@ -272,7 +272,7 @@ def test_verify_job_narrow_valley_is_unreachable_not_a_failure():
     # the same stock with the slot's floor declared reachable fails: a 3 mm flat end
     # mill does fit, and did not go down
     small = Tool("flat", 3.0)
-    ops = [Operation("rough", small, raster(small, -2.5, 2.5), leave=0.5, info={"cusp": 0.0})]
+    ops = [Operation("rough", small, raster(small, -2.5, 2.5), leave=0.5, info={"cusp_mm": 0.0})]
     job = verify_job(Slot(), ops, 0.01, spacing=0.25)
     assert not job.ok and "where the tool reaches" in job.failures[0]
 
@@ -388,7 +388,7 @@ def test_rs274_two_tool_program_agrees(tmp_path):
 def test_operations_from_program_and_picture():
     p = read_program(TWO_TOOLS)
     ops = operations_from_program(p, {1: Tool("flat", 6.0), 2: Tool.ball(3.0)},
-                                  info={1: {"leave": 0.5, "cusp": 0.0}})
+                                  info={1: {"leave": 0.5, "cusp_mm": 0.0}})
     assert [o.kind for o in ops] == ["rough", "finish"] and ops[0].leave == 0.5
 
     class Floor(FlatFloor):
@@ -461,8 +461,8 @@ def test_rest_pass_keeps_the_finishing_ball_within_its_depth_of_cut():
             kinds += [RAPID, PLUNGE, CUT, RAPID]
         return Toolpath(np.array(pts), np.array(kinds), 1.5, 5.0)
 
-    ops = [Operation("rough", rough, raster(rough, -2.5, 8.0), leave=0.5, info={"cusp": 0.0}),
-           Operation("rest", rest, passes([14.51, 15.49], -4.5, 6.51, 33.49), leave=0.5, info={"cusp": 0.0}),
+    ops = [Operation("rough", rough, raster(rough, -2.5, 8.0), leave=0.5, info={"cusp_mm": 0.0}),
+           Operation("rest", rest, passes([14.51, 15.49], -4.5, 6.51, 33.49), leave=0.5, info={"cusp_mm": 0.0}),
            Operation("finish", ball, passes([15.0], -5.0, 6.6, 33.4), info={"scallop": 0.05})]
     limit = {"finish": 1.0}
     with_rest = verify_job(Slot(), ops, 0.01, spacing=0.25, depth_of_cut=limit)

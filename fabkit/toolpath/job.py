@@ -406,12 +406,6 @@ def job_figures(operations, programs, profile, machine=None, raster_axis: int | 
 
 #: the operations a picture "after roughing" follows: the last of these before the finish
 _ROUGHING_KINDS = ("rough", "rest")
-#: Operation.info keys the stock simulation reads (bounds of the allowance, depth of cut),
-#: also given by the roughing planner with a "_mm" suffix
-_STOCK_INFO_KEYS = ("cusp", "stepdown", "depth_of_cut", "leave", "allowance_excess", "allowance_offset",
-                    "finish_depth_of_cut")
-
-
 def _stock_verification(spec, surface, operations, readback):
     """The whole job simulated on the stock, each operation's moves AS READ BACK from the
     written text, each with its own tool (:func:`fabkit.toolpath.stock.verify_job`), and
@@ -428,15 +422,11 @@ def _stock_verification(spec, surface, operations, readback):
     m = spec.machining
     replay = []
     for op, prog in zip(operations, readback):
-        info = dict(op.info)
-        for key in _STOCK_INFO_KEYS:          # the roughing planner's names for what the stock checks
-            if key not in info and f"{key}_mm" in info:
-                info[key] = info[f"{key}_mm"]
         tp = Toolpath(prog.points, prog.kinds, op.tool.radius, safe_z=op.toolpath.safe_z)
         tp.info["start"] = prog.start
         tp.info["line"] = prog.line
         replay.append(Operation(op.kind, op.tool, tp, leave=op.leave, levels=op.levels, passes=op.passes,
-                                info={**info, "start": prog.start}))
+                                info={**op.info, "start": prog.start}))
     doc = getattr(spec.tool, "_values", {}).get("depth_of_cut")     # the finishing tool's allowed depth of cut
     check = stock.verify_job(surface, replay, m.tolerance, scallop=m.scallop,
                              depth_of_cut={"finish": doc} if doc else None,

@@ -25,9 +25,9 @@ design surface (:class:`~fabkit.toolpath.compensate.WorkSurface`, min(H, 0), as
 * gouge: stock below the design by more than the tolerance, after any operation;
 * roughing: material above the design within [leave - tolerance, leave + cusp +
   tolerance + the planner's stated allowance error] where the operation's tool reaches
-  design + leave (cusp: ``info["cusp"]``, the Z-level staircase plus the stepover cusp;
-  else ``info["stepdown"]``; the error: ``info["allowance_excess"]`` vertical plus
-  ``info["allowance_offset"]`` x the design's slope); above it where the tool cannot
+  design + leave (cusp: ``info["cusp_mm"]``, the Z-level staircase plus the stepover cusp;
+  else ``info["stepdown_mm"]``; the error: ``info["allowance_excess_mm"]`` vertical plus
+  ``info["allowance_offset_mm"]`` x the design's slope); above it where the tool cannot
   reach is reported apart;
 * rest: material above the design within [leave - tolerance, the finishing tool's depth
   of cut + tolerance] where the rest tool reaches design + leave (rest passes leave the
@@ -413,7 +413,7 @@ def verify_job(surface, operations, tolerance: float, *, spacing: float | None =
         finishing operation's info["scallop"], else 0)
     spacing: grid spacing, mm (default :func:`grid_spacing` of the tools)
     depth_of_cut: {kind: mm} allowed thickness an operation removes at a node
-        (default each operation's info["depth_of_cut"], else not checked)
+        (default each operation's info["depth_of_cut_mm"], else not checked)
     design: the clipped design at the nodes (computed when None)
     measure: "normal" | "vertical": how the material left after FINISHING is measured
         against the scallop (normal: the vertical height times 1 / sqrt(1 + |grad H|^2) of
@@ -456,7 +456,7 @@ def verify_job(surface, operations, tolerance: float, *, spacing: float | None =
         removed = before - z
         irm = int(np.argmax(removed))
         extra_v = extra_h = 0.0
-        fin_doc = (depth_of_cut or {}).get("finish", op.info.get("finish_depth_of_cut"))
+        fin_doc = (depth_of_cut or {}).get("finish", op.info.get("finish_depth_of_cut_mm"))
         if op.kind == "finish":
             allowed = float(scallop if scallop is not None else op.info.get("scallop", 0.0))
             leave, cusp = 0.0, allowed
@@ -468,10 +468,10 @@ def verify_job(surface, operations, tolerance: float, *, spacing: float | None =
             cusp = max(float(fin_doc) - leave, 0.0)
         else:
             leave = float(op.leave)
-            cusp = float(op.info.get("cusp", op.info.get("stepdown", 0.0)))
+            cusp = float(op.info.get("cusp_mm", op.info.get("stepdown_mm", 0.0)))
             # the planner's stated allowance error: vertical, and horizontal (times the slope)
-            extra_v = float(op.info.get("allowance_excess", 0.0))
-            extra_h = float(op.info.get("allowance_offset", 0.0))
+            extra_v = float(op.info.get("allowance_excess_mm", 0.0))
+            extra_h = float(op.info.get("allowance_offset_mm", 0.0))
         lo, hi = leave - tol, leave + cusp + extra_v + tol
         slack = cusp + tol + extra_v
         reach_err = 0.0
@@ -508,8 +508,8 @@ def verify_job(surface, operations, tolerance: float, *, spacing: float | None =
         limit = None
         if depth_of_cut and op.kind in depth_of_cut:
             limit = float(depth_of_cut[op.kind])
-        elif "depth_of_cut" in op.info:
-            limit = float(op.info["depth_of_cut"])
+        elif "depth_of_cut_mm" in op.info:
+            limit = float(op.info["depth_of_cut_mm"])
         rep = OperationCut(
             kind=op.kind, tool=op.tool.describe(), max_gouge=max(gouge, 0.0) + 0.0, gouge_at=_at(stock, ig),
             min_left=min_left, max_left=max_left, left_at=_at(stock, il), bounds=(lo, hi),
