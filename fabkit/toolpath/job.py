@@ -427,7 +427,7 @@ def _stock_verification(spec, surface, operations, readback):
         tp.info["line"] = prog.line
         replay.append(Operation(op.kind, op.tool, tp, leave=op.leave, levels=op.levels, passes=op.passes,
                                 info={**op.info, "start": prog.start}))
-    doc = getattr(spec.tool, "_values", {}).get("depth_of_cut")     # the finishing tool's allowed depth of cut
+    doc = getattr(spec.tool, "depth_of_cut", None)     # the finishing tool's allowed depth of cut
     check = stock.verify_job(surface, replay, m.tolerance, scallop=m.scallop,
                              depth_of_cut={"finish": doc} if doc else None,
                              measure=getattr(m, "scallop_measure", "normal"))
