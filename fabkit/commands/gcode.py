@@ -197,7 +197,6 @@ def _stock_pictures(job, out) -> dict:
 def _operations_summary(job, out) -> list[str]:
     """One line per operation: tool, levels, passes, lines, time and its estimator; then
     the total and the whole job's verdict."""
-    from ..toolpath.job import _job_failures
     from ..toolpath.setup import job_program_path
 
     lines = []
@@ -211,5 +210,5 @@ def _operations_summary(job, out) -> list[str]:
     total = sum(f.time_s for f in job.figures)
     verdict = ("whole job not simulated (--no-verify)" if not job.verified else
                "whole job not simulated (no stock model)" if job.job_check is None else
-               "whole job simulated on the stock: " + ("FAILED" if _job_failures(job.job_check) else "within bounds"))
+               "whole job simulated on the stock: " + ("FAILED" if job.job_check.failures else "within bounds"))
     return [f"operations: {len(job.figures)}, {job.lines} lines, {_hm(total)} ({est}); {verdict}"] + lines

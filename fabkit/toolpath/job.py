@@ -227,7 +227,7 @@ class JobResult:
         gouge, the allowance after roughing, the finishing ball's depth of cut)."""
         bad = self.cut.failures(self.spec.machining) if self.cut is not None else []
         if self.job_check is not None:
-            bad += [f"whole job: {b}" for b in _job_failures(self.job_check)]
+            bad += [f"whole job: {b}" for b in self.job_check.failures]
         return bad
 
     @property
@@ -308,17 +308,6 @@ def _rk(v: float, k: float):
 def has_roughing(spec) -> bool:
     """The spec asks for roughing with its own tool (a ``roughing`` section)."""
     return bool(getattr(spec, "has", lambda name: False)("roughing"))
-
-
-def _job_failures(check) -> list[str]:
-    """The whole job's failed checks from :func:`fabkit.toolpath.stock.verify_job`'s result
-    (a ``failures`` list or method, or an ``ok``/``message`` pair)."""
-    f = getattr(check, "failures", None)
-    if callable(f):
-        f = f()
-    if f is not None:
-        return list(f)
-    return [] if getattr(check, "ok", True) else [str(getattr(check, "message", "failed"))]
 
 
 def _op_line_ranges(text: str, n: int) -> list[tuple[int, int]]:
@@ -410,12 +399,8 @@ def _stock_verification(spec, surface, operations, readback):
     """The whole job simulated on the stock, each operation's moves AS READ BACK from the
     written text, each with its own tool (:func:`fabkit.toolpath.stock.verify_job`), and
     the shaded pictures of the stock after roughing and after finishing
-    (:func:`fabkit.toolpath.stock.stock_png`): (check, {'rough'|'finish': png}); (None, {})
-    where that module is not there. The one place that knows the stock module's interface."""
-    try:
-        from . import stock
-    except ImportError:
-        return None, {}
+    (:func:`fabkit.toolpath.stock.stock_png`): (check, {'rough'|'finish': png}). The one place that knows the stock module's interface."""
+    from . import stock
     from .operations import Operation
     from .path import Toolpath
 
@@ -432,8 +417,8 @@ def _stock_verification(spec, surface, operations, readback):
                              depth_of_cut={"finish": doc} if doc else None,
                              measure=getattr(m, "scallop_measure", "normal"))
     pictures = {}
-    snaps = getattr(check, "snapshots", None) or []
-    if hasattr(stock, "stock_png") and len(snaps) == len(replay):
+    snaps = check.snapshots
+    if len(snaps) == len(replay):
         rough = [i for i, op in enumerate(replay) if op.kind in _ROUGHING_KINDS]
         for after, i in (("rough", rough[-1] if rough else None), ("finish", len(replay) - 1)):
             if i is not None:
