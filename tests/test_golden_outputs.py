@@ -28,13 +28,13 @@ from pathlib import Path
 
 import pytest
 import yaml
+from golden import strip_volatile
 
 HERE = Path(__file__).resolve().parent
 GOLDEN = HERE / "fixtures" / "golden"
 SPECS = HERE.parent / "specs"
 sys.path.insert(0, str(HERE))
 
-DROP = ("generated_at", "timings_s", "seconds")
 GRBL_DUMP = "$11=0.010\n$30=24000\n$31=0\n$110=500\n$111=500\n$112=500\n$120=10.000\n$121=10.000\n" \
             "$122=10.000\n$130=200.000\n$131=200.000\n$132=200.000\n"
 
@@ -81,13 +81,6 @@ CASES = {
 }
 
 
-def _strip(obj):
-    if isinstance(obj, dict):
-        return {k: _strip(v) for k, v in obj.items() if k not in DROP}
-    if isinstance(obj, list):
-        return [_strip(v) for v in obj]
-    return obj
-
 
 def _run(argv: list[str]) -> tuple[int, str, str]:
     from fabkit.cli import main
@@ -120,10 +113,10 @@ def produce(name: str, folder: Path) -> dict[str, str]:
         tp = Path("toolpaths")
         files = {f"{name}.ngc": (tp / f"{name}.ngc").read_text(),
                  f"{name}.setup.md": (tp / f"{name}.setup.md").read_text(),
-                 f"{name}.setup.json": json.dumps(_strip(json.loads((tp / f"{name}.setup.json").read_text())),
+                 f"{name}.setup.json": json.dumps(strip_volatile(json.loads((tp / f"{name}.setup.json").read_text())),
                                                   indent=1) + "\n",
                  f"{name}.summary.json": json.dumps({"exit": code, "stderr": err.strip().splitlines(),
-                                                     "payload": _strip(json.loads(out))}, indent=1) + "\n",
+                                                     "payload": strip_volatile(json.loads(out))}, indent=1) + "\n",
                  f"{name}.preview.sha256": hashlib.sha256((tp / f"{name}.preview.png").read_bytes()).hexdigest()
                  + "\n"}
     finally:
@@ -164,7 +157,7 @@ def report_sheet(folder: Path) -> str:
         tool = _toolpath(spec, Surface.from_spec(spec), load_machine("grbl.txt"))
     finally:
         os.chdir(old)
-    doc = {"sheet": _strip(tool["sheet"]), "verify": tool["verify"],
+    doc = {"sheet": strip_volatile(tool["sheet"]), "verify": tool["verify"],
            "preview_sha256": hashlib.sha256(tool["png"]).hexdigest()}
     return json.dumps(doc, indent=1, default=float) + "\n"
 

@@ -25,12 +25,12 @@ from pathlib import Path
 
 import pytest
 import yaml
+from golden import strip_volatile
 
 HERE = Path(__file__).resolve().parent
 GOLDEN = HERE / "fixtures" / "golden"
 sys.path.insert(0, str(HERE))
 
-DROP = ("seconds", "timings_s", "generated_at")
 
 
 def _small(drop=()) -> dict:
@@ -53,13 +53,6 @@ CASES = {
 }
 
 
-def _strip(obj):
-    if isinstance(obj, dict):
-        return {k: _strip(v) for k, v in obj.items() if k not in DROP}
-    if isinstance(obj, list):
-        return [_strip(v) for v in obj]
-    return obj
-
 
 def produce(name: str, folder: Path) -> dict[str, str]:
     """The outputs of case ``name`` run in ``folder``: file name -> text."""
@@ -75,7 +68,7 @@ def produce(name: str, folder: Path) -> dict[str, str]:
         with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
             code = main([argv[0], "small.yaml", *argv[1:], "--json", "--no-progress"])
         text = json.dumps({"exit": code, "stderr": err.getvalue().strip().splitlines(),
-                           "payload": _strip(json.loads(out.getvalue()))}, indent=1, sort_keys=False) + "\n"
+                           "payload": strip_volatile(json.loads(out.getvalue()))}, indent=1, sort_keys=False) + "\n"
         files = {f"study_{name}.json": text.replace(str(folder), "TMP")}
         for extra in ("rows.csv", "w.yaml"):
             if Path(extra).exists():

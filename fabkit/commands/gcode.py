@@ -103,7 +103,7 @@ def _finish(args, job, out, paths, total) -> int:
 
     _machine_verdict(job)          # refuses before anything is written
     t = Timer()
-    toolpath, text, profile, sheet, run, mcheck = (job.toolpath, job.text, job.profile, job.sheet, job.run,
+    toolpath, profile, sheet, run, mcheck = (job.toolpath, job.profile, job.sheet, job.run,
                                                     job.machine_check)
     check = job.cut.as_dict() if job.cut is not None else None
     est, lines = job.estimate_s, job.lines
