@@ -12,6 +12,8 @@ import io
 
 import numpy as np
 
+from .physics.outcomes import BRIDGED, CAPTURED, ESCAPED, FLEW_OFF, LOST_CONTACT, OUTCOMES, SLIPPED
+
 
 def new_figure(**kw):
     import matplotlib
@@ -76,7 +78,7 @@ def trajectory_png(traj: dict, summary: dict, *, title: str = "", units: str = "
     ax2.set_ylabel(f"y ({units})" if units else "y")
     ax2.set_xlabel("t (s)")
     out = summary.get("outcome", "")
-    extra = f", v_out = {summary['v_out']:.4g} {units + '/s' if units else ''}".rstrip() if out == "escaped" else ""
+    extra = f", v_out = {summary['v_out']:.4g} {units + '/s' if units else ''}".rstrip() if out == OUTCOMES[ESCAPED] else ""
     ax1.set_title(f"{title}\n{out}, {summary.get('bounces', 0)} bounce(s){extra}", fontsize=10)
     if summary.get("bounce_times"):
         ax1.legend(loc="best", fontsize=8)
@@ -89,13 +91,13 @@ def trajectory_png(traj: dict, summary: dict, *, title: str = "", units: str = "
 #: one marker and colour per outcome of a launch that does not escape (escaped
 #: launches are coloured by bounce count); the same everywhere a figure shows outcomes
 #: (sweep, robustness, design, compare): captured is grey, one bounce black
-OUTCOME_STYLE = {"captured": ("x", "0.6"), "flew_off": ("^", "tab:orange"),
-                 "lost_contact": ("v", "tab:cyan"), "bridged": ("s", "tab:pink"),
-                 "slipped": ("D", "darkgoldenrod")}
+OUTCOME_STYLE = {OUTCOMES[CAPTURED]: ("x", "0.6"), OUTCOMES[FLEW_OFF]: ("^", "tab:orange"),
+                 OUTCOMES[LOST_CONTACT]: ("v", "tab:cyan"), OUTCOMES[BRIDGED]: ("s", "tab:pink"),
+                 OUTCOMES[SLIPPED]: ("D", "darkgoldenrod")}
 #: escaped launches by bounce count, as the seed paper's Fig. 1 colours them
 BOUNCE_COLOURS = {1: "black", 2: "tab:blue", 3: "tab:green", 4: "tab:red"}
 MANY_BOUNCES = "tab:brown"
-CAPTURED_COLOUR = OUTCOME_STYLE["captured"][1]
+CAPTURED_COLOUR = OUTCOME_STYLE[OUTCOMES[CAPTURED]][1]
 
 
 def sweep_figure(result: dict, title: str = "", *, units: str = "", fmt: str = "png",
@@ -110,7 +112,7 @@ def sweep_figure(result: dict, title: str = "", *, units: str = "", fmt: str = "
     vo = np.asarray([np.nan if x is None else x for x in result["v_out"]], dtype=float)
     nb = np.asarray(result["bounces"])
     outcome = np.asarray(result["outcome"], dtype=object)
-    esc = outcome == "escaped"
+    esc = outcome == OUTCOMES[ESCAPED]
     other = sorted(set(outcome[~esc].tolist()),
                    key=lambda o: list(OUTCOME_STYLE).index(o) if o in OUTCOME_STYLE else 99)
     if other:
@@ -261,7 +263,7 @@ def robustness_figure(result: dict, *, title: str = "", units: str = "", fmt: st
     ax.set_xlabel(f"v_in ({units}/s)" if units else "v_in")
     ax.set_ylabel("probability")
     ax2 = ax.twinx()
-    nb = np.array([r["nominal_bounces"] if r["nominal_outcome"] == "escaped" else np.nan for r in rows], dtype=float)
+    nb = np.array([r["nominal_bounces"] if r["nominal_outcome"] == OUTCOMES[ESCAPED] else np.nan for r in rows], dtype=float)
     # white with a black edge: visible on the one-bounce layer, which is black
     ax2.plot(v, nb, "o", ms=4, mfc="white", mec="black", mew=0.8, ls="none", label="nominal bounces")
     ax2.set_ylabel("nominal bounce count")
@@ -408,7 +410,7 @@ def phi4_trajectory_png(record: dict, summary: dict, *, fmt: str = "png") -> byt
     for k, tb in enumerate(summary.get("bounce_times", [])):
         ax.axvline(tb, color="0.6", lw=0.7, ls=":")
     out = summary.get("outcome", "")
-    extra = f", v_out = {summary['v_out']:.4f}" if out == "escaped" and summary.get("v_out") else ""
+    extra = f", v_out = {summary['v_out']:.4f}" if out == OUTCOMES[ESCAPED] and summary.get("v_out") else ""
     if extra and summary.get("v_out_error") is not None:
         extra += f" ± {summary['v_out_error']:.1g} (step halving)"
     ax.set_title(f"phi^4 kink-antikink, v_in = {summary.get('v_in', 0):g}: {out}, "
@@ -441,7 +443,7 @@ def compare_axes(panels: list[dict], *, title: str = "", span: tuple[float, floa
         v = np.asarray(p["v_in"], dtype=float) / scale
         vo = np.asarray([np.nan if x is None else x for x in p["v_out"]], dtype=float) / scale
         nb = np.asarray(p["bounces"])
-        esc = np.array([o == "escaped" for o in p["outcome"]])
+        esc = np.array([o == OUTCOMES[ESCAPED] for o in p["outcome"]])
         shown = np.ones(v.size, dtype=bool)
         if vc and span is not None:
             # a sample a hair outside (a panel sampled around a nominal v_critical) is drawn, clipped
@@ -536,7 +538,7 @@ def design_figure(result: dict, bounds, *, title: str = "", units: str = "", fmt
         vo = np.asarray([np.nan if v is None else v for v in sw["v_out"]], dtype=float) \
             if sw["v_out"] is not None else np.full(H.size, np.nan)
         nb = np.asarray(sw["bounces"])
-        esc = np.array([o == "escaped" for o in sw["outcome"]])
+        esc = np.array([o == OUTCOMES[ESCAPED] for o in sw["outcome"]])
         for k in sorted(set(nb[esc].tolist())):
             m = esc & (nb == k)
             ax2.plot(H[m], vo[m], ".", ms=3, color=BOUNCE_COLOURS.get(k, MANY_BOUNCES),

@@ -85,6 +85,7 @@ import time
 import numpy as np
 
 from ..errors import SpecError
+from ..physics.outcomes import CAPTURED, ESCAPED, FLEW_OFF, OUTCOMES
 from . import fitting
 from .fitting import (FIT_RTOL, Budget, FitStopped, centre_of, contact_of, covariance_errors,
                       least_squares_bounded, model_solve, state_size)
@@ -682,10 +683,10 @@ def outcome_of(problem, track, bounces_t, exit_state):
     if np.any(z > problem.top - m) or np.any(track.x < problem.x_range[0] + m) or \
             np.any(track.x > problem.x_range[1] - m) or np.any(track.y < problem.y_range[0] + m) or \
             np.any(track.y > problem.y_range[1] - m):
-        return "flew_off", None
+        return OUTCOMES[FLEW_OFF], None
     if exit_state is not None and len(bounces_t) and track.x[-1] < well_bottom(problem):
-        return "escaped", abs(exit_state[3])
-    return "captured", None
+        return OUTCOMES[ESCAPED], abs(exit_state[3])
+    return OUTCOMES[CAPTURED], None
 
 
 def _launch_speeds(problem, track, bt, mu, budget: Budget | None = None) -> dict:
