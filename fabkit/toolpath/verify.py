@@ -135,7 +135,8 @@ def read_program(text: str) -> Program:
     units = "mm"
     motion = None
     feed = np.nan
-    pos = np.array([np.nan, np.nan, np.nan])
+    nan = float("nan")
+    pos = [nan, nan, nan]     # the tip (plain floats: a line costs no array operations)
     start = None
     pts, kinds, feeds, where = [], [], [], []
     tools, offsets, changes = [], [], []
@@ -175,7 +176,7 @@ def read_program(text: str) -> Program:
                     g43 = True
                 elif v == 49:
                     if offset != -1:
-                        pos = np.array([pos[0], pos[1], np.nan])
+                        pos = [pos[0], pos[1], nan]
                     offset = -1
                 elif v not in (17, 90, 94, 54, 64):
                     raise DesignError(f"program line {ln}: unexpected G{value}")
@@ -204,21 +205,18 @@ def read_program(text: str) -> Program:
             # LinuxCNC's selection before any T word is T0 (no tool)
             spindle_tool = selected if selected is not None else 0
             changes.append((len(pts), spindle_tool, ln))
-            pos = np.array([pos[0], pos[1], np.nan])       # the tip's Z now depends on the new tool's length
+            pos = [pos[0], pos[1], nan]       # the tip's Z now depends on the new tool's length
         if g43:
             new_offset = h_word if h_word is not None else spindle_tool
             if new_offset != offset:
-                pos = np.array([pos[0], pos[1], np.nan])   # the offset moves the program's Z, not the tool
+                pos = [pos[0], pos[1], nan]   # the offset moves the program's Z, not the tool
             offset = new_offset
         if axes:
             if motion is None:
                 raise DesignError(f"program line {ln}: axis words before any G0/G1")
             if start is None:
-                start = pos.copy()
-            new = pos.copy()
-            for a, i in (("X", 0), ("Y", 1), ("Z", 2)):
-                if a in axes:
-                    new[i] = axes[a]
+                start = pos
+            new = [axes.get("X", pos[0]), axes.get("Y", pos[1]), axes.get("Z", pos[2])]
             if motion == FEED and not feed > 0:
                 raise DesignError(f"program line {ln}: G1 without a feed rate")
             pts.append(new)
@@ -231,8 +229,8 @@ def read_program(text: str) -> Program:
         if end:
             break
     if start is None:
-        start = pos.copy()
-    return Program(start=start, points=np.array(pts, dtype=float).reshape(-1, 3),
+        start = pos
+    return Program(start=np.array(start, dtype=float), points=np.array(pts, dtype=float).reshape(-1, 3),
                    kinds=np.array(kinds, dtype=np.int8), feed=np.array(feeds, dtype=float),
                    line=np.array(where, dtype=int), units=units, lines=n_lines,
                    tool=np.array(tools, dtype=int), offset=np.array(offsets, dtype=int),
