@@ -597,6 +597,7 @@ REACH_GRID = 1.0 / 8.0                              # x R: the grid of start cen
 REACH_SEARCH = 24                                   # compass steps from the best coarse centre
 REACH_DIRS = 8          # compass directions (4 ended up to 0.045 mm higher on 2*sin(x) + 2*sin(y))
 REACH_STEP_MIN = 1e-5                               # x R: a point's search stops below this step
+REACH_METHOD = "descend"
 
 
 def reachable_height(ws, px, py, R: float, chunk: int = 20000, overhang: float | None = None,
@@ -629,6 +630,15 @@ def reachable_height(ws, px, py, R: float, chunk: int = 20000, overhang: float |
         z = np.concatenate([compensate(ws, qx[i:i + chunk], qy[i:i + chunk], R)
                             for i in range(0, qx.size, chunk)]) if qx.size else np.zeros(0)
         return z.reshape(shape)
+
+    def drop_info(qx, qy):
+        """Tip heights and contact points (1-D)."""
+        out = [compensate(ws, qx[i:i + chunk], qy[i:i + chunk], R, return_info=True)
+               for i in range(0, qx.size, chunk)]
+        if not out:
+            return np.zeros(0), np.zeros(0), np.zeros(0)
+        return (np.concatenate([z for z, _ in out]), np.concatenate([f.contact_x for _, f in out]),
+                np.concatenate([f.contact_y for _, f in out]))
 
     H, hx, hy = ws.all(px, py)[:3]
     design = np.minimum(H, 0.0)
@@ -667,29 +677,55 @@ def reachable_height(ws, px, py, R: float, chunk: int = 20000, overhang: float |
         j = np.argmin(G, axis=1)
         r = np.arange(bad.size)
         best, bo_x, bo_y = G[r, j], OX[r, j], OY[r, j]
-        gb, gx_, gy_ = _grid_starts(ws, bx, by, R, drop, (ox_, oy_))
+        gs, gxs, gys = _grid_starts(ws, bx, by, R, drop, (ox_, oy_), split=True)
+        # the other side's best (a ball over the stock, or one hanging off its edge): a
+        # second start where it is within REACH_SECOND of the best (another basin)
+        first = np.where(gs[1] < gs[0], 1, 0)
+        gb, gx_, gy_ = (np.choose(first, v) for v in (gs, gxs, gys))
+        g2, x2, y2 = (np.choose(1 - first, v) for v in (gs, gxs, gys))
         lower = gb < best
         best, bo_x, bo_y = np.where(lower, gb, best), np.where(lower, gx_, bo_x), np.where(lower, gy_, bo_y)
-        dirs = 2 * np.pi * np.arange(REACH_DIRS) / REACH_DIRS
-        dx, dy = np.cos(dirs), np.sin(dirs)
-        step = np.full(bad.size, 0.5 * REACH_GRID * R)
-        act = r
-        for _ in range(REACH_SEARCH):
-            if not act.size:
-                break
-            tx, ty = bo_x[act, None] + step[act, None] * dx, bo_y[act, None] + step[act, None] * dy
-            G = surface_at(tx, ty, act)
-            j = np.argmin(G, axis=1)
-            ra = np.arange(act.size)
-            g = G[ra, j]
-            up = g < best[act]
-            best[act] = np.where(up, g, best[act])
-            bo_x[act] = np.where(up, tx[ra, j], bo_x[act])
-            bo_y[act] = np.where(up, ty[ra, j], bo_y[act])
-            step[act] = np.where(up, step[act], 0.5 * step[act])
-            # a point whose step fell below REACH_STEP_MIN x R stops (the next steps could
-            # lower it by less than about that: a few 1e-5 mm)
-            act = act[step[act] >= REACH_STEP_MIN * R]
+        second = np.nonzero(np.isfinite(g2) & (g2 < best + REACH_SECOND * R))[0]
+        if REACH_METHOD == "compass":
+            _compass(surface_at, best, bo_x, bo_y, R)
+        else:
+            def probe(ox, oy, idx):
+                """One ball per point ``idx``, centred at offset (ox, oy) from it: (g as
+                surface_at, the centre's height Zc, dZc/dX, dZc/dY from the contact)."""
+                qx, qy = bx[idx] + ox, by[idx] + oy
+                Zc, qcx, qcy = drop_info(qx, qy)
+                Zc = Zc + R
+                with np.errstate(invalid="ignore", divide="ignore"):
+                    low = Zc - np.sqrt(R * R - ox * ox - oy * oy)
+                    ux, uy = qcx - qx, qcy - qy
+                    sq = np.sqrt(np.maximum(R * R - ux * ux - uy * uy, 1e-24 * R * R))
+                ex = np.maximum(np.maximum(-qx, qx - ws.L), 0.0)
+                ey = np.maximum(np.maximum(-qy, qy - ws.W), 0.0)
+                over = (ex > ox_) | (ey > oy_) | (ex * ex + ey * ey > max(ox_, oy_) ** 2)
+                g = np.where(np.isfinite(low) & (ox * ox + oy * oy <= R * R) & ~over, low, np.inf)
+                return g, Zc, ux / sq, uy / sq
+
+            box = (-ox_ - bx, ws.L + ox_ - bx, -oy_ - by, ws.W + oy_ - by)
+            if second.size:
+                b2, bx2, by2 = g2[second], x2[second], y2[second]
+                _descend(lambda ox, oy, idx: probe(ox, oy, second[idx]), b2, bx2, by2, R,
+                         tuple(b[second] for b in box))
+            _descend(probe, best, bo_x, bo_y, R, box)
+            if second.size:
+                lo = b2 < best[second]
+                k = second[lo]
+                best[k], bo_x[k], bo_y[k] = b2[lo], bx2[lo], by2[lo]
+            # neighbouring points share their lowest balls: each point tries the others'
+            # (real balls: their centre heights are drops), and descends again from one
+            # that is lower than its own (another basin)
+            for _ in range(REACH_SHARE_ROUNDS):
+                moved = _share(bx, by, best, bo_x, bo_y, R)
+                if not moved.size:
+                    break
+                sub_best, sub_x, sub_y = best[moved], bo_x[moved], bo_y[moved]
+                _descend(lambda ox, oy, idx, m=moved: probe(ox, oy, m[idx]), sub_best, sub_x, sub_y, R,
+                         tuple(b[moved] for b in box))
+                best[moved], bo_x[moved], bo_y[moved] = sub_best, sub_x, sub_y
         out[bad] = np.maximum(design[bad], np.minimum(best, 0.0))
         d2 = np.minimum(bo_x * bo_x + bo_y * bo_y, R * R)
         fillet = np.where(np.isfinite(best) & (best < 0.0), np.sqrt(R * R - d2) / R, 1.0)
@@ -697,11 +733,244 @@ def reachable_height(ws, px, py, R: float, chunk: int = 20000, overhang: float |
     return (out, ok, scale) if return_scale else (out, ok)
 
 
-def _grid_starts(ws, bx, by, R, drop, overhang=(0.0, 0.0)):
+REACH_ITERS = 16                                    # the descent's drops per point, at most
+
+
+def _line_min(gx, gy, u0x, u0y, tx, ty, R):
+    """Along the line u0 + t (tx, ty) (u0 its point nearest the origin, (tx, ty) a unit
+    vector), the point where g . u - sqrt(R^2 - |u|^2) is lowest (closed form; nan
+    where the line misses the disk of radius R)."""
+    with np.errstate(invalid="ignore"):
+        rho = np.sqrt(R * R - u0x * u0x - u0y * u0y)
+        sig = gx * tx + gy * ty
+        t = -sig * rho / np.sqrt(1.0 + sig * sig)
+    return u0x + t * tx, u0y + t * ty
+
+
+def _model_min(A, B, hb, box, R):
+    """The lowest point of the model max(la, lb)(u) - sqrt(R^2 - |u|^2) over the box of
+    allowed centre offsets (xlo, xhi, ylo, yhi): la, lb linear (z, gx, gy, ux, uy: the
+    value z and slope g at u), lb only where ``hb``. The model is convex: its lowest
+    point is the best of the stationary points of each active set (one piece or the
+    kink line la = lb; free, on one side of the box, or at a corner). Returns
+    (ux, uy, M); M = inf where no candidate is in the box."""
+    xlo, xhi, ylo, yhi = box
+    zero, one = np.zeros_like(xlo), np.ones_like(xlo)
+    cx, cy = [], []
+    # one piece: free, and along each side of the box
+    for P in (A, B):
+        s1 = np.sqrt(1.0 + P[1] * P[1] + P[2] * P[2])
+        cx.append(-R * P[1] / s1)
+        cy.append(-R * P[2] / s1)
+        for c in (xlo, xhi):
+            ux, uy = _line_min(P[1], P[2], c, zero, zero, one, R)
+            cx.append(ux)
+            cy.append(uy)
+        for c in (ylo, yhi):
+            ux, uy = _line_min(P[1], P[2], zero, c, one, zero, R)
+            cx.append(ux)
+            cy.append(uy)
+    # the kink line la = lb: n . u = d0
+    dx, dy = A[1] - B[1], A[2] - B[2]
+    dn = np.hypot(dx, dy)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rhs = (B[0] - B[1] * B[3] - B[2] * B[4]) - (A[0] - A[1] * A[3] - A[2] * A[4])
+        nx, ny, d0 = dx / dn, dy / dn, rhs / dn
+        ux, uy = _line_min(A[1], A[2], d0 * nx, d0 * ny, -ny, nx, R)
+        cx.append(ux)
+        cy.append(uy)
+        for c in (xlo, xhi):                  # the kink line across a side
+            cx.append(c)
+            cy.append((d0 - nx * c) / ny)
+        for c in (ylo, yhi):
+            cx.append((d0 - ny * c) / nx)
+            cy.append(c)
+    for a in (xlo, xhi):                      # the corners
+        for b in (ylo, yhi):
+            cx.append(a)
+            cy.append(b)
+    UX, UY = np.stack(cx), np.stack(cy)
+    with np.errstate(invalid="ignore"):
+        la = A[0] + A[1] * (UX - A[3]) + A[2] * (UY - A[4])
+        lb = np.where(hb, B[0] + B[1] * (UX - B[3]) + B[2] * (UY - B[4]), -np.inf)
+        M = np.maximum(la, lb) - np.sqrt(R * R - UX * UX - UY * UY)
+    eps = 1e-12 * R
+    feas = (np.isfinite(M) & (UX >= xlo - eps) & (UX <= xhi + eps) & (UY >= ylo - eps) & (UY <= yhi + eps))
+    M = np.where(feas, M, np.inf)
+    k = np.argmin(M, axis=0)
+    r = np.arange(k.size)
+    return np.clip(UX[k, r], xlo, xhi), np.clip(UY[k, r], ylo, yhi), M[k, r]
+
+
+def _descend(probe, best, bo_x, bo_y, R, box):
+    """Lower each point's best ball (in place) by a model descent: the centre height is
+    modelled as the larger of two linear pieces, the drops' exact heights and
+    slopes (from their contacts) on either side of the kink where the lowest ball rests
+    on two walls; each step drops the model's lowest ball (closed form, within the
+    allowed centres ``box``: offsets (xlo, xhi, ylo, yhi) per point) within a trust
+    radius. Every value kept is a real drop. Returns the points still moving after
+    REACH_ITERS drops (bool)."""
+    n = best.size
+    act = np.arange(n)
+    g, za, ax, ay = probe(bo_x, bo_y, act)
+    ok = np.isfinite(za) & np.isfinite(ax) & np.isfinite(ay)
+    uax, uay = bo_x.copy(), bo_y.copy()
+    zb, bgx, bgy, ubx, uby = (np.zeros(n) for _ in range(5))
+    has_b = np.zeros(n, bool)
+    delta = np.full(n, 0.5 * REACH_GRID * R)
+    refresh = np.zeros(n, bool)
+    prev = np.full(n, 0.5 * REACH_GRID * R)        # the last model step's length
+    last = np.zeros(n, np.int8)
+    act = act[ok & np.isfinite(best)]
+    for _ in range(REACH_ITERS):
+        if not act.size:
+            break
+        A = (za[act], ax[act], ay[act], uax[act], uay[act])
+        B = (zb[act], bgx[act], bgy[act], ubx[act], uby[act])
+        hb = has_b[act]
+        tx, ty, M = _model_min(A, B, hb, tuple(b[act] for b in box), R)
+        none = ~np.isfinite(M)
+        sx, sy = tx - bo_x[act], ty - bo_y[act]
+        sn = np.hypot(sx, sy)
+        f = np.where(sn > delta[act], delta[act] / np.maximum(sn, 1e-300), 1.0)
+        sx, sy = np.where(none, 0.0, sx * f), np.where(none, 0.0, sy * f)
+        sn = np.hypot(sx, sy)
+        # after a step that did not lower the point, the piece not updated by it may be
+        # stale (a curved wall): drop a ball just across the kink line on its side instead
+        # (or that is stale: linearised farther from the best ball than 8 last steps)
+        la0 = last[act] == 0
+        ox_, oy_ = np.where(la0, B[3], A[3]), np.where(la0, B[4], A[4])
+        bx_, by_ = bo_x[act], bo_y[act]
+        sp = np.maximum(prev[act], 1e-7 * R)
+        rf = hb & (refresh[act] | (np.hypot(ox_ - bx_, oy_ - by_) > 8.0 * sp))
+        ex, ey = np.where(la0, B[1] - A[1], A[1] - B[1]), np.where(la0, B[2] - A[2], A[2] - B[2])
+        en = np.maximum(np.hypot(ex, ey), 1e-300)
+        # across the model's kink line: twice the model's distance to it, plus the last step
+        with np.errstate(invalid="ignore"):
+            gap = np.abs((A[0] + A[1] * (bx_ - A[3]) + A[2] * (by_ - A[4]))
+                         - (B[0] + B[1] * (bx_ - B[3]) + B[2] * (by_ - B[4]))) / en
+        eps = np.minimum(np.maximum(np.nan_to_num(2.0 * gap) + sp, 1e-7 * R), np.maximum(delta[act], 1e-7 * R))
+        sx, sy = np.where(rf, eps * ex / en, sx), np.where(rf, eps * ey / en, sy)
+        none &= ~rf
+        nx2, ny2 = bo_x[act] + sx, bo_y[act] + sy
+        gn, zn, gxn, gyn = probe(nx2, ny2, act)
+        up = gn < best[act]
+        ia = act[up]
+        best[ia], bo_x[ia], bo_y[ia] = gn[up], nx2[up], ny2[up]
+        delta[act] = np.where(up, np.minimum(np.maximum(delta[act], 2 * sn), 0.25 * R),
+                              np.where(rf, delta[act], 0.5 * sn))
+        refresh[act] = ~up & ~rf
+        prev[act] = np.where(rf, prev[act], sn)
+        sn = np.where(rf, eps, sn)
+        # the new piece replaces the one whose slope is nearer (the first other slope: b)
+        fin = np.isfinite(zn) & np.isfinite(gxn) & np.isfinite(gyn)
+        da = np.hypot(gxn - A[1], gyn - A[2])
+        near_a = da <= np.hypot(gxn - B[1], gyn - B[2])
+        new_b = ~hb & (da > 1e-9)
+        to_a = fin & ((hb & near_a) | (~hb & ~new_b))
+        to_b = fin & ((hb & ~near_a) | new_b)
+        for Pz, Px, Py, Pux, Puy, sel in ((za, ax, ay, uax, uay, to_a), (zb, bgx, bgy, ubx, uby, to_b)):
+            i = act[sel]
+            Pz[i], Px[i], Py[i], Pux[i], Puy[i] = zn[sel], gxn[sel], gyn[sel], nx2[sel], ny2[sel]
+        has_b[act[to_b]] = True
+        last[act[to_a]] = 0
+        last[act[to_b]] = 1
+        act = act[~none & (sn > 1e-9 * R) & (delta[act] > 1e-9 * R)]
+    moving = np.zeros(n, bool)
+    moving[act] = True
+    return moving
+
+
+REACH_SHARE_ROUNDS = 3
+REACH_SECOND = 0.25                                 # x R: see reachable_height
+REACH_SHARE_CELL = 1.0 / 16.0                       # x R: one shared ball per cell (the lowest centre)
+
+
+def _share(bx, by, best, bo_x, bo_y, R):
+    """Offer every point the balls the others ended on (in place): per cell of
+    REACH_SHARE_CELL x R the ball with the lowest centre, at its exact height. Returns
+    the indices of the points it lowered."""
+    fin = np.isfinite(best)
+    if not fin.any():
+        return np.zeros(0, dtype=np.intp)
+    cx, cy = (bx + bo_x)[fin], (by + bo_y)[fin]
+    zc = (best + np.sqrt(np.maximum(R * R - bo_x * bo_x - bo_y * bo_y, 0.0)))[fin]
+    h = REACH_SHARE_CELL * R
+    key = np.floor(cx / h).astype(np.int64) * 1_000_003 + np.floor(cy / h).astype(np.int64)
+    o = np.lexsort((zc, key))
+    first = np.r_[True, key[o][1:] != key[o][:-1]]
+    cx, cy, zc = cx[o][first], cy[o][first], zc[o][first]
+    # bins of size R: a point looks at the 3 x 3 bins around its own
+    x0, y0 = cx.min(), cy.min()
+    ix, iy = np.floor((cx - x0) / R).astype(np.int64), np.floor((cy - y0) / R).astype(np.int64)
+    ny = int(iy.max()) + 3
+    cid = (ix + 1) * ny + (iy + 1)
+    order = np.argsort(cid, kind="stable")
+    cid_s = cid[order]
+    px_i = np.floor((bx - x0) / R).astype(np.int64) + 1
+    py_i = np.floor((by - y0) / R).astype(np.int64) + 1
+    lowered = np.zeros(bx.size, bool)
+    for di in (-1, 0, 1):
+        for dj in (-1, 0, 1):
+            c = (px_i + di) * ny + (py_i + dj)
+            valid = (px_i + di >= 0) & (py_i + dj >= 0) & (py_i + dj < ny)
+            lo = np.searchsorted(cid_s, c, "left")
+            hi = np.searchsorted(cid_s, c, "right")
+            cnt = np.where(valid, hi - lo, 0)
+            tot = int(cnt.sum())
+            if not tot:
+                continue
+            own = np.repeat(np.arange(bx.size), cnt)
+            off = np.arange(tot) - np.repeat(np.cumsum(cnt) - cnt, cnt)
+            k = order[np.repeat(lo, cnt) + off]
+            ux, uy = cx[k] - bx[own], cy[k] - by[own]
+            with np.errstate(invalid="ignore"):
+                g = zc[k] - np.sqrt(R * R - ux * ux - uy * uy)
+            g = np.where(np.isfinite(g), g, np.inf)
+            m = np.full(bx.size, np.inf)
+            np.minimum.at(m, own, g)
+            hit = g == m[own]
+            j = np.full(bx.size, -1)
+            j[own[hit]] = np.nonzero(hit)[0]
+            up = m < best - 1e-12 * R
+            u = np.nonzero(up)[0]
+            best[u] = m[u]
+            bo_x[u], bo_y[u] = ux[j[u]], uy[j[u]]
+            lowered |= up
+    return np.nonzero(lowered)[0]
+
+
+def _compass(surface_at, best, bo_x, bo_y, R):
+    """The compass search from the best start (in place)."""
+    r = np.arange(best.size)
+    dirs = 2 * np.pi * np.arange(REACH_DIRS) / REACH_DIRS
+    dx, dy = np.cos(dirs), np.sin(dirs)
+    step = np.full(best.size, 0.5 * REACH_GRID * R)
+    act = r
+    for _ in range(REACH_SEARCH):
+        if not act.size:
+            break
+        tx, ty = bo_x[act, None] + step[act, None] * dx, bo_y[act, None] + step[act, None] * dy
+        G = surface_at(tx, ty, act)
+        j = np.argmin(G, axis=1)
+        ra = np.arange(act.size)
+        g = G[ra, j]
+        up = g < best[act]
+        best[act] = np.where(up, g, best[act])
+        bo_x[act] = np.where(up, tx[ra, j], bo_x[act])
+        bo_y[act] = np.where(up, ty[ra, j], bo_y[act])
+        step[act] = np.where(up, step[act], 0.5 * step[act])
+        # a point whose step fell below REACH_STEP_MIN x R stops (the next steps could
+        # lower it by less than about that: a few 1e-5 mm)
+        act = act[step[act] >= REACH_STEP_MIN * R]
+
+
+def _grid_starts(ws, bx, by, R, drop, overhang=(0.0, 0.0), split=False):
     """Per point (bx, by), the lowest surface above it of the balls centred on a grid of
     spacing REACH_GRID x R over the stock and up to ``overhang`` (x, y) beyond it (the last
     node of each side at ``overhang``; exact drop-cutter heights; only the nodes within R
-    of some point are dropped): (g, centre offset x, y), +inf where none."""
+    of some point are dropped): (g, centre offset x, y), +inf where none. With ``split``
+    the same as two lists, [on the stock, beyond its edges]."""
     from scipy.ndimage import binary_dilation
 
     h = REACH_GRID * R
@@ -727,8 +996,9 @@ def _grid_starts(ws, bx, by, R, drop, overhang=(0.0, 0.0)):
     qi, qj = np.nonzero(near)
     z = drop(xs[qi], ys[qj])
     Z[qi, qj] = np.where(np.isfinite(z), z, np.inf)
-    best = np.full(bx.size, np.inf)
-    ox, oy = np.zeros(bx.size), np.zeros(bx.size)
+    # the best node on the stock and the best beyond its edges, apart
+    best = [np.full(bx.size, np.inf), np.full(bx.size, np.inf)]
+    ox, oy = [np.zeros(bx.size), np.zeros(bx.size)], [np.zeros(bx.size), np.zeros(bx.size)]
     for di in range(-rx, rx + 1):
         i = ix + di
         okx = (i >= 0) & (i < nx)
@@ -743,10 +1013,15 @@ def _grid_starts(ws, bx, by, R, drop, overhang=(0.0, 0.0)):
             with np.errstate(invalid="ignore"):
                 g = Z[i, jj] + R - np.sqrt(R * R - d2)
             g = np.where(ok & (d2 < R * R) & np.isfinite(g), g, np.inf)
-            up = g < best
-            best = np.where(up, g, best)
-            ox, oy = np.where(up, dx, ox), np.where(up, dy, oy)
-    return best, ox, oy
+            off = (i < kx) | (i >= nx - kx) | (jj < ky) | (jj >= ny - ky)
+            for side in (0, 1):
+                up = (g < best[side]) & (off == bool(side))
+                best[side] = np.where(up, g, best[side])
+                ox[side], oy[side] = np.where(up, dx, ox[side]), np.where(up, dy, oy[side])
+    if split:
+        return best, ox, oy
+    lo = best[1] < best[0]
+    return (np.where(lo, best[1], best[0]), np.where(lo, ox[1], ox[0]), np.where(lo, oy[1], oy[0]))
 
 
 def _dist_to_segment(px, py, a, b):
