@@ -598,6 +598,7 @@ REACH_SEARCH = 24                                   # compass steps from the bes
 REACH_DIRS = 8          # compass directions (4 ended up to 0.045 mm higher on 2*sin(x) + 2*sin(y))
 REACH_STEP_MIN = 1e-5                               # x R: a point's search stops below this step
 REACH_METHOD = "descend"
+_DEBUG = None
 
 
 def reachable_height(ws, px, py, R: float, chunk: int = 20000, overhang: float | None = None,
@@ -669,23 +670,28 @@ def reachable_height(ws, px, py, R: float, chunk: int = 20000, overhang: float |
             over = (ex > ox_) | (ey > oy_) | (ex * ex + ey * ey > max(ox_, oy_) ** 2)
             return np.where(np.isfinite(low) & (ox * ox + oy * oy <= R * R) & ~over, low, np.inf)
 
-        # starts: the centre above the point, the normal-offset centre, and the lowest of
-        # the balls centred on a grid (REACH_GRID x R) over the stock within R of the point
-        OX = np.column_stack([(cx - px)[bad], np.zeros(bad.size)])
-        OY = np.column_stack([(cy - py)[bad], np.zeros(bad.size)])
-        G = surface_at(OX, OY)
-        j = np.argmin(G, axis=1)
-        r = np.arange(bad.size)
-        best, bo_x, bo_y = G[r, j], OX[r, j], OY[r, j]
+        def allowed(ox, oy):
+            qx, qy = bx + ox, by + oy
+            ex = np.maximum(np.maximum(-qx, qx - ws.L), 0.0)
+            ey = np.maximum(np.maximum(-qy, qy - ws.W), 0.0)
+            over = (ex > ox_) | (ey > oy_) | (ex * ex + ey * ey > max(ox_, oy_) ** 2)
+            return (ox * ox + oy * oy <= R * R) & ~over
+
+        # starts: the centre above the point, the normal-offset centre (its drop is Z),
+        # and the lowest of the balls centred on a grid (REACH_GRID x R) over the stock
+        # within R of the point
+        nox, noy = (cx - px)[bad], (cy - py)[bad]
+        with np.errstate(invalid="ignore"):
+            gn = Z[bad] + R - np.sqrt(R * R - nox * nox - noy * noy)
+        gn = np.where(np.isfinite(gn) & allowed(nox, noy), gn, np.inf)
+        g0 = surface_at(np.zeros((bad.size, 1)), np.zeros((bad.size, 1)))[:, 0]
+        lower = gn < g0
+        best, bo_x, bo_y = np.where(lower, gn, g0), np.where(lower, nox, 0.0), np.where(lower, noy, 0.0)
         gs, gxs, gys = _grid_starts(ws, bx, by, R, drop, (ox_, oy_), split=True)
-        # the other side's best (a ball over the stock, or one hanging off its edge): a
-        # second start where it is within REACH_SECOND of the best (another basin)
         first = np.where(gs[1] < gs[0], 1, 0)
         gb, gx_, gy_ = (np.choose(first, v) for v in (gs, gxs, gys))
-        g2, x2, y2 = (np.choose(1 - first, v) for v in (gs, gxs, gys))
         lower = gb < best
         best, bo_x, bo_y = np.where(lower, gb, best), np.where(lower, gx_, bo_x), np.where(lower, gy_, bo_y)
-        second = np.nonzero(np.isfinite(g2) & (g2 < best + REACH_SECOND * R))[0]
         if REACH_METHOD == "compass":
             _compass(surface_at, best, bo_x, bo_y, R)
         else:
@@ -706,26 +712,60 @@ def reachable_height(ws, px, py, R: float, chunk: int = 20000, overhang: float |
                 return g, Zc, ux / sq, uy / sq
 
             box = (-ox_ - bx, ws.L + ox_ - bx, -oy_ - by, ws.W + oy_ - by)
-            if second.size:
-                b2, bx2, by2 = g2[second], x2[second], y2[second]
-                _descend(lambda ox, oy, idx: probe(ox, oy, second[idx]), b2, bx2, by2, R,
-                         tuple(b[second] for b in box))
-            _descend(probe, best, bo_x, bo_y, R, box)
-            if second.size:
-                lo = b2 < best[second]
-                k = second[lo]
-                best[k], bo_x[k], bo_y[k] = b2[lo], bx2[lo], by2[lo]
-            # neighbouring points share their lowest balls: each point tries the others'
-            # (real balls: their centre heights are drops), and descends again from one
-            # that is lower than its own (another basin)
-            for _ in range(REACH_SHARE_ROUNDS):
-                moved = _share(bx, by, best, bo_x, bo_y, R)
-                if not moved.size:
-                    break
-                sub_best, sub_x, sub_y = best[moved], bo_x[moved], bo_y[moved]
-                _descend(lambda ox, oy, idx, m=moved: probe(ox, oy, m[idx]), sub_best, sub_x, sub_y, R,
-                         tuple(b[moved] for b in box))
-                best[moved], bo_x[moved], bo_y[moved] = sub_best, sub_x, sub_y
+
+            def descend(sel, iters):
+                """_descend on the points ``sel`` (in place); the unsettled among them."""
+                b_, x_, y_ = best[sel], bo_x[sel], bo_y[sel]
+                mv = _descend(lambda ox, oy, idx: probe(ox, oy, sel[idx]), b_, x_, y_, R,
+                              tuple(v[sel] for v in box), iters)
+                best[sel], bo_x[sel], bo_y[sel] = b_, x_, y_
+                return sel[mv]
+
+            def share(src, dst, iters):
+                """Neighbouring points share their lowest balls: the points ``dst`` try
+                those of ``src`` (real balls: their centre heights are drops) and descend
+                again from one lower than their own (another basin)."""
+                for _ in range(REACH_SHARE_ROUNDS):
+                    moved = _share(bx, by, best, bo_x, bo_y, R, src, dst)
+                    if not moved.size:
+                        break
+                    descend(moved, iters)
+
+            # the lead points (the first in each cell of REACH_LEAD x R) are searched
+            # fully: from the grid's best and from the best on the other side of the
+            # stock's edge (a ball over the stock, or one hanging off it) when within
+            # REACH_SECOND of it (another basin), then from each other's balls, then by the
+            # compass where the descent did not settle on a kink. The other points start
+            # from the lead points' balls (next to their own lowest: a short descent).
+            # (every point within R of the stock's edges is a lead point: balls hanging off
+            # an edge make other basins there)
+            edge = (bx < R) | (bx > ws.L - R) | (by < R) | (by > ws.W - R)
+            lead, rest = _leaders(bx, by, REACH_LEAD * R, edge)
+            qx, qy = (bx + bo_x)[lead], (by + bo_y)[lead]
+            side = np.where((qx < 0) | (qx > ws.L) | (qy < 0) | (qy > ws.W), 1, 0)
+            g2, x2, y2 = (np.choose(1 - side, [v[0][lead], v[1][lead]]) for v in (gs, gxs, gys))
+            two = np.nonzero(np.isfinite(g2) & (g2 < best[lead] + REACH_SECOND * R))[0]
+            if two.size:
+                sel = lead[two]
+                keep = best[sel], bo_x[sel], bo_y[sel]
+                best[sel], bo_x[sel], bo_y[sel] = g2[two], x2[two], y2[two]
+                descend(sel, REACH_ITERS)
+                lo = keep[0] < best[sel]
+                k = sel[lo]
+                best[k], bo_x[k], bo_y[k] = keep[0][lo], keep[1][lo], keep[2][lo]
+            slow = descend(lead, REACH_ITERS)
+            share(lead, lead, REACH_ITERS)
+            if slow.size:
+                if _DEBUG is not None:
+                    _DEBUG.append((bx[slow], by[slow], bo_x[slow], bo_y[slow], best[slow].copy()))
+                sb, sx_, sy_ = best[slow], bo_x[slow], bo_y[slow]
+                _compass(lambda tx, ty, idx, m=slow: surface_at(tx, ty, m[idx]), sb, sx_, sy_, R,
+                         REACH_POLISH)
+                best[slow], bo_x[slow], bo_y[slow] = sb, sx_, sy_
+            if rest.size:
+                _share(bx, by, best, bo_x, bo_y, R, lead, rest)
+                descend(rest, REACH_ITERS_REST)
+                share(np.arange(bad.size), rest, REACH_ITERS_REST)
         out[bad] = np.maximum(design[bad], np.minimum(best, 0.0))
         d2 = np.minimum(bo_x * bo_x + bo_y * bo_y, R * R)
         fillet = np.where(np.isfinite(best) & (best < 0.0), np.sqrt(R * R - d2) / R, 1.0)
@@ -733,7 +773,7 @@ def reachable_height(ws, px, py, R: float, chunk: int = 20000, overhang: float |
     return (out, ok, scale) if return_scale else (out, ok)
 
 
-REACH_ITERS = 16                                    # the descent's drops per point, at most
+REACH_ITERS = 32                                    # the descent's drops per point, at most
 
 
 def _line_min(gx, gy, u0x, u0y, tx, ty, R):
@@ -802,14 +842,14 @@ def _model_min(A, B, hb, box, R):
     return np.clip(UX[k, r], xlo, xhi), np.clip(UY[k, r], ylo, yhi), M[k, r]
 
 
-def _descend(probe, best, bo_x, bo_y, R, box):
+def _descend(probe, best, bo_x, bo_y, R, box, iters=None):
     """Lower each point's best ball (in place) by a model descent: the centre height is
     modelled as the larger of two linear pieces, the drops' exact heights and
     slopes (from their contacts) on either side of the kink where the lowest ball rests
     on two walls; each step drops the model's lowest ball (closed form, within the
     allowed centres ``box``: offsets (xlo, xhi, ylo, yhi) per point) within a trust
-    radius. Every value kept is a real drop. Returns the points still moving after
-    REACH_ITERS drops (bool)."""
+    radius. Every value kept is a real drop. Returns the points not settled on a kink
+    after REACH_ITERS drops (bool)."""
     n = best.size
     act = np.arange(n)
     g, za, ax, ay = probe(bo_x, bo_y, act)
@@ -819,10 +859,12 @@ def _descend(probe, best, bo_x, bo_y, R, box):
     has_b = np.zeros(n, bool)
     delta = np.full(n, 0.5 * REACH_GRID * R)
     refresh = np.zeros(n, bool)
+    fresh = np.zeros(n, bool)                       # the last drop was a refresh
+    nref = np.zeros(n)                              # refreshes in a row on the same side
     prev = np.full(n, 0.5 * REACH_GRID * R)        # the last model step's length
     last = np.zeros(n, np.int8)
     act = act[ok & np.isfinite(best)]
-    for _ in range(REACH_ITERS):
+    for _ in range(REACH_ITERS if iters is None else iters):
         if not act.size:
             break
         A = (za[act], ax[act], ay[act], uax[act], uay[act])
@@ -842,14 +884,21 @@ def _descend(probe, best, bo_x, bo_y, R, box):
         ox_, oy_ = np.where(la0, B[3], A[3]), np.where(la0, B[4], A[4])
         bx_, by_ = bo_x[act], bo_y[act]
         sp = np.maximum(prev[act], 1e-7 * R)
-        rf = hb & (refresh[act] | (np.hypot(ox_ - bx_, oy_ - by_) > 8.0 * sp))
+        rf = hb & ~fresh[act] & (refresh[act] | (np.hypot(ox_ - bx_, oy_ - by_) > 8.0 * sp))
         ex, ey = np.where(la0, B[1] - A[1], A[1] - B[1]), np.where(la0, B[2] - A[2], A[2] - B[2])
         en = np.maximum(np.hypot(ex, ey), 1e-300)
         # across the model's kink line: twice the model's distance to it, plus the last step
         with np.errstate(invalid="ignore"):
             gap = np.abs((A[0] + A[1] * (bx_ - A[3]) + A[2] * (by_ - A[4]))
                          - (B[0] + B[1] * (bx_ - B[3]) + B[2] * (by_ - B[4]))) / en
-        eps = np.minimum(np.maximum(np.nan_to_num(2.0 * gap) + sp, 1e-7 * R), np.maximum(delta[act], 1e-7 * R))
+        # (4 times farther after each that landed on the same side)
+        eps = np.minimum(np.maximum(np.nan_to_num(2.0 * gap), 1e-6 * R) * 4.0 ** nref[act], 0.5 * REACH_GRID * R)
+        # (shortened to stay a ball the point allows: within R of it and in the box)
+        xlo, xhi, ylo, yhi = (b[act] for b in box)
+        for _ in range(8):
+            qx, qy = bx_ + eps * ex / en, by_ + eps * ey / en
+            out = (qx * qx + qy * qy >= R * R) | (qx < xlo) | (qx > xhi) | (qy < ylo) | (qy > yhi)
+            eps = np.where(out, 0.25 * eps, eps)
         sx, sy = np.where(rf, eps * ex / en, sx), np.where(rf, eps * ey / en, sy)
         none &= ~rf
         nx2, ny2 = bo_x[act] + sx, bo_y[act] + sy
@@ -860,6 +909,7 @@ def _descend(probe, best, bo_x, bo_y, R, box):
         delta[act] = np.where(up, np.minimum(np.maximum(delta[act], 2 * sn), 0.25 * R),
                               np.where(rf, delta[act], 0.5 * sn))
         refresh[act] = ~up & ~rf
+        fresh[act] = rf
         prev[act] = np.where(rf, prev[act], sn)
         sn = np.where(rf, eps, sn)
         # the new piece replaces the one whose slope is nearer (the first other slope: b)
@@ -873,28 +923,43 @@ def _descend(probe, best, bo_x, bo_y, R, box):
             i = act[sel]
             Pz[i], Px[i], Py[i], Pux[i], Puy[i] = zn[sel], gxn[sel], gyn[sel], nx2[sel], ny2[sel]
         has_b[act[to_b]] = True
+        # a refresh that updated the piece it meant to leave fresh (the same side) counts
+        same = rf & np.where(la0, to_a, to_b)
+        nref[act] = np.where(same, nref[act] + 1, 0)
         last[act[to_a]] = 0
         last[act[to_b]] = 1
-        act = act[~none & (sn > 1e-9 * R) & (delta[act] > 1e-9 * R)]
-    moving = np.zeros(n, bool)
+        tol = 1e-4 * R
+        near = has_b[act] & (np.hypot(uax[act] - bo_x[act], uay[act] - bo_y[act]) < tol) \
+            & (np.hypot(ubx[act] - bo_x[act], uby[act] - bo_y[act]) < tol)
+        still = (sn > 1e-9 * R) & (delta[act] > 1e-9 * R)
+        act = act[~none & (still | ~near)]
+    # settled: both pieces linearised next to the best ball, on either side of its kink
+    # (the others, still moving or stopped on a model of one wall, are for the compass)
+    tol = 1e-4 * R
+    settled = has_b & (np.hypot(uax - bo_x, uay - bo_y) < tol) & (np.hypot(ubx - bo_x, uby - bo_y) < tol) \
+        & (np.hypot(ax - bgx, ay - bgy) > 1e-3)
+    moving = np.isfinite(best) & ~settled
     moving[act] = True
     return moving
 
 
 REACH_SHARE_ROUNDS = 3
 REACH_SECOND = 0.25                                 # x R: see reachable_height
-REACH_SHARE_CELL = 1.0 / 16.0                       # x R: one shared ball per cell (the lowest centre)
+REACH_SHARE_CELL = 1.0 / 64.0
+REACH_LEAD = 1.0 / 8.0                              # x R: one lead point per cell
+REACH_POLISH = 1.0 / 128.0                          # x R: the compass's first step after the descent
+REACH_ITERS_REST = 6                                # the other points' drops, at most                       # x R: one shared ball per cell (the lowest centre)
 
 
-def _share(bx, by, best, bo_x, bo_y, R):
-    """Offer every point the balls the others ended on (in place): per cell of
-    REACH_SHARE_CELL x R the ball with the lowest centre, at its exact height. Returns
+def _share(bx, by, best, bo_x, bo_y, R, src, dst):
+    """Offer the points ``dst`` the balls the points ``src`` ended on (in place): per cell
+    of REACH_SHARE_CELL x R the ball with the lowest centre, at its exact height. Returns
     the indices of the points it lowered."""
-    fin = np.isfinite(best)
-    if not fin.any():
+    src = src[np.isfinite(best[src])]
+    if not src.size or not dst.size:
         return np.zeros(0, dtype=np.intp)
-    cx, cy = (bx + bo_x)[fin], (by + bo_y)[fin]
-    zc = (best + np.sqrt(np.maximum(R * R - bo_x * bo_x - bo_y * bo_y, 0.0)))[fin]
+    cx, cy = bx[src] + bo_x[src], by[src] + bo_y[src]
+    zc = best[src] + np.sqrt(np.maximum(R * R - bo_x[src] ** 2 - bo_y[src] ** 2, 0.0))
     h = REACH_SHARE_CELL * R
     key = np.floor(cx / h).astype(np.int64) * 1_000_003 + np.floor(cy / h).astype(np.int64)
     o = np.lexsort((zc, key))
@@ -907,9 +972,11 @@ def _share(bx, by, best, bo_x, bo_y, R):
     cid = (ix + 1) * ny + (iy + 1)
     order = np.argsort(cid, kind="stable")
     cid_s = cid[order]
-    px_i = np.floor((bx - x0) / R).astype(np.int64) + 1
-    py_i = np.floor((by - y0) / R).astype(np.int64) + 1
-    lowered = np.zeros(bx.size, bool)
+    px, py = bx[dst], by[dst]
+    px_i = np.floor((px - x0) / R).astype(np.int64) + 1
+    py_i = np.floor((py - y0) / R).astype(np.int64) + 1
+    m = np.full(dst.size, np.inf)
+    mx, my = np.zeros(dst.size), np.zeros(dst.size)
     for di in (-1, 0, 1):
         for dj in (-1, 0, 1):
             c = (px_i + di) * ny + (py_i + dj)
@@ -920,32 +987,43 @@ def _share(bx, by, best, bo_x, bo_y, R):
             tot = int(cnt.sum())
             if not tot:
                 continue
-            own = np.repeat(np.arange(bx.size), cnt)
+            own = np.repeat(np.arange(dst.size), cnt)
             off = np.arange(tot) - np.repeat(np.cumsum(cnt) - cnt, cnt)
             k = order[np.repeat(lo, cnt) + off]
-            ux, uy = cx[k] - bx[own], cy[k] - by[own]
+            ux, uy = cx[k] - px[own], cy[k] - py[own]
             with np.errstate(invalid="ignore"):
                 g = zc[k] - np.sqrt(R * R - ux * ux - uy * uy)
             g = np.where(np.isfinite(g), g, np.inf)
-            m = np.full(bx.size, np.inf)
-            np.minimum.at(m, own, g)
-            hit = g == m[own]
-            j = np.full(bx.size, -1)
-            j[own[hit]] = np.nonzero(hit)[0]
-            up = m < best - 1e-12 * R
+            mm = np.full(dst.size, np.inf)
+            np.minimum.at(mm, own, g)
+            hit = np.nonzero(g == mm[own])[0]
+            j = np.full(dst.size, -1)
+            j[own[hit]] = hit
+            up = mm < m
             u = np.nonzero(up)[0]
-            best[u] = m[u]
-            bo_x[u], bo_y[u] = ux[j[u]], uy[j[u]]
-            lowered |= up
-    return np.nonzero(lowered)[0]
+            m[u], mx[u], my[u] = mm[u], ux[j[u]], uy[j[u]]
+    up = m < best[dst] - 1e-12 * R
+    d = dst[up]
+    best[d], bo_x[d], bo_y[d] = m[up], mx[up], my[up]
+    return d
 
 
-def _compass(surface_at, best, bo_x, bo_y, R):
-    """The compass search from the best start (in place)."""
+def _leaders(bx, by, cell, always):
+    """(lead, rest): the first point in each cell of size ``cell`` and the points
+    ``always`` (bool), and the others."""
+    key = np.floor(bx / cell).astype(np.int64) * 1_000_003 + np.floor(by / cell).astype(np.int64)
+    _, first = np.unique(key, return_index=True)
+    mask = always.copy()
+    mask[first] = True
+    return np.nonzero(mask)[0], np.nonzero(~mask)[0]
+
+def _compass(surface_at, best, bo_x, bo_y, R, step0=0.5 * REACH_GRID):
+    """The compass search from the best start (in place): 8 directions, first steps
+    ``step0`` x R, halved when none lowers the point."""
     r = np.arange(best.size)
     dirs = 2 * np.pi * np.arange(REACH_DIRS) / REACH_DIRS
     dx, dy = np.cos(dirs), np.sin(dirs)
-    step = np.full(best.size, 0.5 * REACH_GRID * R)
+    step = np.full(best.size, step0 * R)
     act = r
     for _ in range(REACH_SEARCH):
         if not act.size:
@@ -999,25 +1077,31 @@ def _grid_starts(ws, bx, by, R, drop, overhang=(0.0, 0.0), split=False):
     # the best node on the stock and the best beyond its edges, apart
     best = [np.full(bx.size, np.inf), np.full(bx.size, np.inf)]
     ox, oy = [np.zeros(bx.size), np.zeros(bx.size)], [np.zeros(bx.size), np.zeros(bx.size)]
+    R2 = R * R
     for di in range(-rx, rx + 1):
         i = ix + di
         okx = (i >= 0) & (i < nx)
         i = np.clip(i, 0, nx - 1)
         dx = xs[i] - bx
+        offx = (i < kx) | (i >= nx - kx)
+        dx2 = dx * dx
         for dj in range(-ry, ry + 1):
             jj = iy + dj
             ok = okx & (jj >= 0) & (jj < ny)
             jj = np.clip(jj, 0, ny - 1)
             dy = ys[jj] - by
-            d2 = dx * dx + dy * dy
+            d2 = dx2 + dy * dy
+            ok &= d2 < R2
+            if not ok.any():
+                continue
             with np.errstate(invalid="ignore"):
-                g = Z[i, jj] + R - np.sqrt(R * R - d2)
-            g = np.where(ok & (d2 < R * R) & np.isfinite(g), g, np.inf)
-            off = (i < kx) | (i >= nx - kx) | (jj < ky) | (jj >= ny - ky)
+                g = Z[i, jj] + R - np.sqrt(R2 - d2)
+            off = offx | (jj < ky) | (jj >= ny - ky)
             for side in (0, 1):
-                up = (g < best[side]) & (off == bool(side))
-                best[side] = np.where(up, g, best[side])
-                ox[side], oy[side] = np.where(up, dx, ox[side]), np.where(up, dy, oy[side])
+                up = ok & (g < best[side]) & (off == bool(side))
+                if up.any():
+                    best[side] = np.where(up, g, best[side])
+                    ox[side], oy[side] = np.where(up, dx, ox[side]), np.where(up, dy, oy[side])
     if split:
         return best, ox, oy
     lo = best[1] < best[0]
