@@ -598,7 +598,6 @@ REACH_SEARCH = 24                                   # compass steps from the bes
 REACH_DIRS = 8          # compass directions (4 ended up to 0.045 mm higher on 2*sin(x) + 2*sin(y))
 REACH_STEP_MIN = 1e-5                               # x R: a point's search stops below this step
 REACH_METHOD = "descend"
-_DEBUG = None
 
 
 def reachable_height(ws, px, py, R: float, chunk: int = 20000, overhang: float | None = None,
@@ -745,19 +744,26 @@ def reachable_height(ws, px, py, R: float, chunk: int = 20000, overhang: float |
             side = np.where((qx < 0) | (qx > ws.L) | (qy < 0) | (qy > ws.W), 1, 0)
             g2, x2, y2 = (np.choose(1 - side, [v[0][lead], v[1][lead]]) for v in (gs, gxs, gys))
             two = np.nonzero(np.isfinite(g2) & (g2 < best[lead] + REACH_SECOND * R))[0]
+            unsettled = np.zeros(bad.size, bool)
             if two.size:
+                # the second start's descent, then the first's; the lower kept
                 sel = lead[two]
-                keep = best[sel], bo_x[sel], bo_y[sel]
+                first_start = best[sel], bo_x[sel], bo_y[sel]
                 best[sel], bo_x[sel], bo_y[sel] = g2[two], x2[two], y2[two]
-                descend(sel, REACH_ITERS)
-                lo = keep[0] < best[sel]
+                unsettled[descend(sel, REACH_ITERS)] = True
+                second = best[sel], bo_x[sel], bo_y[sel]
+                best[sel], bo_x[sel], bo_y[sel] = first_start
+                mv2 = unsettled[sel]
+                unsettled[sel] = False
+            unsettled[descend(lead, REACH_ITERS)] = True
+            if two.size:
+                lo = second[0] < best[sel]
                 k = sel[lo]
-                best[k], bo_x[k], bo_y[k] = keep[0][lo], keep[1][lo], keep[2][lo]
-            slow = descend(lead, REACH_ITERS)
+                best[k], bo_x[k], bo_y[k] = second[0][lo], second[1][lo], second[2][lo]
+                unsettled[k] = mv2[lo]
+            slow = np.nonzero(unsettled)[0]
             share(lead, lead, REACH_ITERS)
             if slow.size:
-                if _DEBUG is not None:
-                    _DEBUG.append((bx[slow], by[slow], bo_x[slow], bo_y[slow], best[slow].copy()))
                 sb, sx_, sy_ = best[slow], bo_x[slow], bo_y[slow]
                 _compass(lambda tx, ty, idx, m=slow: surface_at(tx, ty, m[idx]), sb, sx_, sy_, R,
                          REACH_POLISH)
