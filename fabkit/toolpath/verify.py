@@ -979,6 +979,19 @@ def _share(bx, by, best, bo_x, bo_y, R, src, dst):
     order = np.argsort(cid, kind="stable")
     cid_s = cid[order]
     px, py = bx[dst], by[dst]
+    from .kernels import module
+
+    kern = module()
+    if kern is not None:
+        m, mx, my = np.empty(dst.size), np.empty(dst.size), np.empty(dst.size)
+        ptr = np.searchsorted(cid_s, np.arange(int(cid_s[-1]) + 2))
+        kern.reach_share(np.ascontiguousarray(px), np.ascontiguousarray(py), float(x0), float(y0), float(R),
+                         int(ny), ptr.astype(np.int64), np.ascontiguousarray(cx[order]),
+                         np.ascontiguousarray(cy[order]), np.ascontiguousarray(zc[order]), m, mx, my)
+        up = m < best[dst] - 1e-12 * R
+        d = dst[up]
+        best[d], bo_x[d], bo_y[d] = m[up], mx[up], my[up]
+        return d
     px_i = np.floor((px - x0) / R).astype(np.int64) + 1
     py_i = np.floor((py - y0) / R).astype(np.int64) + 1
     m = np.full(dst.size, np.inf)
@@ -1055,8 +1068,6 @@ def _grid_starts(ws, bx, by, R, drop, overhang=(0.0, 0.0), split=False):
     node of each side at ``overhang``; exact drop-cutter heights; only the nodes within R
     of some point are dropped): (g, centre offset x, y), +inf where none. With ``split``
     the same as two lists, [on the stock, beyond its edges]."""
-    from scipy.ndimage import binary_dilation
-
     h = REACH_GRID * R
 
     def axis(length, overhang):
@@ -1075,11 +1086,29 @@ def _grid_starts(ws, bx, by, R, drop, overhang=(0.0, 0.0), split=False):
     rx, ry = int(math.ceil(R / hx)) + 1, int(math.ceil(R / hy)) + 1
     near = np.zeros((nx, ny), bool)
     near[ix, iy] = True
-    near = binary_dilation(near, np.ones((2 * rx + 1, 2 * ry + 1), bool))
+    # dilated by (rx, ry) nodes: a box sum over a summed-area table
+    S = np.zeros((nx + 1, ny + 1))
+    S[1:, 1:] = np.cumsum(np.cumsum(near, axis=0), axis=1)
+    i0, i1 = np.clip(np.arange(nx) - rx, 0, nx), np.clip(np.arange(nx) + rx + 1, 0, nx)
+    j0, j1 = np.clip(np.arange(ny) - ry, 0, ny), np.clip(np.arange(ny) + ry + 1, 0, ny)
+    near = (S[i1][:, j1] - S[i0][:, j1] - S[i1][:, j0] + S[i0][:, j0]) > 0
     Z = np.full((nx, ny), np.inf)
     qi, qj = np.nonzero(near)
     z = drop(xs[qi], ys[qj])
     Z[qi, qj] = np.where(np.isfinite(z), z, np.inf)
+    from .kernels import module
+
+    kern = module()
+    if kern is not None and bx.size:
+        B, OX, OY = (np.empty((2, bx.size)) for _ in range(3))
+        kern.reach_grid_best(np.ascontiguousarray(bx, dtype=float), np.ascontiguousarray(by, dtype=float),
+                             ix.astype(np.int64), iy.astype(np.int64), xs, ys, np.ascontiguousarray(Z),
+                             int(kx), int(ky), int(rx), int(ry), float(R), B, OX, OY)
+        best, ox, oy = [B[0], B[1]], [OX[0], OX[1]], [OY[0], OY[1]]
+        if split:
+            return best, ox, oy
+        lo = best[1] < best[0]
+        return (np.where(lo, best[1], best[0]), np.where(lo, ox[1], ox[0]), np.where(lo, oy[1], oy[0]))
     # the best node on the stock and the best beyond its edges, apart
     best = [np.full(bx.size, np.inf), np.full(bx.size, np.inf)]
     ox, oy = [np.zeros(bx.size), np.zeros(bx.size)], [np.zeros(bx.size), np.zeros(bx.size)]
