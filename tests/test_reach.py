@@ -115,3 +115,22 @@ def test_reachable_height_against_brute_force_search(formula, x, y, pts):
     ref = np.array([_brute(ws, a, b, R, OVERHANG * R) for a, b in zip(px, py)])
     assert np.all(z <= ref + 2e-5), (z - ref)
     assert np.all(z >= ref - 1e-4), (z - ref)
+
+
+def test_compiled_loops_match_the_numpy_code(monkeypatch):
+    """The reachable height's grid minimum and shared balls run compiled (dropcut.py's
+    reach_grid_best, reach_share) or in numpy (FABKIT_NO_KERNELS=1, the drop cutter too):
+    the same heights and normal scales, to the drop cutter's own agreement (1e-9 mm)."""
+    from fabkit.toolpath.verify import OVERHANG, reachable_height
+
+    rng = np.random.default_rng(5)
+    X, Y = rng.uniform(2.5, 5.5, 400), rng.uniform(0.0, 6.0, 400)
+    out = []
+    for off in ("0", "1"):
+        monkeypatch.setenv("FABKIT_NO_KERNELS", off)
+        ws = _ws("3*abs(x) - 10", (-4.0, 4.0), (0.0, 6.0))
+        out.append(reachable_height(ws, X, Y, R, overhang=OVERHANG * R, return_scale=True))
+    (z1, ok1, s1), (z2, ok2, s2) = out
+    assert (ok1 == ok2).all() and (~ok1).sum() > 100
+    np.testing.assert_allclose(z1, z2, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(s1, s2, rtol=0, atol=1e-9)
