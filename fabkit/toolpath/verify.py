@@ -594,10 +594,17 @@ OVERHANG = 0.999
 #: nearly vertical tangent, which no chord of the program follows without gouging)
 OVERHANG_ALONG = 0.99
 REACH_GRID = 1.0 / 8.0                              # x R: the grid of start centres
-REACH_SEARCH = 24                                   # compass steps from the best coarse centre
+REACH_SEARCH = 24                                   # compass steps, at most
 REACH_DIRS = 8          # compass directions (4 ended up to 0.045 mm higher on 2*sin(x) + 2*sin(y))
 REACH_STEP_MIN = 1e-5                               # x R: a point's search stops below this step
-REACH_METHOD = "descend"
+REACH_METHOD = "descend"                            # or "compass": the search before the descent
+REACH_ITERS = 32                                    # the descent's drops per point, at most
+REACH_SHARE_ROUNDS = 3
+REACH_SECOND = 0.25                                 # x R: see reachable_height
+REACH_SHARE_CELL = 1.0 / 64.0                       # x R: one shared ball per cell (the lowest centre)
+REACH_LEAD = 1.0 / 8.0                              # x R: one lead point per cell
+REACH_POLISH = 1.0 / 128.0                          # x R: the compass's first step after the descent
+REACH_ITERS_REST = 6                                # the other points' drops, at most
 
 
 def reachable_height(ws, px, py, R: float, chunk: int = 20000, overhang: float | None = None,
@@ -607,12 +614,27 @@ def reachable_height(ws, px, py, R: float, chunk: int = 20000, overhang: float |
     of the surface; elsewhere (a valley tighter than the ball, a V crease) the lowest
     surface, above the point, of the balls resting on the design (exact drop-cutter
     heights) centred within R of it: g(c) = Z(c) + R - sqrt(R^2 - |c - p|^2), minimised
-    over the centre above the point, the normal-offset centre and a grid of centres
-    (:data:`REACH_GRID` x R) over the stock, then by a compass search (8 directions, 24
-    steps from half the grid step, halved when none improves) from the best. Every
-    centre tried is a real ball position, so the height is an upper bound of the lowest one (the material it calls unreachable is
-    never less than there is); on a parabolic valley tighter than the ball it is within
-    3e-4 mm of the centred ball's closed form (tested). Centres farther than
+    over c. Starts: the centre above the point, the normal-offset centre and a grid of
+    centres (:data:`REACH_GRID` x R) over the stock. The lowest ball rests on two walls
+    (a kink of Z, where g is lowest) or stands at the edge of the allowed centres, so
+    the search is a model descent (:func:`_descend`): Z modelled as the larger of two
+    linear pieces, the exact heights and slopes of the drops on either side of the kink
+    (the slope from the contact point q: dZ/dc = (q - c) / sqrt(R^2 - |q - c|^2)), each
+    step the model's lowest ball in closed form. Points share: one lead point per cell
+    of :data:`REACH_LEAD` x R, and every point within R of the stock's edges, is searched
+    from the grid's best and from the best beyond (or over) the edge, then from the
+    other lead points' balls, then by a compass search (8 directions, first step
+    :data:`REACH_POLISH` x R, halved to 1e-5 R) where the descent did not settle on a
+    kink; the other points start from the lead points' balls and descend at most
+    :data:`REACH_ITERS_REST` drops. Every centre kept is a real ball position, so the
+    height is an upper bound of the lowest one (the material it calls unreachable is
+    never less than there is); on a V crease it is within 1e-6 mm of the closed form
+    and on curved creases and at the stock's edges within 2e-5 mm of a brute-force
+    search (tests/test_reach.py); on a parabolic valley tighter than the ball within
+    3e-4 mm of the centred ball's closed form (tested). :data:`REACH_METHOD` =
+    'compass' runs the search this replaced (the compass from the grid's best, first
+    step REACH_GRID / 2 x R: 10-20x the drops, and stalled up to 0.33 mm high on a
+    crease oblique to its directions or at a stock edge). Centres farther than
     ``overhang`` (mm, default :data:`OVERHANG` x R; a pair: beyond the x and the y edges)
     beyond the footprint are not tried (see :data:`OVERHANG`). Returns (height, reachable), and with ``return_scale`` the
     normal scale of the reachable surface: 1 / sqrt(1 + slope^2) of the design where the
@@ -777,9 +799,6 @@ def reachable_height(ws, px, py, R: float, chunk: int = 20000, overhang: float |
         fillet = np.where(np.isfinite(best) & (best < 0.0), np.sqrt(R * R - d2) / R, 1.0)
         scale[bad] = np.maximum(scale[bad], fillet)
     return (out, ok, scale) if return_scale else (out, ok)
-
-
-REACH_ITERS = 32                                    # the descent's drops per point, at most
 
 
 def _line_min(gx, gy, u0x, u0y, tx, ty, R):
@@ -947,14 +966,6 @@ def _descend(probe, best, bo_x, bo_y, R, box, iters=None):
     moving = np.isfinite(best) & ~settled
     moving[act] = True
     return moving
-
-
-REACH_SHARE_ROUNDS = 3
-REACH_SECOND = 0.25                                 # x R: see reachable_height
-REACH_SHARE_CELL = 1.0 / 64.0
-REACH_LEAD = 1.0 / 8.0                              # x R: one lead point per cell
-REACH_POLISH = 1.0 / 128.0                          # x R: the compass's first step after the descent
-REACH_ITERS_REST = 6                                # the other points' drops, at most                       # x R: one shared ball per cell (the lowest centre)
 
 
 def _share(bx, by, best, bo_x, bo_y, R, src, dst):
