@@ -864,3 +864,24 @@ def reach_share(px, py, x0, y0, R, nyb, ptr, CX, CY, ZC, M, MX, MY):
                         M[p] = g
                         MX[p] = ux
                         MY[p] = uy
+
+
+@jit
+def lowest_batch_sorted(px, py, cid, ptr, seg, A, B, R, before, use_before, out, ZMIN):
+    """lowest_batch with each cell's segments in ascending order of their lowest tip z
+    (ZMIN[s] = min(A[s, 2], B[s, 2])): the swept ball is nowhere below its lowest tip, so a
+    point stops at the first segment whose ZMIN is not below its lowest so far. The same
+    minimum."""
+    for i in range(px.size):
+        c = cid[i]
+        m = out[i]
+        for p in range(ptr[c], ptr[c + 1]):
+            s = seg[p]
+            if not ZMIN[s] < m:
+                break
+            if use_before and s >= before[i]:
+                continue
+            z = _capsule_lower(px[i], py[i], A[s, 0], A[s, 1], A[s, 2], B[s, 0], B[s, 1], B[s, 2], R)
+            if z < m:
+                m = z
+        out[i] = m

@@ -319,7 +319,11 @@ class SegmentGrid:
         ix = i0[seg, 0] + off % cx[seg]
         iy = i0[seg, 1] + off // cx[seg]
         cid = ix * ny + iy
-        order = np.argsort(cid, kind="stable")
+        # within a cell, the segments in ascending order of their lowest tip (the compiled
+        # search stops at the first one not below the lowest found: nothing swept is
+        # below its segment's lowest tip)
+        self.zmin = np.minimum(a[:, 2], b[:, 2])
+        order = np.lexsort((self.zmin[seg], cid))
         self.seg = seg[order]
         self.ptr = np.searchsorted(cid[order], np.arange(nx * ny + 1))
 
@@ -340,10 +344,11 @@ class SegmentGrid:
         if kern is not None and len(px):
             # compiled: the same closed form per point and segment, no pair arrays
             b = np.zeros(1, dtype=np.int64) if before is None else np.ascontiguousarray(before, dtype=np.int64)
-            kern.lowest_batch(np.ascontiguousarray(px, dtype=float), np.ascontiguousarray(py, dtype=float),
-                              cid.astype(np.int64), self.ptr.astype(np.int64), self.seg.astype(np.int64),
-                              np.ascontiguousarray(self.a, dtype=float), np.ascontiguousarray(self.b, dtype=float),
-                              float(self.R), b, before is not None, out)
+            kern.lowest_batch_sorted(np.ascontiguousarray(px, dtype=float), np.ascontiguousarray(py, dtype=float),
+                                     cid.astype(np.int64), self.ptr.astype(np.int64), self.seg.astype(np.int64),
+                                     np.ascontiguousarray(self.a, dtype=float),
+                                     np.ascontiguousarray(self.b, dtype=float), float(self.R), b,
+                                     before is not None, out, np.ascontiguousarray(self.zmin, dtype=float))
             return out
         cnt = self.ptr[cid + 1] - self.ptr[cid]
         pos = 0
