@@ -610,6 +610,7 @@ REACH_ITERS_SECOND = 12                             # the second start's drops, 
 REACH_SHARE_CELL = 1.0 / 64.0                       # x R: one shared ball per cell (the lowest centre)
 REACH_LEAD = 1.0 / 8.0                              # x R: one lead point per cell
 REACH_POLISH = 1.0 / 128.0                          # x R: the compass's first step after the descent
+REACH_PROBE = 1e-3                                  # x R: the step that decides whether it runs
 REACH_ITERS_REST = 6                                # the other points' drops, at most
 
 
@@ -791,6 +792,19 @@ def reachable_height(ws, px, py, R: float, chunk: int = 20000, overhang: float |
                 unsettled[k] = mv2[lo]
             slow = np.nonzero(unsettled)[0]
             share(lead, lead, REACH_ITERS)
+            if slow.size:
+                # first one compass step of REACH_PROBE x R: where none lowers the point,
+                # it stays (the descent's crawl ended on a ball no nearby one is below)
+                dirs = 2 * np.pi * np.arange(REACH_DIRS) / REACH_DIRS
+                tx = bo_x[slow, None] + REACH_PROBE * R * np.cos(dirs)
+                ty = bo_y[slow, None] + REACH_PROBE * R * np.sin(dirs)
+                G = surface_at(tx, ty, slow)
+                j = np.argmin(G, axis=1)
+                r = np.arange(slow.size)
+                up = G[r, j] < best[slow]
+                k = slow[up]
+                best[k], bo_x[k], bo_y[k] = G[r, j][up], tx[r, j][up], ty[r, j][up]
+                slow = k
             if slow.size:
                 sb, sx_, sy_ = best[slow], bo_x[slow], bo_y[slow]
                 _compass(lambda tx, ty, idx, m=slow: surface_at(tx, ty, m[idx]), sb, sx_, sy_, R,
