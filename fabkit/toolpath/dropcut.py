@@ -786,3 +786,102 @@ def lowest_batch(px, py, cid, ptr, seg, A, B, R, before, use_before, out):
             if z < m:
                 m = z
         out[i] = m
+
+
+# ----------------------------------------------------------------------------
+# the verification's reachable height (verify.reachable_height): its formula-free loops
+# ----------------------------------------------------------------------------
+@jit
+def reach_grid_best(bx, by, ix, iy, xs, ys, Z, kx, ky, rx, ry, R, BEST, OX, OY):
+    """verify._grid_starts: per point, the lowest g = Z + R - sqrt(R^2 - d^2) over the grid
+    nodes (xs[i], ys[j]) within R of it, apart on the stock (row 0 of BEST, OX, OY) and
+    beyond its edges (row 1); the first lowest in the order (i, then j) of the offsets."""
+    nx = xs.size
+    ny = ys.size
+    R2 = R * R
+    for p in range(bx.size):
+        BEST[0, p] = math.inf
+        BEST[1, p] = math.inf
+        OX[0, p] = 0.0
+        OX[1, p] = 0.0
+        OY[0, p] = 0.0
+        OY[1, p] = 0.0
+        for di in range(-rx, rx + 1):
+            i = ix[p] + di
+            if i < 0 or i >= nx:
+                continue
+            dx = xs[i] - bx[p]
+            offx = (i < kx) or (i >= nx - kx)
+            for dj in range(-ry, ry + 1):
+                j = iy[p] + dj
+                if j < 0 or j >= ny:
+                    continue
+                dy = ys[j] - by[p]
+                d2 = dx * dx + dy * dy
+                if not d2 < R2:
+                    continue
+                g = Z[i, j] + R - math.sqrt(R2 - d2)
+                if not _fin(g):
+                    continue
+                side = 1 if (offx or (j < ky) or (j >= ny - ky)) else 0
+                if g < BEST[side, p]:
+                    BEST[side, p] = g
+                    OX[side, p] = dx
+                    OY[side, p] = dy
+
+
+@jit
+def reach_share(px, py, x0, y0, R, nyb, ptr, CX, CY, ZC, M, MX, MY):
+    """verify._share: per point, the lowest g = ZC - sqrt(R^2 - |c - p|^2) over the pooled
+    ball centres c binned in cells of size R (the 3 x 3 cells around the point's; ``ptr``
+    the cells' starts in CX, CY, ZC, cell id (ix + 1) * nyb + (iy + 1)); the first lowest in
+    the cells' order (M = inf where none)."""
+    R2 = R * R
+    ncell = ptr.size - 1
+    for p in range(px.size):
+        M[p] = math.inf
+        MX[p] = 0.0
+        MY[p] = 0.0
+        pi = int(math.floor((px[p] - x0) / R)) + 1
+        pj = int(math.floor((py[p] - y0) / R)) + 1
+        for di in range(-1, 2):
+            for dj in range(-1, 2):
+                ci = pi + di
+                cj = pj + dj
+                if ci < 0 or cj < 0 or cj >= nyb:
+                    continue
+                c = ci * nyb + cj
+                if c >= ncell:
+                    continue
+                for k in range(ptr[c], ptr[c + 1]):
+                    ux = CX[k] - px[p]
+                    uy = CY[k] - py[p]
+                    d2 = ux * ux + uy * uy
+                    if not d2 <= R2:
+                        continue
+                    g = ZC[k] - math.sqrt(R2 - d2)
+                    if _fin(g) and g < M[p]:
+                        M[p] = g
+                        MX[p] = ux
+                        MY[p] = uy
+
+
+@jit
+def lowest_batch_sorted(px, py, cid, ptr, seg, A, B, R, before, use_before, out, ZMIN):
+    """lowest_batch with each cell's segments in ascending order of their lowest tip z
+    (ZMIN[s] = min(A[s, 2], B[s, 2])): the swept ball is nowhere below its lowest tip, so a
+    point stops at the first segment whose ZMIN is not below its lowest so far. The same
+    minimum."""
+    for i in range(px.size):
+        c = cid[i]
+        m = out[i]
+        for p in range(ptr[c], ptr[c + 1]):
+            s = seg[p]
+            if not ZMIN[s] < m:
+                break
+            if use_before and s >= before[i]:
+                continue
+            z = _capsule_lower(px[i], py[i], A[s, 0], A[s, 1], A[s, 2], B[s, 0], B[s, 1], B[s, 2], R)
+            if z < m:
+                m = z
+        out[i] = m

@@ -55,9 +55,10 @@ SEC_PER_POINT = 1.75e-4 * PLAN_SCALE        # point spacing, links, roughing, wr
 SEC_FIXED = 3.0                # start-up (imports, loading the compiled kernels), spec, derivatives, depth,
                                # the planner's and the sheet's fixed costs
 SEC_PER_VERIFY_POINT = 1.4e-5  # verification per verify point: swept cut and reachable height
-SEC_PER_TIGHT_POINT = 7.6e-4   # per verify point within R of a concave crease or valley tighter
-                               # than the ball: the reachable height's compass search (7.6e-4
-                               # on the 3*abs(x) block, 7.0e-4 on the oblique V)
+SEC_PER_TIGHT_POINT = 2.0e-4   # per verify point within R of a concave crease or valley tighter
+                               # than the ball: the reachable height's search (the model descent:
+                               # 7.8e-5 on the 3*abs(x) block, 2.8e-4 on the oblique V; it was
+                               # 7.6e-4 and 7.0e-4 with the compass search)
 STEEP_ALONG = 1.5              # as fabkit.toolpath.passes.STEEP_ALONG
 # memory (peak resident, bytes): the process with the verification and the setup sheet
 # (measured 470-810 MB end to end on the jobs above, programs of 900-91 000 lines;

@@ -317,7 +317,11 @@ class SegmentGrid:
         ix = i0[seg, 0] + off % cx[seg]
         iy = i0[seg, 1] + off // cx[seg]
         cid = ix * ny + iy
-        order = np.argsort(cid, kind="stable")
+        # within a cell, the segments in ascending order of their lowest tip (the compiled
+        # search stops at the first one not below the lowest found: nothing swept is
+        # below its segment's lowest tip)
+        self.zmin = np.minimum(a[:, 2], b[:, 2])
+        order = np.lexsort((self.zmin[seg], cid))
         self.seg = seg[order]
         self.ptr = np.searchsorted(cid[order], np.arange(nx * ny + 1))
 
@@ -338,10 +342,11 @@ class SegmentGrid:
         if kern is not None and len(px):
             # compiled: the same closed form per point and segment, no pair arrays
             b = np.zeros(1, dtype=np.int64) if before is None else np.ascontiguousarray(before, dtype=np.int64)
-            kern.lowest_batch(np.ascontiguousarray(px, dtype=float), np.ascontiguousarray(py, dtype=float),
-                              cid.astype(np.int64), self.ptr.astype(np.int64), self.seg.astype(np.int64),
-                              np.ascontiguousarray(self.a, dtype=float), np.ascontiguousarray(self.b, dtype=float),
-                              float(self.R), b, before is not None, out)
+            kern.lowest_batch_sorted(np.ascontiguousarray(px, dtype=float), np.ascontiguousarray(py, dtype=float),
+                                     cid.astype(np.int64), self.ptr.astype(np.int64), self.seg.astype(np.int64),
+                                     np.ascontiguousarray(self.a, dtype=float),
+                                     np.ascontiguousarray(self.b, dtype=float), float(self.R), b,
+                                     before is not None, out, np.ascontiguousarray(self.zmin, dtype=float))
             return out
         cnt = self.ptr[cid + 1] - self.ptr[cid]
         pos = 0
@@ -592,9 +597,19 @@ OVERHANG = 0.999
 #: nearly vertical tangent, which no chord of the program follows without gouging)
 OVERHANG_ALONG = 0.99
 REACH_GRID = 1.0 / 8.0                              # x R: the grid of start centres
-REACH_SEARCH = 24                                   # compass steps from the best coarse centre
+REACH_SEARCH = 24                                   # compass steps, at most
 REACH_DIRS = 8          # compass directions (4 ended up to 0.045 mm higher on 2*sin(x) + 2*sin(y))
 REACH_STEP_MIN = 1e-5                               # x R: a point's search stops below this step
+REACH_METHOD = "descend"                            # or "compass": the search before the descent
+REACH_ITERS = 32                                    # the descent's drops per point, at most
+REACH_SHARE_ROUNDS = 3
+REACH_SECOND = 0.25                                 # x R: see reachable_height
+REACH_ITERS_SECOND = 12                             # the second start's drops, at most
+REACH_SHARE_CELL = 1.0 / 64.0                       # x R: one shared ball per cell (the lowest centre)
+REACH_LEAD = 1.0 / 8.0                              # x R: one lead point per cell
+REACH_POLISH = 1.0 / 128.0                          # x R: the compass's first step after the descent
+REACH_PROBE = 1e-3                                  # x R: the step that decides whether it runs
+REACH_ITERS_REST = 6                                # the other points' drops, at most
 
 
 def reachable_height(ws, px, py, R: float, chunk: int = 20000, overhang: float | None = None,
@@ -604,12 +619,27 @@ def reachable_height(ws, px, py, R: float, chunk: int = 20000, overhang: float |
     of the surface; elsewhere (a valley tighter than the ball, a V crease) the lowest
     surface, above the point, of the balls resting on the design (exact drop-cutter
     heights) centred within R of it: g(c) = Z(c) + R - sqrt(R^2 - |c - p|^2), minimised
-    over the centre above the point, the normal-offset centre and a grid of centres
-    (:data:`REACH_GRID` x R) over the stock, then by a compass search (8 directions, 24
-    steps from half the grid step, halved when none improves) from the best. Every
-    centre tried is a real ball position, so the height is an upper bound of the lowest one (the material it calls unreachable is
-    never less than there is); on a parabolic valley tighter than the ball it is within
-    3e-4 mm of the centred ball's closed form (tested). Centres farther than
+    over c. Starts: the centre above the point, the normal-offset centre and a grid of
+    centres (:data:`REACH_GRID` x R) over the stock. The lowest ball rests on two walls
+    (a kink of Z, where g is lowest) or stands at the edge of the allowed centres, so
+    the search is a model descent (:func:`_descend`): Z modelled as the larger of two
+    linear pieces, the exact heights and slopes of the drops on either side of the kink
+    (the slope from the contact point q: dZ/dc = (q - c) / sqrt(R^2 - |q - c|^2)), each
+    step the model's lowest ball in closed form. Points share: one lead point per cell
+    of :data:`REACH_LEAD` x R, and every point within R of the stock's edges, is searched
+    from the grid's best and from the best beyond (or over) the edge, then from the
+    other lead points' balls, then by a compass search (8 directions, first step
+    :data:`REACH_POLISH` x R, halved to 1e-5 R) where the descent did not settle on a
+    kink; the other points start from the lead points' balls and descend at most
+    :data:`REACH_ITERS_REST` drops. Every centre kept is a real ball position, so the
+    height is an upper bound of the lowest one (the material it calls unreachable is
+    never less than there is); on a V crease it is within 1e-6 mm of the closed form
+    and on curved creases and at the stock's edges within 2e-5 mm of a brute-force
+    search (tests/test_reach.py); on a parabolic valley tighter than the ball within
+    3e-4 mm of the centred ball's closed form (tested). :data:`REACH_METHOD` =
+    'compass' runs the search this replaced (the compass from the grid's best, first
+    step REACH_GRID / 2 x R: 10-20x the drops, and stalled up to 0.33 mm high on a
+    crease oblique to its directions or at a stock edge). Centres farther than
     ``overhang`` (mm, default :data:`OVERHANG` x R; a pair: beyond the x and the y edges)
     beyond the footprint are not tried (see :data:`OVERHANG`). Returns (height, reachable), and with ``return_scale`` the
     normal scale of the reachable surface: 1 / sqrt(1 + slope^2) of the design where the
@@ -627,6 +657,15 @@ def reachable_height(ws, px, py, R: float, chunk: int = 20000, overhang: float |
         z = np.concatenate([compensate(ws, qx[i:i + chunk], qy[i:i + chunk], R)
                             for i in range(0, qx.size, chunk)]) if qx.size else np.zeros(0)
         return z.reshape(shape)
+
+    def drop_info(qx, qy):
+        """Tip heights and contact points (1-D)."""
+        out = [compensate(ws, qx[i:i + chunk], qy[i:i + chunk], R, return_info=True)
+               for i in range(0, qx.size, chunk)]
+        if not out:
+            return np.zeros(0), np.zeros(0), np.zeros(0)
+        return (np.concatenate([z for z, _ in out]), np.concatenate([f.contact_x for _, f in out]),
+                np.concatenate([f.contact_y for _, f in out]))
 
     H, hx, hy = ws.all(px, py)[:3]
     design = np.minimum(H, 0.0)
@@ -657,37 +696,122 @@ def reachable_height(ws, px, py, R: float, chunk: int = 20000, overhang: float |
             over = (ex > ox_) | (ey > oy_) | (ex * ex + ey * ey > max(ox_, oy_) ** 2)
             return np.where(np.isfinite(low) & (ox * ox + oy * oy <= R * R) & ~over, low, np.inf)
 
-        # starts: the centre above the point, the normal-offset centre, and the lowest of
-        # the balls centred on a grid (REACH_GRID x R) over the stock within R of the point
-        OX = np.column_stack([(cx - px)[bad], np.zeros(bad.size)])
-        OY = np.column_stack([(cy - py)[bad], np.zeros(bad.size)])
-        G = surface_at(OX, OY)
-        j = np.argmin(G, axis=1)
-        r = np.arange(bad.size)
-        best, bo_x, bo_y = G[r, j], OX[r, j], OY[r, j]
-        gb, gx_, gy_ = _grid_starts(ws, bx, by, R, drop, (ox_, oy_))
+        def allowed(ox, oy):
+            qx, qy = bx + ox, by + oy
+            ex = np.maximum(np.maximum(-qx, qx - ws.L), 0.0)
+            ey = np.maximum(np.maximum(-qy, qy - ws.W), 0.0)
+            over = (ex > ox_) | (ey > oy_) | (ex * ex + ey * ey > max(ox_, oy_) ** 2)
+            return (ox * ox + oy * oy <= R * R) & ~over
+
+        # starts: the centre above the point, the normal-offset centre (its drop is Z),
+        # and the lowest of the balls centred on a grid (REACH_GRID x R) over the stock
+        # within R of the point
+        nox, noy = (cx - px)[bad], (cy - py)[bad]
+        with np.errstate(invalid="ignore"):
+            gn = Z[bad] + R - np.sqrt(R * R - nox * nox - noy * noy)
+        gn = np.where(np.isfinite(gn) & allowed(nox, noy), gn, np.inf)
+        g0 = surface_at(np.zeros((bad.size, 1)), np.zeros((bad.size, 1)))[:, 0]
+        lower = gn < g0
+        best, bo_x, bo_y = np.where(lower, gn, g0), np.where(lower, nox, 0.0), np.where(lower, noy, 0.0)
+        gs, gxs, gys = _grid_starts(ws, bx, by, R, drop, (ox_, oy_), split=True)
+        first = np.where(gs[1] < gs[0], 1, 0)
+        gb, gx_, gy_ = (np.choose(first, v) for v in (gs, gxs, gys))
         lower = gb < best
         best, bo_x, bo_y = np.where(lower, gb, best), np.where(lower, gx_, bo_x), np.where(lower, gy_, bo_y)
-        dirs = 2 * np.pi * np.arange(REACH_DIRS) / REACH_DIRS
-        dx, dy = np.cos(dirs), np.sin(dirs)
-        step = np.full(bad.size, 0.5 * REACH_GRID * R)
-        act = r
-        for _ in range(REACH_SEARCH):
-            if not act.size:
-                break
-            tx, ty = bo_x[act, None] + step[act, None] * dx, bo_y[act, None] + step[act, None] * dy
-            G = surface_at(tx, ty, act)
-            j = np.argmin(G, axis=1)
-            ra = np.arange(act.size)
-            g = G[ra, j]
-            up = g < best[act]
-            best[act] = np.where(up, g, best[act])
-            bo_x[act] = np.where(up, tx[ra, j], bo_x[act])
-            bo_y[act] = np.where(up, ty[ra, j], bo_y[act])
-            step[act] = np.where(up, step[act], 0.5 * step[act])
-            # a point whose step fell below REACH_STEP_MIN x R stops (the next steps could
-            # lower it by less than about that: a few 1e-5 mm)
-            act = act[step[act] >= REACH_STEP_MIN * R]
+        if REACH_METHOD == "compass":
+            _compass(surface_at, best, bo_x, bo_y, R)
+        else:
+            def probe(ox, oy, idx):
+                """One ball per point ``idx``, centred at offset (ox, oy) from it: (g as
+                surface_at, the centre's height Zc, dZc/dX, dZc/dY from the contact)."""
+                qx, qy = bx[idx] + ox, by[idx] + oy
+                Zc, qcx, qcy = drop_info(qx, qy)
+                Zc = Zc + R
+                with np.errstate(invalid="ignore", divide="ignore"):
+                    low = Zc - np.sqrt(R * R - ox * ox - oy * oy)
+                    ux, uy = qcx - qx, qcy - qy
+                    sq = np.sqrt(np.maximum(R * R - ux * ux - uy * uy, 1e-24 * R * R))
+                ex = np.maximum(np.maximum(-qx, qx - ws.L), 0.0)
+                ey = np.maximum(np.maximum(-qy, qy - ws.W), 0.0)
+                over = (ex > ox_) | (ey > oy_) | (ex * ex + ey * ey > max(ox_, oy_) ** 2)
+                g = np.where(np.isfinite(low) & (ox * ox + oy * oy <= R * R) & ~over, low, np.inf)
+                return g, Zc, ux / sq, uy / sq
+
+            box = (-ox_ - bx, ws.L + ox_ - bx, -oy_ - by, ws.W + oy_ - by)
+
+            def descend(sel, iters):
+                """_descend on the points ``sel`` (in place); the unsettled among them."""
+                b_, x_, y_ = best[sel], bo_x[sel], bo_y[sel]
+                mv = _descend(lambda ox, oy, idx: probe(ox, oy, sel[idx]), b_, x_, y_, R,
+                              tuple(v[sel] for v in box), iters)
+                best[sel], bo_x[sel], bo_y[sel] = b_, x_, y_
+                return sel[mv]
+
+            def share(src, dst, iters):
+                """Neighbouring points share their lowest balls: the points ``dst`` try
+                those of ``src`` (real balls: their centre heights are drops) and descend
+                again from one lower than their own (another basin)."""
+                for _ in range(REACH_SHARE_ROUNDS):
+                    moved = _share(bx, by, best, bo_x, bo_y, R, src, dst)
+                    if not moved.size:
+                        break
+                    descend(moved, iters)
+
+            # the lead points (the first in each cell of REACH_LEAD x R) are searched
+            # fully: from the grid's best and from the best on the other side of the
+            # stock's edge (a ball over the stock, or one hanging off it) when within
+            # REACH_SECOND of it (another basin), then from each other's balls, then by the
+            # compass where the descent did not settle on a kink. The other points start
+            # from the lead points' balls (next to their own lowest: a short descent).
+            # (every point within R of the stock's edges is a lead point: balls hanging off
+            # an edge make other basins there)
+            edge = (bx < R) | (bx > ws.L - R) | (by < R) | (by > ws.W - R)
+            lead, rest = _leaders(bx, by, REACH_LEAD * R, edge)
+            qx, qy = (bx + bo_x)[lead], (by + bo_y)[lead]
+            side = np.where((qx < 0) | (qx > ws.L) | (qy < 0) | (qy > ws.W), 1, 0)
+            g2, x2, y2 = (np.choose(1 - side, [v[0][lead], v[1][lead]]) for v in (gs, gxs, gys))
+            two = np.nonzero(np.isfinite(g2) & (g2 < best[lead] + REACH_SECOND * R))[0]
+            unsettled = np.zeros(bad.size, bool)
+            if two.size:
+                # the second start's descent, then the first's; the lower kept
+                sel = lead[two]
+                first_start = best[sel], bo_x[sel], bo_y[sel]
+                best[sel], bo_x[sel], bo_y[sel] = g2[two], x2[two], y2[two]
+                unsettled[descend(sel, REACH_ITERS_SECOND)] = True
+                second = best[sel], bo_x[sel], bo_y[sel]
+                best[sel], bo_x[sel], bo_y[sel] = first_start
+                mv2 = unsettled[sel]
+                unsettled[sel] = False
+            unsettled[descend(lead, REACH_ITERS)] = True
+            if two.size:
+                lo = second[0] < best[sel]
+                k = sel[lo]
+                best[k], bo_x[k], bo_y[k] = second[0][lo], second[1][lo], second[2][lo]
+                unsettled[k] = mv2[lo]
+            slow = np.nonzero(unsettled)[0]
+            share(lead, lead, REACH_ITERS)
+            if slow.size:
+                # first one compass step of REACH_PROBE x R: where none lowers the point,
+                # it stays (the descent's crawl ended on a ball no nearby one is below)
+                dirs = 2 * np.pi * np.arange(REACH_DIRS) / REACH_DIRS
+                tx = bo_x[slow, None] + REACH_PROBE * R * np.cos(dirs)
+                ty = bo_y[slow, None] + REACH_PROBE * R * np.sin(dirs)
+                G = surface_at(tx, ty, slow)
+                j = np.argmin(G, axis=1)
+                r = np.arange(slow.size)
+                up = G[r, j] < best[slow]
+                k = slow[up]
+                best[k], bo_x[k], bo_y[k] = G[r, j][up], tx[r, j][up], ty[r, j][up]
+                slow = k
+            if slow.size:
+                sb, sx_, sy_ = best[slow], bo_x[slow], bo_y[slow]
+                _compass(lambda tx, ty, idx, m=slow: surface_at(tx, ty, m[idx]), sb, sx_, sy_, R,
+                         REACH_POLISH)
+                best[slow], bo_x[slow], bo_y[slow] = sb, sx_, sy_
+            if rest.size:
+                _share(bx, by, best, bo_x, bo_y, R, lead, rest)
+                descend(rest, REACH_ITERS_REST)
+                share(np.arange(bad.size), rest, REACH_ITERS_REST)
         out[bad] = np.maximum(design[bad], np.minimum(best, 0.0))
         d2 = np.minimum(bo_x * bo_x + bo_y * bo_y, R * R)
         fillet = np.where(np.isfinite(best) & (best < 0.0), np.sqrt(R * R - d2) / R, 1.0)
@@ -695,13 +819,284 @@ def reachable_height(ws, px, py, R: float, chunk: int = 20000, overhang: float |
     return (out, ok, scale) if return_scale else (out, ok)
 
 
-def _grid_starts(ws, bx, by, R, drop, overhang=(0.0, 0.0)):
+def _line_min(gx, gy, u0x, u0y, tx, ty, R):
+    """Along the line u0 + t (tx, ty) (u0 its point nearest the origin, (tx, ty) a unit
+    vector), the point where g . u - sqrt(R^2 - |u|^2) is lowest (closed form; nan
+    where the line misses the disk of radius R)."""
+    with np.errstate(invalid="ignore"):
+        rho = np.sqrt(R * R - u0x * u0x - u0y * u0y)
+        sig = gx * tx + gy * ty
+        t = -sig * rho / np.sqrt(1.0 + sig * sig)
+    return u0x + t * tx, u0y + t * ty
+
+
+def _model_min(A, B, hb, box, R):
+    """The lowest point of the model max(la, lb)(u) - sqrt(R^2 - |u|^2) over the box of
+    allowed centre offsets (xlo, xhi, ylo, yhi): la, lb linear (z, gx, gy, ux, uy: the
+    value z and slope g at u), lb only where ``hb``. The model is convex: its lowest
+    point is the best of the stationary points of each active set (one piece or the
+    kink line la = lb; free, on one side of the box, or at a corner). Returns
+    (ux, uy, M); M = inf where no candidate is in the box."""
+    xlo, xhi, ylo, yhi = box
+    zero, one = np.zeros_like(xlo), np.ones_like(xlo)
+    cx, cy = [], []
+    # one piece: free, and along each side of the box
+    for P in (A, B):
+        s1 = np.sqrt(1.0 + P[1] * P[1] + P[2] * P[2])
+        cx.append(-R * P[1] / s1)
+        cy.append(-R * P[2] / s1)
+        for c in (xlo, xhi):
+            ux, uy = _line_min(P[1], P[2], c, zero, zero, one, R)
+            cx.append(ux)
+            cy.append(uy)
+        for c in (ylo, yhi):
+            ux, uy = _line_min(P[1], P[2], zero, c, one, zero, R)
+            cx.append(ux)
+            cy.append(uy)
+    # the kink line la = lb: n . u = d0
+    dx, dy = A[1] - B[1], A[2] - B[2]
+    dn = np.hypot(dx, dy)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rhs = (B[0] - B[1] * B[3] - B[2] * B[4]) - (A[0] - A[1] * A[3] - A[2] * A[4])
+        nx, ny, d0 = dx / dn, dy / dn, rhs / dn
+        ux, uy = _line_min(A[1], A[2], d0 * nx, d0 * ny, -ny, nx, R)
+        cx.append(ux)
+        cy.append(uy)
+        for c in (xlo, xhi):                  # the kink line across a side
+            cx.append(c)
+            cy.append((d0 - nx * c) / ny)
+        for c in (ylo, yhi):
+            cx.append((d0 - ny * c) / nx)
+            cy.append(c)
+    for a in (xlo, xhi):                      # the corners
+        for b in (ylo, yhi):
+            cx.append(a)
+            cy.append(b)
+    UX, UY = np.stack(cx), np.stack(cy)
+    with np.errstate(invalid="ignore"):
+        la = A[0] + A[1] * (UX - A[3]) + A[2] * (UY - A[4])
+        lb = np.where(hb, B[0] + B[1] * (UX - B[3]) + B[2] * (UY - B[4]), -np.inf)
+        M = np.maximum(la, lb) - np.sqrt(R * R - UX * UX - UY * UY)
+    eps = 1e-12 * R
+    feas = (np.isfinite(M) & (UX >= xlo - eps) & (UX <= xhi + eps) & (UY >= ylo - eps) & (UY <= yhi + eps))
+    M = np.where(feas, M, np.inf)
+    k = np.argmin(M, axis=0)
+    r = np.arange(k.size)
+    return np.clip(UX[k, r], xlo, xhi), np.clip(UY[k, r], ylo, yhi), M[k, r]
+
+
+def _descend(probe, best, bo_x, bo_y, R, box, iters=None):
+    """Lower each point's best ball (in place) by a model descent: the centre height is
+    modelled as the larger of two linear pieces, the drops' exact heights and
+    slopes (from their contacts) on either side of the kink where the lowest ball rests
+    on two walls; each step drops the model's lowest ball (closed form, within the
+    allowed centres ``box``: offsets (xlo, xhi, ylo, yhi) per point) within a trust
+    radius. Every value kept is a real drop. Returns the points not settled on a kink
+    after REACH_ITERS drops (bool)."""
+    n = best.size
+    act = np.arange(n)
+    g, za, ax, ay = probe(bo_x, bo_y, act)
+    ok = np.isfinite(za) & np.isfinite(ax) & np.isfinite(ay)
+    uax, uay = bo_x.copy(), bo_y.copy()
+    zb, bgx, bgy, ubx, uby = (np.zeros(n) for _ in range(5))
+    has_b = np.zeros(n, bool)
+    delta = np.full(n, 0.5 * REACH_GRID * R)
+    refresh = np.zeros(n, bool)
+    fresh = np.zeros(n, bool)                       # the last drop was a refresh
+    nref = np.zeros(n)                              # refreshes in a row on the same side
+    prev = np.full(n, 0.5 * REACH_GRID * R)        # the last model step's length
+    last = np.zeros(n, np.int8)
+    act = act[ok & np.isfinite(best)]
+    for _ in range(REACH_ITERS if iters is None else iters):
+        if not act.size:
+            break
+        A = (za[act], ax[act], ay[act], uax[act], uay[act])
+        B = (zb[act], bgx[act], bgy[act], ubx[act], uby[act])
+        hb = has_b[act]
+        tx, ty, M = _model_min(A, B, hb, tuple(b[act] for b in box), R)
+        none = ~np.isfinite(M)
+        sx, sy = tx - bo_x[act], ty - bo_y[act]
+        sn = np.hypot(sx, sy)
+        f = np.where(sn > delta[act], delta[act] / np.maximum(sn, 1e-300), 1.0)
+        sx, sy = np.where(none, 0.0, sx * f), np.where(none, 0.0, sy * f)
+        sn = np.hypot(sx, sy)
+        # after a step that did not lower the point, the piece not updated by it may be
+        # stale (a curved wall): drop a ball just across the kink line on its side instead
+        # (or that is stale: linearised farther from the best ball than 8 last steps)
+        la0 = last[act] == 0
+        ox_, oy_ = np.where(la0, B[3], A[3]), np.where(la0, B[4], A[4])
+        bx_, by_ = bo_x[act], bo_y[act]
+        sp = np.maximum(prev[act], 1e-7 * R)
+        rf = hb & ~fresh[act] & (refresh[act] | (np.hypot(ox_ - bx_, oy_ - by_) > 8.0 * sp))
+        ex, ey = np.where(la0, B[1] - A[1], A[1] - B[1]), np.where(la0, B[2] - A[2], A[2] - B[2])
+        en = np.maximum(np.hypot(ex, ey), 1e-300)
+        # across the model's kink line: twice the model's distance to it, plus the last step
+        with np.errstate(invalid="ignore"):
+            gap = np.abs((A[0] + A[1] * (bx_ - A[3]) + A[2] * (by_ - A[4]))
+                         - (B[0] + B[1] * (bx_ - B[3]) + B[2] * (by_ - B[4]))) / en
+        # (4 times farther after each that landed on the same side)
+        eps = np.minimum(np.maximum(np.nan_to_num(2.0 * gap), 1e-6 * R) * 4.0 ** nref[act], 0.5 * REACH_GRID * R)
+        # (shortened to stay a ball the point allows: within R of it and in the box)
+        xlo, xhi, ylo, yhi = (b[act] for b in box)
+        for _ in range(8):
+            qx, qy = bx_ + eps * ex / en, by_ + eps * ey / en
+            out = (qx * qx + qy * qy >= R * R) | (qx < xlo) | (qx > xhi) | (qy < ylo) | (qy > yhi)
+            eps = np.where(out, 0.25 * eps, eps)
+        sx, sy = np.where(rf, eps * ex / en, sx), np.where(rf, eps * ey / en, sy)
+        none &= ~rf
+        nx2, ny2 = bo_x[act] + sx, bo_y[act] + sy
+        gn, zn, gxn, gyn = probe(nx2, ny2, act)
+        up = gn < best[act]
+        ia = act[up]
+        best[ia], bo_x[ia], bo_y[ia] = gn[up], nx2[up], ny2[up]
+        delta[act] = np.where(up, np.minimum(np.maximum(delta[act], 2 * sn), 0.25 * R),
+                              np.where(rf, delta[act], 0.5 * sn))
+        refresh[act] = ~up & ~rf
+        fresh[act] = rf
+        prev[act] = np.where(rf, prev[act], sn)
+        sn = np.where(rf, eps, sn)
+        # the new piece replaces the one whose slope is nearer (the first other slope: b)
+        fin = np.isfinite(zn) & np.isfinite(gxn) & np.isfinite(gyn)
+        da = np.hypot(gxn - A[1], gyn - A[2])
+        near_a = da <= np.hypot(gxn - B[1], gyn - B[2])
+        new_b = ~hb & (da > 1e-9)
+        to_a = fin & ((hb & near_a) | (~hb & ~new_b))
+        to_b = fin & ((hb & ~near_a) | new_b)
+        for Pz, Px, Py, Pux, Puy, sel in ((za, ax, ay, uax, uay, to_a), (zb, bgx, bgy, ubx, uby, to_b)):
+            i = act[sel]
+            Pz[i], Px[i], Py[i], Pux[i], Puy[i] = zn[sel], gxn[sel], gyn[sel], nx2[sel], ny2[sel]
+        has_b[act[to_b]] = True
+        # a refresh that updated the piece it meant to leave fresh (the same side) counts
+        same = rf & np.where(la0, to_a, to_b)
+        nref[act] = np.where(same, nref[act] + 1, 0)
+        last[act[to_a]] = 0
+        last[act[to_b]] = 1
+        tol = 1e-4 * R
+        near = has_b[act] & (np.hypot(uax[act] - bo_x[act], uay[act] - bo_y[act]) < tol) \
+            & (np.hypot(ubx[act] - bo_x[act], uby[act] - bo_y[act]) < tol)
+        still = (sn > 1e-9 * R) & (delta[act] > 1e-9 * R)
+        act = act[~none & (still | ~near)]
+    # settled: both pieces linearised next to the best ball, on either side of its kink
+    # (the others, still moving or stopped on a model of one wall, are for the compass)
+    tol = 1e-4 * R
+    settled = has_b & (np.hypot(uax - bo_x, uay - bo_y) < tol) & (np.hypot(ubx - bo_x, uby - bo_y) < tol) \
+        & (np.hypot(ax - bgx, ay - bgy) > 1e-3)
+    moving = np.isfinite(best) & ~settled
+    moving[act] = True
+    return moving
+
+
+def _share(bx, by, best, bo_x, bo_y, R, src, dst):
+    """Offer the points ``dst`` the balls the points ``src`` ended on (in place): per cell
+    of REACH_SHARE_CELL x R the ball with the lowest centre, at its exact height. Returns
+    the indices of the points it lowered."""
+    src = src[np.isfinite(best[src])]
+    if not src.size or not dst.size:
+        return np.zeros(0, dtype=np.intp)
+    cx, cy = bx[src] + bo_x[src], by[src] + bo_y[src]
+    zc = best[src] + np.sqrt(np.maximum(R * R - bo_x[src] ** 2 - bo_y[src] ** 2, 0.0))
+    h = REACH_SHARE_CELL * R
+    key = np.floor(cx / h).astype(np.int64) * 1_000_003 + np.floor(cy / h).astype(np.int64)
+    o = np.lexsort((zc, key))
+    first = np.r_[True, key[o][1:] != key[o][:-1]]
+    cx, cy, zc = cx[o][first], cy[o][first], zc[o][first]
+    # bins of size R: a point looks at the 3 x 3 bins around its own
+    x0, y0 = cx.min(), cy.min()
+    ix, iy = np.floor((cx - x0) / R).astype(np.int64), np.floor((cy - y0) / R).astype(np.int64)
+    ny = int(iy.max()) + 3
+    cid = (ix + 1) * ny + (iy + 1)
+    order = np.argsort(cid, kind="stable")
+    cid_s = cid[order]
+    px, py = bx[dst], by[dst]
+    from .kernels import module
+
+    kern = module()
+    if kern is not None:
+        m, mx, my = np.empty(dst.size), np.empty(dst.size), np.empty(dst.size)
+        ptr = np.searchsorted(cid_s, np.arange(int(cid_s[-1]) + 2))
+        kern.reach_share(np.ascontiguousarray(px), np.ascontiguousarray(py), float(x0), float(y0), float(R),
+                         int(ny), ptr.astype(np.int64), np.ascontiguousarray(cx[order]),
+                         np.ascontiguousarray(cy[order]), np.ascontiguousarray(zc[order]), m, mx, my)
+        up = m < best[dst] - 1e-12 * R
+        d = dst[up]
+        best[d], bo_x[d], bo_y[d] = m[up], mx[up], my[up]
+        return d
+    px_i = np.floor((px - x0) / R).astype(np.int64) + 1
+    py_i = np.floor((py - y0) / R).astype(np.int64) + 1
+    m = np.full(dst.size, np.inf)
+    mx, my = np.zeros(dst.size), np.zeros(dst.size)
+    for di in (-1, 0, 1):
+        for dj in (-1, 0, 1):
+            c = (px_i + di) * ny + (py_i + dj)
+            valid = (px_i + di >= 0) & (py_i + dj >= 0) & (py_i + dj < ny)
+            lo = np.searchsorted(cid_s, c, "left")
+            hi = np.searchsorted(cid_s, c, "right")
+            cnt = np.where(valid, hi - lo, 0)
+            tot = int(cnt.sum())
+            if not tot:
+                continue
+            own = np.repeat(np.arange(dst.size), cnt)
+            off = np.arange(tot) - np.repeat(np.cumsum(cnt) - cnt, cnt)
+            k = order[np.repeat(lo, cnt) + off]
+            ux, uy = cx[k] - px[own], cy[k] - py[own]
+            with np.errstate(invalid="ignore"):
+                g = zc[k] - np.sqrt(R * R - ux * ux - uy * uy)
+            g = np.where(np.isfinite(g), g, np.inf)
+            mm = np.full(dst.size, np.inf)
+            np.minimum.at(mm, own, g)
+            hit = np.nonzero(g == mm[own])[0]
+            j = np.full(dst.size, -1)
+            j[own[hit]] = hit
+            up = mm < m
+            u = np.nonzero(up)[0]
+            m[u], mx[u], my[u] = mm[u], ux[j[u]], uy[j[u]]
+    up = m < best[dst] - 1e-12 * R
+    d = dst[up]
+    best[d], bo_x[d], bo_y[d] = m[up], mx[up], my[up]
+    return d
+
+
+def _leaders(bx, by, cell, always):
+    """(lead, rest): the first point in each cell of size ``cell`` and the points
+    ``always`` (bool), and the others."""
+    key = np.floor(bx / cell).astype(np.int64) * 1_000_003 + np.floor(by / cell).astype(np.int64)
+    _, first = np.unique(key, return_index=True)
+    mask = always.copy()
+    mask[first] = True
+    return np.nonzero(mask)[0], np.nonzero(~mask)[0]
+
+def _compass(surface_at, best, bo_x, bo_y, R, step0=0.5 * REACH_GRID):
+    """The compass search from the best start (in place): 8 directions, first steps
+    ``step0`` x R, halved when none lowers the point."""
+    r = np.arange(best.size)
+    dirs = 2 * np.pi * np.arange(REACH_DIRS) / REACH_DIRS
+    dx, dy = np.cos(dirs), np.sin(dirs)
+    step = np.full(best.size, step0 * R)
+    act = r
+    for _ in range(REACH_SEARCH):
+        if not act.size:
+            break
+        tx, ty = bo_x[act, None] + step[act, None] * dx, bo_y[act, None] + step[act, None] * dy
+        G = surface_at(tx, ty, act)
+        j = np.argmin(G, axis=1)
+        ra = np.arange(act.size)
+        g = G[ra, j]
+        up = g < best[act]
+        best[act] = np.where(up, g, best[act])
+        bo_x[act] = np.where(up, tx[ra, j], bo_x[act])
+        bo_y[act] = np.where(up, ty[ra, j], bo_y[act])
+        step[act] = np.where(up, step[act], 0.5 * step[act])
+        # a point whose step fell below REACH_STEP_MIN x R stops (the next steps could
+        # lower it by less than about that: a few 1e-5 mm)
+        act = act[step[act] >= REACH_STEP_MIN * R]
+
+
+def _grid_starts(ws, bx, by, R, drop, overhang=(0.0, 0.0), split=False):
     """Per point (bx, by), the lowest surface above it of the balls centred on a grid of
     spacing REACH_GRID x R over the stock and up to ``overhang`` (x, y) beyond it (the last
     node of each side at ``overhang``; exact drop-cutter heights; only the nodes within R
-    of some point are dropped): (g, centre offset x, y), +inf where none."""
-    from scipy.ndimage import binary_dilation
-
+    of some point are dropped): (g, centre offset x, y), +inf where none. With ``split``
+    the same as two lists, [on the stock, beyond its edges]."""
     h = REACH_GRID * R
 
     def axis(length, overhang):
@@ -720,31 +1115,61 @@ def _grid_starts(ws, bx, by, R, drop, overhang=(0.0, 0.0)):
     rx, ry = int(math.ceil(R / hx)) + 1, int(math.ceil(R / hy)) + 1
     near = np.zeros((nx, ny), bool)
     near[ix, iy] = True
-    near = binary_dilation(near, np.ones((2 * rx + 1, 2 * ry + 1), bool))
+    # dilated by (rx, ry) nodes: a box sum over a summed-area table
+    S = np.zeros((nx + 1, ny + 1))
+    S[1:, 1:] = np.cumsum(np.cumsum(near, axis=0), axis=1)
+    i0, i1 = np.clip(np.arange(nx) - rx, 0, nx), np.clip(np.arange(nx) + rx + 1, 0, nx)
+    j0, j1 = np.clip(np.arange(ny) - ry, 0, ny), np.clip(np.arange(ny) + ry + 1, 0, ny)
+    near = (S[i1][:, j1] - S[i0][:, j1] - S[i1][:, j0] + S[i0][:, j0]) > 0
     Z = np.full((nx, ny), np.inf)
     qi, qj = np.nonzero(near)
     z = drop(xs[qi], ys[qj])
     Z[qi, qj] = np.where(np.isfinite(z), z, np.inf)
-    best = np.full(bx.size, np.inf)
-    ox, oy = np.zeros(bx.size), np.zeros(bx.size)
+    from .kernels import module
+
+    kern = module()
+    if kern is not None and bx.size:
+        B, OX, OY = (np.empty((2, bx.size)) for _ in range(3))
+        kern.reach_grid_best(np.ascontiguousarray(bx, dtype=float), np.ascontiguousarray(by, dtype=float),
+                             ix.astype(np.int64), iy.astype(np.int64), xs, ys, np.ascontiguousarray(Z),
+                             int(kx), int(ky), int(rx), int(ry), float(R), B, OX, OY)
+        best, ox, oy = [B[0], B[1]], [OX[0], OX[1]], [OY[0], OY[1]]
+        if split:
+            return best, ox, oy
+        lo = best[1] < best[0]
+        return (np.where(lo, best[1], best[0]), np.where(lo, ox[1], ox[0]), np.where(lo, oy[1], oy[0]))
+    # the best node on the stock and the best beyond its edges, apart
+    best = [np.full(bx.size, np.inf), np.full(bx.size, np.inf)]
+    ox, oy = [np.zeros(bx.size), np.zeros(bx.size)], [np.zeros(bx.size), np.zeros(bx.size)]
+    R2 = R * R
     for di in range(-rx, rx + 1):
         i = ix + di
         okx = (i >= 0) & (i < nx)
         i = np.clip(i, 0, nx - 1)
         dx = xs[i] - bx
+        offx = (i < kx) | (i >= nx - kx)
+        dx2 = dx * dx
         for dj in range(-ry, ry + 1):
             jj = iy + dj
             ok = okx & (jj >= 0) & (jj < ny)
             jj = np.clip(jj, 0, ny - 1)
             dy = ys[jj] - by
-            d2 = dx * dx + dy * dy
+            d2 = dx2 + dy * dy
+            ok &= d2 < R2
+            if not ok.any():
+                continue
             with np.errstate(invalid="ignore"):
-                g = Z[i, jj] + R - np.sqrt(R * R - d2)
-            g = np.where(ok & (d2 < R * R) & np.isfinite(g), g, np.inf)
-            up = g < best
-            best = np.where(up, g, best)
-            ox, oy = np.where(up, dx, ox), np.where(up, dy, oy)
-    return best, ox, oy
+                g = Z[i, jj] + R - np.sqrt(R2 - d2)
+            off = offx | (jj < ky) | (jj >= ny - ky)
+            for side in (0, 1):
+                up = ok & (g < best[side]) & (off == bool(side))
+                if up.any():
+                    best[side] = np.where(up, g, best[side])
+                    ox[side], oy[side] = np.where(up, dx, ox[side]), np.where(up, dy, oy[side])
+    if split:
+        return best, ox, oy
+    lo = best[1] < best[0]
+    return (np.where(lo, best[1], best[0]), np.where(lo, ox[1], ox[0]), np.where(lo, oy[1], oy[0]))
 
 
 def _dist_to_segment(px, py, a, b):
