@@ -31,6 +31,21 @@ import numpy as np
 SCALLOP_SAFETY = 0.95   # stepover keeps the cross-section bound below this fraction of the scallop
 STEEP_ALONG = 1.5       # the material bound's stage 3 runs where the slope along the pass exceeds this
 EDGE_NODES = (0.95, 0.99)   # extra nodes along the passes beyond the edges, x R out (passes.u_grid)
+GOLDEN_STEPS = 24       # stage 3: golden-section steps around the lowest of 65 balls within R
+
+
+def _kernels():
+    """The compiled loops (:mod:`fabkit.toolpath.scallop_kernels`), or None
+    (``FABKIT_NO_KERNELS=1``, numba missing): the numpy code below, the same bits."""
+    from .kernels import enabled
+
+    if not enabled():
+        return None
+    try:
+        from . import scallop_kernels
+    except ImportError:  # pragma: no cover - numba is a dependency
+        return None
+    return scallop_kernels
 
 
 def flat_stepover(R: float, scallop: float) -> float:
@@ -117,8 +132,17 @@ def sweep_material(ws, fr, R, uq, vs, cutters, uf, threshold=0.0, chord=0.0, nor
     X, Y = fr.xy(np.broadcast_to(uq, vs.shape), vs)
     design, scale = slope_scale(ws, X, Y, normal)
 
+    kern = _kernels()
+    if kern is not None:
+        vs_c = np.ascontiguousarray(vs, dtype=float)
+        fine = np.ascontiguousarray(np.vstack([p.fine for p in cutters]), dtype=float)
+        pv = np.array([p.v for p in cutters], dtype=float)
+
     def bound(cols, offsets):
         """Material at the columns ``cols`` using the balls at fine offsets."""
+        if kern is not None:
+            cut = kern.ball_cut(uq, uf, j0, vs_c, fine, pv, float(R), cols, offsets)
+            return (np.minimum(cut, 0.0) - design[:, cols]) * scale[:, cols]
         J = np.clip(j0[cols, None] + offsets[None, :], 0, len(uf) - 1)
         du2 = (uq[cols, None] - uf[J]) ** 2
         v = vs[:, cols]
@@ -151,7 +175,15 @@ def sweep_material(ws, fr, R, uq, vs, cutters, uf, threshold=0.0, chord=0.0, nor
         d = ws.all(Xs, Ys)
         su = np.abs(np.nan_to_num(d[1] if fr.direction == "x" else d[2]))
         hot = hot[(su * (d[0] < 0)).max(axis=0) > STEEP_ALONG]
-    if hot.size:
+    if hot.size and kern is not None:
+        o = np.linspace(-R, R, 65)
+        Zs, dZs, lo, hi, kink = stack_profiles(cutters)
+        cut = kern.rim_cut(np.ascontiguousarray(uq[hot], dtype=float), np.ascontiguousarray(vs[:, hot], dtype=float),
+                           cutters[0]._ug, Zs, dZs, kink, lo.astype(float), hi.astype(float), pv, float(R), o,
+                           float(o[1] - o[0]), 0.5 * (math.sqrt(5.0) - 1.0), GOLDEN_STEPS)
+        ml[:, hot] = np.minimum(ml[:, hot],
+                                (np.minimum(cut, 0.0) - design[:, hot] + chord) * scale[:, hot])
+    elif hot.size:
         v = vs[:, hot][:, :, None]
         u0 = uq[hot][None, :, None]
         uf_nodes = cutters[0]._ug
@@ -181,7 +213,7 @@ def sweep_material(ws, fr, R, uq, vs, cutters, uf, threshold=0.0, chord=0.0, nor
         gr = 0.5 * (math.sqrt(5.0) - 1.0)
         c, d = b - gr * (b - a), a + gr * (b - a)
         gc, gd = ball(c), ball(d)
-        for _ in range(24):
+        for _ in range(GOLDEN_STEPS):
             lt = gc <= gd
             a, b = np.where(lt, a, c), np.where(lt, d, b)
             c, d = np.where(lt, b - gr * (b - a), d), np.where(lt, c, a + gr * (b - a))
