@@ -126,26 +126,46 @@ def rim_cut(u0s, vs, ug, Z, dZ, kink, lo, hi, pv, R, o, h, gr, steps):
     of the lowest ball of pass p centred within R along the pass: the samples at
     offsets ``o`` (spacing ``h``), then ``steps`` golden-section steps (ratio ``gr``)
     in the two sample intervals around the lowest sample. The passes' tip profiles:
-    nodes ug, heights Z[p], slopes dZ[p], kinks kink[p], machined on [lo[p], hi[p]]."""
+    nodes ug, heights Z[p], slopes dZ[p], kinks kink[p], machined on [lo[p], hi[p]].
+
+    The samples' tip heights (+ R) are computed once per column and pass (they do not
+    depend on the point across); a pass whose balls reach neither the point across
+    (|v - pv| > R) nor its machined span along is skipped (its balls are all +inf)."""
     m, nh = vs.shape
     P = pv.shape[0]
     no = o.shape[0]
     RR = R * R
+    RRo = np.empty(no)          # R^2 - o^2 per sample offset
+    for k in range(no):
+        RRo[k] = RR - o[k] * o[k]
+    zR = np.empty(no)           # the samples' tip height + R (+inf: not machined)
     out = np.empty((m, nh))
     for c in range(nh):
         u0 = u0s[c]
         for i in range(m):
-            cut = np.inf
-            for p in range(P):
+            out[i, c] = np.inf
+        for p in range(P):
+            # every ball of the search lies within R + 2h of u0 along the pass
+            if hi[p] < u0 - R - 2 * h or lo[p] > u0 + R + 2 * h:
+                continue
+            for k in range(no):
+                u = u0 + o[k]
+                if u >= lo[p] and u <= hi[p]:
+                    zR[k] = _hermite(ug, Z, dZ, kink, p, u) + R
+                else:
+                    zR[k] = np.inf
+            for i in range(m):
                 dv = vs[i, c] - pv[p]
                 dv2 = dv * dv
-                zero = 0 * dv2
+                if RR - dv2 < 0.0:      # r2 <= RR - dv2 < 0 at every offset
+                    continue
                 # the samples: their minimum and its first index (np.argmin: the first NaN)
                 gmin = np.inf
                 jb = -1
                 gb = 0.0
                 for k in range(no):
-                    g = _ball(o[k] + zero, u0, dv2, RR, R, ug, Z, dZ, kink, lo, hi, p)
+                    r2 = RRo[k] - dv2
+                    g = zR[k] - math.sqrt(r2) if r2 >= 0.0 else np.inf
                     gmin = _nanmin(gmin, g)
                     if jb < 0:
                         jb, gb = k, g
@@ -172,7 +192,5 @@ def rim_cut(u0s, vs, ug, Z, dZ, kink, lo, hi, pv, R, o, h, gr, steps):
                         gn = _ball(d, u0, dv2, RR, R, ug, Z, dZ, kink, lo, hi, p)
                         gc = gd
                         gd = gn
-                best = _nanmin(gmin, _nanmin(gc, gd))
-                cut = _nanmin(cut, best)
-            out[i, c] = cut
+                out[i, c] = _nanmin(out[i, c], _nanmin(gmin, _nanmin(gc, gd)))
     return out
