@@ -28,24 +28,29 @@ import math
 
 import numpy as np
 
+from .kernels import enabled
+
 SCALLOP_SAFETY = 0.95   # stepover keeps the cross-section bound below this fraction of the scallop
 STEEP_ALONG = 1.5       # the material bound's stage 3 runs where the slope along the pass exceeds this
 EDGE_NODES = (0.95, 0.99)   # extra nodes along the passes beyond the edges, x R out (passes.u_grid)
 GOLDEN_STEPS = 24       # stage 3: golden-section steps around the lowest of 65 balls within R
 
 
+_KERNELS: list = []     # the compiled module once imported (or None: numba missing)
+
+
 def _kernels():
     """The compiled loops (:mod:`fabkit.toolpath.scallop_kernels`), or None
     (``FABKIT_NO_KERNELS=1``, numba missing): the numpy code below, the same bits."""
-    from .kernels import enabled
-
     if not enabled():
         return None
-    try:
-        from . import scallop_kernels
-    except ImportError:  # pragma: no cover - numba is a dependency
-        return None
-    return scallop_kernels
+    if not _KERNELS:
+        try:
+            from . import scallop_kernels
+        except ImportError:  # pragma: no cover - numba is a dependency
+            scallop_kernels = None
+        _KERNELS.append(scallop_kernels)
+    return _KERNELS[0]
 
 
 def flat_stepover(R: float, scallop: float) -> float:
@@ -128,21 +133,27 @@ def sweep_material(ws, fr, R, uq, vs, cutters, uf, threshold=0.0, chord=0.0, nor
     it. Returns (m, nq) mm."""
     df = float(np.diff(uf).max())   # the even spacing (nodes beyond the edges added between)
     K = int(math.ceil(R / df)) + len(EDGE_NODES) + 1    # and the edge nodes between
-    j0 = np.clip(np.searchsorted(uf, uq), 0, len(uf) - 1)
     X, Y = fr.xy(np.broadcast_to(uq, vs.shape), vs)
     design, scale = slope_scale(ws, X, Y, normal)
-
     kern = _kernels()
     if kern is not None:
-        vs_c = np.ascontiguousarray(vs, dtype=float)
-        fine = np.ascontiguousarray(np.vstack([p.fine for p in cutters]), dtype=float)
+        # stages 1 and 2 compiled (scallop_kernels.sweep_balls: the same arithmetic)
         pv = np.array([p.v for p in cutters], dtype=float)
+        ml = kern.sweep_balls(np.ascontiguousarray(uq, dtype=float), uf, np.ascontiguousarray(vs, dtype=float),
+                              np.vstack([p.fine for p in cutters]), pv, float(R), K,
+                              np.ascontiguousarray(design, dtype=float), np.ascontiguousarray(scale, dtype=float),
+                              float(threshold))
+    else:
+        ml = _sweep_balls(R, uq, vs, cutters, uf, K, design, scale, threshold)
+    return _rim_stage(ws, fr, R, uq, vs, cutters, threshold, chord, design, scale, ml, kern)
+
+
+def _sweep_balls(R, uq, vs, cutters, uf, K, design, scale, threshold):
+    """Stages 1 and 2 of :func:`sweep_material` in numpy (FABKIT_NO_KERNELS=1)."""
+    j0 = np.clip(np.searchsorted(uf, uq), 0, len(uf) - 1)
 
     def bound(cols, offsets):
         """Material at the columns ``cols`` using the balls at fine offsets."""
-        if kern is not None:
-            cut = kern.ball_cut(uq, uf, j0, vs_c, fine, pv, float(R), cols, offsets)
-            return (np.minimum(cut, 0.0) - design[:, cols]) * scale[:, cols]
         J = np.clip(j0[cols, None] + offsets[None, :], 0, len(uf) - 1)
         du2 = (uq[cols, None] - uf[J]) ** 2
         v = vs[:, cols]
@@ -162,6 +173,12 @@ def sweep_material(ws, fr, R, uq, vs, cutters, uf, threshold=0.0, chord=0.0, nor
     hot = np.nonzero((ml > threshold).any(axis=0))[0]
     if hot.size:
         ml[:, hot] = bound(hot, np.arange(-K, K + 1))
+    return ml
+
+
+def _rim_stage(ws, fr, R, uq, vs, cutters, threshold, chord, design, scale, ml, kern):
+    """Stage 3 of :func:`sweep_material` (compiled with ``kern``, else numpy): ml lowered
+    where the ball's rim cuts on ground steep along the pass."""
     # stage 3: on ground steep along the pass the ball cuts a cross-section with its rim
     # (slope 8: 0.99 R ahead), where a step du between balls leaves ~ du^2 / (2 R cos^3)
     # (1.6 mm at the fine grid's 0.1 mm): the lowest ball between the fine positions,
@@ -178,6 +195,7 @@ def sweep_material(ws, fr, R, uq, vs, cutters, uf, threshold=0.0, chord=0.0, nor
     if hot.size and kern is not None:
         o = np.linspace(-R, R, 65)
         Zs, dZs, lo, hi, kink = stack_profiles(cutters)
+        pv = np.array([p.v for p in cutters], dtype=float)
         cut = kern.rim_cut(np.ascontiguousarray(uq[hot], dtype=float), np.ascontiguousarray(vs[:, hot], dtype=float),
                            cutters[0]._ug, Zs, dZs, kink, lo.astype(float), hi.astype(float), pv, float(R), o,
                            float(o[1] - o[0]), 0.5 * (math.sqrt(5.0) - 1.0), GOLDEN_STEPS)

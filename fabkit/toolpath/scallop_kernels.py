@@ -36,43 +36,109 @@ def _nanmin(cur, x):
 
 
 @jit
-def ball_cut(uq, uf, j0, vs, fine, pv, R, cols, offsets):
-    """(m, len(cols)): at each sample point (uq[c], vs[i, c]) of the columns ``cols``,
-    the lowest of the balls (radius R) of the passes p (across at pv[p], tip heights
-    fine[p] on the fine grid uf; +inf where not machined) centred at the fine
-    positions j0[c] + offsets (clipped to the grid); +inf where none covers it."""
-    nf = uf.shape[0]
+def _balls_into(out, c, vs, fine, pv, R, Js, rrs, n):
+    """Lower out[:, c] to the balls of every pass at the fine positions Js[:n] (their
+    R^2 - du^2 in rrs, non-increasing): a ball whose height (+ R) is not below that of
+    an earlier ball of the same pass is skipped, being nowhere lower (a larger circle
+    in the cross-section, centred no higher: monotone rounding keeps that true in
+    floating point, so the minimum is the same bits)."""
     m = vs.shape[0]
-    P = pv.shape[0]
-    nc = cols.shape[0]
-    RR = R * R
-    out = np.empty((m, nc))
-    for ci in range(nc):
-        c = cols[ci]
-        for i in range(m):
-            out[i, ci] = np.inf
-        for k in range(offsets.shape[0]):
-            J = j0[c] + offsets[k]
-            if J < 0:
-                J = 0
-            elif J > nf - 1:
-                J = nf - 1
-            du = uq[c] - uf[J]
-            rr = RR - du * du
-            if rr < 0.0:           # r2 = rr - dv2 < 0 for every pass and row
+    for p in range(pv.shape[0]):
+        fmin = np.inf
+        vp = pv[p]
+        for k in range(n):
+            rr = rrs[k]
+            if rr < 0.0:               # r2 = rr - dv2 < 0 here and at every later ball
+                break
+            f = fine[p, Js[k]]
+            if f == np.inf:            # an unmachined position: +inf, lowers nothing
                 continue
-            for p in range(P):
-                f = fine[p, J]
-                if f == np.inf:    # an unmachined position: +inf, lowers nothing
-                    continue
-                fR = f + R
-                vp = pv[p]
-                for i in range(m):
-                    dv = vs[i, c] - vp
-                    r2 = rr - dv * dv
-                    if r2 >= 0.0:
-                        out[i, ci] = _nanmin(out[i, ci], fR - math.sqrt(r2))
-    return out
+            fR = f + R
+            if fR >= fmin:
+                continue
+            if fR < fmin:
+                fmin = fR
+            for i in range(m):
+                dv = vs[i, c] - vp
+                r2 = rr - dv * dv
+                if r2 >= 0.0:
+                    out[i, c] = _nanmin(out[i, c], fR - math.sqrt(r2))
+
+
+@jit
+def sweep_balls(uq, uf, vs, fine, pv, R, K, design, scale, threshold):
+    """Stages 1 and 2 of the material bound: (m, nq) material (min(cut, 0) - design) x
+    scale at the sample points (uq[c], vs[i, c]), cut by the lowest ball of the passes p
+    (across at pv[p], tip heights fine[p] on the fine grid uf, +inf where not machined)
+    at the fine position j0 = searchsorted(uf, uq[c]) (stage 1), and, in the columns
+    where that leaves more than ``threshold`` somewhere, at the positions j0 - K .. j0 + K
+    (stage 2)."""
+    nf = uf.shape[0]
+    m, nq = vs.shape
+    RR = R * R
+    cut = np.empty((m, nq))
+    ml = np.empty((m, nq))
+    Js = np.empty(2 * K + 2, dtype=np.int64)
+    rrs = np.empty(2 * K + 2)
+    for c in range(nq):
+        u = uq[c]
+        lo, hi = 0, nf                 # searchsorted(uf, u, side="left")
+        while lo < hi:
+            mid = (lo + hi) >> 1
+            if uf[mid] < u:
+                lo = mid + 1
+            else:
+                hi = mid
+        j0 = lo if lo < nf else nf - 1
+        for i in range(m):
+            cut[i, c] = np.inf
+        du = u - uf[j0]
+        Js[0] = j0
+        rrs[0] = RR - du * du
+        _balls_into(cut, c, vs, fine, pv, R, Js, rrs, 1)
+        hot = False
+        for i in range(m):
+            x = cut[i, c]
+            if not (x >= 0.0):         # np.minimum(cut, 0): x below 0, or NaN
+                ml[i, c] = (x - design[i, c]) * scale[i, c]
+            else:
+                ml[i, c] = (0.0 - design[i, c]) * scale[i, c]
+            if ml[i, c] > threshold:
+                hot = True
+        if not hot:
+            continue
+        # stage 2: the positions j0 - K .. j0 + K (clipped), nearest along u first
+        a = j0 - K if j0 - K > 0 else 0
+        b = j0 + K if j0 + K < nf - 1 else nf - 1
+        left, right, n = j0 - 1, j0, 0
+        while left >= a or right <= b:
+            if right > b:
+                J = left
+                left -= 1
+            elif left < a:
+                J = right
+                right += 1
+            else:
+                dl = u - uf[left]
+                dr = u - uf[right]
+                if dl * dl <= dr * dr:
+                    J = left
+                    left -= 1
+                else:
+                    J = right
+                    right += 1
+            du = u - uf[J]
+            Js[n] = J
+            rrs[n] = RR - du * du
+            n += 1
+        _balls_into(cut, c, vs, fine, pv, R, Js, rrs, n)
+        for i in range(m):
+            x = cut[i, c]
+            if not (x >= 0.0):
+                ml[i, c] = (x - design[i, c]) * scale[i, c]
+            else:
+                ml[i, c] = (0.0 - design[i, c]) * scale[i, c]
+    return ml
 
 
 @jit
