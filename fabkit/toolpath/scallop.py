@@ -115,7 +115,7 @@ def slope_scale(ws, X, Y, normal: bool = True):
     H, hx, hy = ws.all(X, Y)[:3]
     with np.errstate(all="ignore"):
         g = np.where(np.isfinite(H) & (H < 0), hx * hx + hy * hy, 0.0)
-        scale = 1.0 / np.sqrt(1.0 + np.nan_to_num(g, nan=0.0, posinf=0.0))
+        scale = 1.0 / np.sqrt(1.0 + np.where(g < np.inf, g, 0.0))     # g >= 0: NaN, inf -> 0
     return np.minimum(H, 0.0), scale
 
 
@@ -190,8 +190,8 @@ def _rim_stage(ws, fr, R, uq, vs, cutters, threshold, chord, design, scale, ml, 
         uu = uq[hot][None, :] + np.array([-1.0, -0.5, 0.0, 0.5, 1.0])[:, None] * R
         Xs, Ys = fr.xy(uu, np.broadcast_to(vs[vs.shape[0] // 2, hot], uu.shape))
         d = ws.all(Xs, Ys)
-        su = np.abs(np.nan_to_num(d[1] if fr.direction == "x" else d[2]))
-        hot = hot[(su * (d[0] < 0)).max(axis=0) > STEEP_ALONG]
+        # (|slope| > STEEP_ALONG below the top face somewhere; NaN slopes count as 0)
+        hot = hot[((np.abs(d[1] if fr.direction == "x" else d[2]) > STEEP_ALONG) & (d[0] < 0)).any(axis=0)]
     if hot.size and kern is not None:
         o = np.linspace(-R, R, 65)
         Zs, dZs, lo, hi, kink = stack_profiles(cutters)

@@ -142,17 +142,42 @@ def sweep_balls(uq, uf, vs, fine, pv, R, K, design, scale, threshold):
 
 
 @jit
-def _hermite(ug, Z, dZ, kink, p, u):
-    """The Hermite tip profile of pass p at u (as scallop.hermite_profile, one point)."""
-    n = ug.shape[0]
-    lo, hi = 0, n                 # searchsorted(ug, u, side="right"): count of ug <= u
+def _search(ug, u):
+    """searchsorted(ug, u, side="right") - 1, by bisection."""
+    lo, hi = 0, ug.shape[0]
     while lo < hi:
         mid = (lo + hi) >> 1
         if ug[mid] <= u:
             lo = mid + 1
         else:
             hi = mid
-    i = lo - 1
+    return lo - 1
+
+
+@jit
+def _segment(ug, u, r):
+    """searchsorted(ug, u, side="right") - 1 (the count of nodes <= u, less one),
+    walked from the guess r (a neighbour's: a step or two)."""
+    n = ug.shape[0]
+    if u != u:                    # NaN sorts last
+        return n - 1
+    if r < -1:
+        r = -1
+    elif r > n - 1:
+        r = n - 1
+    while r + 1 < n and ug[r + 1] <= u:
+        r += 1
+    while r >= 0 and ug[r] > u:
+        r -= 1
+    return r
+
+
+@jit
+def _hermite(ug, Z, dZ, kink, p, u, r):
+    """The Hermite tip profile of pass p at u (as scallop.hermite_profile, one point),
+    u in the segment r = searchsorted(ug, u, side="right") - 1 (clipped here)."""
+    n = ug.shape[0]
+    i = r
     if i < 0:
         i = 0
     elif i > n - 2:
@@ -175,15 +200,16 @@ def _hermite(ug, Z, dZ, kink, p, u):
 
 
 @jit
-def _ball(oo, u0, dv2, RR, R, ug, Z, dZ, kink, lo, hi, p):
-    """Lowest point above u0 of pass p's ball at u0 + oo (scallop.sweep_material's ``ball``)."""
+def _ball(oo, u0, dv2, RR, R, ug, Z, dZ, kink, lo, hi, p, r):
+    """Lowest point above u0 of pass p's ball at u0 + oo (scallop.sweep_material's
+    ``ball``); r: a guess of the segment of u0 + oo."""
     r2 = RR - oo * oo - dv2
     if not (r2 >= 0.0):
         return np.inf
     u = u0 + oo
     if not (u >= lo[p] and u <= hi[p]):
         return np.inf
-    return _hermite(ug, Z, dZ, kink, p, u) + R - math.sqrt(r2)
+    return _hermite(ug, Z, dZ, kink, p, u, _segment(ug, u, r)) + R - math.sqrt(r2)
 
 
 @jit
@@ -205,6 +231,7 @@ def rim_cut(u0s, vs, ug, Z, dZ, kink, lo, hi, pv, R, o, h, gr, steps):
     for k in range(no):
         RRo[k] = RR - o[k] * o[k]
     zR = np.empty(no)           # the samples' tip height + R (+inf: not machined)
+    seg = np.empty(no, dtype=np.int64)      # the samples' segments of ug
     out = np.empty((m, nh))
     for c in range(nh):
         u0 = u0s[c]
@@ -214,10 +241,13 @@ def rim_cut(u0s, vs, ug, Z, dZ, kink, lo, hi, pv, R, o, h, gr, steps):
             # every ball of the search lies within R + 2h of u0 along the pass
             if hi[p] < u0 - R - 2 * h or lo[p] > u0 + R + 2 * h:
                 continue
+            r = _search(ug, u0 + o[0])
             for k in range(no):
                 u = u0 + o[k]
+                r = _segment(ug, u, r)
+                seg[k] = r
                 if u >= lo[p] and u <= hi[p]:
-                    zR[k] = _hermite(ug, Z, dZ, kink, p, u) + R
+                    zR[k] = _hermite(ug, Z, dZ, kink, p, u, r) + R
                 else:
                     zR[k] = np.inf
             for i in range(m):
@@ -237,25 +267,26 @@ def rim_cut(u0s, vs, ug, Z, dZ, kink, lo, hi, pv, R, o, h, gr, steps):
                         jb, gb = k, g
                     elif gb == gb and (g < gb or g != g):
                         jb, gb = k, g
+                r = seg[jb]
                 a = o[jb] - h
                 b = a + 2 * h
                 cc = b - gr * (b - a)
                 d = a + gr * (b - a)
-                gc = _ball(cc, u0, dv2, RR, R, ug, Z, dZ, kink, lo, hi, p)
-                gd = _ball(d, u0, dv2, RR, R, ug, Z, dZ, kink, lo, hi, p)
+                gc = _ball(cc, u0, dv2, RR, R, ug, Z, dZ, kink, lo, hi, p, r)
+                gd = _ball(d, u0, dv2, RR, R, ug, Z, dZ, kink, lo, hi, p, r)
                 for _ in range(steps):
                     if gc <= gd:
                         b = d
                         d = cc
                         cc = b - gr * (b - a)
-                        gn = _ball(cc, u0, dv2, RR, R, ug, Z, dZ, kink, lo, hi, p)
+                        gn = _ball(cc, u0, dv2, RR, R, ug, Z, dZ, kink, lo, hi, p, r)
                         gd = gc
                         gc = gn
                     else:
                         a = cc
                         cc = d
                         d = a + gr * (b - a)
-                        gn = _ball(d, u0, dv2, RR, R, ug, Z, dZ, kink, lo, hi, p)
+                        gn = _ball(d, u0, dv2, RR, R, ug, Z, dZ, kink, lo, hi, p, r)
                         gc = gd
                         gd = gn
                 out[i, c] = _nanmin(out[i, c], _nanmin(gmin, _nanmin(gc, gd)))
