@@ -36,16 +36,16 @@ def _nanmin(cur, x):
 
 
 @jit
-def _balls_into(out, c, vs, fine, pv, R, Js, rrs, n):
-    """Lower out[:, c] to the balls of every pass at the fine positions Js[:n] (their
-    R^2 - du^2 in rrs, non-increasing): a ball whose height (+ R) is not below that of
-    an earlier ball of the same pass is skipped, being nowhere lower (a larger circle
-    in the cross-section, centred no higher: monotone rounding keeps that true in
-    floating point, so the minimum is the same bits)."""
-    m = vs.shape[0]
-    for p in range(pv.shape[0]):
+def _balls_into(col, dv2, fine, R, Js, rrs, n):
+    """Lower col (one column's cut, m points) to the balls of every pass at the fine
+    positions Js[:n] (R^2 - du^2 in rrs, non-increasing; dv2[p, i] the points' squared
+    distances across from pass p): a ball whose height (+ R) is not below that of an
+    earlier ball of the same pass is skipped, being nowhere lower (a larger circle in
+    the cross-section, centred no higher: monotone rounding keeps that true in floating
+    point, so the minimum is the same bits)."""
+    m = col.shape[0]
+    for p in range(dv2.shape[0]):
         fmin = np.inf
-        vp = pv[p]
         for k in range(n):
             rr = rrs[k]
             if rr < 0.0:               # r2 = rr - dv2 < 0 here and at every later ball
@@ -59,10 +59,21 @@ def _balls_into(out, c, vs, fine, pv, R, Js, rrs, n):
             if fR < fmin:
                 fmin = fR
             for i in range(m):
-                dv = vs[i, c] - vp
-                r2 = rr - dv * dv
+                r2 = rr - dv2[p, i]
                 if r2 >= 0.0:
-                    out[i, c] = _nanmin(out[i, c], fR - math.sqrt(r2))
+                    b = fR - math.sqrt(r2)
+                    if b < col[i] or b != b:
+                        col[i] = b
+
+
+@jit
+def _material(ml, c, col, design, scale):
+    """ml[:, c] = (np.minimum(col, 0) - design[:, c]) * scale[:, c]."""
+    for i in range(col.shape[0]):
+        x = col[i]
+        if x >= 0.0:
+            x = 0.0
+        ml[i, c] = (x - design[i, c]) * scale[i, c]
 
 
 @jit
@@ -75,9 +86,11 @@ def sweep_balls(uq, uf, vs, fine, pv, R, K, design, scale, threshold):
     (stage 2)."""
     nf = uf.shape[0]
     m, nq = vs.shape
+    P = pv.shape[0]
     RR = R * R
-    cut = np.empty((m, nq))
     ml = np.empty((m, nq))
+    col = np.empty(m)
+    dv2 = np.empty((P, m))
     Js = np.empty(2 * K + 2, dtype=np.int64)
     rrs = np.empty(2 * K + 2)
     for c in range(nq):
@@ -91,18 +104,18 @@ def sweep_balls(uq, uf, vs, fine, pv, R, K, design, scale, threshold):
                 hi = mid
         j0 = lo if lo < nf else nf - 1
         for i in range(m):
-            cut[i, c] = np.inf
+            col[i] = np.inf
+        for p in range(P):
+            for i in range(m):
+                dv = vs[i, c] - pv[p]
+                dv2[p, i] = dv * dv
         du = u - uf[j0]
         Js[0] = j0
         rrs[0] = RR - du * du
-        _balls_into(cut, c, vs, fine, pv, R, Js, rrs, 1)
+        _balls_into(col, dv2, fine, R, Js, rrs, 1)
+        _material(ml, c, col, design, scale)
         hot = False
         for i in range(m):
-            x = cut[i, c]
-            if not (x >= 0.0):         # np.minimum(cut, 0): x below 0, or NaN
-                ml[i, c] = (x - design[i, c]) * scale[i, c]
-            else:
-                ml[i, c] = (0.0 - design[i, c]) * scale[i, c]
             if ml[i, c] > threshold:
                 hot = True
         if not hot:
@@ -131,13 +144,8 @@ def sweep_balls(uq, uf, vs, fine, pv, R, K, design, scale, threshold):
             Js[n] = J
             rrs[n] = RR - du * du
             n += 1
-        _balls_into(cut, c, vs, fine, pv, R, Js, rrs, n)
-        for i in range(m):
-            x = cut[i, c]
-            if not (x >= 0.0):
-                ml[i, c] = (x - design[i, c]) * scale[i, c]
-            else:
-                ml[i, c] = (0.0 - design[i, c]) * scale[i, c]
+        _balls_into(col, dv2, fine, R, Js, rrs, n)
+        _material(ml, c, col, design, scale)
     return ml
 
 
