@@ -28,9 +28,29 @@ import math
 
 import numpy as np
 
+from .kernels import enabled
+
 SCALLOP_SAFETY = 0.95   # stepover keeps the cross-section bound below this fraction of the scallop
 STEEP_ALONG = 1.5       # the material bound's stage 3 runs where the slope along the pass exceeds this
 EDGE_NODES = (0.95, 0.99)   # extra nodes along the passes beyond the edges, x R out (passes.u_grid)
+GOLDEN_STEPS = 24       # stage 3: golden-section steps around the lowest of 65 balls within R
+
+
+_KERNELS: list = []     # the compiled module once imported (or None: numba missing)
+
+
+def _kernels():
+    """The compiled loops (:mod:`fabkit.toolpath.scallop_kernels`), or None
+    (``FABKIT_NO_KERNELS=1``, numba missing): the numpy code below, the same bits."""
+    if not enabled():
+        return None
+    if not _KERNELS:
+        try:
+            from . import scallop_kernels
+        except ImportError:  # pragma: no cover - numba is a dependency
+            scallop_kernels = None
+        _KERNELS.append(scallop_kernels)
+    return _KERNELS[0]
 
 
 def flat_stepover(R: float, scallop: float) -> float:
@@ -95,7 +115,7 @@ def slope_scale(ws, X, Y, normal: bool = True):
     H, hx, hy = ws.all(X, Y)[:3]
     with np.errstate(all="ignore"):
         g = np.where(np.isfinite(H) & (H < 0), hx * hx + hy * hy, 0.0)
-        scale = 1.0 / np.sqrt(1.0 + np.nan_to_num(g, nan=0.0, posinf=0.0))
+        scale = 1.0 / np.sqrt(1.0 + np.where(g < np.inf, g, 0.0))     # g >= 0: NaN, inf -> 0
     return np.minimum(H, 0.0), scale
 
 
@@ -113,9 +133,24 @@ def sweep_material(ws, fr, R, uq, vs, cutters, uf, threshold=0.0, chord=0.0, nor
     it. Returns (m, nq) mm."""
     df = float(np.diff(uf).max())   # the even spacing (nodes beyond the edges added between)
     K = int(math.ceil(R / df)) + len(EDGE_NODES) + 1    # and the edge nodes between
-    j0 = np.clip(np.searchsorted(uf, uq), 0, len(uf) - 1)
     X, Y = fr.xy(np.broadcast_to(uq, vs.shape), vs)
     design, scale = slope_scale(ws, X, Y, normal)
+    kern = _kernels()
+    if kern is not None:
+        # stages 1 and 2 compiled (scallop_kernels.sweep_balls: the same arithmetic)
+        pv = np.array([p.v for p in cutters], dtype=float)
+        ml = kern.sweep_balls(np.ascontiguousarray(uq, dtype=float), uf, np.ascontiguousarray(vs, dtype=float),
+                              np.vstack([p.fine for p in cutters]), pv, float(R), K,
+                              np.ascontiguousarray(design, dtype=float), np.ascontiguousarray(scale, dtype=float),
+                              float(threshold))
+    else:
+        ml = _sweep_balls(R, uq, vs, cutters, uf, K, design, scale, threshold)
+    return _rim_stage(ws, fr, R, uq, vs, cutters, threshold, chord, design, scale, ml, kern)
+
+
+def _sweep_balls(R, uq, vs, cutters, uf, K, design, scale, threshold):
+    """Stages 1 and 2 of :func:`sweep_material` in numpy (FABKIT_NO_KERNELS=1)."""
+    j0 = np.clip(np.searchsorted(uf, uq), 0, len(uf) - 1)
 
     def bound(cols, offsets):
         """Material at the columns ``cols`` using the balls at fine offsets."""
@@ -138,6 +173,12 @@ def sweep_material(ws, fr, R, uq, vs, cutters, uf, threshold=0.0, chord=0.0, nor
     hot = np.nonzero((ml > threshold).any(axis=0))[0]
     if hot.size:
         ml[:, hot] = bound(hot, np.arange(-K, K + 1))
+    return ml
+
+
+def _rim_stage(ws, fr, R, uq, vs, cutters, threshold, chord, design, scale, ml, kern):
+    """Stage 3 of :func:`sweep_material` (compiled with ``kern``, else numpy): ml lowered
+    where the ball's rim cuts on ground steep along the pass."""
     # stage 3: on ground steep along the pass the ball cuts a cross-section with its rim
     # (slope 8: 0.99 R ahead), where a step du between balls leaves ~ du^2 / (2 R cos^3)
     # (1.6 mm at the fine grid's 0.1 mm): the lowest ball between the fine positions,
@@ -149,9 +190,18 @@ def sweep_material(ws, fr, R, uq, vs, cutters, uf, threshold=0.0, chord=0.0, nor
         uu = uq[hot][None, :] + np.array([-1.0, -0.5, 0.0, 0.5, 1.0])[:, None] * R
         Xs, Ys = fr.xy(uu, np.broadcast_to(vs[vs.shape[0] // 2, hot], uu.shape))
         d = ws.all(Xs, Ys)
-        su = np.abs(np.nan_to_num(d[1] if fr.direction == "x" else d[2]))
-        hot = hot[(su * (d[0] < 0)).max(axis=0) > STEEP_ALONG]
-    if hot.size:
+        # (|slope| > STEEP_ALONG below the top face somewhere; NaN slopes count as 0)
+        hot = hot[((np.abs(d[1] if fr.direction == "x" else d[2]) > STEEP_ALONG) & (d[0] < 0)).any(axis=0)]
+    if hot.size and kern is not None:
+        o = np.linspace(-R, R, 65)
+        Zs, dZs, lo, hi, kink = stack_profiles(cutters)
+        pv = np.array([p.v for p in cutters], dtype=float)
+        cut = kern.rim_cut(np.ascontiguousarray(uq[hot], dtype=float), np.ascontiguousarray(vs[:, hot], dtype=float),
+                           cutters[0]._ug, Zs, dZs, kink, lo.astype(float), hi.astype(float), pv, float(R), o,
+                           float(o[1] - o[0]), 0.5 * (math.sqrt(5.0) - 1.0), GOLDEN_STEPS)
+        ml[:, hot] = np.minimum(ml[:, hot],
+                                (np.minimum(cut, 0.0) - design[:, hot] + chord) * scale[:, hot])
+    elif hot.size:
         v = vs[:, hot][:, :, None]
         u0 = uq[hot][None, :, None]
         uf_nodes = cutters[0]._ug
@@ -181,7 +231,7 @@ def sweep_material(ws, fr, R, uq, vs, cutters, uf, threshold=0.0, chord=0.0, nor
         gr = 0.5 * (math.sqrt(5.0) - 1.0)
         c, d = b - gr * (b - a), a + gr * (b - a)
         gc, gd = ball(c), ball(d)
-        for _ in range(24):
+        for _ in range(GOLDEN_STEPS):
             lt = gc <= gd
             a, b = np.where(lt, a, c), np.where(lt, d, b)
             c, d = np.where(lt, b - gr * (b - a), d), np.where(lt, c, a + gr * (b - a))
