@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import ast
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Callable, Mapping
 
 from .errors import SpecError
@@ -385,7 +385,11 @@ def cse_unevaluated(exprs):
 @dataclass(frozen=True)
 class SurfaceFunctions:
     """Vectorized h and its exact derivatives. All take arrays ``x, y`` of one
-    shape (design units) and return arrays of that shape (design units)."""
+    shape (design units) and return arrays of that shape (design units).
+
+    ``symbolic`` (the sympy expression of h) is built when first asked for: a formula
+    whose functions come from the cache (:mod:`fabkit.expr_cache`) imports no sympy
+    until something needs the expression itself."""
 
     text: str
     h: Callable          # h(x, y)
@@ -393,15 +397,87 @@ class SurfaceFunctions:
     hess: Callable       # (h_xx, h_xy, h_yy)
     all: Callable        # (h, h_x, h_y, h_xx, h_xy, h_yy)
     accel: Callable      # (h_x, h_y, h_xx, h_xy, h_yy): what the simulator needs
-    symbolic: object     # the sympy expression of h
+    _symbolic: object = field(default=None, compare=False, repr=False)   # see ``symbolic``
     params: tuple = ()   # ((name, value), ...) as given: the compiled engine passes them at run time
     raw_h: Callable | None = None    # the generated functions themselves: float64 arrays of one
     raw_all: Callable | None = None  # shape in, a list out (constants as Python numbers), no checks
+    tol: Tolerances = field(default=DEFAULT, compare=False, repr=False)
+    calls: frozenset | None = field(default=None, compare=False)   # the functions the text calls (None: not known)
+
+    @property
+    def symbolic(self):
+        """The sympy expression of h (the parameters' values substituted)."""
+        h = self._symbolic
+        if h is None:
+            h = to_sympy(self.text, dict(self.params), self.tol)[0]
+            object.__setattr__(self, "_symbolic", h)
+        return h
 
 
-def compile_surface(text: str, params: Mapping[str, float], tol: Tolerances = DEFAULT) -> SurfaceFunctions:
-    """Parse, differentiate exactly and generate numpy functions for ``text``."""
+def _calls(tree: ast.AST) -> frozenset:
+    """The names of the functions a checked expression calls."""
+    return frozenset(n.func.id for n in ast.walk(tree) if isinstance(n, ast.Call) and isinstance(n.func, ast.Name))
+
+
+def compile_surface(text: str, params: Mapping[str, float], tol: Tolerances = DEFAULT,
+                    cache: bool = True) -> SurfaceFunctions:
+    """Parse, differentiate exactly and generate numpy functions for ``text``.
+
+    With ``cache`` the generated source is kept per formula (text, parameter values,
+    versions: :mod:`fabkit.expr_cache`) and a later call, in any process, builds the
+    same functions from it without sympy."""
     import numpy as np
+
+    tree = check_syntax(text, frozenset(params), tol)    # cheap: the same refusals, cached or not
+    pvals = tuple((str(k), float(v)) for k, v in params.items())
+    fns, h = None, None
+    k = None
+    if cache:
+        from . import expr_cache
+
+        k = expr_cache.key(text, pvals, tol)
+        fns = expr_cache.load(k, text)
+    if fns is None:
+        fns, h = _generate(text, params, tol, k)
+
+    def make(fn):
+        def wrapped(xa, ya, _fn=fn):
+            xa = np.asarray(xa, dtype=float)
+            ya = np.asarray(ya, dtype=float)
+            shape = np.broadcast_shapes(xa.shape, ya.shape)
+            with np.errstate(all="ignore"):
+                out = _fn(xa, ya)
+            # constants (a derivative that does not depend on x, y) come back as scalars
+            return tuple(o if type(o) is np.ndarray and o.shape == shape and o.dtype == np.float64
+                         else np.broadcast_to(np.asarray(o, dtype=float), shape) for o in out)
+
+        return wrapped
+
+    f_h = make(fns["h"])
+    return SurfaceFunctions(
+        text=text,
+        h=lambda xa, ya: f_h(xa, ya)[0],
+        grad=make(fns["grad"]),
+        hess=make(fns["hess"]),
+        all=make(fns["all"]),
+        accel=make(fns["accel"]),
+        _symbolic=h,
+        params=pvals,
+        raw_h=fns["h"],
+        raw_all=fns["all"],
+        tol=tol,
+        calls=_calls(tree),
+    )
+
+
+def _generate(text: str, params: Mapping[str, float], tol: Tolerances, key: str | None):
+    """The generated functions of ``text`` (name -> function, see expr_cache.FUNCTIONS)
+    and h, through sympy; stored in the cache under ``key`` (None: not stored).
+
+    Where every name of the generated source can be told (expr_cache.origins), the
+    functions are rebuilt from the source, as a cached run builds them."""
+    import inspect
+
     import sympy as sp
 
     h, x, y = to_sympy(text, params, tol)
@@ -419,44 +495,30 @@ def compile_surface(text: str, params: Mapping[str, float], tol: Tolerances = DE
         raise _fail(f"expression too costly to compile: h and its first and second derivatives have more "
                     f"than {limit} nodes (simplify the formula)")
 
-    def generate(exprs):
-        return sp.lambdify((x, y), exprs, modules="numpy", cse=cse_unevaluated)
+    exprs = {"all": parts, "h": parts[:1], "grad": parts[1:3], "hess": parts[3:6], "accel": parts[1:6]}
+    fns = {name: sp.lambdify((x, y), e, modules="numpy", cse=cse_unevaluated) for name, e in exprs.items()}
+    from . import expr_cache
 
-    def make(exprs, fn=None):
-        fn = generate(exprs) if fn is None else fn
-
-        def wrapped(xa, ya, _fn=fn, _n=len(exprs)):
-            xa = np.asarray(xa, dtype=float)
-            ya = np.asarray(ya, dtype=float)
-            shape = np.broadcast_shapes(xa.shape, ya.shape)
-            with np.errstate(all="ignore"):
-                out = _fn(xa, ya)
-            # constants (a derivative that does not depend on x, y) come back as scalars
-            return tuple(o if type(o) is np.ndarray and o.shape == shape and o.dtype == np.float64
-                         else np.broadcast_to(np.asarray(o, dtype=float), shape) for o in out)
-
-        return wrapped
-
-    raw_all, raw_h = generate(parts), generate(parts[:1])
-    f_all = make(parts, raw_all)
-    f_h = make(parts[:1], raw_h)
-    return SurfaceFunctions(
-        text=text,
-        h=lambda xa, ya: f_h(xa, ya)[0],
-        grad=make(parts[1:3]),
-        hess=make(parts[3:6]),
-        all=f_all,
-        accel=make(parts[1:6]),
-        symbolic=h,
-        params=tuple((str(k), float(v)) for k, v in params.items()),
-        raw_h=raw_h,
-        raw_all=raw_all,
-    )
+    try:
+        sources = {name: inspect.getsource(fn) for name, fn in fns.items()}
+        names: dict = {}
+        for name, fn in fns.items():
+            got = expr_cache.origins(fn, sources[name])
+            if got is None:
+                return fns, h
+            names.update(got)
+        rebuilt = {name: expr_cache.build(sources[name], names, name) for name in fns}
+    except (OSError, TypeError, ValueError, SyntaxError):
+        return fns, h         # lambdify's own functions (the source could not be read back)
+    if key is not None:
+        expr_cache.store(key, text, sources, names)
+    return rebuilt, h
 
 
 #: relative distance to a singular point of asin, acos (|u| = 1) or atan2 (the origin, the
 #: branch cut) under which a footprint is taken to reach it (rounding of the arguments)
 DOMAIN_RTOL = 1e-9
+_DOMAIN_FUNCTIONS = frozenset({"asin", "acos", "atan2"})
 
 
 def check_domain(fns: SurfaceFunctions, x_range, y_range, n: int = 201) -> None:
@@ -471,6 +533,9 @@ def check_domain(fns: SurfaceFunctions, x_range, y_range, n: int = 201) -> None:
     grid points are refined by bounded quasi-Newton with the exact gradient; a sign
     change of a between neighbouring grid points where b < 0 is a crossing of the cut.
     atan is defined, smooth and bounded everywhere."""
+    calls = getattr(fns, "calls", None)
+    if calls is not None and not calls & _DOMAIN_FUNCTIONS:
+        return      # sympy builds no asin, acos or atan2 that the text does not call
     import numpy as np
     import sympy as sp
 
