@@ -347,9 +347,15 @@ def derivative_size(h, order: int = 2) -> int:
 def check_derivative_size(h, order: int, tol: Tolerances = DEFAULT) -> int:
     """Refuse (SpecError on surface.height) a formula whose derivatives up to ``order``
     would exceed ``tol.expr_max_compiled_nodes`` nodes by :func:`derivative_size`'s
-    estimate; returns the estimate."""
+    estimate; returns the estimate. ``h``: a sympy expression, or SurfaceFunctions
+    (their estimate stored with the formula's cache entry where there is one: no sympy)."""
     limit = tol.expr_max_compiled_nodes
-    estimate = derivative_size(h, order)
+    if isinstance(h, SurfaceFunctions):
+        estimate = dict(h.sizes).get(order)
+        if estimate is None:
+            estimate = derivative_size(h.symbolic, order)
+    else:
+        estimate = derivative_size(h, order)
     if estimate > limit:
         need = " (the finite ball's rolling needs them)" if order == 3 else ""
         raise _fail(f"expression too costly to compile: {DERIVATIVE_ORDERS[order]}{need} would have about "
@@ -403,6 +409,7 @@ class SurfaceFunctions:
     raw_all: Callable | None = None  # shape in, a list out (constants as Python numbers), no checks
     tol: Tolerances = field(default=DEFAULT, compare=False, repr=False)
     calls: frozenset | None = field(default=None, compare=False)   # the functions the text calls (None: not known)
+    sizes: tuple = field(default=(), compare=False)   # ((order, derivative_size(h, order)), ...) known
 
     @property
     def symbolic(self):
@@ -430,15 +437,15 @@ def compile_surface(text: str, params: Mapping[str, float], tol: Tolerances = DE
 
     tree = check_syntax(text, frozenset(params), tol)    # cheap: the same refusals, cached or not
     pvals = tuple((str(k), float(v)) for k, v in params.items())
-    fns, h = None, None
+    fns, h, sizes = None, None, {}
     k = None
     if cache:
         from . import expr_cache
 
         k = expr_cache.key(text, pvals, tol)
-        fns = expr_cache.load(k, text)
+        fns, sizes = expr_cache.load(k, text) or (None, {})
     if fns is None:
-        fns, h = _generate(text, params, tol, k)
+        fns, h, sizes = _generate(text, params, tol, k)
 
     def make(fn):
         def wrapped(xa, ya, _fn=fn):
@@ -467,12 +474,14 @@ def compile_surface(text: str, params: Mapping[str, float], tol: Tolerances = DE
         raw_all=fns["all"],
         tol=tol,
         calls=_calls(tree),
+        sizes=tuple(sorted(sizes.items())),
     )
 
 
 def _generate(text: str, params: Mapping[str, float], tol: Tolerances, key: str | None):
-    """The generated functions of ``text`` (name -> function, see expr_cache.FUNCTIONS)
-    and h, through sympy; stored in the cache under ``key`` (None: not stored).
+    """The generated functions of ``text`` (name -> function, see expr_cache.FUNCTIONS),
+    h and the derivative sizes {order: derivative_size(h, order)}, through sympy; stored
+    in the cache under ``key`` (None: not stored).
 
     Where every name of the generated source can be told (expr_cache.origins), the
     functions are rebuilt from the source, as a cached run builds them."""
@@ -482,6 +491,7 @@ def _generate(text: str, params: Mapping[str, float], tol: Tolerances, key: str 
 
     h, x, y = to_sympy(text, params, tol)
     limit = tol.expr_max_compiled_nodes
+    sizes = {order: derivative_size(h, order) for order in DERIVATIVE_ORDERS}
     check_derivative_size(h, 2, tol)
     try:
         hx, hy = sp.diff(h, x), sp.diff(h, y)
@@ -505,14 +515,14 @@ def _generate(text: str, params: Mapping[str, float], tol: Tolerances, key: str 
         for name, fn in fns.items():
             got = expr_cache.origins(fn, sources[name])
             if got is None:
-                return fns, h
+                return fns, h, sizes
             names.update(got)
         rebuilt = {name: expr_cache.build(sources[name], names, name) for name in fns}
     except (OSError, TypeError, ValueError, SyntaxError):
-        return fns, h         # lambdify's own functions (the source could not be read back)
+        return fns, h, sizes  # lambdify's own functions (the source could not be read back)
     if key is not None:
-        expr_cache.store(key, text, sources, names)
-    return rebuilt, h
+        expr_cache.store(key, text, sources, names, sizes)
+    return rebuilt, h, sizes
 
 
 #: relative distance to a singular point of asin, acos (|u| = 1) or atan2 (the origin, the

@@ -15,8 +15,9 @@ Entry: ``cache_dir()/formulas/fk_formula_<key>.json`` (the simulator's cache fol
 number, the formula's text, its parameters (names and exact values: the source has
 the values in it), the expression limits of the tolerances, the fabkit, sympy, numpy
 and Python versions and the source of ``expr.py`` and of this module. It holds the
-generated functions' source and where each free name of that source comes from
-(``numpy``'s attribute, a builtin or a module), with a checksum. Written atomically
+generated functions' source, where each free name of that source comes from
+(``numpy``'s attribute, a builtin or a module) and the formula's derivative sizes
+(:func:`fabkit.expr.derivative_size`, orders 2 and 3), with a checksum. Written atomically
 (a temporary file renamed over it); an entry that cannot be read or parsed, or whose
 key, text or checksum does not match, is a miss and is rebuilt; a cache that cannot be
 written is skipped (the formula is compiled on every run, as before). Deleting the
@@ -166,8 +167,9 @@ def build(source: str, names: dict, label: str):
     return fn
 
 
-def load(k: str, text: str) -> dict | None:
-    """The functions of entry ``k`` (name -> function), or None: missing, unreadable,
+def load(k: str, text: str) -> tuple[dict, dict] | None:
+    """The functions of entry ``k`` (name -> function) and its derivative sizes ({order:
+    estimate}, :func:`fabkit.expr.derivative_size`), or None: missing, unreadable,
     corrupt or not this formula's."""
     try:
         data = json.loads(_path(k).read_text())
@@ -176,15 +178,16 @@ def load(k: str, text: str) -> dict | None:
                 or body.get("text") != text:
             return None
         names = body["names"]
-        return {f: build(body["source"][f], names, f) for f in FUNCTIONS}
+        sizes = {int(order): int(n) for order, n in body["sizes"].items()}
+        return {f: build(body["source"][f], names, f) for f in FUNCTIONS}, sizes
     except (OSError, ValueError, KeyError, TypeError, AttributeError, SyntaxError, UnicodeDecodeError):
         return None
 
 
-def store(k: str, text: str, sources: dict, names: dict) -> bool:
+def store(k: str, text: str, sources: dict, names: dict, sizes: dict) -> bool:
     """Write entry ``k`` atomically; False (nothing written) where the cache cannot be."""
     body = {"format": FORMAT, "key": k, "text": text, "source": {f: sources[f] for f in FUNCTIONS},
-            "names": names}
+            "names": names, "sizes": {str(order): int(n) for order, n in sizes.items()}}
     path = _path(k)
     tmp = path.parent / f".{path.name}.{os.getpid()}.tmp"
     try:
