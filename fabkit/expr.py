@@ -410,6 +410,7 @@ class SurfaceFunctions:
     tol: Tolerances = field(default=DEFAULT, compare=False, repr=False)
     calls: frozenset | None = field(default=None, compare=False)   # the functions the text calls (None: not known)
     sizes: tuple = field(default=(), compare=False)   # ((order, derivative_size(h, order)), ...) known
+    cache_key: str | None = field(default=None, compare=False)   # the formula's entry (expr_cache)
 
     @property
     def symbolic(self):
@@ -475,6 +476,7 @@ def compile_surface(text: str, params: Mapping[str, float], tol: Tolerances = DE
         tol=tol,
         calls=_calls(tree),
         sizes=tuple(sorted(sizes.items())),
+        cache_key=k,
     )
 
 
@@ -507,22 +509,58 @@ def _generate(text: str, params: Mapping[str, float], tol: Tolerances, key: str 
 
     exprs = {"all": parts, "h": parts[:1], "grad": parts[1:3], "hess": parts[3:6], "accel": parts[1:6]}
     fns = {name: sp.lambdify((x, y), e, modules="numpy", cse=cse_unevaluated) for name, e in exprs.items()}
+    return _kept(fns, text, key, sizes), h, sizes
+
+
+def _kept(fns: dict, text: str, key: str | None, sizes: dict, part: str = "") -> dict:
+    """lambdify's functions ``fns`` rebuilt from their source as a cached run builds
+    them (expr_cache.rebuilt) and stored under ``key`` (and ``part``); as they are where
+    their source cannot be read back or a name it reads cannot be told (not stored)."""
+    import inspect
+
     from . import expr_cache
 
     try:
         sources = {name: inspect.getsource(fn) for name, fn in fns.items()}
-        names: dict = {}
-        for name, fn in fns.items():
-            got = expr_cache.origins(fn, sources[name])
-            if got is None:
-                return fns, h, sizes
-            names.update(got)
-        rebuilt = {name: expr_cache.build(sources[name], names, name) for name in fns}
+        got = expr_cache.rebuilt(fns, sources)
     except (OSError, TypeError, ValueError, SyntaxError):
-        return fns, h, sizes  # lambdify's own functions (the source could not be read back)
+        return fns
+    if got is None:
+        return fns
     if key is not None:
-        expr_cache.store(key, text, sources, names, sizes)
-    return rebuilt, h, sizes
+        expr_cache.store(key, text, sources, got[1], sizes, part)
+    return got[0]
+
+
+#: the partial derivatives of :func:`jet_raw`, in its order
+JET3 = ("h", "hx", "hy", "hxx", "hxy", "hyy", "hxxx", "hxxy", "hxyy", "hyyy")
+
+
+def jet_raw(fns: SurfaceFunctions) -> Callable:
+    """The generated function ``(x, y) -> [h, h_x, h_y, h_xx, h_xy, h_yy, h_xxx, h_xxy,
+    h_xyy, h_yyy]`` of the formula (float64 arrays of one shape in; constants come
+    back as Python numbers), exact (sympy derivatives, common subexpressions shared),
+    kept with the formula's cache entry: a known formula's jet needs no sympy."""
+    from . import expr_cache
+
+    key = getattr(fns, "cache_key", None)
+    if key is not None:
+        got = expr_cache.load(key, fns.text, "jet3", ("jet3",))
+        if got is not None:
+            return got[0]["jet3"]
+    import sympy as sp
+
+    h = fns.symbolic
+    syms = {s.name: s for s in h.free_symbols}
+    x = syms.get("x", sp.Symbol("x", real=True))
+    y = syms.get("y", sp.Symbol("y", real=True))
+    hx, hy = sp.diff(h, x), sp.diff(h, y)
+    hxx, hxy, hyy = sp.diff(hx, x), sp.diff(hx, y), sp.diff(hy, y)
+    hxxx, hxxy, hxyy, hyyy = sp.diff(hxx, x), sp.diff(hxx, y), sp.diff(hxy, y), sp.diff(hyy, y)
+    parts = [e.replace(sp.DiracDelta, lambda *a: sp.Integer(0))
+             for e in (h, hx, hy, hxx, hxy, hyy, hxxx, hxxy, hxyy, hyyy)]
+    fn = sp.lambdify((x, y), parts, modules="numpy", cse=cse_unevaluated)
+    return _kept({"jet3": fn}, getattr(fns, "text", ""), key, dict(getattr(fns, "sizes", ()) or ()), "jet3")["jet3"]
 
 
 #: relative distance to a singular point of asin, acos (|u| = 1) or atan2 (the origin, the

@@ -86,8 +86,8 @@ def key(text: str, params: tuple, tol) -> str:
     return m.hexdigest()[:32]
 
 
-def _path(k: str) -> Path:
-    return folder() / f"fk_formula_{k}.json"
+def _path(k: str, part: str = "") -> Path:
+    return folder() / (f"fk_formula_{k}_{part}.json" if part else f"fk_formula_{k}.json")
 
 
 def _checksum(body: dict) -> str:
@@ -107,6 +107,19 @@ def free_names(source: str) -> set[str]:
         elif isinstance(node, ast.FunctionDef):
             bound.add(node.name)
     return read - bound
+
+
+def rebuilt(fns: dict, sources: dict) -> tuple[dict, dict] | None:
+    """``fns`` (name -> lambdify's function) rebuilt from ``sources`` (name -> its
+    source) with the names they read told (:func:`origins`), and those names; None
+    where one cannot be told."""
+    names: dict = {}
+    for name, fn in fns.items():
+        got = origins(fn, sources[name])
+        if got is None:
+            return None
+        names.update(got)
+    return {name: build(sources[name], names, name) for name in fns}, names
 
 
 def origins(fn, source: str) -> dict | None:
@@ -167,28 +180,30 @@ def build(source: str, names: dict, label: str):
     return fn
 
 
-def load(k: str, text: str) -> tuple[dict, dict] | None:
+def load(k: str, text: str, part: str = "", functions: tuple = FUNCTIONS) -> tuple[dict, dict] | None:
     """The functions of entry ``k`` (name -> function) and its derivative sizes ({order:
     estimate}, :func:`fabkit.expr.derivative_size`), or None: missing, unreadable,
-    corrupt or not this formula's."""
+    corrupt or not this formula's. ``part``: a further entry of the formula (``jet3``:
+    :func:`fabkit.expr.jet_raw`) with its own ``functions``."""
     try:
-        data = json.loads(_path(k).read_text())
+        data = json.loads(_path(k, part).read_text())
         body = data["body"]
         if data.get("sha256") != _checksum(body) or body.get("format") != FORMAT or body.get("key") != k \
                 or body.get("text") != text:
             return None
         names = body["names"]
         sizes = {int(order): int(n) for order, n in body["sizes"].items()}
-        return {f: build(body["source"][f], names, f) for f in FUNCTIONS}, sizes
+        return {f: build(body["source"][f], names, f) for f in functions}, sizes
     except (OSError, ValueError, KeyError, TypeError, AttributeError, SyntaxError, UnicodeDecodeError):
         return None
 
 
-def store(k: str, text: str, sources: dict, names: dict, sizes: dict) -> bool:
-    """Write entry ``k`` atomically; False (nothing written) where the cache cannot be."""
-    body = {"format": FORMAT, "key": k, "text": text, "source": {f: sources[f] for f in FUNCTIONS},
+def store(k: str, text: str, sources: dict, names: dict, sizes: dict, part: str = "") -> bool:
+    """Write entry ``k`` (or its ``part``) atomically; False (nothing written) where the
+    cache cannot be."""
+    body = {"format": FORMAT, "key": k, "text": text, "source": dict(sources),
             "names": names, "sizes": {str(order): int(n) for order, n in sizes.items()}}
-    path = _path(k)
+    path = _path(k, part)
     tmp = path.parent / f".{path.name}.{os.getpid()}.tmp"
     try:
         path.parent.mkdir(parents=True, exist_ok=True)

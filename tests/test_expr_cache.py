@@ -217,3 +217,24 @@ def test_lowest_local_closed_forms():
     with pytest.raises(SpecError, match="4.000 mm deep"):
         check_depth(Spec(3.9), bowl)
     assert check_depth(Spec(4.0), bowl) == pytest.approx(4.0, rel=1e-14)   # a tie: scipy's search decides
+
+
+def test_third_order_jet_cached_and_exact(cache):
+    """The ball's jet (h to its third derivatives) against closed forms, the same
+    numbers from the cache as computed, and a known formula's jet without sympy."""
+    from fabkit.expr import jet_raw
+
+    a, b = 0.389, 0.25
+    text, params = "exp(a*x) + b*y**2*sin(x)", {"a": a, "b": b}
+    X, Y = _points()
+    cold = jet_raw(compile_surface(text, params))
+    warm_fns = compile_surface(text, params)
+    warm = jet_raw(warm_fns)
+    assert warm_fns._symbolic is None
+    e, s, c = np.exp(a * X), np.sin(X), np.cos(X)
+    want = [e + b * Y**2 * s, a * e + b * Y**2 * c, 2 * b * Y * s, a * a * e - b * Y**2 * s, 2 * b * Y * c,
+            2 * b * s, a**3 * e - b * Y**2 * c, -2 * b * Y * s, 2 * b * c, 0.0]
+    for got_c, got_w, w in zip(cold(X, Y), warm(X, Y), want):
+        np.testing.assert_array_equal(np.broadcast_to(got_c, X.shape), np.broadcast_to(got_w, X.shape))
+        np.testing.assert_allclose(np.broadcast_to(got_w, X.shape), np.broadcast_to(w, X.shape),
+                                   rtol=1e-13, atol=1e-13)
