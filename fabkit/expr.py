@@ -443,8 +443,11 @@ def compile_surface(text: str, params: Mapping[str, float], tol: Tolerances = DE
     if cache:
         from . import expr_cache
 
-        k = expr_cache.key(text, pvals, tol)
-        fns, sizes = expr_cache.load(k, text) or (None, {})
+        try:
+            k = expr_cache.key(text, pvals, tol)
+        except OSError:          # no source files to key on (a frozen install): no cache
+            k = None
+        fns, sizes = (expr_cache.load(k, text) if k else None) or (None, {})
     if fns is None:
         fns, h, sizes = _generate(text, params, tol, k)
 

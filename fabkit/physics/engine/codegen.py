@@ -178,7 +178,10 @@ def remember_surface(fns, template: Template, f: Formula, path: Path) -> None:
     ``path`` with parameters ``f.names``; a cache that cannot be written is skipped."""
     import json
 
-    alias = _alias_path(fns, template)
+    try:
+        alias = _alias_path(fns, template)
+    except OSError:
+        return
     if alias is None:
         return
     tmp = alias.parent / f".{alias.name}.{os.getpid()}.tmp"
