@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import ast
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Callable, Mapping
 
 from .errors import SpecError
@@ -347,9 +347,15 @@ def derivative_size(h, order: int = 2) -> int:
 def check_derivative_size(h, order: int, tol: Tolerances = DEFAULT) -> int:
     """Refuse (SpecError on surface.height) a formula whose derivatives up to ``order``
     would exceed ``tol.expr_max_compiled_nodes`` nodes by :func:`derivative_size`'s
-    estimate; returns the estimate."""
+    estimate; returns the estimate. ``h``: a sympy expression, or SurfaceFunctions
+    (their estimate stored with the formula's cache entry where there is one: no sympy)."""
     limit = tol.expr_max_compiled_nodes
-    estimate = derivative_size(h, order)
+    if isinstance(h, SurfaceFunctions):
+        estimate = dict(h.sizes).get(order)
+        if estimate is None:
+            estimate = derivative_size(h.symbolic, order)
+    else:
+        estimate = derivative_size(h, order)
     if estimate > limit:
         need = " (the finite ball's rolling needs them)" if order == 3 else ""
         raise _fail(f"expression too costly to compile: {DERIVATIVE_ORDERS[order]}{need} would have about "
@@ -385,7 +391,11 @@ def cse_unevaluated(exprs):
 @dataclass(frozen=True)
 class SurfaceFunctions:
     """Vectorized h and its exact derivatives. All take arrays ``x, y`` of one
-    shape (design units) and return arrays of that shape (design units)."""
+    shape (design units) and return arrays of that shape (design units).
+
+    ``symbolic`` (the sympy expression of h) is built when first asked for: a formula
+    whose functions come from the cache (:mod:`fabkit.expr_cache`) imports no sympy
+    until something needs the expression itself."""
 
     text: str
     h: Callable          # h(x, y)
@@ -393,19 +403,100 @@ class SurfaceFunctions:
     hess: Callable       # (h_xx, h_xy, h_yy)
     all: Callable        # (h, h_x, h_y, h_xx, h_xy, h_yy)
     accel: Callable      # (h_x, h_y, h_xx, h_xy, h_yy): what the simulator needs
-    symbolic: object     # the sympy expression of h
+    _symbolic: object = field(default=None, compare=False, repr=False)   # see ``symbolic``
     params: tuple = ()   # ((name, value), ...) as given: the compiled engine passes them at run time
     raw_h: Callable | None = None    # the generated functions themselves: float64 arrays of one
     raw_all: Callable | None = None  # shape in, a list out (constants as Python numbers), no checks
+    tol: Tolerances = field(default=DEFAULT, compare=False, repr=False)
+    calls: frozenset | None = field(default=None, compare=False)   # the functions the text calls (None: not known)
+    sizes: tuple = field(default=(), compare=False)   # ((order, derivative_size(h, order)), ...) known
+    cache_key: str | None = field(default=None, compare=False)   # the formula's entry (expr_cache)
+
+    @property
+    def symbolic(self):
+        """The sympy expression of h (the parameters' values substituted)."""
+        h = self._symbolic
+        if h is None:
+            h = to_sympy(self.text, dict(self.params), self.tol)[0]
+            object.__setattr__(self, "_symbolic", h)
+        return h
 
 
-def compile_surface(text: str, params: Mapping[str, float], tol: Tolerances = DEFAULT) -> SurfaceFunctions:
-    """Parse, differentiate exactly and generate numpy functions for ``text``."""
+def _calls(tree: ast.AST) -> frozenset:
+    """The names of the functions a checked expression calls."""
+    return frozenset(n.func.id for n in ast.walk(tree) if isinstance(n, ast.Call) and isinstance(n.func, ast.Name))
+
+
+def compile_surface(text: str, params: Mapping[str, float], tol: Tolerances = DEFAULT,
+                    cache: bool = True) -> SurfaceFunctions:
+    """Parse, differentiate exactly and generate numpy functions for ``text``.
+
+    With ``cache`` the generated source is kept per formula (text, parameter values,
+    versions: :mod:`fabkit.expr_cache`) and a later call, in any process, builds the
+    same functions from it without sympy."""
     import numpy as np
+
+    tree = check_syntax(text, frozenset(params), tol)    # cheap: the same refusals, cached or not
+    pvals = tuple((str(k), float(v)) for k, v in params.items())
+    fns, h, sizes = None, None, {}
+    k = None
+    if cache:
+        from . import expr_cache
+
+        try:
+            k = expr_cache.key(text, pvals, tol)
+        except OSError:          # no source files to key on (a frozen install): no cache
+            k = None
+        fns, sizes = (expr_cache.load(k, text) if k else None) or (None, {})
+    if fns is None:
+        fns, h, sizes = _generate(text, params, tol, k)
+
+    def make(fn):
+        def wrapped(xa, ya, _fn=fn):
+            xa = np.asarray(xa, dtype=float)
+            ya = np.asarray(ya, dtype=float)
+            shape = np.broadcast_shapes(xa.shape, ya.shape)
+            with np.errstate(all="ignore"):
+                out = _fn(xa, ya)
+            # constants (a derivative that does not depend on x, y) come back as scalars
+            return tuple(o if type(o) is np.ndarray and o.shape == shape and o.dtype == np.float64
+                         else np.broadcast_to(np.asarray(o, dtype=float), shape) for o in out)
+
+        return wrapped
+
+    f_h = make(fns["h"])
+    return SurfaceFunctions(
+        text=text,
+        h=lambda xa, ya: f_h(xa, ya)[0],
+        grad=make(fns["grad"]),
+        hess=make(fns["hess"]),
+        all=make(fns["all"]),
+        accel=make(fns["accel"]),
+        _symbolic=h,
+        params=pvals,
+        raw_h=fns["h"],
+        raw_all=fns["all"],
+        tol=tol,
+        calls=_calls(tree),
+        sizes=tuple(sorted(sizes.items())),
+        cache_key=k,
+    )
+
+
+def _generate(text: str, params: Mapping[str, float], tol: Tolerances, key: str | None):
+    """The generated functions of ``text`` (name -> function, see expr_cache.FUNCTIONS),
+    h and the derivative sizes {order: derivative_size(h, order)}, through sympy; stored
+    in the cache under ``key`` (None: not stored).
+
+    Where every name of the generated source can be told (expr_cache.origins), the
+    functions are rebuilt from the source, as a cached run builds them."""
+    import inspect
+
     import sympy as sp
 
     h, x, y = to_sympy(text, params, tol)
     limit = tol.expr_max_compiled_nodes
+    sizes = {order: derivative_size(h, order) for order in DERIVATIVE_ORDERS}
     check_derivative_size(h, 2, tol)
     try:
         hx, hy = sp.diff(h, x), sp.diff(h, y)
@@ -419,44 +510,66 @@ def compile_surface(text: str, params: Mapping[str, float], tol: Tolerances = DE
         raise _fail(f"expression too costly to compile: h and its first and second derivatives have more "
                     f"than {limit} nodes (simplify the formula)")
 
-    def generate(exprs):
-        return sp.lambdify((x, y), exprs, modules="numpy", cse=cse_unevaluated)
+    exprs = {"all": parts, "h": parts[:1], "grad": parts[1:3], "hess": parts[3:6], "accel": parts[1:6]}
+    fns = {name: sp.lambdify((x, y), e, modules="numpy", cse=cse_unevaluated) for name, e in exprs.items()}
+    return _kept(fns, text, key, sizes), h, sizes
 
-    def make(exprs, fn=None):
-        fn = generate(exprs) if fn is None else fn
 
-        def wrapped(xa, ya, _fn=fn, _n=len(exprs)):
-            xa = np.asarray(xa, dtype=float)
-            ya = np.asarray(ya, dtype=float)
-            shape = np.broadcast_shapes(xa.shape, ya.shape)
-            with np.errstate(all="ignore"):
-                out = _fn(xa, ya)
-            # constants (a derivative that does not depend on x, y) come back as scalars
-            return tuple(o if type(o) is np.ndarray and o.shape == shape and o.dtype == np.float64
-                         else np.broadcast_to(np.asarray(o, dtype=float), shape) for o in out)
+def _kept(fns: dict, text: str, key: str | None, sizes: dict, part: str = "") -> dict:
+    """lambdify's functions ``fns`` rebuilt from their source as a cached run builds
+    them (expr_cache.rebuilt) and stored under ``key`` (and ``part``); as they are where
+    their source cannot be read back or a name it reads cannot be told (not stored)."""
+    import inspect
 
-        return wrapped
+    from . import expr_cache
 
-    raw_all, raw_h = generate(parts), generate(parts[:1])
-    f_all = make(parts, raw_all)
-    f_h = make(parts[:1], raw_h)
-    return SurfaceFunctions(
-        text=text,
-        h=lambda xa, ya: f_h(xa, ya)[0],
-        grad=make(parts[1:3]),
-        hess=make(parts[3:6]),
-        all=f_all,
-        accel=make(parts[1:6]),
-        symbolic=h,
-        params=tuple((str(k), float(v)) for k, v in params.items()),
-        raw_h=raw_h,
-        raw_all=raw_all,
-    )
+    try:
+        sources = {name: inspect.getsource(fn) for name, fn in fns.items()}
+        got = expr_cache.rebuilt(fns, sources)
+    except (OSError, TypeError, ValueError, SyntaxError):
+        return fns
+    if got is None:
+        return fns
+    if key is not None:
+        expr_cache.store(key, text, sources, got[1], sizes, part)
+    return got[0]
+
+
+#: the partial derivatives of :func:`jet_raw`, in its order
+JET3 = ("h", "hx", "hy", "hxx", "hxy", "hyy", "hxxx", "hxxy", "hxyy", "hyyy")
+
+
+def jet_raw(fns: SurfaceFunctions) -> Callable:
+    """The generated function ``(x, y) -> [h, h_x, h_y, h_xx, h_xy, h_yy, h_xxx, h_xxy,
+    h_xyy, h_yyy]`` of the formula (float64 arrays of one shape in; constants come
+    back as Python numbers), exact (sympy derivatives, common subexpressions shared),
+    kept with the formula's cache entry: a known formula's jet needs no sympy."""
+    from . import expr_cache
+
+    key = getattr(fns, "cache_key", None)
+    if key is not None:
+        got = expr_cache.load(key, fns.text, "jet3", ("jet3",))
+        if got is not None:
+            return got[0]["jet3"]
+    import sympy as sp
+
+    h = fns.symbolic
+    syms = {s.name: s for s in h.free_symbols}
+    x = syms.get("x", sp.Symbol("x", real=True))
+    y = syms.get("y", sp.Symbol("y", real=True))
+    hx, hy = sp.diff(h, x), sp.diff(h, y)
+    hxx, hxy, hyy = sp.diff(hx, x), sp.diff(hx, y), sp.diff(hy, y)
+    hxxx, hxxy, hxyy, hyyy = sp.diff(hxx, x), sp.diff(hxx, y), sp.diff(hxy, y), sp.diff(hyy, y)
+    parts = [e.replace(sp.DiracDelta, lambda *a: sp.Integer(0))
+             for e in (h, hx, hy, hxx, hxy, hyy, hxxx, hxxy, hxyy, hyyy)]
+    fn = sp.lambdify((x, y), parts, modules="numpy", cse=cse_unevaluated)
+    return _kept({"jet3": fn}, getattr(fns, "text", ""), key, dict(getattr(fns, "sizes", ()) or ()), "jet3")["jet3"]
 
 
 #: relative distance to a singular point of asin, acos (|u| = 1) or atan2 (the origin, the
 #: branch cut) under which a footprint is taken to reach it (rounding of the arguments)
 DOMAIN_RTOL = 1e-9
+_DOMAIN_FUNCTIONS = frozenset({"asin", "acos", "atan2"})
 
 
 def check_domain(fns: SurfaceFunctions, x_range, y_range, n: int = 201) -> None:
@@ -471,6 +584,9 @@ def check_domain(fns: SurfaceFunctions, x_range, y_range, n: int = 201) -> None:
     grid points are refined by bounded quasi-Newton with the exact gradient; a sign
     change of a between neighbouring grid points where b < 0 is a crossing of the cut.
     atan is defined, smooth and bounded everywhere."""
+    calls = getattr(fns, "calls", None)
+    if calls is not None and not calls & _DOMAIN_FUNCTIONS:
+        return      # sympy builds no asin, acos or atan2 that the text does not call
     import numpy as np
     import sympy as sp
 

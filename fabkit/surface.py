@@ -223,16 +223,97 @@ class Surface:
         return self.length * self.scale, self.width * self.scale
 
 
+#: within this of a depth limit (mm), :func:`check_depth` decides by :meth:`Surface.lowest`
+DEPTH_MARGIN_MM = 1e-6
+
+
+def lowest_local(surface: Surface) -> Extremum:
+    """The lowest point of h on the footprint without scipy: the grid of
+    :meth:`Surface.lowest`, then from its 5 best points a projected Newton descent
+    with the exact gradient and Hessian (a gradient step where the Hessian is not
+    positive definite; bounds by projection, an Armijo backtracking line search).
+
+    Its z is the height of a point of the footprint, so it is never below the true
+    least; from the same starts it reaches the same local minima as
+    :meth:`Surface.lowest` (to about 1e-12 relative), not bit for bit."""
+    X, Y = surface.grid()
+    H = surface.height(X, Y)
+    order = np.argsort(H.ravel())[:5]
+    best = Extremum(float(X.ravel()[order[0]]), float(Y.ravel()[order[0]]), float(H.ravel()[order[0]]))
+    lo = np.array([surface.x_range[0], surface.y_range[0]])
+    hi = np.array([surface.x_range[1], surface.y_range[1]])
+    size = float(max(hi[0] - lo[0], hi[1] - lo[1], 1e-300))
+    for i in order:
+        p = np.array([X.ravel()[i], Y.ravel()[i]], dtype=float)
+        z = _descend(surface, p, lo, hi, size)
+        if z[2] < best.z:
+            best = Extremum(*z)
+    return best
+
+
+def _descend(surface: Surface, p, lo, hi, size: float, iters: int = 200):
+    """(x, y, h) where a projected Newton descent from ``p`` stops (see lowest_local)."""
+    def height(q):
+        return float(surface.height(q[0], q[1]))
+
+    f = height(p)
+    if not math.isfinite(f):
+        return float(p[0]), float(p[1]), math.inf
+    with np.errstate(all="ignore"):
+        for _ in range(iters):
+            g = np.array([float(v) for v in surface.gradient(p[0], p[1])])
+            hxx, hxy, hyy = (float(v) for v in surface.hessian(p[0], p[1]))
+            if not np.all(np.isfinite(g)):
+                break
+            free = ~(((p <= lo) & (g > 0)) | ((p >= hi) & (g < 0)))
+            if not free.any() or not np.any(g[free]):
+                break
+            d = np.zeros(2)
+            Hm = np.array([[hxx, hxy], [hxy, hyy]])[np.ix_(free, free)]
+            gf = g[free]
+            step = None
+            if np.all(np.isfinite(Hm)):
+                try:
+                    c = np.linalg.cholesky(Hm)
+                    step = -np.linalg.solve(c.T, np.linalg.solve(c, gf))
+                except np.linalg.LinAlgError:
+                    step = None
+            if step is None or not np.all(np.isfinite(step)) or float(step @ gf) >= 0:
+                step = -gf * (0.1 * size / float(np.linalg.norm(gf)))
+            d[free] = step
+            t, moved = 1.0, False
+            while t > 1e-30:
+                q = np.clip(p + t * d, lo, hi)
+                fq = height(q)
+                if fq < f - 1e-4 * float(g @ (p - q)) or (fq < f and t < 1e-12):
+                    moved = True
+                    break
+                t *= 0.5
+            if not moved:
+                break
+            done = float(np.max(np.abs(q - p))) <= 1e-15 * size
+            p, f = q, fq
+            if done:
+                break
+    return float(p[0]), float(p[1]), f
+
+
 def check_depth(spec, surface: Surface) -> float:
     """Refuse (SpecError, exit 2) a cut deeper than the stock, ``stock.depth_limit``
-    or ``tool.reach`` allow. Returns the depth in mm."""
-    depth = surface.depth_mm()
+    or ``tool.reach`` allow. Returns the depth in mm.
+
+    The depth comes from :func:`lowest_local` (no scipy); within DEPTH_MARGIN_MM of a
+    limit, or over one, from :meth:`Surface.depth_mm` (scipy's L-BFGS-B, what ``fabkit
+    check`` reports), so the verdict and the message are those of that search."""
     limits = []
     if spec.has("stock"):
         limits.append(("stock.depth_limit", spec.stock.depth_limit))
         limits.append(("stock.thickness", spec.stock.thickness))
     if spec.has("tool"):
         limits.append(("tool.reach", spec.tool.reach))
+    depth = max(0.0, (surface.top - lowest_local(surface).z) * surface.scale)
+    if any(depth > limit - DEPTH_MARGIN_MM for _, limit in limits):
+        depth = surface.depth_mm()
     for key, limit in limits:
         if depth > limit:
             low = surface.lowest()

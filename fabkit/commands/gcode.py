@@ -51,8 +51,10 @@ def run(args) -> int:
     plan_estimate(spec, surface)        # the guards first: a refusal costs about a second
     check_depth(spec, surface)
     R = spec.tool.diameter / 2.0
-    conc = surface.min_concave_radius()
-    if conc.z * spec.scale < R and args.no_verify:    # verified: the sheet reports what is left
+    # verified, the sheet reports what is left; unverified, the smallest concave radius
+    # warns (its search, scipy's Nelder-Mead, only then)
+    conc = surface.min_concave_radius() if args.no_verify else None
+    if conc is not None and conc.z * spec.scale < R:
         warn(f"tool radius {R:g} mm is larger than the smallest concave radius {conc.z * spec.scale:.3g} mm "
              f"(at x={conc.x:.4g}, y={conc.y:.4g}): the tool bridges that valley and leaves material there")
 

@@ -52,20 +52,9 @@ def jet_function(fns):
     fn = _JETS.get(id(fns))
     if fn is not None and fn[0] is fns:
         return fn[1]
-    import sympy as sp
+    from ..expr import jet_raw   # generated once per formula, kept in its cache entry
 
-    h = fns.symbolic
-    syms = {s.name: s for s in h.free_symbols}
-    x = syms.get("x", sp.Symbol("x", real=True))
-    y = syms.get("y", sp.Symbol("y", real=True))
-    hx, hy = sp.diff(h, x), sp.diff(h, y)
-    hxx, hxy, hyy = sp.diff(hx, x), sp.diff(hx, y), sp.diff(hy, y)
-    hxxx, hxxy, hxyy, hyyy = sp.diff(hxx, x), sp.diff(hxx, y), sp.diff(hxy, y), sp.diff(hyy, y)
-    parts = [e.replace(sp.DiracDelta, lambda *a: sp.Integer(0))
-             for e in (h, hx, hy, hxx, hxy, hyy, hxxx, hxxy, hxyy, hyyy)]
-    from ..expr import cse_unevaluated   # sympy's cse re-evaluates: exponential on nested functions
-
-    f = sp.lambdify((x, y), parts, modules="numpy", cse=cse_unevaluated)
+    f = jet_raw(fns)
 
     def jet(xa, ya, _f=f):
         xa = np.asarray(xa, dtype=float)

@@ -52,8 +52,10 @@ SEC_PER_BALL = 9e-7 * PLAN_SCALE            # per column and fine ball position 
 SEC_STEEP_PASS = 3e-2 * PLAN_SCALE          # passes over ground steep along the pass: the bound's stage 3
 SEC_STEEP_COLUMN = 1e-4 * PLAN_SCALE        # and per steep column
 SEC_PER_POINT = 1.75e-4 * PLAN_SCALE        # point spacing, links, roughing, writing, the sheet, per program point
-SEC_FIXED = 3.0                # start-up (imports, loading the compiled kernels), spec, derivatives, depth,
-                               # the planner's and the sheet's fixed costs
+SEC_FIXED = 1.6                # start-up (imports, loading the compiled kernels), spec, derivatives, depth,
+                               # the planner's and the sheet's fixed costs (3.0 before the formula's
+                               # derivatives were cached and the depth search left scipy: 1.2-1.5 s less
+                               # on the tiny and plane jobs, benchmarks/notes_gcode_profile.md)
 SEC_PER_VERIFY_POINT = 1.4e-5  # verification per verify point: swept cut and reachable height
 SEC_PER_TIGHT_POINT = 2.0e-4   # per verify point within R of a concave crease or valley tighter
                                # than the ball: the reachable height's search (the model descent:

@@ -104,7 +104,9 @@ def kernel_for(surface) -> Kernel | None:
     formula, numba missing, or ``FABKIT_NO_KERNELS``)."""
     global last_build_s
     fns = getattr(surface, "fns", None)
-    if fns is None or not enabled() or getattr(fns, "symbolic", None) is None:
+    if fns is None or not enabled():
+        return None
+    if getattr(fns, "text", None) is None and getattr(fns, "symbolic", None) is None:   # no formula
         return None
     hit = _BY_FNS.get(id(fns))
     if hit is not None and hit[0] is fns:

@@ -86,8 +86,13 @@ def _formula(fns, template=codegen.POINT):
     hit = _BY_FNS.get((id(fns), template.name))
     if hit is not None and hit[0] is fns:
         return hit[1], hit[2]
-    f = codegen.formula(fns)
-    path = codegen.write_surface(f, template)
+    known = codegen.known_surface(fns, template)     # a known formula: no sympy
+    if known is not None:
+        f, path = known
+    else:
+        f = codegen.formula(fns)
+        path = codegen.write_surface(f, template)
+        codegen.remember_surface(fns, template, f, path)
     with _LOCK:
         if len(_BY_FNS) > 256:
             _BY_FNS.clear()

@@ -117,6 +117,85 @@ def formula(fns) -> Formula:
     return Formula(h, x, y, (), (), ())
 
 
+class KnownFormula:
+    """A formula whose surface module the cache already holds, found by its text
+    (:func:`known_surface`): the parameters' names and values now; the sympy
+    expression (``h``, ``x``, ``y``, ``symbols``: :func:`formula`) only when asked for."""
+
+    def __init__(self, fns, names: tuple, values: tuple):
+        self._fns = fns
+        self._full = None
+        self.names = names
+        self.values = values
+
+    def __getattr__(self, name):
+        if name in ("h", "x", "y", "symbols"):
+            if self._full is None:
+                self._full = formula(self._fns)
+            return getattr(self._full, name)
+        raise AttributeError(name)
+
+
+def _alias_path(fns, template: Template) -> Path | None:
+    """Where the surface module of ``fns`` (a formula's text and parameter names) under
+    ``template`` is recorded, or None for functions not made by expr.compile_surface."""
+    from ... import expr_cache
+    from ...expr import SurfaceFunctions
+
+    if not isinstance(fns, SurfaceFunctions) or not isinstance(fns.text, str):
+        return None
+    names = ",".join(sorted(str(k) for k, _ in fns.params))
+    k = _digest(["surface-by-text", fns.text, names, template.name, repr(template.functions), *_versions(),
+                 expr_cache._sympy_version(), (_HERE.parent.parent / "expr.py").read_text()])
+    return cache_dir() / "formulas" / f"fk_surface_{template.name}_{k}.json"
+
+
+def known_surface(fns, template: Template = POINT):
+    """(KnownFormula, surface module path) of ``fns`` under ``template`` when the cache
+    has them (recorded by :func:`remember_surface`), without sympy; None otherwise (a
+    missing, unreadable or inconsistent record, or a removed module: the caller builds
+    them)."""
+    import json
+
+    try:
+        alias = _alias_path(fns, template)
+        if alias is None:
+            return None
+        data = json.loads(alias.read_text())
+        module = cache_dir() / data["module"]
+        names = tuple(data["names"])
+        params = dict(fns.params)
+        if Path(data["module"]).name != data["module"] or not module.is_file() \
+                or not all(isinstance(n, str) and n in params for n in names):
+            return None
+        return KnownFormula(fns, names, tuple(float(params[n]) for n in names)), module
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+
+
+def remember_surface(fns, template: Template, f: Formula, path: Path) -> None:
+    """Record (atomically) that ``fns``' formula under ``template`` is the surface module
+    ``path`` with parameters ``f.names``; a cache that cannot be written is skipped."""
+    import json
+
+    try:
+        alias = _alias_path(fns, template)
+    except OSError:
+        return
+    if alias is None:
+        return
+    tmp = alias.parent / f".{alias.name}.{os.getpid()}.tmp"
+    try:
+        alias.parent.mkdir(parents=True, exist_ok=True)
+        tmp.write_text(json.dumps({"module": path.name, "names": list(f.names)}))
+        os.replace(tmp, alias)
+    except OSError:
+        try:
+            tmp.unlink()
+        except OSError:
+            pass
+
+
 def _xy(h):
     return {s for s in h.free_symbols if s.name in ("x", "y")}
 
