@@ -141,3 +141,31 @@ def test_preview_draws_each_feed_move_at_its_place_in_its_colour():
     px_mm = 700 / (1.06 * 10.0)
     assert abs(np.ptp(dark[:, 1]) - 8 * px_mm) <= 2 and abs(np.ptp(light[:, 1]) - 8 * px_mm) <= 2
     assert abs((light[0, 0] - dark[0, 0]) - 6 * px_mm) <= 2
+
+
+def test_the_estimate_counts_a_first_compile_only_when_the_cache_lacks_it(tmp_path, monkeypatch):
+    """An empty kernel cache: the estimate adds the drop cutter's and the formula's build
+    (kernels.BUILD_KERNEL_S + BUILD_FORMULA_S) and says so when it refuses; the numpy code
+    (FABKIT_NO_KERNELS=1) compiles nothing; once the kernels are loaded nothing is added."""
+    from fabkit.errors import SpecError
+    from fabkit.spec import load_spec
+    from fabkit.surface import Surface
+    from fabkit.toolpath import kernels
+    from fabkit.toolpath.raster import plan_estimate
+
+    spec = load_spec(_spec(tmp_path))
+    surface = Surface.from_spec(spec)
+    warm = plan_estimate(spec, surface)
+    kernels.kernel_for(surface)                      # built or loaded in the session's cache
+    assert kernels.cold_build_seconds(surface) == 0.0
+    monkeypatch.setenv("FABKIT_CACHE_DIR", str(tmp_path / "empty"))
+    monkeypatch.setattr(kernels, "_BY_FNS", {})      # as a new process with that cache
+    fresh = Surface.from_spec(spec)
+    cold = plan_estimate(spec, fresh)
+    want = kernels.BUILD_KERNEL_S + kernels.BUILD_FORMULA_S
+    assert cold["build_seconds"] == pytest.approx(want)
+    assert cold["seconds"] == pytest.approx(warm["seconds"] - warm["build_seconds"] + want)
+    with pytest.raises(SpecError, match="compiling the kernels, once"):
+        plan_estimate(load_spec(_spec(tmp_path, max_time=cold["seconds"] - 1.0)), fresh)
+    monkeypatch.setenv("FABKIT_NO_KERNELS", "1")
+    assert plan_estimate(spec, fresh)["build_seconds"] == 0.0

@@ -160,7 +160,11 @@ def estimate(spec, ws, fr, R: float, target: float, tolerance: float, depth_mm: 
     vp = float(getattr(spec.machining, "verify_points", 40000))
     out["tight_fraction"] = tight = _tight_fraction(fr, R, Hu, Hv, cut, u, v)
     out["verify_seconds"] = vp * (SEC_PER_VERIFY_POINT + SEC_PER_TIGHT_POINT * tight)
-    out["seconds"] = SEC_FIXED + out["plan_seconds"] + out["verify_seconds"]
+    # a first run compiles the kernels it lacks (once per installation, or per formula)
+    from .kernels import cold_build_seconds
+
+    out["build_seconds"] = cold_build_seconds(ws.surface) if hasattr(ws, "surface") else 0.0
+    out["seconds"] = SEC_FIXED + out["plan_seconds"] + out["verify_seconds"] + out["build_seconds"]
     out["bytes"] = BYTES_BASE + passes * (16.0 * n_fine + 80.0 * n_nodes) + \
         BYTES_PER_POINT * (points + out["roughing_points"])
     return out
@@ -233,8 +237,10 @@ def guard(est: dict, tol, spec_path=None, scallop=None, tolerance=None) -> None:
         key = "machining.scallop" if est["place_seconds"] >= \
             SEC_PER_POINT * (est["points"] + est["roughing_points"]) else \
             ("machining.stepdown" if est["roughing_points"] > est["points"] else "machining.tolerance")
+        build = est.get("build_seconds", 0.0)
         raise SpecError(f"the job would take about {est['seconds']:.0f} s of CPU time ({est['passes']:.3g} "
-                        f"passes, {est['points'] + est['roughing_points']:.3g} program points; "
+                        f"passes, {est['points'] + est['roughing_points']:.3g} program points"
+                        + (f", {build:.0f} s of it compiling the kernels, once" if build > 0 else "") + "; "
                         f"limit {budget:g} s): raise the limit with --max-time SECONDS or the spec key "
                         f"machining.max_time, or raise {key.split('.')[1]}",
                         file=spec_path, key=key)

@@ -58,11 +58,20 @@ def enabled() -> bool:
     return os.environ.get("FABKIT_NO_KERNELS", "") in ("", "0")
 
 
-def _kernel_path() -> Path:
+def _kernel_file() -> Path:
+    """Where the kernel's module is (or will be) in the cache."""
     from ..physics.engine import codegen
 
     src = (_HERE / KERNEL_TEMPLATE).read_text()
     key = codegen._digest(["toolpath-kernel", src, *codegen._versions()])
+    return codegen.cache_dir() / f"fk_toolpath_{key}.py"
+
+
+def _kernel_path() -> Path:
+    from ..physics.engine import codegen
+
+    src = (_HERE / KERNEL_TEMPLATE).read_text()
+    path = _kernel_file()
 
     def make():
         from .. import __version__
@@ -70,7 +79,7 @@ def _kernel_path() -> Path:
         return codegen._HEADER.format(version=__version__, what="the toolpath's drop cutter kernel") \
             + "\n\n# ---- " + KERNEL_TEMPLATE + " " + "-" * 60 + "\n" + src
 
-    return codegen._write_once(codegen.cache_dir() / f"fk_toolpath_{key}.py", make)
+    return codegen._write_once(path, make)
 
 
 def _load(path: Path):
@@ -146,3 +155,54 @@ def _warm(k: Kernel) -> None:
     k.drop(z, z, 1.0, np.array([1.0, 0.0, 0.0, 0.0, 1.0, 1.0]), k.P, z, z, z, z,
            np.zeros(1, dtype=np.int64), z, z, 1, 1, np.zeros(1), np.zeros(1), np.zeros(1),
            np.zeros(1, dtype=np.int8), np.zeros(1, dtype=bool), np.zeros(1, dtype=bool), (z,) * 7)
+
+
+# CPU seconds of a first-time build on the 2-core reference machine (the time guard adds
+# them to its estimate when the cache lacks the compiled code; measured with an empty
+# cache, benchmarks/notes_gcode_profile.md, "The first run")
+BUILD_KERNEL_S = 14.0     # the drop cutter's kernel (dropcut.py), once per installation
+BUILD_FORMULA_S = 1.5     # a new formula's surface functions (jet, height)
+BUILD_MATERIAL_S = 6.0    # the material bound's loops (scallop_kernels), once per installation
+
+
+def _static_cached(dispatcher) -> bool:
+    """True when numba's cache holds an index for ``dispatcher`` (a ``cache=True``
+    function of a package module)."""
+    try:
+        return os.path.exists(dispatcher._cache._cache_file._index_path)
+    except AttributeError:   # pragma: no cover - numba's internals moved: assume a build
+        return False
+
+
+def cold_build_seconds(surface) -> float:
+    """CPU seconds (an estimate) of compiling what the toolpath's kernels for
+    ``surface`` lack in the cache: 0 when everything loads from it, or when the numpy
+    code runs (``FABKIT_NO_KERNELS``, no formula)."""
+    fns = getattr(surface, "fns", None)
+    if fns is None or not enabled():
+        return 0.0
+    if getattr(fns, "text", None) is None and getattr(fns, "symbolic", None) is None:
+        return 0.0
+    hit = _BY_FNS.get(id(fns))
+    if hit is not None and hit[0] is fns:
+        return 0.0
+    from ..physics.engine import codegen
+    from ..physics.engine.batch import _cached
+
+    s = 0.0
+    try:
+        if not _cached(_kernel_file(), "drop_batch"):
+            s += BUILD_KERNEL_S
+        known = codegen.known_surface(fns, _template())
+        if known is None or not _cached(known[1], "jet"):
+            s += BUILD_FORMULA_S
+    except OSError:
+        return 0.0           # no cache: the numpy code runs
+    try:
+        from . import scallop_kernels
+    except ImportError:      # pragma: no cover - numba is a dependency
+        return s
+    if not _static_cached(scallop_kernels.sweep_balls):
+        s += BUILD_MATERIAL_S
+    return s
+
