@@ -253,7 +253,7 @@ def _pts(axis, level, t):
 @jit
 def _edge(i, cx, cy, R, axis, level, length, G, P, U, EOFF, iters, VAL, PX, PY, KIND, WF, WB):
     """compensate._edges on one edge (axis 1: Y = level, t = X; axis 0: X = level, t = Y).
-    WF (6, n), WB (n,): scratch (n = U.size + EOFF.size), allocated once per batch."""
+    WF (8, n), WB (n,): scratch (n = U.size + EOFF.size), allocated once per batch."""
     perp = cy if axis == 1 else cx
     tc = cx if axis == 1 else cy
     dp = abs(perp - level)
@@ -283,9 +283,19 @@ def _edge(i, cx, cy, R, axis, level, length, G, P, U, EOFF, iters, VAL, PX, PY, 
         T[m + 1] = v
     V = WF[1]
     Hs = WF[2]
+    # the design coordinates of all samples first, then the surface (the same values as
+    # _H point by point: the divisions do not wait on each callback)
+    XD = WF[6]
+    YD = WF[7]
+    s = G[0]
     for j in range(n):
         X, Y = _pts(axis, level, T[j])
-        Hs[j] = _H(X, Y, G, P)
+        XD[j] = X / s + G[1]
+        YD[j] = Y / s + G[2]
+    Pa = P[0].ctypes
+    for j in range(n):
+        Hs[j] = s * (P[2](XD[j], YD[j], Pa)[0] - G[3])
+    for j in range(n):
         dt = T[j] - tc
         V[j] = _fmin(Hs[j], 0.0) + math.sqrt(_fmax(rho2 - dt * dt, 0.0))
     for j in range(n):
@@ -297,7 +307,7 @@ def _edge(i, cx, cy, R, axis, level, length, G, P, U, EOFF, iters, VAL, PX, PY, 
     Hf = _H(Xf, Yf, G, P)
     if Hf >= 0:
         dt = tf - tc
-        vf = _fmin(_H(Xf, Yf, G, P), 0.0) + math.sqrt(_fmax(rho2 - dt * dt, 0.0))
+        vf = _fmin(Hf, 0.0) + math.sqrt(_fmax(rho2 - dt * dt, 0.0))
     else:
         vf = -math.inf
     _offer(i, vf, Xf, Yf, K_EDGE, VAL, PX, PY, KIND)
@@ -611,7 +621,7 @@ def drop_batch(CX, CY, R, G, P, OFFX, OFFY, SQ, R2, QUAD, U, EOFF, starts, iters
     qy = np.empty(k)
     lmk = np.empty(k, dtype=np.bool_)
     seeds = np.empty(5, dtype=np.int64)
-    WF = np.empty((6, U.size + EOFF.size))
+    WF = np.empty((8, U.size + EOFF.size))
     WB = np.empty(U.size + EOFF.size, dtype=np.bool_)
     XD = np.empty(K)
     YD = np.empty(K)
