@@ -155,20 +155,27 @@ def _newton_interior(cx, cy, R, px, py, iters, G, P):
         det = a * d - b * b
         negdef = (a < 0) and (det > 0) and _fin(det)
         safe = det if negdef else 1.0
-        px_n = -(d * Gx - b * Gy) / safe
-        py_n = -(-b * Gx + a * Gy) / safe
-        gn = math.hypot(Gx, Gy)
-        asc = 0.25 * R / _fmax(1.0, gn) / _fmax(1.0, k * R)
-        sx = px_n if negdef else Gx * asc
-        sy = py_n if negdef else Gy * asc
+        if negdef:
+            sx = -(d * Gx - b * Gy) / safe
+            sy = -(-b * Gx + a * Gy) / safe
+        else:
+            # ascent along G, at most R/4 (its length only needed here)
+            asc = 0.25 * R / _fmax(1.0, math.hypot(Gx, Gy)) / _fmax(1.0, k * R)
+            sx = Gx * asc
+            sy = Gy * asc
         sx = _n2n(sx)
         sy = _n2n(sy)
         wd = ax * sx + ay * sy
         dwx = k * (sx + ax * wd)
         dwy = k * (sy + ay * wd)
-        lim = 0.5 * (1.0 + math.hypot(ax, ay))
-        nw = math.hypot(dwx, dwy)
-        f = lim / _fmax(nw, 1e-300) if nw > lim else 1.0
+        # the step limit in w: lim = (1 + |w|) / 2 >= 1/2, so a step whose squared length
+        # is below 0.24 (|dw| < 0.49 whatever the rounding) is within it and f = 1, as
+        # from the two lengths, which are then not computed (most steps: 4 % of the time)
+        f = 1.0
+        if not (dwx * dwx + dwy * dwy < 0.24):
+            lim = 0.5 * (1.0 + math.hypot(ax, ay))
+            nw = math.hypot(dwx, dwy)
+            f = lim / _fmax(nw, 1e-300) if nw > lim else 1.0
         dwx = dwx * f
         dwy = dwy * f
         step = math.hypot(sx, sy) * f
@@ -249,8 +256,9 @@ def _pts(axis, level, t):
 
 
 @jit
-def _edge(i, cx, cy, R, axis, level, length, G, P, U, EOFF, iters, VAL, PX, PY, KIND):
-    """compensate._edges on one edge (axis 1: Y = level, t = X; axis 0: X = level, t = Y)."""
+def _edge(i, cx, cy, R, axis, level, length, G, P, U, EOFF, iters, VAL, PX, PY, KIND, WF, WB):
+    """compensate._edges on one edge (axis 1: Y = level, t = X; axis 0: X = level, t = Y).
+    WF (8, n), WB (n,): scratch (n = U.size + EOFF.size), allocated once per batch."""
     perp = cy if axis == 1 else cx
     tc = cx if axis == 1 else cy
     dp = abs(perp - level)
@@ -265,7 +273,7 @@ def _edge(i, cx, cy, R, axis, level, length, G, P, U, EOFF, iters, VAL, PX, PY, 
     nu = U.size
     ne = EOFF.size
     n = nu + ne
-    T = np.empty(n)
+    T = WF[0]
     for j in range(nu):
         T[j] = t0 + (t1 - t0) * U[j]
     for j in range(ne):
@@ -278,11 +286,21 @@ def _edge(i, cx, cy, R, axis, level, length, G, P, U, EOFF, iters, VAL, PX, PY, 
             T[m + 1] = T[m]
             m -= 1
         T[m + 1] = v
-    V = np.empty(n)
-    Hs = np.empty(n)
+    V = WF[1]
+    Hs = WF[2]
+    # the design coordinates of all samples first, then the surface (the same values as
+    # _H point by point: the divisions do not wait on each callback)
+    XD = WF[6]
+    YD = WF[7]
+    s = G[0]
     for j in range(n):
         X, Y = _pts(axis, level, T[j])
-        Hs[j] = _H(X, Y, G, P)
+        XD[j] = X / s + G[1]
+        YD[j] = Y / s + G[2]
+    Pa = P[0].ctypes
+    for j in range(n):
+        Hs[j] = s * (P[2](XD[j], YD[j], Pa)[0] - G[3])
+    for j in range(n):
         dt = T[j] - tc
         V[j] = _fmin(Hs[j], 0.0) + math.sqrt(_fmax(rho2 - dt * dt, 0.0))
     for j in range(n):
@@ -294,12 +312,12 @@ def _edge(i, cx, cy, R, axis, level, length, G, P, U, EOFF, iters, VAL, PX, PY, 
     Hf = _H(Xf, Yf, G, P)
     if Hf >= 0:
         dt = tf - tc
-        vf = _fmin(_H(Xf, Yf, G, P), 0.0) + math.sqrt(_fmax(rho2 - dt * dt, 0.0))
+        vf = _fmin(Hf, 0.0) + math.sqrt(_fmax(rho2 - dt * dt, 0.0))
     else:
         vf = -math.inf
     _offer(i, vf, Xf, Yf, K_EDGE, VAL, PX, PY, KIND)
     # smooth part: 1-D Newton in phi from the three best local maxima of the samples
-    key = np.empty(n)
+    key = WF[3]
     for j in range(n):
         vj = V[j] if _fin(V[j]) else -math.inf
         lm = True
@@ -312,7 +330,9 @@ def _edge(i, cx, cy, R, axis, level, length, G, P, U, EOFF, iters, VAL, PX, PY, 
         key[j] = vj if lm else -math.inf
     lo = math.asin(_clip((t0 - tc) / a, -1.0, 1.0))
     hi = math.asin(_clip((t1 - tc) / a, -1.0, 1.0))
-    taken = np.zeros(n, dtype=np.bool_)
+    taken = WB
+    for j in range(n):
+        taken[j] = False
     res_t = np.empty(3)
     nstart = min(3, n)
     for r in range(nstart):
@@ -369,8 +389,8 @@ def _edge(i, cx, cy, R, axis, level, length, G, P, U, EOFF, iters, VAL, PX, PY, 
         v = _fmin(_H(X, Y, G, P), 0.0) + math.sqrt(_fmax(rho2 - dt * dt, 0.0))
         _offer(i, v, X, Y, K_EDGE, VAL, PX, PY, KIND)
     # crease crossings on the edge: safeguarded Newton inside each sign change
-    ct = np.empty(n)
-    cs_ = np.empty(n)
+    ct = WF[4]
+    cs_ = WF[5]
     nc = 0
     for j in range(n - 1):
         if (Hs[j] >= 0) == (Hs[j + 1] >= 0):
@@ -606,6 +626,17 @@ def drop_batch(CX, CY, R, G, P, OFFX, OFFY, SQ, R2, QUAD, U, EOFF, starts, iters
     qy = np.empty(k)
     lmk = np.empty(k, dtype=np.bool_)
     seeds = np.empty(5, dtype=np.int64)
+    WF = np.empty((8, U.size + EOFF.size))
+    WB = np.empty(U.size + EOFF.size, dtype=np.bool_)
+    XD = np.empty(K)
+    YD = np.empty(K)
+    s = G[0]
+    x0 = G[1]
+    y0 = G[2]
+    top = G[3]
+    Pa = P[0].ctypes
+    # sample 0 at the centre itself: its H is Hc (cx + 0.0 is cx, unless cx is -0.0)
+    centre0 = K > 0 and OFFX[0] == 0.0 and OFFY[0] == 0.0
     for i in range(CX.size):
         cx = CX[i]
         cy = CY[i]
@@ -620,12 +651,22 @@ def drop_batch(CX, CY, R, G, P, OFFX, OFFY, SQ, R2, QUAD, U, EOFF, starts, iters
         if ontop:
             _offer(i, R, cx, cy, K_TOP, VAL, PX, PY, KIND)
             continue
-        # samples
+        # samples: the design coordinates of all first, then the surface at each (the
+        # same values as _H point by point; the divisions no longer wait for the
+        # callback), the centre's (offset 0) from Hc
         for j in range(K):
             x = cx + OFFX[j]
             y = cy + OFFY[j]
             INF[j] = _inside(x, y, G)
-            HS[j] = _H(x, y, G, P)
+            XD[j] = x / s + x0
+            YD[j] = y / s + y0
+        for j in range(K):
+            if j == 0 and centre0 and not (cx == 0.0 and math.copysign(1.0, cx) < 0.0) \
+                    and not (cy == 0.0 and math.copysign(1.0, cy) < 0.0):
+                HS[j] = Hc
+            else:
+                HS[j] = s * (P[2](XD[j], YD[j], Pa)[0] - top)
+        for j in range(K):
             f = _fmin(HS[j], 0.0) + SQ[j] if INF[j] else -math.inf
             FS[j] = f if _fin(f) else -math.inf
         for j in range(K):
@@ -701,10 +742,10 @@ def drop_batch(CX, CY, R, G, P, OFFX, OFFY, SQ, R2, QUAD, U, EOFF, starts, iters
         cy = CY[i]
         if not ((cx < R) or (cy < R) or (cx > L - R) or (cy > W - R)):
             continue
-        _edge(i, cx, cy, R, 1, 0.0, L, G, P, U, EOFF, iters, VAL, PX, PY, KIND)
-        _edge(i, cx, cy, R, 1, W, L, G, P, U, EOFF, iters, VAL, PX, PY, KIND)
-        _edge(i, cx, cy, R, 0, 0.0, W, G, P, U, EOFF, iters, VAL, PX, PY, KIND)
-        _edge(i, cx, cy, R, 0, L, W, G, P, U, EOFF, iters, VAL, PX, PY, KIND)
+        _edge(i, cx, cy, R, 1, 0.0, L, G, P, U, EOFF, iters, VAL, PX, PY, KIND, WF, WB)
+        _edge(i, cx, cy, R, 1, W, L, G, P, U, EOFF, iters, VAL, PX, PY, KIND, WF, WB)
+        _edge(i, cx, cy, R, 0, 0.0, W, G, P, U, EOFF, iters, VAL, PX, PY, KIND, WF, WB)
+        _edge(i, cx, cy, R, 0, L, W, G, P, U, EOFF, iters, VAL, PX, PY, KIND, WF, WB)
     # (v) a ridge: where no start converged and the best point is a sample or an
     # interior point at a kink, or an edge point with F rising inwards
     for i in range(CX.size):

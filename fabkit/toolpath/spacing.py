@@ -94,7 +94,33 @@ def space_points(ws, fr, R, V, ug, Z, dZ, keep, tolerance, max_points, spec_path
 def _simplify(sp, su, sz, sn, etol, rounds=64):
     """Drop nodes (sn) while every sample between the surviving neighbours stays
     within etol of their chord. Nodes flanked by air (tip at/above the top face)
-    or at pass ends stay. Returns the boolean node mask over the samples."""
+    or at pass ends stay. Returns the boolean node mask over the samples.
+
+    In compiled code (:mod:`.spacing_kernels`: the same rounds and arithmetic, the
+    same nodes) unless the kernels are off (``FABKIT_NO_KERNELS``)."""
+    kern = _kernel()
+    if kern is None:
+        return _simplify_numpy(sp, su, sz, sn, etol, rounds)
+    return kern(np.ascontiguousarray(sp, dtype=np.int64), np.ascontiguousarray(su, dtype=float),
+                np.ascontiguousarray(sz, dtype=float), np.array(sn, dtype=bool),
+                np.ascontiguousarray(sz >= -AIR_EPS), float(etol), int(rounds))
+
+
+def _kernel():
+    """spacing_kernels.simplify, or None (kernels off, numba missing)."""
+    from .kernels import enabled
+
+    if not enabled():
+        return None
+    try:
+        from .spacing_kernels import simplify
+    except ImportError:  # pragma: no cover - numba is a dependency
+        return None
+    return simplify
+
+
+def _simplify_numpy(sp, su, sz, sn, etol, rounds=64):
+    """_simplify in numpy: every sample of every pass at once, round by round."""
     nodes = sn.copy()
     air = sz >= -AIR_EPS
     idle = 0
