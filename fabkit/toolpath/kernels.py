@@ -160,9 +160,10 @@ def _warm(k: Kernel) -> None:
 # CPU seconds of a first-time build on the 2-core reference machine (the time guard adds
 # them to its estimate when the cache lacks the compiled code; measured with an empty
 # cache, benchmarks/notes_gcode_profile.md, "The first run")
-BUILD_KERNEL_S = 14.0     # the drop cutter's kernel (dropcut.py), once per installation
+BUILD_KERNEL_S = 16.0     # the drop cutter's kernel (dropcut.py), once per installation
 BUILD_FORMULA_S = 1.5     # a new formula's surface functions (jet, height)
 BUILD_MATERIAL_S = 6.0    # the material bound's loops (scallop_kernels), once per installation
+BUILD_SPACING_S = 2.7     # the point spacing's simplification (spacing_kernels), once per installation
 
 
 def _static_cached(dispatcher) -> bool:
@@ -199,10 +200,12 @@ def cold_build_seconds(surface) -> float:
     except OSError:
         return 0.0           # no cache: the numpy code runs
     try:
-        from . import scallop_kernels
+        from . import scallop_kernels, spacing_kernels
     except ImportError:      # pragma: no cover - numba is a dependency
         return s
     if not _static_cached(scallop_kernels.sweep_balls):
         s += BUILD_MATERIAL_S
+    if not _static_cached(spacing_kernels.simplify):
+        s += BUILD_SPACING_S
     return s
 
