@@ -46,18 +46,24 @@ from ..errors import SpecError
 #: paper's surface at scallop 0.02 mm and four dishes (benchmarks/notes_gcode_profile.md,
 #: "With the compiled kernels"): measured / estimated 0.8-1.25 there
 PLAN_SCALE = 0.72
-SEC_PER_PASS = 4.8e-3 * PLAN_SCALE          # pass placement, per pass: fixed cost (two bounds, a few calls)
-SEC_PER_PASS_NODE = 1.2e-5 * PLAN_SCALE     # per node along a pass: exact tip heights (incl. trial passes)
-SEC_PER_BALL = 9e-7 * PLAN_SCALE            # per column and fine ball position within R along the pass
-SEC_STEEP_PASS = 3e-2 * PLAN_SCALE          # passes over ground steep along the pass: the bound's stage 3
-SEC_STEEP_COLUMN = 1e-4 * PLAN_SCALE        # and per steep column
-SEC_PER_POINT = 1.75e-4 * PLAN_SCALE        # point spacing, links, roughing, writing, the sheet, per program point
-SEC_FIXED = 1.6                # start-up (imports, loading the compiled kernels), spec, derivatives, depth,
+#: refitted again (issue 28's second pass: the material bound, the point spacing and the
+#: crease search compiled, the formula's derivatives cached) by a minimax fit of each
+#: group's factor to the CPU time of the whole command on plane, tiny, block, steep, vee,
+#: bowl, surface, surface_eps015 and the paper's surface at scallop 0.02 mm (load 1.0):
+#: measured / estimated 0.74-1.34 there (benchmarks/notes_gcode_profile.md, "Second pass")
+FIT_PASS, FIT_BALL, FIT_STEEP, FIT_POINT, FIT_VERIFY, FIT_TIGHT = 0.2, 0.33, 0.37, 0.39, 0.5, 0.82
+SEC_PER_PASS = 4.8e-3 * PLAN_SCALE * FIT_PASS       # pass placement, per pass: fixed cost (two bounds, a few calls)
+SEC_PER_PASS_NODE = 1.2e-5 * PLAN_SCALE * FIT_PASS  # per node along a pass: exact tip heights (incl. trial passes)
+SEC_PER_BALL = 9e-7 * PLAN_SCALE * FIT_BALL         # per column and fine ball position within R along the pass
+SEC_STEEP_PASS = 3e-2 * PLAN_SCALE * FIT_STEEP      # passes over ground steep along the pass: the bound's stage 3
+SEC_STEEP_COLUMN = 1e-4 * PLAN_SCALE * FIT_STEEP    # and per steep column
+SEC_PER_POINT = 1.75e-4 * PLAN_SCALE * FIT_POINT    # point spacing, links, roughing, writing, the sheet, per program point
+SEC_FIXED = 1.7                # start-up (imports, loading the compiled kernels), spec, derivatives, depth,
                                # the planner's and the sheet's fixed costs (3.0 before the formula's
                                # derivatives were cached and the depth search left scipy: 1.2-1.5 s less
                                # on the tiny and plane jobs, benchmarks/notes_gcode_profile.md)
-SEC_PER_VERIFY_POINT = 1.4e-5  # verification per verify point: swept cut and reachable height
-SEC_PER_TIGHT_POINT = 2.0e-4   # per verify point within R of a concave crease or valley tighter
+SEC_PER_VERIFY_POINT = 1.4e-5 * FIT_VERIFY  # verification per verify point: swept cut and reachable height
+SEC_PER_TIGHT_POINT = 2.0e-4 * FIT_TIGHT    # per verify point within R of a concave crease or valley tighter
                                # than the ball: the reachable height's search (the model descent:
                                # 7.8e-5 on the 3*abs(x) block, 2.8e-4 on the oblique V; it was
                                # 7.6e-4 and 7.0e-4 with the compass search)
@@ -69,8 +75,13 @@ STEEP_ALONG = 1.5              # as fabkit.toolpath.passes.STEEP_ALONG
 # samples per point at the peak of the point spacing's batched drop cutter): measured /
 # estimated 0.72-1.44 on those jobs (1.15 GB measured, 0.95 GB estimated on the 1/8 in
 # ball at scallop 0.02 mm)
-BYTES_BASE = 230e6             # 560e6 before the kernels: the swept cut's pair arrays are gone
-BYTES_PER_POINT = 5000.0
+BYTES_BASE = 175e6             # 560e6 before the kernels, 230e6 before the second pass
+BYTES_PER_POINT = 2500.0       # (and the per-pass bytes x MEM_SCALE): measured / estimated 0.83-1.01
+MEM_SCALE = 0.5                # on plane, bowl, surface and the 1/8 in ball job (peak 179-374 MB)
+# roughing with its own tool, per node of the stock's grid (toolpath/stock.py): the paper's
+# rough + rest + finish job (2001 x 1001 nodes) measured 12.6-16.0 s CPU and 617-694 MB
+SEC_PER_STOCK_NODE = 3.2e-6
+BYTES_PER_STOCK_NODE = 180.0
 MAX_BYTES = 1.8e9              # refused beyond this (the process stays under 2 GB)
 MAX_SLOPE = 20.0               # slopes beyond this count as this (the wall is cut by the rim)
 
@@ -156,17 +167,29 @@ def estimate(spec, ws, fr, R: float, target: float, tolerance: float, depth_mm: 
     # the verification: the swept cut and the reachable height at each verify point (one
     # drop cutter), and where a ball touching the design there is not free (a V crease,
     # a valley tighter than the ball: within R of where the concave curvature exceeds
-    # 1/R) a compass search of a few hundred drop cutters per point
+    # 1/R) the reachable height's search (tens of drop cutters per point)
     vp = float(getattr(spec.machining, "verify_points", 40000))
     out["tight_fraction"] = tight = _tight_fraction(fr, R, Hu, Hv, cut, u, v)
     out["verify_seconds"] = vp * (SEC_PER_VERIFY_POINT + SEC_PER_TIGHT_POINT * tight)
+    # roughing with its own tool (the spec's `roughing` section): its levels, the rest
+    # passes and the whole job's stock simulation, per node of the stock's grid
+    out["roughing_seconds"] = out["roughing_bytes"] = 0.0
+    if hasattr(spec, "has") and spec.has("roughing"):
+        from .roughing import spec_tools
+        from .stock import grid_spacing
+
+        h = grid_spacing(list(spec_tools(spec).values()), tolerance)
+        nodes = (ws.L / h + 1.0) * (ws.W / h + 1.0)
+        out["roughing_seconds"] = SEC_PER_STOCK_NODE * nodes
+        out["roughing_bytes"] = BYTES_PER_STOCK_NODE * nodes
+    out["plan_seconds"] += out["roughing_seconds"]
     # a first run compiles the kernels it lacks (once per installation, or per formula)
     from .kernels import cold_build_seconds
 
     out["build_seconds"] = cold_build_seconds(ws.surface) if hasattr(ws, "surface") else 0.0
     out["seconds"] = SEC_FIXED + out["plan_seconds"] + out["verify_seconds"] + out["build_seconds"]
-    out["bytes"] = BYTES_BASE + passes * (16.0 * n_fine + 80.0 * n_nodes) + \
-        BYTES_PER_POINT * (points + out["roughing_points"])
+    out["bytes"] = BYTES_BASE + MEM_SCALE * passes * (16.0 * n_fine + 80.0 * n_nodes) + \
+        BYTES_PER_POINT * (points + out["roughing_points"]) + out["roughing_bytes"]
     return out
 
 
