@@ -194,19 +194,22 @@ _MINUS_ZERO = re.compile(r"^-0$", re.MULTILINE)
 
 def _format_array(values: np.ndarray, dec: int) -> np.ndarray:
     """(n, 3) floats -> (n, 3) shortest fixed-point strings with at most ``dec``
-    decimals ('12.5', '-0.0312', '0'; never '-0'). One '%' operation formats the
-    whole array (the same rounding as '%.{dec}f' % v per value), then the trailing
-    zeros, a bare '.' and '-0' go by text substitutions over it."""
-    flat = values.ravel().tolist()
-    if not flat:
+    decimals ('12.5', '-0.0312', '0'; never '-0'). Each distinct value is formatted
+    once (a toolpath repeats its X and Y values), all by one '%' operation (the same
+    rounding as '%.{dec}f' % v per value); the trailing zeros, a bare '.' and '-0' go
+    by text substitutions over the result. (-0.0 and 0.0 are one value to np.unique;
+    both are written '0'.)"""
+    flat = values.ravel()
+    if not flat.size:
         return np.empty(values.shape, dtype=object)
-    text = (f"%.{dec}f\n" * len(flat)) % tuple(flat)
+    distinct, inverse = np.unique(flat, return_inverse=True)
+    text = (f"%.{dec}f\n" * len(distinct)) % tuple(distinct.tolist())
     if dec > 0:
         text = _TRAILING_ZEROS.sub("\n", text).replace(".\n", "\n")
     text = _MINUS_ZERO.sub("0", text)
-    out = np.empty(len(flat), dtype=object)
-    out[:] = text.split("\n")[:-1]
-    return out.reshape(values.shape)
+    strings = np.empty(len(distinct), dtype=object)
+    strings[:] = text.split("\n")[:-1]
+    return strings[inverse.reshape(-1)].reshape(values.shape)
 
 
 def _move_lines(txt: np.ndarray, kinds: np.ndarray, safe: str, feed_s: str, plunge_s: str) -> list[str]:
