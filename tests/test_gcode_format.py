@@ -72,4 +72,5 @@ def test_move_lines_match_per_row_writer(seed):
     txt = gcode._format_array(_values(rng, n), 4)
     kinds = rng.choice([RAPID, PLUNGE, CUT], n) if rng.random() < 0.7 else np.full(n, int(rng.integers(0, 3)))
     for feed_s, plunge_s in (("2500", "600"), ("100", "100")):
-        assert gcode._move_lines(txt, kinds, "5", feed_s, plunge_s) == _lines(txt.tolist(), kinds, "5", feed_s, plunge_s)
+        want = _lines(txt.tolist(), kinds, "5", feed_s, plunge_s)
+        assert gcode._move_lines(txt, kinds, "5", feed_s, plunge_s) == want
