@@ -23,6 +23,7 @@ remains is part of the verified figures. Same toolpath and profile -> same text.
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -187,40 +188,58 @@ def estimate_seconds(points: np.ndarray, kinds: np.ndarray, start: np.ndarray, p
     return float(np.sum(seg / rate) * 60.0)
 
 
+_TRAILING_ZEROS = re.compile(r"0+\n")   # every string has a '.' when dec > 0: only decimals go
+_MINUS_ZERO = re.compile(r"^-0$", re.MULTILINE)
+
+
 def _format_array(values: np.ndarray, dec: int) -> np.ndarray:
     """(n, 3) floats -> (n, 3) shortest fixed-point strings with at most ``dec``
-    decimals ('12.5', '-0.0312', '0'; never '-0')."""
-    fmt = f"%.{dec}f"
-
-    def one(v: float) -> str:
-        t = (fmt % v).rstrip("0").rstrip(".") if dec > 0 else fmt % v
-        return "0" if t in ("-0", "") else t
-
-    flat = [one(v) for v in values.ravel().tolist()]
-    return np.array(flat, dtype=object).reshape(values.shape) if flat else np.empty(values.shape, dtype=object)
+    decimals ('12.5', '-0.0312', '0'; never '-0'). Each distinct value is formatted
+    once (a toolpath repeats its X and Y values), all by one '%' operation (the same
+    rounding as '%.{dec}f' % v per value); the trailing zeros, a bare '.' and '-0' go
+    by text substitutions over the result. (-0.0 and 0.0 are one value to np.unique;
+    both are written '0'.)"""
+    flat = values.ravel()
+    if not flat.size:
+        return np.empty(values.shape, dtype=object)
+    distinct, inverse = np.unique(flat, return_inverse=True)
+    text = (f"%.{dec}f\n" * len(distinct)) % tuple(distinct.tolist())
+    if dec > 0:
+        text = _TRAILING_ZEROS.sub("\n", text).replace(".\n", "\n")
+    text = _MINUS_ZERO.sub("0", text)
+    strings = np.empty(len(distinct), dtype=object)
+    strings[:] = text.split("\n")[:-1]
+    return strings[inverse.reshape(-1)].reshape(values.shape)
 
 
 def _move_lines(txt: np.ndarray, kinds: np.ndarray, safe: str, feed_s: str, plunge_s: str) -> list[str]:
     """Program lines for the moves, modal words omitted. ``txt``: (n, 3) coordinate
     strings; the position before the first move is (txt[0, 0], txt[0, 1], safe) in G0.
     Vectorized: a move whose three strings equal its predecessor's is dropped (so the
-    predecessor of a kept move is always the last written position)."""
+    predecessor of a kept move is always the last written position). Each word carries
+    its trailing space ('' when omitted): a line is its words joined, the last space cut."""
     prev = np.vstack([[txt[0, 0], txt[0, 1], safe], txt[:-1]])
     changed = txt != prev
     keep = changed.any(axis=1)
     txt, changed, kinds = txt[keep], changed[keep], kinds[keep]
-    g = np.where(kinds == RAPID, "G0", "G1")
-    g_prev = np.concatenate([["G0"], g[:-1]]) if len(g) else g
-    g_word = np.where(g != g_prev, g, "")
-    feed = np.where(kinds == RAPID, "", np.where(kinds == PLUNGE, plunge_s, feed_s))
-    fi = np.nonzero(feed != "")[0]
-    f_word = np.full(len(g), "", dtype=object)
+    rapid = kinds == RAPID
+    g_new = np.empty(len(kinds), dtype=bool)
+    g_new[:1] = ~rapid[:1]                   # G0 is modal before the first move
+    g_new[1:] = rapid[1:] != rapid[:-1]
+    g_word = np.where(g_new, np.where(rapid, "G0 ", "G1 "), "").tolist()
+    feed = np.where(rapid, "", np.where(kinds == PLUNGE, plunge_s + " ", feed_s + " "))
+    fi = np.nonzero(~rapid)[0]
+    f_word = [""] * len(kinds)
     if fi.size:
         fv = feed[fi]
         new = np.concatenate([[True], fv[1:] != fv[:-1]])
-        f_word[fi[new]] = "F" + fv[new].astype(object)
-    words = [np.where(changed[:, a], name + txt[:, a].astype(object), "") for a, name in enumerate("XYZ")]
-    return [" ".join(w for w in row if w) for row in zip(g_word, *words, f_word)]
+        for i, v in zip(fi[new].tolist(), fv[new].tolist()):
+            f_word[i] = "F" + v
+    words = []
+    for a, name in enumerate("XYZ"):
+        col = txt[:, a].tolist()
+        words.append([name + t + " " if c else "" for t, c in zip(col, changed[:, a].tolist())])
+    return [line[:-1] for line in map("".join, zip(g_word, *words, f_word))]
 
 
 def _num(v: float, nd: int) -> str:

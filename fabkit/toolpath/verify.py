@@ -35,6 +35,11 @@ from ..units import MM_PER_INCH  # noqa: E402,F401
 _WORD = re.compile(r"([A-Z])\s*([-+]?(?:\d+\.?\d*|\.\d+))")
 _LINE = re.compile(r"(?:\s*[A-Z]\s*[-+]?(?:\d+\.?\d*|\.\d+))*\s*")
 _COMMENT = re.compile(r"\([^()]*\)")
+# the line shapes fabkit writes (upper case, no comment): [G0|G1] [X..] [Y..] [Z..] [F..]
+# in this order, single spaces; read_program takes these without the general word loop.
+# Possessive (no backtracking: faster); a line it misses takes the general path.
+_NUM = r"([-+]?+(?:\d++(?:\.\d*+)?+|\.\d++))"
+_FAST = re.compile(rf"(?:G([01]) ?)?+(?:X{_NUM} ?)?+(?:Y{_NUM} ?)?+(?:Z{_NUM} ?)?+(?:F{_NUM})?+")
 
 
 @dataclass
@@ -144,8 +149,35 @@ def read_program(text: str) -> Program:
     spindle_tool = -1    # the tool M6 loaded
     offset = -1          # G43 H in effect
     n_lines = 0
+    fast = _FAST.fullmatch
     for ln, raw in enumerate(text.splitlines(), start=1):
         n_lines = ln
+        m = fast(raw)
+        if m is not None:
+            # the common shapes: the same steps as the general loop below, for G0/G1 F X Y Z only
+            g, x, y, z, f = m.groups()
+            if g is not None:
+                motion = 0 if g == "0" else 1
+            if f is not None:
+                feed = float(f) * scale
+            if x is None and y is None and z is None:
+                continue
+            if motion is None:
+                raise DesignError(f"program line {ln}: axis words before any G0/G1")
+            if start is None:
+                start = pos
+            new = [pos[0] if x is None else float(x) * scale, pos[1] if y is None else float(y) * scale,
+                   pos[2] if z is None else float(z) * scale]
+            if motion == FEED and not feed > 0:
+                raise DesignError(f"program line {ln}: G1 without a feed rate")
+            pts.append(new)
+            kinds.append(motion)
+            feeds.append(feed if motion == FEED else np.nan)
+            where.append(ln)
+            tools.append(spindle_tool)
+            offsets.append(offset)
+            pos = new
+            continue
         line = raw.split(";", 1)[0]
         if "(" in line:
             line = _COMMENT.sub(" ", line)
