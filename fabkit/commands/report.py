@@ -16,6 +16,7 @@ from ._common import Timer, check_paths, default_output, emit, prepare_simulator
 
 NEEDS = ("surface", "stock", "tool", "machining", "ball", "ramp", "simulation")
 SURFACE_SAMPLES = (90, 46)   # the 3-D view's grid (x, y)
+ERROR_SAMPLES = 24           # escaped launches re-run tighter for the sweep's v_out error
 
 
 def _toolpath(spec, surface, machine=None):
@@ -31,17 +32,70 @@ def _toolpath(spec, surface, machine=None):
             **({"stock_png": dict(job.stock_pictures)} if job.stock_pictures else {})}
 
 
-def _sweep(spec, cal) -> dict:
-    """The sweep over the ramp's entry speeds and its figure, for the page."""
-    from ..physics.models import problem_from_spec
-    from ..physics.sweep import sweep
+def _recording_launcher(problem):
+    """(launcher, memo): the compiled engine in this process (full results, as the
+    check's own launcher), recording each launch's outcome, bounces, v_out and bounce
+    times by entry speed in ``memo``, so that the sweep re-runs none of the check's
+    launches (a launch depends on its speed alone, not on its batch)."""
+    from ..physics.check import _as_launches, _in_process
+
+    run = _in_process(problem)
+    memo: dict = {}
+
+    def launch(v):
+        r = run(v)
+        lr = _as_launches(r)
+        for i, x in enumerate(np.asarray(v, dtype=float).tolist()):
+            memo[x] = (lr.outcome[i], lr.bounces[i], lr.v_out[i], lr.bounce_times[i])
+        return r
+
+    return launch, memo
+
+
+def _replaying_launcher(problem, memo):
+    """A sweep launcher answering from ``memo`` where it can, launching the rest."""
+    from ..physics.check import _as_launches, _in_process
+    from ..physics.sweep import Launches
+
+    run = _in_process(problem)
+
+    def launch(v):
+        v = np.asarray(v, dtype=float)
+        miss = [x for x in v.tolist() if x not in memo]
+        if miss:
+            lr = _as_launches(run(np.asarray(miss)))
+            for i, x in enumerate(miss):
+                memo[x] = (lr.outcome[i], lr.bounces[i], lr.v_out[i], lr.bounce_times[i])
+        rows = [memo[x] for x in v.tolist()]
+        width = max((np.size(r[3]) for r in rows), default=0)
+        bt = np.full((len(rows), width), np.nan)
+        for i, r in enumerate(rows):
+            bt[i, :np.size(r[3])] = r[3]
+        return Launches(v, np.array([r[0] for r in rows], dtype=np.int8), np.array([r[1] for r in rows], dtype=int),
+                        np.array([r[2] for r in rows], dtype=float), bt)
+
+    return launch
+
+
+def _sweep(spec, cal, problem, memo) -> dict:
+    """The sweep over the ramp's entry speeds and its figure, for the page: v_critical and
+    the two-bounce windows to the check's tolerances, on the check's problem, so that its
+    bisections are the check's own launches, replayed (``memo``)."""
+    from ..physics.check import TOLERANCES
+    from ..physics.sweep import estimate_error, sweep
     from ..plots import sweep_figure
 
     t = Timer()
-    problem = problem_from_spec(spec)
     v = np.unique(np.asarray(cal["v_in"], dtype=float))
     v = v[np.isfinite(v)]                 # nan: heights from which the ball does not reach the block
-    sw = sweep(problem, v, error_samples=24)
+    replay = _replaying_launcher(problem, memo)
+    sw = sweep(problem, v, launcher=replay, error_samples=0, tn=False,
+               rel_tol=TOLERANCES["v_rel_tol"], edge_rel_tol=TOLERANCES["edge_rel_tol"],
+               gap_rel_tol=TOLERANCES["gap_rel_tol"], bounces=(2,))
+    # the integration error of v_out: 24 escaped launches re-run with rtol and atol ten times tighter
+    v_sorted = np.sort(v)
+    sw["error_estimate"] = estimate_error(problem, v_sorted, replay(v_sorted), method="fabkit", rtol=None,
+                                          atol=None, samples=ERROR_SAMPLES)
     sw_png = sweep_figure(sw, f"{spec.name}: {problem.model} model, damping {problem.damping:g} 1/s",
                           units=spec.units)
     return {"png": sw_png, "v_critical": sw["v_critical"], "v_critical_error": sw["v_critical_error"],
@@ -56,6 +110,7 @@ def run(args) -> int:
     from ..lab.ramp import mark_targets
     from ..physics.calibrate import calibration_table
     from ..physics.check import check
+    from ..physics.models import problem_from_spec
     from ..report import render
     from ..surface import Surface, check_depth
     from ..toolpath.guards import with_time_budget
@@ -84,9 +139,13 @@ def run(args) -> int:
         step("compiling or loading the simulator")
         prepare_simulator(spec)
         step("checking")
-        chk = check(spec).to_json()
+        # the check's own problem (stop_trapped, as check builds it) and its launches
+        # recorded for the sweep
+        problem = problem_from_spec(spec).with_(stop_trapped=True)
+        launch, memo = _recording_launcher(problem)
+        chk = check(spec, problem=problem, launcher=launch).to_json()
         step("sweeping")
-        sw_part = _sweep(spec, cal)
+        sw_part = _sweep(spec, cal, problem, memo)
         step("planning and verifying the toolpath")
         tool = _toolpath(spec, surface, machine)
     finally:

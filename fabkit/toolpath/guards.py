@@ -51,7 +51,7 @@ PLAN_SCALE = 0.72
 #: group's factor to the CPU time of the whole command on plane, tiny, block, steep, vee,
 #: bowl, surface, surface_eps015 and the paper's surface at scallop 0.02 mm (load 1.0):
 #: measured / estimated 0.74-1.34 there (benchmarks/notes_gcode_profile.md, "Second pass")
-FIT_PASS, FIT_BALL, FIT_STEEP, FIT_POINT, FIT_VERIFY, FIT_TIGHT = 0.2, 0.33, 0.37, 0.39, 0.5, 0.82
+FIT_PASS, FIT_BALL, FIT_STEEP, FIT_POINT, FIT_VERIFY, FIT_TIGHT = 0.2, 0.33, 0.37, 0.39, 0.5, 1.0
 SEC_PER_PASS = 4.8e-3 * PLAN_SCALE * FIT_PASS       # pass placement, per pass: fixed cost (two bounds, a few calls)
 SEC_PER_PASS_NODE = 1.2e-5 * PLAN_SCALE * FIT_PASS  # per node along a pass: exact tip heights (incl. trial passes)
 SEC_PER_BALL = 9e-7 * PLAN_SCALE * FIT_BALL         # per column and fine ball position within R along the pass
