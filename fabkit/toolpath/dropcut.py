@@ -813,26 +813,6 @@ def _capsule_lower(px, py, ax, ay, az, bx, by, bz, R):
 
 
 @jit
-def lowest_batch(px, py, cid, ptr, seg, A, B, R, before, use_before, out):
-    """verify.SegmentGrid.lowest: out[i] = min(out[i], lowest swept z of the segments
-    binned in point i's cell (only those with index < before[i] with use_before))."""
-    for i in range(px.size):
-        c = cid[i]
-        m = out[i]
-        for p in range(ptr[c], ptr[c + 1]):
-            s = seg[p]
-            if use_before and s >= before[i]:
-                continue
-            z = _capsule_lower(px[i], py[i], A[s, 0], A[s, 1], A[s, 2], B[s, 0], B[s, 1], B[s, 2], R)
-            if z < m:
-                m = z
-        out[i] = m
-
-
-# ----------------------------------------------------------------------------
-# the verification's reachable height (verify.reachable_height): its formula-free loops
-# ----------------------------------------------------------------------------
-@jit
 def reach_grid_best(bx, by, ix, iy, xs, ys, Z, kx, ky, rx, ry, R, BEST, OX, OY):
     """verify._grid_starts: per point, the lowest g = Z + R - sqrt(R^2 - d^2) over the grid
     nodes (xs[i], ys[j]) within R of it, apart on the stock (row 0 of BEST, OX, OY) and
@@ -909,10 +889,12 @@ def reach_share(px, py, x0, y0, R, nyb, ptr, CX, CY, ZC, M, MX, MY):
 
 @jit
 def lowest_batch_sorted(px, py, cid, ptr, seg, A, B, R, before, use_before, out, ZMIN):
-    """lowest_batch with each cell's segments in ascending order of their lowest tip z
-    (ZMIN[s] = min(A[s, 2], B[s, 2])): the swept ball is nowhere below its lowest tip, so a
-    point stops at the first segment whose ZMIN is not below its lowest so far. The same
-    minimum."""
+    """verify.SegmentGrid.lowest: out[i] = min(out[i], lowest swept z of the segments
+    binned in point i's cell (only those with index < before[i] with use_before)), each
+    cell's segments in ascending order of their lowest tip z (ZMIN[s] = min(A[s, 2],
+    B[s, 2])): the swept ball is nowhere below its lowest tip, so a point stops at the
+    first segment whose ZMIN is not below its lowest so far (the same minimum as trying
+    them all)."""
     for i in range(px.size):
         c = cid[i]
         m = out[i]

@@ -93,7 +93,7 @@ def _load(path: Path):
 
 def module():
     """The kernel module alone (formula-free entry points: the swept cut's
-    ``lowest_batch``), or None (numba missing, ``FABKIT_NO_KERNELS``)."""
+    ``lowest_batch_sorted``), or None (numba missing, ``FABKIT_NO_KERNELS``)."""
     if not enabled():
         return None
     with _LOCK:

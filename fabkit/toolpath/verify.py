@@ -154,7 +154,7 @@ def read_program(text: str) -> Program:
         n_lines = ln
         m = fast(raw)
         if m is not None:
-            # the common shapes: the same steps as the general loop below, for G0/G1 F X Y Z only
+            # the common shapes (G0/G1 F X Y Z only): the words the general parse below would find
             g, x, y, z, f = m.groups()
             if g is not None:
                 motion = 0 if g == "0" else 1
@@ -162,87 +162,80 @@ def read_program(text: str) -> Program:
                 feed = float(f) * scale
             if x is None and y is None and z is None:
                 continue
-            if motion is None:
-                raise DesignError(f"program line {ln}: axis words before any G0/G1")
-            if start is None:
-                start = pos
-            new = [pos[0] if x is None else float(x) * scale, pos[1] if y is None else float(y) * scale,
-                   pos[2] if z is None else float(z) * scale]
-            if motion == FEED and not feed > 0:
-                raise DesignError(f"program line {ln}: G1 without a feed rate")
-            pts.append(new)
-            kinds.append(motion)
-            feeds.append(feed if motion == FEED else np.nan)
-            where.append(ln)
-            tools.append(spindle_tool)
-            offsets.append(offset)
-            pos = new
-            continue
-        line = raw.split(";", 1)[0]
-        if "(" in line:
-            line = _COMMENT.sub(" ", line)
-            if "(" in line or ")" in line:
-                raise DesignError(f"program line {ln}: unbalanced or nested comment")
-        line = line.strip().upper()
-        if not line:
-            continue
-        if not _LINE.fullmatch(line):
-            raise DesignError(f"program line {ln}: cannot read {raw.strip()!r}")
-        words = _WORD.findall(line)
-        axes = {}
-        end = False
-        change = g43 = False
-        h_word = None
-        for letter, value in words:
-            v = float(value)
-            if letter == "G":
-                if v in (0, 1):
-                    motion = int(v)
-                elif v == 20:
-                    scale, units = MM_PER_INCH, "in"
-                elif v == 21:
-                    scale, units = 1.0, "mm"
-                elif v == 91:
-                    raise DesignError(f"program line {ln}: incremental mode G91 is not expected")
-                elif v == 43:
-                    g43 = True
-                elif v == 49:
-                    if offset != -1:
-                        pos = [pos[0], pos[1], nan]
-                    offset = -1
-                elif v not in (17, 90, 94, 54, 64):
-                    raise DesignError(f"program line {ln}: unexpected G{value}")
-            elif letter == "M":
-                if v in (2, 30):
-                    end = True
-                elif v == 6:
-                    change = True
-                elif v not in (3, 5):
-                    raise DesignError(f"program line {ln}: unexpected M{value}")
-            elif letter == "F":
-                feed = v * scale
-            elif letter in "XYZ":
-                axes[letter] = v * scale
-            elif letter in "TH":
-                if v != int(v) or v < 0:
-                    raise DesignError(f"program line {ln}: {letter}{value} is not a tool number")
-                if letter == "T":
-                    selected = int(v)
-                else:
-                    h_word = int(v)
-            elif letter not in "SP":
-                raise DesignError(f"program line {ln}: unexpected word {letter}{value}")
-        # the order LinuxCNC executes a line in: T, M6, then G43 (whatever the word order)
-        if change:
-            # LinuxCNC's selection before any T word is T0 (no tool)
-            spindle_tool = selected if selected is not None else 0
-            changes.append((len(pts), spindle_tool, ln))
-            pos = [pos[0], pos[1], nan]       # the tip's Z now depends on the new tool's length
-        if g43:
-            new_offset = h_word if h_word is not None else spindle_tool
-            if new_offset != offset:
-                pos = [pos[0], pos[1], nan]   # the offset moves the program's Z, not the tool
-            offset = new_offset
+            axes = {}
+            if x is not None:
+                axes["X"] = float(x) * scale
+            if y is not None:
+                axes["Y"] = float(y) * scale
+            if z is not None:
+                axes["Z"] = float(z) * scale
+            end = False
+        else:
+            line = raw.split(";", 1)[0]
+            if "(" in line:
+                line = _COMMENT.sub(" ", line)
+                if "(" in line or ")" in line:
+                    raise DesignError(f"program line {ln}: unbalanced or nested comment")
+            line = line.strip().upper()
+            if not line:
+                continue
+            if not _LINE.fullmatch(line):
+                raise DesignError(f"program line {ln}: cannot read {raw.strip()!r}")
+            words = _WORD.findall(line)
+            axes = {}
+            end = False
+            change = g43 = False
+            h_word = None
+            for letter, value in words:
+                v = float(value)
+                if letter == "G":
+                    if v in (0, 1):
+                        motion = int(v)
+                    elif v == 20:
+                        scale, units = MM_PER_INCH, "in"
+                    elif v == 21:
+                        scale, units = 1.0, "mm"
+                    elif v == 91:
+                        raise DesignError(f"program line {ln}: incremental mode G91 is not expected")
+                    elif v == 43:
+                        g43 = True
+                    elif v == 49:
+                        if offset != -1:
+                            pos = [pos[0], pos[1], nan]
+                        offset = -1
+                    elif v not in (17, 90, 94, 54, 64):
+                        raise DesignError(f"program line {ln}: unexpected G{value}")
+                elif letter == "M":
+                    if v in (2, 30):
+                        end = True
+                    elif v == 6:
+                        change = True
+                    elif v not in (3, 5):
+                        raise DesignError(f"program line {ln}: unexpected M{value}")
+                elif letter == "F":
+                    feed = v * scale
+                elif letter in "XYZ":
+                    axes[letter] = v * scale
+                elif letter in "TH":
+                    if v != int(v) or v < 0:
+                        raise DesignError(f"program line {ln}: {letter}{value} is not a tool number")
+                    if letter == "T":
+                        selected = int(v)
+                    else:
+                        h_word = int(v)
+                elif letter not in "SP":
+                    raise DesignError(f"program line {ln}: unexpected word {letter}{value}")
+            # the order LinuxCNC executes a line in: T, M6, then G43 (whatever the word order)
+            if change:
+                # LinuxCNC's selection before any T word is T0 (no tool)
+                spindle_tool = selected if selected is not None else 0
+                changes.append((len(pts), spindle_tool, ln))
+                pos = [pos[0], pos[1], nan]       # the tip's Z now depends on the new tool's length
+            if g43:
+                new_offset = h_word if h_word is not None else spindle_tool
+                if new_offset != offset:
+                    pos = [pos[0], pos[1], nan]   # the offset moves the program's Z, not the tool
+                offset = new_offset
         if axes:
             if motion is None:
                 raise DesignError(f"program line {ln}: axis words before any G0/G1")
