@@ -157,6 +157,25 @@ def test_cli_gcode_interrupted_during_verification(cli, tmp_path, monkeypatch):
 # ----------------------------------------------------------------------------
 # a real SIGINT to a running process
 # ----------------------------------------------------------------------------
+def _ctrl_c_reaches_children() -> None:
+    """In the child before exec: SIGINT to its default, so that Python installs its
+    KeyboardInterrupt handler there. A shell without job control starts background
+    commands with SIGINT ignored, and an ignored signal stays ignored across exec: a
+    suite started that way would otherwise send Ctrl-C into the void."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
+@pytest.fixture
+def python_ctrl_c():
+    """SIGINT raising KeyboardInterrupt in this process for the test (as in a terminal),
+    whatever the suite was started with; the previous handler restored after."""
+    old = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, old)
+
+
 def _cpu_seconds(pid: int) -> float:
     try:
         fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
@@ -182,7 +201,8 @@ def test_sigint_to_running_command(tmp_path, command, busy_cpu_s):
     target.write_bytes(OLD)
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     proc = subprocess.Popen([sys.executable, "-m", "fabkit", command, str(spec), "-o", str(target)],
-                            cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+                            cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            preexec_fn=_ctrl_c_reaches_children)
     deadline = time.monotonic() + 60
     while proc.poll() is None and _cpu_seconds(proc.pid) < busy_cpu_s and time.monotonic() < deadline:
         time.sleep(0.02)
@@ -204,7 +224,7 @@ def test_sigint_to_running_command(tmp_path, command, busy_cpu_s):
     assert temporaries(tmp_path) == []
 
 
-def test_ctrl_c_during_the_renames_leaves_a_consistent_pair(tmp_path, monkeypatch):
+def test_ctrl_c_during_the_renames_leaves_a_consistent_pair(tmp_path, monkeypatch, python_ctrl_c):
     """SIGINT arriving between renaming the program and its sheet is held until
     both are in place: never a new program beside an old sheet."""
     a, b = tmp_path / "a.ngc", tmp_path / "a.setup.json"
