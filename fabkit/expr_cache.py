@@ -30,7 +30,6 @@ import ast
 import builtins
 import hashlib
 import json
-import os
 import sys
 from pathlib import Path
 
@@ -203,16 +202,6 @@ def store(k: str, text: str, sources: dict, names: dict, sizes: dict, part: str 
     cache cannot be."""
     body = {"format": FORMAT, "key": k, "text": text, "source": dict(sources),
             "names": names, "sizes": {str(order): int(n) for order, n in sizes.items()}}
-    path = _path(k, part)
-    tmp = path.parent / f".{path.name}.{os.getpid()}.tmp"
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp.write_text(json.dumps({"body": body, "sha256": _checksum(body)}, sort_keys=True))
-        os.replace(tmp, path)
-        return True
-    except OSError:
-        try:
-            tmp.unlink()
-        except OSError:
-            pass
-        return False
+    from .physics.engine.codegen import replace_quietly
+
+    return replace_quietly(_path(k, part), json.dumps({"body": body, "sha256": _checksum(body)}, sort_keys=True))

@@ -32,41 +32,39 @@ def _toolpath(spec, surface, machine=None):
             **({"stock_png": dict(job.stock_pictures)} if job.stock_pictures else {})}
 
 
-def _recording_launcher(problem):
-    """(launcher, memo): the compiled engine in this process (full results, as the
-    check's own launcher), recording each launch's outcome, bounces, v_out and bounce
-    times by entry speed in ``memo``, so that the sweep re-runs none of the check's
-    launches (a launch depends on its speed alone, not on its batch)."""
-    from ..physics.check import _as_launches, _in_process
+class _SharedLaunches:
+    """One problem's launches in this process (the compiled engine), shared between the
+    check and the sweep: :meth:`full` is the check's launcher (full results, as its own),
+    :meth:`replay` the sweep's, answering from what was launched where it can. Each
+    launch's outcome, bounces, v_out and bounce times are kept by entry speed (a launch
+    depends on its speed alone, not on its batch)."""
 
-    run = _in_process(problem)
-    memo: dict = {}
+    def __init__(self, problem):
+        from ..physics.check import _in_process
 
-    def launch(v):
-        r = run(v)
+        self._run = _in_process(problem)
+        self._memo: dict = {}
+
+    def _record(self, v, r):
+        from ..physics.check import _as_launches
+
         lr = _as_launches(r)
-        for i, x in enumerate(np.asarray(v, dtype=float).tolist()):
-            memo[x] = (lr.outcome[i], lr.bounces[i], lr.v_out[i], lr.bounce_times[i])
+        for i, x in enumerate(v):
+            self._memo[x] = (lr.outcome[i], lr.bounces[i], lr.v_out[i], lr.bounce_times[i])
+
+    def full(self, v):
+        r = self._run(v)
+        self._record(np.asarray(v, dtype=float).tolist(), r)
         return r
 
-    return launch, memo
+    def replay(self, v):
+        from ..physics.sweep import Launches
 
-
-def _replaying_launcher(problem, memo):
-    """A sweep launcher answering from ``memo`` where it can, launching the rest."""
-    from ..physics.check import _as_launches, _in_process
-    from ..physics.sweep import Launches
-
-    run = _in_process(problem)
-
-    def launch(v):
         v = np.asarray(v, dtype=float)
-        miss = [x for x in v.tolist() if x not in memo]
+        miss = [x for x in v.tolist() if x not in self._memo]
         if miss:
-            lr = _as_launches(run(np.asarray(miss)))
-            for i, x in enumerate(miss):
-                memo[x] = (lr.outcome[i], lr.bounces[i], lr.v_out[i], lr.bounce_times[i])
-        rows = [memo[x] for x in v.tolist()]
+            self._record(miss, self._run(np.asarray(miss)))
+        rows = [self._memo[x] for x in v.tolist()]
         width = max((np.size(r[3]) for r in rows), default=0)
         bt = np.full((len(rows), width), np.nan)
         for i, r in enumerate(rows):
@@ -74,13 +72,11 @@ def _replaying_launcher(problem, memo):
         return Launches(v, np.array([r[0] for r in rows], dtype=np.int8), np.array([r[1] for r in rows], dtype=int),
                         np.array([r[2] for r in rows], dtype=float), bt)
 
-    return launch
 
-
-def _sweep(spec, cal, problem, memo) -> dict:
+def _sweep(spec, cal, problem, shared: _SharedLaunches) -> dict:
     """The sweep over the ramp's entry speeds and its figure, for the page: v_critical and
     the two-bounce windows to the check's tolerances, on the check's problem, so that its
-    bisections are the check's own launches, replayed (``memo``)."""
+    bisections are the check's own launches, replayed (``shared``)."""
     from ..physics.check import TOLERANCES
     from ..physics.sweep import estimate_error, sweep
     from ..plots import sweep_figure
@@ -88,7 +84,7 @@ def _sweep(spec, cal, problem, memo) -> dict:
     t = Timer()
     v = np.unique(np.asarray(cal["v_in"], dtype=float))
     v = v[np.isfinite(v)]                 # nan: heights from which the ball does not reach the block
-    replay = _replaying_launcher(problem, memo)
+    replay = shared.replay
     sw = sweep(problem, v, launcher=replay, error_samples=0, tn=False,
                rel_tol=TOLERANCES["v_rel_tol"], edge_rel_tol=TOLERANCES["edge_rel_tol"],
                gap_rel_tol=TOLERANCES["gap_rel_tol"], bounces=(2,))
@@ -142,10 +138,10 @@ def run(args) -> int:
         # the check's own problem (stop_trapped, as check builds it) and its launches
         # recorded for the sweep
         problem = problem_from_spec(spec).with_(stop_trapped=True)
-        launch, memo = _recording_launcher(problem)
-        chk = check(spec, problem=problem, launcher=launch).to_json()
+        shared = _SharedLaunches(problem)
+        chk = check(spec, problem=problem, launcher=shared.full).to_json()
         step("sweeping")
-        sw_part = _sweep(spec, cal, problem, memo)
+        sw_part = _sweep(spec, cal, problem, shared)
         step("planning and verifying the toolpath")
         tool = _toolpath(spec, surface, machine)
     finally:

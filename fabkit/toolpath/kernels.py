@@ -70,16 +70,13 @@ def _kernel_file() -> Path:
 def _kernel_path() -> Path:
     from ..physics.engine import codegen
 
-    src = (_HERE / KERNEL_TEMPLATE).read_text()
-    path = _kernel_file()
-
     def make():
         from .. import __version__
 
         return codegen._HEADER.format(version=__version__, what="the toolpath's drop cutter kernel") \
-            + "\n\n# ---- " + KERNEL_TEMPLATE + " " + "-" * 60 + "\n" + src
+            + "\n\n# ---- " + KERNEL_TEMPLATE + " " + "-" * 60 + "\n" + (_HERE / KERNEL_TEMPLATE).read_text()
 
-    return codegen._write_once(path, make)
+    return codegen._write_once(_kernel_file(), make)
 
 
 def _load(path: Path):
@@ -107,15 +104,24 @@ def module():
             return None
 
 
+def _formula_fns(surface):
+    """The surface's compiled functions when the kernels apply to it (kernels on, and a
+    formula behind the functions), else None."""
+    fns = getattr(surface, "fns", None)
+    if fns is None or not enabled():
+        return None
+    if getattr(fns, "text", None) is None and getattr(fns, "symbolic", None) is None:   # no formula
+        return None
+    return fns
+
+
 def kernel_for(surface) -> Kernel | None:
     """The compiled drop cutter for ``surface`` (a Surface with compiled functions
     ``fns`` from a formula), built on first use; None where there is none (no
     formula, numba missing, or ``FABKIT_NO_KERNELS``)."""
     global last_build_s
-    fns = getattr(surface, "fns", None)
-    if fns is None or not enabled():
-        return None
-    if getattr(fns, "text", None) is None and getattr(fns, "symbolic", None) is None:   # no formula
+    fns = _formula_fns(surface)
+    if fns is None:
         return None
     hit = _BY_FNS.get(id(fns))
     if hit is not None and hit[0] is fns:
@@ -179,10 +185,8 @@ def cold_build_seconds(surface) -> float:
     """CPU seconds (an estimate) of compiling what the toolpath's kernels for
     ``surface`` lack in the cache: 0 when everything loads from it, or when the numpy
     code runs (``FABKIT_NO_KERNELS``, no formula)."""
-    fns = getattr(surface, "fns", None)
-    if fns is None or not enabled():
-        return 0.0
-    if getattr(fns, "text", None) is None and getattr(fns, "symbolic", None) is None:
+    fns = _formula_fns(surface)
+    if fns is None:
         return 0.0
     hit = _BY_FNS.get(id(fns))
     if hit is not None and hit[0] is fns:

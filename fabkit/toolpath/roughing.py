@@ -125,15 +125,21 @@ def _feeds(spec, tool: Tool) -> tuple[float, float]:
 # ----------------------------------------------------------------------------
 # geometry helpers (shapely)
 # ----------------------------------------------------------------------------
-def _polys(g):
-    """The polygons of a geometry (Polygon, MultiPolygon, collection), non-empty."""
+def _parts(g, kind: str):
+    """The non-empty parts of type ``kind`` ('Polygon', 'LineString') of a geometry
+    (single, multi-part or collection, at any depth)."""
     if g is None or g.is_empty:
         return []
-    if g.geom_type == "Polygon":
+    if g.geom_type == kind:
         return [g]
     if hasattr(g, "geoms"):
-        return [p for sub in g.geoms for p in _polys(sub)]
+        return [p for sub in g.geoms for p in _parts(sub, kind)]
     return []
+
+
+def _polys(g):
+    """The polygons of a geometry (Polygon, MultiPolygon, collection), non-empty."""
+    return _parts(g, "Polygon")
 
 
 def _dilate(g, r: float):
@@ -664,8 +670,6 @@ def _nearest_on(line, pt):
 def _cut_outside_in(tree, P, z, z_above, path, enter, link_to, fig, F, R, e_out):
     """A pocket reaching beyond the stock: enter from outside it (the tool's centre
     over air), loops from the outermost in."""
-    from shapely.geometry import Point
-
     first = True
 
     def visit(node):
@@ -706,7 +710,7 @@ def _raster_pocket(P, z, z_above, s, R, spec, path, enter, link_to, fig, F, open
     rows = []
     for i, v in enumerate(vs):
         ln = LineString([(x0 - 1, v), (x1 + 1, v)] if along_x else [(v, y0 - 1), (v, y1 + 1)])
-        segs = [np.asarray(g.coords) for g in _lines(ln.intersection(P))]
+        segs = [np.asarray(g.coords) for g in _parts(ln.intersection(P), "LineString")]
         segs.sort(key=lambda a: a[:, 0 if along_x else 1].min())
         if i % 2:
             segs = [a[::-1] for a in segs[::-1]]
@@ -736,16 +740,6 @@ def _raster_pocket(P, z, z_above, s, R, spec, path, enter, link_to, fig, F, open
         _go(path, P, ring[0], z, z_above, link_to, enter, fig)
         fig["loops"] += 1
         path.cut_xy(ring, z)
-
-
-def _lines(g):
-    if g.is_empty:
-        return []
-    if g.geom_type == "LineString":
-        return [g]
-    if hasattr(g, "geoms"):
-        return [q for sub in g.geoms for q in _lines(sub)]
-    return []
 
 
 # ----------------------------------------------------------------------------
@@ -1034,16 +1028,14 @@ def _refine_runs(ws, runs, Rr, leave, lim, tolerance, rounds=8):
     the tip the exact drop cutter asks there (max(level, Z + leave)): the nodes are
     up to 1 mm apart and a valley narrower than the ball bends the path sharply."""
     for _ in range(rounds):
-        mids, owners = [], []
-        for n, (q, sb) in enumerate(runs):
+        mids = []
+        for q, _ in runs:
             if len(q) < 2:
                 continue
             mids.append(0.5 * (q[1:] + q[:-1]))
-            owners.append(np.full(len(q) - 1, n))
         if not mids:
             break
         M = np.vstack(mids)
-        own = np.concatenate(owners)
         # the level a segment is cut at: its two tips' lower value bounds it from below
         lev = np.concatenate([np.minimum(q[1:, 2], q[:-1, 2]) for q, _ in runs if len(q) >= 2])
         Zm = compensate(ws, M[:, 0].copy(), M[:, 1].copy(), Rr)

@@ -11,7 +11,6 @@ spin-waiting threads on a loaded machine.
 from __future__ import annotations
 
 import math
-import os
 import threading
 import time
 from dataclasses import dataclass
@@ -171,13 +170,7 @@ def _import(path):
 
 
 def _store_estimate(seconds: float) -> None:
-    try:
-        p = codegen.cache_dir() / "compile_seconds"
-        tmp = p.with_suffix(f".{os.getpid()}.tmp")
-        tmp.write_text(f"{seconds:.1f}\n")
-        tmp.replace(p)
-    except OSError:
-        pass
+    codegen.replace_quietly(codegen.cache_dir() / "compile_seconds", f"{seconds:.1f}\n")
 
 
 # ----------------------------------------------------------------------------

@@ -21,6 +21,7 @@ Never the repository or site-packages. Deleting the folder is always safe.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import os
 import sys
@@ -184,16 +185,7 @@ def remember_surface(fns, template: Template, f: Formula, path: Path) -> None:
         return
     if alias is None:
         return
-    tmp = alias.parent / f".{alias.name}.{os.getpid()}.tmp"
-    try:
-        alias.parent.mkdir(parents=True, exist_ok=True)
-        tmp.write_text(json.dumps({"module": path.name, "names": list(f.names)}))
-        os.replace(tmp, alias)
-    except OSError:
-        try:
-            tmp.unlink()
-        except OSError:
-            pass
+    replace_quietly(alias, json.dumps({"module": path.name, "names": list(f.names)}))
 
 
 def _xy(h):
@@ -204,7 +196,10 @@ def _source(name: str) -> str:
     return (_HERE / name).read_text()
 
 
-def _versions() -> list[str]:
+@functools.lru_cache(maxsize=1)
+def _versions() -> tuple[str, ...]:
+    """What every cache key depends on (fabkit, numba, Python, this generator's source):
+    fixed for the process, so read once."""
     from ... import __version__
 
     try:
@@ -212,7 +207,7 @@ def _versions() -> list[str]:
         nv = numba.__version__
     except ImportError:  # pragma: no cover - numba is a dependency
         nv = "none"
-    return [__version__, nv, f"{sys.version_info[0]}.{sys.version_info[1]}", _source("codegen.py")]
+    return (__version__, nv, f"{sys.version_info[0]}.{sys.version_info[1]}", _source("codegen.py"))
 
 
 def _digest(parts) -> str:
@@ -324,6 +319,23 @@ def generate_engine(template: Template = POINT) -> str:
     for src in (template.source, ENGINE_TEMPLATE):
         parts.append(f"# ---- {src} " + "-" * 60 + "\n" + _source(src))
     return "\n\n".join(parts)
+
+
+def replace_quietly(path: Path, text: str) -> bool:
+    """Write ``text`` to ``path`` atomically (a temporary renamed over it), for the cache:
+    False, with nothing left behind, where the cache cannot be written."""
+    tmp = path.parent / f".{path.name}.{os.getpid()}.tmp"
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp.write_text(text)
+        os.replace(tmp, path)
+        return True
+    except OSError:
+        try:
+            tmp.unlink()
+        except OSError:
+            pass
+        return False
 
 
 def _write_once(path: Path, make) -> Path:
