@@ -24,6 +24,8 @@ import math
 import numpy as np
 from numba import njit
 
+from .. import numba_start  # noqa: F401  (numba's short start-up for cached code)
+
 jit = njit(cache=True, nogil=True, error_model="numpy")
 
 

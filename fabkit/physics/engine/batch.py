@@ -159,6 +159,8 @@ def _import(path):
     import importlib.util
     import sys
 
+    from ... import numba_start  # noqa: F401  (numba's short start-up for cached code)
+
     name = path.stem
     if name in sys.modules:
         return sys.modules[name]
