@@ -6,8 +6,8 @@ installation into the user cache of the simulator's engine
 numba compiles it with ``cache=True``; the surface's functions (h and its exact first
 and second derivatives) are generated from the formula by the engine's own code
 generator (:func:`fabkit.physics.engine.codegen.write_surface`, a template of their
-own: ``jet`` and ``height``) and compiled once per formula. Later runs only load
-both.
+own: ``jet``, ``height`` and ``heights``, the last h at an array of points in one
+call) and compiled once per formula. Later runs only load both.
 
 ``FABKIT_NO_KERNELS=1`` turns the kernels off (the numpy drop cutter runs instead:
 the same heights; for comparisons). Surfaces without a formula (no ``fns`` with its
@@ -38,17 +38,18 @@ def _template():
     return codegen.Template(
         "toolpath", KERNEL_TEMPLATE,
         (("jet", ((), ("x",), ("y",), ("x", "x"), ("x", "y"), ("y", "y"))), ("height", ((),))),
-        0)
+        0, (("heights", ((),)),))
 
 
 class Kernel:
-    """The drop cutter's kernel bound to one formula: ``P = (Pa, jet, height)``."""
+    """The drop cutter's kernel bound to one formula: ``P = (Pa, jet, height, heights)``."""
 
     def __init__(self, module, surface_module, values):
         import numpy as np
 
         self.module = module
-        self.P = (np.array(values, dtype=float), surface_module.jet, surface_module.height)
+        self.P = (np.array(values, dtype=float), surface_module.jet, surface_module.height,
+                  surface_module.heights)
 
     def drop(self, *args):
         return self.module.drop_batch(*args)
