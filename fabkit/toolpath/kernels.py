@@ -168,7 +168,8 @@ def _warm(k: Kernel) -> None:
 # them to its estimate when the cache lacks the compiled code; measured with an empty
 # cache, benchmarks/notes_gcode_profile.md, "The first run")
 BUILD_KERNEL_S = 16.0     # the drop cutter's kernel (dropcut.py), once per installation
-BUILD_FORMULA_S = 1.5     # a new formula's surface functions (jet, height)
+BUILD_FORMULA_S = 1.7     # a new formula's surface functions (jet, height, heights: 0.2 s more than
+                          # jet and height alone, benchmarks/notes_gcode_dropcut.md, "Third pass")
 BUILD_MATERIAL_S = 6.0    # the material bound's loops (scallop_kernels), once per installation
 BUILD_SPACING_S = 2.7     # the point spacing's simplification (spacing_kernels), once per installation
 
