@@ -655,11 +655,13 @@ def drop_batch(CX, CY, R, G, P, OFFX, OFFY, SQ, R2, QUAD, U, EOFF, starts, iters
             continue
         # samples: the design coordinates of all first, then the surface at all of them
         # in one call (heights: the same values as _H point by point), the centre's
-        # (offset 0) from Hc
+        # (offset 0) from Hc. The footprint test is _inside's without its branches (the
+        # same four comparisons), so that this loop's divisions run as vector
+        # instructions (exact, as the scalar ones)
         for j in range(K):
             x = cx + OFFX[j]
             y = cy + OFFY[j]
-            INF[j] = _inside(x, y, G)
+            INF[j] = (x >= 0.0) & (x <= L) & (y >= 0.0) & (y <= W)
             XD[j] = x / s + x0
             YD[j] = y / s + y0
         j0 = 0
