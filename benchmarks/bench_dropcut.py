@@ -11,6 +11,11 @@ called directly on the same positions) and the wrapper's per-call overhead.
 ``--save`` keeps the recorded calls, ``--calls`` replays saved ones (no gcode run);
 ``--check REF.npz`` / ``--write REF.npz`` compare the tip heights and contact
 information bit for bit with (or write) a reference from another version of the code.
+``--versus OLD_DROPCUT.py`` runs another version of the kernel's template (for example
+``git show REV:fabkit/toolpath/dropcut.py > old.py``) and this one in the same process,
+alternated call by call (the machine's load then weighs on both alike), and prints the
+best and median CPU seconds of each over ``--repeat`` rounds and whether every output
+(heights, contacts, kinds, flags) is the same bits.
 CPU time (time.process_time), not wall time. Warm the kernels' cache first
 (``FABKIT_CACHE_DIR``): the first run compiles.
 """
@@ -70,6 +75,7 @@ def main() -> int:
     ap.add_argument("--calls")
     ap.add_argument("--check")
     ap.add_argument("--write")
+    ap.add_argument("--versus")
     a = ap.parse_args()
 
     from fabkit.spec import load_spec
@@ -86,6 +92,8 @@ def main() -> int:
     ws = C.WorkSurface(surface)
     kern = ws.kernel()
     n_all = sum(c[0].size for c in calls)
+    if a.versus:
+        return versus(calls, ws, kern, Path(a.versus), a.repeat)
     best: dict = {}
     kbest = wbest = float("inf")
     outs = []
@@ -144,6 +152,61 @@ def main() -> int:
                     nbit += int((~same).sum())
             print(f"  against {a.check}: tip heights differ at {nz} positions (max {worst:.3e} mm); "
                   f"contact information at {nbit}")
+    return 0
+
+
+def versus(calls, ws, kern, old_template: Path, rounds: int) -> int:
+    """The kernel of ``old_template`` against this one, alternated call by call."""
+    import hashlib
+
+    from fabkit.physics.engine import codegen
+    from fabkit.physics.engine.batch import _import
+    from fabkit.toolpath import compensate as C
+    from fabkit.toolpath import kernels
+
+    if kern is None:
+        print("no compiled kernel (FABKIT_NO_KERNELS, or no formula)")
+        return 1
+    src = old_template.read_text()
+    path = codegen.cache_dir() / f"fk_bench_dropcut_{hashlib.sha256(src.encode()).hexdigest()[:16]}.py"
+    if not path.exists():
+        codegen.replace_quietly(path, src)
+    versions = {"old": (_import(path), kern.P if "P[3]" in src else kern.P[:3]), "new": (kern.module, kern.P)}
+    G = np.array([ws.s, ws.x0, ws.y0, ws.top, ws.L, ws.W], dtype=float)
+    entry = {}
+    for k, (mod, P) in versions.items():
+        kernels._warm(type("K", (), {"drop": staticmethod(mod.drop_batch), "P": P})())
+        disp = mod.drop_batch
+        entry[k] = (disp.overloads[disp.signatures[0]].entry_point, P)
+    times = {k: [] for k in entry}
+    outs = {k: [] for k in entry}
+    for r in range(rounds + 1):            # round 0 warms up (and keeps the outputs)
+        acc = {k: 0.0 for k in entry}
+        for X, Y, R, _ri, _who in calls:
+            cx, cy = X.ravel().copy(), Y.ravel().copy()
+            n = cx.size
+            tab = C._tables(R, tuple(C.RING_SLOPES), 12)
+            for k in (list(entry) if r % 2 else list(entry)[::-1]):
+                fn, P = entry[k]
+                b = C._Best(n)
+                br, cv = np.zeros(n, bool), np.zeros(n, bool)
+                t0 = time.process_time()
+                fn(cx, cy, R, G, P, *tab[:7], 3, 12, b.val, b.px, b.py, b.kind, br, cv, tab[7])
+                acc[k] += time.process_time() - t0
+                if r == 0:
+                    outs[k].append((b.val, b.px, b.py, b.kind, br, cv))
+        if r:
+            for k in entry:
+                times[k].append(acc[k])
+    same = all(np.array_equal(u, v, equal_nan=u.dtype.kind == "f")
+               for o, q in zip(outs["old"], outs["new"]) for u, v in zip(o, q))
+    n_all = sum(c[0].size for c in calls)
+    for k in entry:
+        t = times[k]
+        print(f"  kernel {k}: best {min(t):.3f} s ({1e6 * min(t) / n_all:.2f} us/position), "
+              f"median {np.median(t):.3f} s over {rounds} rounds")
+    print(f"  new / old: best {min(times['new']) / min(times['old']):.3f}, "
+          f"median {np.median(times['new']) / np.median(times['old']):.3f}; outputs the same bits: {same}")
     return 0
 
 

@@ -31,6 +31,7 @@ def _ws(height, x=(-5, 5), y=(-8, 8), top=0.0):
     ("-8 + 0.1*x**2 + 3*sin(x)*cos(y)", -6.0),              # waves, valleys tighter than the ball
     ("4*x - 30", 0.0),                                       # a wall of slope 4 at the edges
     ("-exp(-(x**2 + y**2)/4) * 5", -1.0),                   # a dimple meeting the top face
+    ("3.27*(exp(0.389*x) - exp(0.306*x)) + 0.0764*y**2 + 0.25*y*exp(0.306*x)", 0.5),  # the paper's
 ])
 def test_kernel_matches_numpy(height, top):
     ws = _ws(height, top=top)

@@ -5,10 +5,12 @@ module in the user cache (``FABKIT_CACHE_DIR``, see
 :mod:`fabkit.physics.engine.codegen`), where numba compiles it once per installation
 (``cache=True``). The formula's surface functions are compiled separately, as the
 simulator's are (:func:`fabkit.physics.engine.codegen.write_surface`: C callbacks, one
-small module per formula), and reach the kernel inside ``P = (Pa, jet, height)``:
+small module per formula), and reach the kernel inside ``P = (Pa, jet, height, heights)``:
 
     jet(x, y, Pa)    -> (h, h_x, h_y, h_xx, h_xy, h_yy)   design units
     height(x, y, Pa) -> (h,)
+    heights(n, X, Y, OUT, Pa): OUT[i] = height(X[i], Y[i], Pa)[0], i < n (pointers; the
+                     same source per point: the same bits, without a call per point)
 
 It is the scalar transcription of :func:`fabkit.toolpath.compensate._compensate`,
 candidates (i)-(iv) (the samples, the interior Newton, the crease, the footprint's
@@ -297,9 +299,9 @@ def _edge(i, cx, cy, R, axis, level, length, G, P, U, EOFF, iters, VAL, PX, PY, 
         X, Y = _pts(axis, level, T[j])
         XD[j] = X / s + G[1]
         YD[j] = Y / s + G[2]
-    Pa = P[0].ctypes
+    P[3](n, XD.ctypes, YD.ctypes, Hs.ctypes, P[0].ctypes)
     for j in range(n):
-        Hs[j] = s * (P[2](XD[j], YD[j], Pa)[0] - G[3])
+        Hs[j] = s * (Hs[j] - G[3])
     for j in range(n):
         dt = T[j] - tc
         V[j] = _fmin(Hs[j], 0.0) + math.sqrt(_fmax(rho2 - dt * dt, 0.0))
@@ -651,21 +653,25 @@ def drop_batch(CX, CY, R, G, P, OFFX, OFFY, SQ, R2, QUAD, U, EOFF, starts, iters
         if ontop:
             _offer(i, R, cx, cy, K_TOP, VAL, PX, PY, KIND)
             continue
-        # samples: the design coordinates of all first, then the surface at each (the
-        # same values as _H point by point; the divisions no longer wait for the
-        # callback), the centre's (offset 0) from Hc
+        # samples: the design coordinates of all first, then the surface at all of them
+        # in one call (heights: the same values as _H point by point), the centre's
+        # (offset 0) from Hc. The footprint test is _inside's without its branches (the
+        # same four comparisons), so that this loop's divisions run as vector
+        # instructions (exact, as the scalar ones)
         for j in range(K):
             x = cx + OFFX[j]
             y = cy + OFFY[j]
-            INF[j] = _inside(x, y, G)
+            INF[j] = (x >= 0.0) & (x <= L) & (y >= 0.0) & (y <= W)
             XD[j] = x / s + x0
             YD[j] = y / s + y0
-        for j in range(K):
-            if j == 0 and centre0 and not (cx == 0.0 and math.copysign(1.0, cx) < 0.0) \
-                    and not (cy == 0.0 and math.copysign(1.0, cy) < 0.0):
-                HS[j] = Hc
-            else:
-                HS[j] = s * (P[2](XD[j], YD[j], Pa)[0] - top)
+        j0 = 0
+        if centre0 and not (cx == 0.0 and math.copysign(1.0, cx) < 0.0) \
+                and not (cy == 0.0 and math.copysign(1.0, cy) < 0.0):
+            j0 = 1
+            HS[0] = Hc
+        P[3](K - j0, XD[j0:].ctypes, YD[j0:].ctypes, HS[j0:].ctypes, Pa)
+        for j in range(j0, K):
+            HS[j] = s * (HS[j] - top)
         for j in range(K):
             f = _fmin(HS[j], 0.0) + SQ[j] if INF[j] else -math.inf
             FS[j] = f if _fin(f) else -math.inf

@@ -6,8 +6,8 @@ installation into the user cache of the simulator's engine
 numba compiles it with ``cache=True``; the surface's functions (h and its exact first
 and second derivatives) are generated from the formula by the engine's own code
 generator (:func:`fabkit.physics.engine.codegen.write_surface`, a template of their
-own: ``jet`` and ``height``) and compiled once per formula. Later runs only load
-both.
+own: ``jet``, ``height`` and ``heights``, the last h at an array of points in one
+call) and compiled once per formula. Later runs only load both.
 
 ``FABKIT_NO_KERNELS=1`` turns the kernels off (the numpy drop cutter runs instead:
 the same heights; for comparisons). Surfaces without a formula (no ``fns`` with its
@@ -38,17 +38,18 @@ def _template():
     return codegen.Template(
         "toolpath", KERNEL_TEMPLATE,
         (("jet", ((), ("x",), ("y",), ("x", "x"), ("x", "y"), ("y", "y"))), ("height", ((),))),
-        0)
+        0, (("heights", ((),)),))
 
 
 class Kernel:
-    """The drop cutter's kernel bound to one formula: ``P = (Pa, jet, height)``."""
+    """The drop cutter's kernel bound to one formula: ``P = (Pa, jet, height, heights)``."""
 
     def __init__(self, module, surface_module, values):
         import numpy as np
 
         self.module = module
-        self.P = (np.array(values, dtype=float), surface_module.jet, surface_module.height)
+        self.P = (np.array(values, dtype=float), surface_module.jet, surface_module.height,
+                  surface_module.heights)
 
     def drop(self, *args):
         return self.module.drop_batch(*args)
@@ -167,7 +168,8 @@ def _warm(k: Kernel) -> None:
 # them to its estimate when the cache lacks the compiled code; measured with an empty
 # cache, benchmarks/notes_gcode_profile.md, "The first run")
 BUILD_KERNEL_S = 16.0     # the drop cutter's kernel (dropcut.py), once per installation
-BUILD_FORMULA_S = 1.5     # a new formula's surface functions (jet, height)
+BUILD_FORMULA_S = 1.7     # a new formula's surface functions (jet, height, heights: 0.2 s more than
+                          # jet and height alone, benchmarks/notes_gcode_dropcut.md, "Third pass")
 BUILD_MATERIAL_S = 6.0    # the material bound's loops (scallop_kernels), once per installation
 BUILD_SPACING_S = 2.7     # the point spacing's simplification (spacing_kernels), once per installation
 

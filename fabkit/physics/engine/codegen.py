@@ -40,12 +40,16 @@ class Template:
     kinetic, FULL, GT: see dop853.py) and the surface functions it calls, as
     ``name -> derivative list`` with each derivative a tuple of variables
     (``()`` is h, ``("x",)`` is h_x, ``("x", "y")`` is h_xy ...), plus ``"F"`` for
-    F(x) = h_y(x, 0), the coupling of the nonlinear damping."""
+    F(x) = h_y(x, 0), the coupling of the nonlinear damping. ``batched``: functions
+    of the same form over arrays of points, ``name(n, X, Y, OUT, P)`` (C pointers:
+    OUT[m i + k] is the k-th of the m derivatives at (X[i], Y[i]), i < n), each point
+    computed by the same source as the scalar function's, so to the same bits."""
 
     name: str
     source: str                 # file name next to this module
     functions: tuple = field(default_factory=tuple)   # ((fname, (derivs...)), ...)
     n_model_params: int = 4     # P[:n] are the model's, P[n:] the surface's
+    batched: tuple = field(default_factory=tuple)     # ((fname, (derivs...)), ...)
 
 
 POINT = Template(
@@ -146,7 +150,7 @@ def _alias_path(fns, template: Template) -> Path | None:
     if not isinstance(fns, SurfaceFunctions) or not isinstance(fns.text, str):
         return None
     names = ",".join(sorted(str(k) for k, _ in fns.params))
-    k = _digest(["surface-by-text", fns.text, names, template.name, repr(template.functions), *_versions(),
+    k = _digest(["surface-by-text", fns.text, names, template.name, _functions_key(template), *_versions(),
                  expr_cache._sympy_version(), (_HERE.parent.parent / "expr.py").read_text()])
     return cache_dir() / "formulas" / f"fk_surface_{template.name}_{k}.json"
 
@@ -230,7 +234,14 @@ def key(f: Formula, template: Template = POINT) -> str:
     parameters' names, the template and the versions."""
     import sympy as sp
 
-    return _digest([sp.srepr(f.h), ",".join(f.names), template.name, repr(template.functions), *_versions()])
+    return _digest([sp.srepr(f.h), ",".join(f.names), template.name, _functions_key(template), *_versions()])
+
+
+def _functions_key(template: Template) -> str:
+    """The template's surface functions, as they enter the cache keys."""
+    if not template.batched:
+        return repr(template.functions)
+    return repr(template.functions) + " batched " + repr(template.batched)
 
 
 # ----------------------------------------------------------------------------
@@ -260,6 +271,31 @@ def derivatives(f: Formula, wanted) -> list:
 def print_function(name: str, f: Formula, exprs: list, n_model_params: int) -> str:
     """Plain ``math`` source of ``name(x, y, P) -> tuple(exprs)``, common
     subexpressions shared; parameters read from P[n_model_params + i]."""
+    params, subs, outs = _printed(f, exprs, n_model_params)
+    lines = [f"@jit\ndef {name}(x, y, P):", *params, *subs]
+    outs = ", ".join(outs)
+    lines.append(f"    return ({outs},)" if len(exprs) == 1 else f"    return {outs}")
+    return "\n".join(lines) + "\n"
+
+
+def print_batched(name: str, f: Formula, exprs: list, n_model_params: int) -> str:
+    """Plain ``math`` source of ``name(n, X, Y, OUT, P)``: OUT[m i + k] = exprs[k] at
+    (X[i], Y[i]) for i < n (m = len(exprs)), each point by the very lines of
+    :func:`print_function` (the same operations: the same bits); the parameters are
+    read once."""
+    params, subs, outs = _printed(f, exprs, n_model_params)
+    m = len(exprs)
+    lines = [f"@jit\ndef {name}(n, X, Y, OUT, P):", *params, "    for i in range(n):",
+             "        x = X[i]", "        y = Y[i]"]
+    lines += ["    " + line for line in subs]
+    for k, e in enumerate(outs):
+        lines.append(f"        OUT[{m} * i + {k}] = {e}" if m > 1 else f"        OUT[i] = {e}")
+    return "\n".join(lines) + "\n"
+
+
+def _printed(f: Formula, exprs: list, n_model_params: int):
+    """The lines of a surface function: (the parameters' reads, the common
+    subexpressions, the printed ``float(...)`` of each of ``exprs``)."""
     import sympy as sp
     from sympy.printing.pycode import PythonCodePrinter
 
@@ -272,15 +308,9 @@ def print_function(name: str, f: Formula, exprs: list, n_model_params: int) -> s
     used = set()
     for e in [e for _, e in subs] + list(reduced):
         used |= e.free_symbols
-    lines = [f"@jit\ndef {name}(x, y, P):"]
-    for i, s in enumerate(f.symbols):
-        if s in used:
-            lines.append(f"    {s.name} = P[{n_model_params + i}]")
-    for s, e in subs:
-        lines.append(f"    {s.name} = {printer.doprint(e)}")
-    outs = ", ".join(f"float({printer.doprint(e)})" for e in reduced)
-    lines.append(f"    return ({outs},)" if len(reduced) == 1 else f"    return {outs}")
-    return "\n".join(lines) + "\n"
+    params = [f"    {s.name} = P[{n_model_params + i}]" for i, s in enumerate(f.symbols) if s in used]
+    lines = [f"    {s.name} = {printer.doprint(e)}" for s, e in subs]
+    return params, lines, [f"float({printer.doprint(e)})" for e in reduced]
 
 
 _HEADER = """# Generated by fabkit {version}: {what}.
@@ -297,7 +327,7 @@ jit = njit(cache=True, nogil=True, error_model="numpy")
 def generate_surface(f: Formula, template: Template = POINT) -> str:
     """The surface module's source: one compiled C callback per surface function of
     the template, ``name(x, y, P) -> (values...)`` with P a pointer to the run-time
-    parameters."""
+    parameters, and one per batched function, ``name(n, X, Y, OUT, P)``."""
     from ... import __version__
 
     text = " ".join(f"h(x, y) = {f.h}".split())[:2000]
@@ -307,6 +337,12 @@ def generate_surface(f: Formula, template: Template = POINT) -> str:
         parts.append(f"_sig_{fname} = types.UniTuple(types.float64, {len(wanted)})("
                      "types.float64, types.float64, types.CPointer(types.float64))")
         src = print_function(fname, f, derivatives(f, wanted), template.n_model_params)
+        parts.append(src.replace("@jit\n", f'@cfunc(_sig_{fname}, cache=True, error_model="numpy")\n', 1))
+    for fname, wanted in template.batched:
+        parts.append(f"_sig_{fname} = types.void(types.intp, types.CPointer(types.float64), "
+                     "types.CPointer(types.float64), types.CPointer(types.float64), "
+                     "types.CPointer(types.float64))")
+        src = print_batched(fname, f, derivatives(f, wanted), template.n_model_params)
         parts.append(src.replace("@jit\n", f'@cfunc(_sig_{fname}, cache=True, error_model="numpy")\n', 1))
     return "\n\n".join(parts)
 
