@@ -831,8 +831,20 @@ def _candidates(ws, cx, cy, R, rings, angles, starts, iters):
         has_top = top_s.any(axis=1)
         seeds_i.append(np.arange(todo.size))
         seeds_k.append(order[:, 0])
-        # only where the top region is near: a sample on top or within R/4 of it
-        nearish = has_top | (np.where(inF, HS, -np.inf).max(axis=1) > -0.25 * R)
+        # only where the top region is near: a sample on top or within R/4 of it, or
+        # the tangent plane at the highest sample rising to within R/4 of it inside the
+        # disk (a steep wall whose crease cuts only a thin cap off the disk's rim, between
+        # or beyond the samples: slope 8 under a 3 mm ball put the highest sample 0.57 mm
+        # below the crease, and the missed crease left the tip 0.057 mm low)
+        HSin = np.where(inF, HS, -np.inf)
+        nearish = has_top | (HSin.max(axis=1) > -0.25 * R)
+        far = np.nonzero(~nearish & np.isfinite(HSin).any(axis=1))[0]
+        if far.size:
+            jh = np.argmax(HSin[far], axis=1)
+            hx_, hy_ = PX[far, jh], PY[far, jh]
+            H0, gx0, gy0 = ws.all(hx_, hy_)[:3]
+            reach = H0 + gx0 * (tx[far] - hx_) + gy0 * (ty[far] - hy_) + R * np.hypot(gx0, gy0)
+            nearish[far] = reach > -0.25 * R
         # both seeds in one Newton call (each point's iteration is its own), offered
         # seed by seed
         groups = [(si[nearish[si]], sk[nearish[si]]) for si, sk in zip(seeds_i, seeds_k)]

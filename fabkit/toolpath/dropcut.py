@@ -707,6 +707,7 @@ def drop_batch(CX, CY, R, G, P, OFFX, OFFY, SQ, R2, QUAD, U, EOFF, starts, iters
         # (ii) crease: the nearest top-region sample in each quadrant, and the best sample
         has_top = False
         hmax = -math.inf
+        jh = -1
         hnan = False
         for j in range(K):
             if INF[j] and HS[j] >= 0:
@@ -716,7 +717,16 @@ def drop_batch(CX, CY, R, G, P, OFFX, OFFY, SQ, R2, QUAD, U, EOFF, starts, iters
                 hnan = True
             elif hv > hmax:
                 hmax = hv
-        if not (has_top or ((not hnan) and hmax > -0.25 * R)):
+                jh = j
+        near = has_top or ((not hnan) and hmax > -0.25 * R)
+        if not near and not hnan and jh >= 0:
+            # the tangent plane at the highest sample rising to within R/4 of the top
+            # inside the disk (compensate: a crease cutting a thin cap off the rim)
+            hx_ = cx + OFFX[jh]
+            hy_ = cy + OFFY[jh]
+            H0, gx0, gy0, _a, _b, _c = _all(hx_, hy_, G, P)
+            near = H0 + gx0 * (cx - hx_) + gy0 * (cy - hy_) + R * math.hypot(gx0, gy0) > -0.25 * R
+        if not near:
             continue
         ns = 0
         for qd in range(4):
