@@ -231,6 +231,27 @@ def test_program_tips_are_the_exact_drop_heights(edge_job):
     assert on_arc.sum() > 20
 
 
+def test_chords_hold_half_the_tolerance_against_the_exact_tip_path(edge_job):
+    """Along every feed move of a pass, the exact tip path (closed form, 64 points a
+    move) rises at most tolerance / 2 above the chord (spacing.CHORD_SAFETY), plus the
+    rounding of the ends. The vertical gouge at a material point P is max over the move
+    of (Z_P(u) - chord(u)), Z_P the tip height of P alone, and Z_P <= Z: so this bounds
+    the vertical gouge the verification measures (docs/toolpath.md)."""
+    job, slope, xc, L = edge_job
+    moves, feed = parse_moves(job.text)
+    m = moves[feed]
+    along = (m[:, 0, 0] != m[:, 1, 0]) & (m[:, 0, 1] == m[:, 1, 1]) & (m[:, 0, 1] > 0) & (m[:, 0, 1] < 6.0)
+    t = np.linspace(0.0, 1.0, 64)
+    worst = 0.0
+    for a, b in m[along]:
+        u = a[0] + t * (b[0] - a[0])
+        z = drop_clipped_plane(u, np.zeros_like(u), slope, xc, L, R)
+        worst = max(worst, float(np.max(z - (a[2] + t * (b[2] - a[2])))))
+    assert along.sum() > 100
+    assert worst <= 0.5 * 0.01 + 5e-4
+    assert worst > 0.001                    # the roll-over's chords are there
+
+
 def test_swept_ball_over_the_edge_within_tolerance(edge_job):
     """The program's cut near the edge, swept by brute force, is nowhere more than the
     tolerance below the design (vertically, as the verification measures), and the
