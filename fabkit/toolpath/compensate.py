@@ -831,6 +831,15 @@ def _candidates(ws, cx, cy, R, rings, angles, starts, iters):
         has_top = top_s.any(axis=1)
         seeds_i.append(np.arange(todo.size))
         seeds_k.append(order[:, 0])
+        # and the highest sample below the top face in each quadrant: a wavy crease has
+        # several nearest points, and a tongue of the top face narrower than the rings'
+        # spacing holds no sample (8*x + 2*sin(3*y) under a 3 mm ball: the tip 0.11 mm low)
+        low_s = inF & (HS < 0)
+        for q in range(4):
+            lq = low_s & (quad == q)[None, :]
+            hq = lq.any(axis=1)
+            seeds_i.append(np.nonzero(hq)[0])
+            seeds_k.append(np.argmax(np.where(lq, HS, -np.inf), axis=1)[hq])
         # only where the top region is near: a sample on top or within R/4 of it, or
         # the tangent plane at the highest sample rising to within R/4 of it inside the
         # disk (a steep wall whose crease cuts only a thin cap off the disk's rim, between

@@ -625,7 +625,7 @@ def drop_batch(CX, CY, R, G, P, OFFX, OFFY, SQ, R2, QUAD, U, EOFF, starts, iters
     qx = np.empty(k)
     qy = np.empty(k)
     lmk = np.empty(k, dtype=np.bool_)
-    seeds = np.empty(5, dtype=np.int64)
+    seeds = np.empty(9, dtype=np.int64)
     WF = np.empty((8, U.size + EOFF.size))
     WB = np.empty(U.size + EOFF.size, dtype=np.bool_)
     XD = np.empty(K)
@@ -740,6 +740,16 @@ def drop_batch(CX, CY, R, G, P, OFFX, OFFY, SQ, R2, QUAD, U, EOFF, starts, iters
                 ns += 1
         seeds[ns] = order[0]
         ns += 1
+        # and the highest sample below the top face in each quadrant (compensate: a wavy crease)
+        for qd in range(4):
+            bj = -1
+            for j in range(K):
+                if INF[j] and HS[j] < 0 and QUAD[j] == qd:
+                    if bj < 0 or HS[j] > HS[bj]:
+                        bj = j
+            if bj >= 0:
+                seeds[ns] = bj
+                ns += 1
         for r in range(ns):
             x, y = _newton_crease(cx, cy, cx + OFFX[seeds[r]], cy + OFFY[seeds[r]], iters, G, P)
             v, _h = _value(cx, cy, R, x, y, G, P)
