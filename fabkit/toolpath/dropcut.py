@@ -39,6 +39,7 @@ GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
 RIDGE_ITERS = 34
 KINK_ITERS = 24
 XTOL = 1e-10
+SEED_MARGIN = 1e-9      # compensate.SEED_MARGIN
 BIG = 1.7976931348623157e308
 
 
@@ -740,6 +741,7 @@ def drop_batch(CX, CY, R, G, P, OFFX, OFFY, SQ, R2, QUAD, U, EOFF, starts, iters
                 ns += 1
         seeds[ns] = order[0]
         ns += 1
+        nbase = ns
         # and the highest sample below the top face in each quadrant (compensate: a wavy crease)
         for qd in range(4):
             bj = -1
@@ -753,6 +755,8 @@ def drop_batch(CX, CY, R, G, P, OFFX, OFFY, SQ, R2, QUAD, U, EOFF, starts, iters
         for r in range(ns):
             x, y = _newton_crease(cx, cy, cx + OFFX[seeds[r]], cy + OFFY[seeds[r]], iters, G, P)
             v, _h = _value(cx, cy, R, x, y, G, P)
+            if r >= nbase and not (v > VAL[i] + SEED_MARGIN):
+                continue        # the quadrants' highest samples: only another maximum
             _offer(i, v, x, y, K_CREASE, VAL, PX, PY, KIND)
     # (iii)/(iv) the edges and corners where the disk crosses the footprint's boundary
     for i in range(CX.size):
