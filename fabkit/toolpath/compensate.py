@@ -17,7 +17,9 @@ largest is the maximum once the true maximiser is among them):
       the tool have several local maxima);
 (ii)  the flat top (H >= 0): value sqrt(R^2 - dmin^2), dmin = distance from c to the
       top region: 0 if c is in it, else the nearest point of the crease H = 0
-      (Lagrange conditions p - c = lambda grad H, H = 0, solved by Newton);
+      (Lagrange conditions p - c = lambda grad H, H = 0, solved by Newton from several
+      seeds, where a sample is near the top or the tangent plane at the highest sample
+      reaches it inside the disk: see _candidates);
 (iii) the footprint edges where the tool overhangs the stock: 1-D stationary points
       of the smooth part, the flat part and the crease crossings on each edge;
 (iv)  the footprint corners;
