@@ -17,7 +17,9 @@ largest is the maximum once the true maximiser is among them):
       the tool have several local maxima);
 (ii)  the flat top (H >= 0): value sqrt(R^2 - dmin^2), dmin = distance from c to the
       top region: 0 if c is in it, else the nearest point of the crease H = 0
-      (Lagrange conditions p - c = lambda grad H, H = 0, solved by Newton);
+      (Lagrange conditions p - c = lambda grad H, H = 0, solved by Newton from several
+      seeds, where a sample is near the top or the tangent plane at the highest sample
+      reaches it inside the disk: see _candidates);
 (iii) the footprint edges where the tool overhangs the stock: 1-D stationary points
       of the smooth part, the flat part and the crease crossings on each edge;
 (iv)  the footprint corners;
@@ -43,6 +45,11 @@ import numpy as np
 
 # contact kinds reported in CompensationInfo.kind
 NONE, SAMPLE, INTERIOR, TOP, CREASE, EDGE, RIDGE = -1, 0, 1, 2, 3, 4, 5
+# a crease point found from the extra seeds (the quadrants' highest samples) replaces the
+# best only when higher by more than this (mm, the drop cutter's accuracy): the same
+# maximum found again from another seed differs in its last bits, or is a tie elsewhere,
+# and would move the program by nothing but those bits
+SEED_MARGIN = 1e-9
 # Newton stops when its steps are below this (mm). At a stationary point the value
 # error is second order in the point error (~1e-20 mm); on the crease and edges
 # it is first order with a slope <= 1 near the maximum: well below 1e-9 mm.
@@ -831,8 +838,29 @@ def _candidates(ws, cx, cy, R, rings, angles, starts, iters):
         has_top = top_s.any(axis=1)
         seeds_i.append(np.arange(todo.size))
         seeds_k.append(order[:, 0])
-        # only where the top region is near: a sample on top or within R/4 of it
-        nearish = has_top | (np.where(inF, HS, -np.inf).max(axis=1) > -0.25 * R)
+        # and the highest sample below the top face in each quadrant: a wavy crease has
+        # several nearest points, and a tongue of the top face narrower than the rings'
+        # spacing holds no sample (8*x + 2*sin(3*y) under a 3 mm ball: the tip 0.11 mm low)
+        low_s = inF & (HS < 0)
+        for q in range(4):
+            lq = low_s & (quad == q)[None, :]
+            hq = lq.any(axis=1)
+            seeds_i.append(np.nonzero(hq)[0])
+            seeds_k.append(np.argmax(np.where(lq, HS, -np.inf), axis=1)[hq])
+        # only where the top region is near: a sample on top or within R/4 of it, or
+        # the tangent plane at the highest sample rising to within R/4 of it inside the
+        # disk (a steep wall whose crease cuts only a thin cap off the disk's rim, between
+        # or beyond the samples: slope 8 under a 3 mm ball put the highest sample 0.57 mm
+        # below the crease, and the missed crease left the tip 0.057 mm low)
+        HSin = np.where(inF, HS, -np.inf)
+        nearish = has_top | (HSin.max(axis=1) > -0.25 * R)
+        far = np.nonzero(~nearish & np.isfinite(HSin).any(axis=1))[0]
+        if far.size:
+            jh = np.argmax(HSin[far], axis=1)
+            hx_, hy_ = PX[far, jh], PY[far, jh]
+            H0, gx0, gy0 = ws.all(hx_, hy_)[:3]
+            reach = H0 + gx0 * (tx[far] - hx_) + gy0 * (ty[far] - hy_) + R * np.hypot(gx0, gy0)
+            nearish[far] = reach > -0.25 * R
         # both seeds in one Newton call (each point's iteration is its own), offered
         # seed by seed
         groups = [(si[nearish[si]], sk[nearish[si]]) for si, sk in zip(seeds_i, seeds_k)]
@@ -842,10 +870,13 @@ def _candidates(ws, cx, cy, R, rings, angles, starts, iters):
             qx, qy = _newton_crease(ws, tx[si], ty[si], PX[si, sk], PY[si, sk], iters)
             v = _value(ws, tx[si], ty[si], R, qx, qy)
             a = 0
-            for g, _ in groups:
+            for j, (g, _) in enumerate(groups):
                 b = a + g.size
                 if g.size:
-                    best.offer(todo[g], v[a:b], qx[a:b], qy[a:b], CREASE)
+                    vg = v[a:b]
+                    if j >= 5:      # the quadrants' highest samples: only another maximum
+                        vg = np.where(vg > best.val[todo[g]] + SEED_MARGIN, vg, -np.inf)
+                    best.offer(todo[g], vg, qx[a:b], qy[a:b], CREASE)
                 a = b
 
     # (iii)/(iv) edges and corners where the disk crosses the footprint boundary

@@ -41,6 +41,7 @@ GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
 RIDGE_ITERS = 34
 KINK_ITERS = 24
 XTOL = 1e-10
+SEED_MARGIN = 1e-9      # compensate.SEED_MARGIN
 BIG = 1.7976931348623157e308
 
 
@@ -627,7 +628,7 @@ def drop_batch(CX, CY, R, G, P, OFFX, OFFY, SQ, R2, QUAD, U, EOFF, starts, iters
     qx = np.empty(k)
     qy = np.empty(k)
     lmk = np.empty(k, dtype=np.bool_)
-    seeds = np.empty(5, dtype=np.int64)
+    seeds = np.empty(9, dtype=np.int64)
     WF = np.empty((8, U.size + EOFF.size))
     WB = np.empty(U.size + EOFF.size, dtype=np.bool_)
     XD = np.empty(K)
@@ -713,6 +714,7 @@ def drop_batch(CX, CY, R, G, P, OFFX, OFFY, SQ, R2, QUAD, U, EOFF, starts, iters
         # (ii) crease: the nearest top-region sample in each quadrant, and the best sample
         has_top = False
         hmax = -math.inf
+        jh = -1
         hnan = False
         for j in range(K):
             if INF[j] and HS[j] >= 0:
@@ -722,7 +724,16 @@ def drop_batch(CX, CY, R, G, P, OFFX, OFFY, SQ, R2, QUAD, U, EOFF, starts, iters
                 hnan = True
             elif hv > hmax:
                 hmax = hv
-        if not (has_top or ((not hnan) and hmax > -0.25 * R)):
+                jh = j
+        near = has_top or ((not hnan) and hmax > -0.25 * R)
+        if not near and not hnan and jh >= 0:
+            # the tangent plane at the highest sample rising to within R/4 of the top
+            # inside the disk (compensate: a crease cutting a thin cap off the rim)
+            hx_ = cx + OFFX[jh]
+            hy_ = cy + OFFY[jh]
+            H0, gx0, gy0, _a, _b, _c = _all(hx_, hy_, G, P)
+            near = H0 + gx0 * (cx - hx_) + gy0 * (cy - hy_) + R * math.hypot(gx0, gy0) > -0.25 * R
+        if not near:
             continue
         ns = 0
         for qd in range(4):
@@ -736,9 +747,22 @@ def drop_batch(CX, CY, R, G, P, OFFX, OFFY, SQ, R2, QUAD, U, EOFF, starts, iters
                 ns += 1
         seeds[ns] = order[0]
         ns += 1
+        nbase = ns
+        # and the highest sample below the top face in each quadrant (compensate: a wavy crease)
+        for qd in range(4):
+            bj = -1
+            for j in range(K):
+                if INF[j] and HS[j] < 0 and QUAD[j] == qd:
+                    if bj < 0 or HS[j] > HS[bj]:
+                        bj = j
+            if bj >= 0:
+                seeds[ns] = bj
+                ns += 1
         for r in range(ns):
             x, y = _newton_crease(cx, cy, cx + OFFX[seeds[r]], cy + OFFY[seeds[r]], iters, G, P)
             v, _h = _value(cx, cy, R, x, y, G, P)
+            if r >= nbase and not (v > VAL[i] + SEED_MARGIN):
+                continue        # the quadrants' highest samples: only another maximum
             _offer(i, v, x, y, K_CREASE, VAL, PX, PY, KIND)
     # (iii)/(iv) the edges and corners where the disk crosses the footprint's boundary
     for i in range(CX.size):
