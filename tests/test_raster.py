@@ -306,10 +306,11 @@ def test_near_flat_bowl_plans_close_to_the_flat_pass_count():
 
 
 def test_tiny_scallop_refused_by_the_cli_before_planning(cli, tmp_path, monkeypatch):
-    """A scallop of 0.1 um (the finest the guards take) on a 160 x 100 mm bowl (~4800
-    passes, about 70 s of CPU estimated: over the 60 s budget) is refused from the
+    """A scallop of 0.1 um (the finest the guards take) on a 160 x 200 mm bowl (~4800
+    passes, about 80 s of CPU estimated: over the 60 s budget) is refused from the
     estimate: exit 2, one line naming machining.scallop and the estimate, nothing
-    planned, nothing written. (At 0.5 um it is 1 826 passes and 24 s: a job that runs.)"""
+    planned, nothing written. (On 160 x 100 mm it is estimated at 53 s and runs; at
+    0.5 um there it is 1 826 passes and 24 s.)"""
     from conftest import write_spec
     from fabkit.toolpath import passes, raster
 
@@ -319,7 +320,7 @@ def test_tiny_scallop_refused_by_the_cli_before_planning(cli, tmp_path, monkeypa
     monkeypatch.setattr(raster, "place_passes", never)
     monkeypatch.setattr(passes, "compensate", never)
     raw = {"name": "b", "units": "mm",
-           "surface": {"height": BOWL, "x": [-80, 80], "y": [-50, 50], "top": 0.0},
+           "surface": {"height": BOWL, "x": [-80, 80], "y": [-100, 100], "top": 0.0},
            "stock": {"thickness": 50, "depth_limit": 40},
            "tool": {"shape": "ball", "diameter": 3.175, "reach": 30},
            "machining": {"scallop": 0.0001, "tolerance": 0.01, "direction": "y"}}

@@ -51,15 +51,22 @@ PLAN_SCALE = 0.72
 #: group's factor to the CPU time of the whole command on plane, tiny, block, steep, vee,
 #: bowl, surface, surface_eps015 and the paper's surface at scallop 0.02 mm (load 1.0):
 #: measured / estimated 0.74-1.34 there (benchmarks/notes_gcode_profile.md, "Second pass")
-FIT_PASS, FIT_BALL, FIT_STEEP, FIT_POINT, FIT_VERIFY, FIT_TIGHT = 0.2, 0.33, 0.37, 0.39, 0.5, 1.0
+#: and again (issue 28's third pass: numba's short start-up on cached code, the drop
+#: cutter's batched samples): the planning factors x 0.75, the points' x 0.7, the tight
+#: points' 1.0 -> 0.65 and the fixed cost 1.7 -> 1.1 s, a minimax fit over plane, tiny,
+#: block, steep, vee, bowl, surface, surface_eps015, the 1/8 in ball job and the roughing
+#: job (load 1.1): measured / estimated 0.68-1.47, the extremes the two creases (the
+#: block's is cheaper per tight point than the oblique V's, whose program is 12x denser
+#: than the estimate's points; the guard runs before the planning that would tell)
+FIT_PASS, FIT_BALL, FIT_STEEP, FIT_POINT, FIT_VERIFY, FIT_TIGHT = 0.15, 0.2475, 0.2775, 0.273, 0.5, 0.65
 SEC_PER_PASS = 4.8e-3 * PLAN_SCALE * FIT_PASS       # pass placement, per pass: fixed cost (two bounds, a few calls)
 SEC_PER_PASS_NODE = 1.2e-5 * PLAN_SCALE * FIT_PASS  # per node along a pass: exact tip heights (incl. trial passes)
 SEC_PER_BALL = 9e-7 * PLAN_SCALE * FIT_BALL         # per column and fine ball position within R along the pass
 SEC_STEEP_PASS = 3e-2 * PLAN_SCALE * FIT_STEEP      # passes over ground steep along the pass: the bound's stage 3
 SEC_STEEP_COLUMN = 1e-4 * PLAN_SCALE * FIT_STEEP    # and per steep column
 SEC_PER_POINT = 1.75e-4 * PLAN_SCALE * FIT_POINT    # point spacing, links, roughing, writing, the sheet, per program point
-SEC_FIXED = 1.7                # start-up (imports, loading the compiled kernels), spec, derivatives, depth,
-                               # the planner's and the sheet's fixed costs (3.0 before the formula's
+SEC_FIXED = 1.1                # start-up (imports, loading the compiled kernels), spec, derivatives, depth,
+                               # the planner's and the sheet's fixed costs (1.7 before numba's short start-up; 3.0 before the formula's
                                # derivatives were cached and the depth search left scipy: 1.2-1.5 s less
                                # on the tiny and plane jobs, benchmarks/notes_gcode_profile.md)
 SEC_PER_VERIFY_POINT = 1.4e-5 * FIT_VERIFY  # verification per verify point: swept cut and reachable height
