@@ -52,13 +52,16 @@ PLAN_SCALE = 0.72
 #: bowl, surface, surface_eps015 and the paper's surface at scallop 0.02 mm (load 1.0):
 #: measured / estimated 0.74-1.34 there (benchmarks/notes_gcode_profile.md, "Second pass")
 #: and again (issue 28's third pass: numba's short start-up on cached code, the drop
-#: cutter's batched samples): the planning factors x 0.75, the points' x 0.7, the tight
-#: points' 1.0 -> 0.65 and the fixed cost 1.7 -> 1.1 s, a minimax fit over plane, tiny,
+#: cutter's batched samples): the pass and steep factors x 0.75, the points' x 0.7, the
+#: tight points' 1.0 -> 0.8 and the fixed cost 1.7 -> 1.1 s, fitted over plane, tiny,
 #: block, steep, vee, bowl, surface, surface_eps015, the 1/8 in ball job and the roughing
-#: job (load 1.1): measured / estimated 0.68-1.47, the extremes the two creases (the
-#: block's is cheaper per tight point than the oblique V's, whose program is 12x denser
-#: than the estimate's points; the guard runs before the planning that would tell)
-FIT_PASS, FIT_BALL, FIT_STEEP, FIT_POINT, FIT_VERIFY, FIT_TIGHT = 0.15, 0.2475, 0.2775, 0.273, 0.5, 0.65
+#: job, two runs each (load 1.1): measured / estimated 0.66-1.48 there. The extremes are
+#: the two creases: the block's (along the passes) is cheaper per tight point than the
+#: oblique V's, whose passes crowd where the crease crosses them (123 against 34
+#: estimated); a V at 45 degrees to the passes is under-estimated more (about 2.4x:
+#: 214 passes against 25), which this model of the passes does not capture
+#: (benchmarks/notes_gcode_profile.md, "Third pass")
+FIT_PASS, FIT_BALL, FIT_STEEP, FIT_POINT, FIT_VERIFY, FIT_TIGHT = 0.15, 0.33, 0.2775, 0.273, 0.5, 0.8
 SEC_PER_PASS = 4.8e-3 * PLAN_SCALE * FIT_PASS       # pass placement, per pass: fixed cost (two bounds, a few calls)
 SEC_PER_PASS_NODE = 1.2e-5 * PLAN_SCALE * FIT_PASS  # per node along a pass: exact tip heights (incl. trial passes)
 SEC_PER_BALL = 9e-7 * PLAN_SCALE * FIT_BALL         # per column and fine ball position within R along the pass
