@@ -39,7 +39,8 @@ from ..errors import SpecError
 from .compensate import INTERIOR, TOP, compensate
 # the scallop bound has its own module; its names stay importable from here
 from .scallop import (EDGE_NODES, SCALLOP_SAFETY, STEEP_ALONG, between_rows, flat_stepover,  # noqa: F401
-                      hermite_profile, slope_scale, stack_profiles, sweep_material, tilted_plane_cusp)
+                      hermite_profile, hermite_weights, node_index, slope_scale, stack_profiles,
+                      sweep_material, tilted_plane_cusp)
 
 AIR_EPS = 1e-7          # mm: a tip this close below the top face touches nothing worth a move
 FLOOR_SHARE = 0.25      # material the dense passes leave above this share of the target: unreachable
@@ -100,7 +101,8 @@ class _Pass:
         # out only those at the nodes (exact heights): there the tip height rises too
         # steeply for the Hermite profile (fewer balls: a higher, still valid bound)
         out = np.maximum(-uf, uf - fr.Lu)
-        f = np.where((out <= 0.875 * R) | np.isin(uf, ug[np.isfinite(Z)]), f, np.inf)
+        j = node_index(ug, uf)          # np.isin(uf, ug[np.isfinite(Z)])
+        f = np.where((out <= 0.875 * R) | ((j >= 0) & np.isfinite(Z)[np.maximum(j, 0)]), f, np.inf)
         self.fine = np.where((uf >= ug[k[0]]) & (uf <= ug[k[-1]]), f, np.inf) if k.size \
             else np.full_like(uf, np.inf)
         self._ug = ug
@@ -224,8 +226,8 @@ def _exact_where_contact_changes(ws, fr, R, ug, uf, passes, kind, target):
     chg = (kind[:, 1:] != kind[:, :-1]) & ~((kind[:, 1:] == TOP) & (kind[:, :-1] == TOP))
     if not chg.any():
         return
-    seg = np.clip(np.searchsorted(ug, uf, side="right") - 1, 0, len(ug) - 2)
-    interior = ~np.isin(uf, ug)
+    seg = hermite_weights(ug, uf)[0]       # np.clip(searchsorted(ug, uf, "right") - 1, 0, n - 2)
+    interior = node_index(ug, uf) < 0      # ~np.isin(uf, ug)
     rows, cols = [], []
     for k, p in enumerate(passes):
         j = np.nonzero(chg[k][seg] & interior & np.isfinite(p.fine))[0]
@@ -359,6 +361,10 @@ class PassPlacer:
         self.uq = self.ug[self.inside_u]
         self.target = SCALLOP_SAFETY * scallop
         self.uf = fine_grid(self.ug, R, self.target)
+        # fixed for the placement: read-only, so that the profiles' weights and the nodes'
+        # places on the fine grid are computed once (scallop.hermite_weights, node_index)
+        self.ug.flags.writeable = False
+        self.uf.flags.writeable = False
         self.s_flat = flat_stepover(R, self.target)
         self.s_min = MIN_STEP_SHARE * self.s_flat
         self.Lv = fr.Lv

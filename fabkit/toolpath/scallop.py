@@ -81,12 +81,25 @@ def hermite_profile(ug, Z, dZ, uf, kink=None, rows=None):
     bounds would take the balls for lower than they are).
 
     ``rows``: Z, dZ, kink are stacked profiles (P, n) and ``rows`` (broadcastable to
-    uf) picks each position's profile: several passes in one call."""
+    uf) picks each position's profile: several passes in one call.
+
+    On a fixed pair of grids (both read-only arrays: the pass placement's nodes and fine
+    grid) the segments and the cubic's weights are computed once (:func:`hermite_weights`);
+    the same products and sums follow, so the same bits."""
+    if rows is None:
+        i, t, w0, w1, w2, w3 = hermite_weights(ug, uf)
+        ix, ix1 = i, i + 1
+        with np.errstate(invalid="ignore"):
+            z = w0 * Z[ix] + w1 * dZ[ix] + w2 * Z[ix1] + w3 * dZ[ix1]
+            if kink is not None:
+                k = kink[ix] | kink[ix1]
+                z = np.where(k, np.fmax(z, Z[ix] + t * (Z[ix1] - Z[ix])), z)
+        return np.where(np.isfinite(z), z, np.inf)
     i = np.clip(np.searchsorted(ug, uf, side="right") - 1, 0, len(ug) - 2)
     h = ug[i + 1] - ug[i]
     t = (uf - ug[i]) / h
     t2, t3 = t * t, t * t * t
-    ix, ix1 = (i, i + 1) if rows is None else ((rows, i), (rows, i + 1))
+    ix, ix1 = (rows, i), (rows, i + 1)
     with np.errstate(invalid="ignore"):
         z = ((2 * t3 - 3 * t2 + 1) * Z[ix] + (t3 - 2 * t2 + t) * h * dZ[ix]
              + (-2 * t3 + 3 * t2) * Z[ix1] + (t3 - t2) * h * dZ[ix1])
@@ -94,6 +107,52 @@ def hermite_profile(ug, Z, dZ, uf, kink=None, rows=None):
             k = kink[ix] | kink[ix1]
             z = np.where(k, np.fmax(z, Z[ix] + t * (Z[ix1] - Z[ix])), z)
     return np.where(np.isfinite(z), z, np.inf)
+
+
+_WEIGHTS: dict = {}
+
+
+def hermite_weights(ug, uf):
+    """(i, t, w0, w1, w2, w3) of :func:`hermite_profile` at uf between the nodes ug: the
+    segment i of each point, its parameter t and the weights of Z[i], dZ[i], Z[i + 1] and
+    dZ[i + 1] (those of h * dZ computed as the profile multiplies them, (w * h) * dZ).
+    Kept per pair of read-only grids (the same arrays, unchanged: the placement's), else
+    computed each call."""
+    key = (id(ug), id(uf))
+    hit = _WEIGHTS.get(key)
+    if hit is not None and hit[0] is ug and hit[1] is uf:
+        return hit[2]
+    i = np.clip(np.searchsorted(ug, uf, side="right") - 1, 0, len(ug) - 2)
+    h = ug[i + 1] - ug[i]
+    t = (uf - ug[i]) / h
+    t2, t3 = t * t, t * t * t
+    with np.errstate(invalid="ignore"):
+        w = (i, t, 2 * t3 - 3 * t2 + 1, (t3 - 2 * t2 + t) * h, -2 * t3 + 3 * t2, (t3 - t2) * h)
+    frozen = isinstance(ug, np.ndarray) and isinstance(uf, np.ndarray) \
+        and not ug.flags.writeable and not uf.flags.writeable
+    if frozen:
+        if len(_WEIGHTS) > 16:
+            _WEIGHTS.clear()
+        _WEIGHTS[key] = (ug, uf, w)
+    return w
+
+
+def node_index(ug, uf):
+    """Per point of uf, the index of the node of ug equal to it, else -1 (so that
+    ``np.isin(uf, ug[m])`` is ``(j >= 0) & m[max(j, 0)]``: the nodes are distinct).
+    Kept per pair of read-only grids, as :func:`hermite_weights`."""
+    key = ("nodes", id(ug), id(uf))
+    hit = _WEIGHTS.get(key)
+    if hit is not None and hit[0] is ug and hit[1] is uf:
+        return hit[2]
+    j = np.clip(np.searchsorted(ug, uf), 0, max(len(ug) - 1, 0))
+    j = np.where(ug[j] == uf, j, -1) if len(ug) else np.full(uf.shape, -1)
+    if isinstance(ug, np.ndarray) and isinstance(uf, np.ndarray) \
+            and not ug.flags.writeable and not uf.flags.writeable:
+        if len(_WEIGHTS) > 16:
+            _WEIGHTS.clear()
+        _WEIGHTS[key] = (ug, uf, j)
+    return j
 
 
 def stack_profiles(cutters):
