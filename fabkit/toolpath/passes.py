@@ -180,18 +180,10 @@ def _extend_where_profile_holds(ws, fr, R, ug, passes, target):
     0.052 against 0.047, above the target) and the stepover shrank on the whole block. On
     ground falling to an edge the tip rises with a nearly vertical tangent there and the
     check fails: the segment stays out."""
-    Lu = fr.Lu
-    outs = (0.875, 0.95, 0.99)
-    sides = []
-    for sign, edge in ((-1.0, 0.0), (1.0, Lu)):
-        nodes = [edge + sign * f * R for f in outs]
-        idx = [int(np.argmin(np.abs(ug - n))) for n in nodes]
-        if any(abs(ug[i] - n) > 1e-9 for i, n in zip(idx, nodes)):
-            return
-        sides.append((sign, idx))
-    t = np.array([0.25, 0.5, 0.75])
-    segs = [(sign, a, b) for sign, idx in sides for a, b in zip(idx[:-1], idx[1:])]
-    uq = np.concatenate([ug[a] + t * (ug[b] - ug[a]) for _, a, b in segs])
+    grid = _edge_segments(ug, fr.Lu, R)
+    if grid is None:
+        return
+    segs, uq = grid
     live = [p for p in passes if p.keep.any()]
     if not live:
         return
@@ -200,17 +192,53 @@ def _extend_where_profile_holds(ws, fr, R, ug, passes, target):
     Zx = compensate(ws, X, Y, R)
     for k, p in enumerate(live):
         h = hermite_profile(ug, p.Z, p.dZ, uq, p.bridged)
+        # per segment: its three quarter points' exact heights finite, and the cubic within
+        # a hundredth of the target of them
+        fin = np.isfinite(Zx[k]).reshape(-1, 3).all(axis=1)
+        near = (np.abs(h - Zx[k]) <= 0.01 * target).reshape(-1, 3).all(axis=1)
         for j, (sign, a, b) in enumerate(segs):
             if not (p.keep[a] and p.keep[b]):
                 continue
-            good = (np.all(np.abs(p.dZ[[a, b]]) < 19.9) and np.all(np.isfinite(Zx[k, 3 * j:3 * j + 3]))
-                    and np.all(np.abs(h[3 * j:3 * j + 3] - Zx[k, 3 * j:3 * j + 3]) <= 0.01 * target))
+            good = abs(p.dZ[a]) < 19.9 and abs(p.dZ[b]) < 19.9 and fin[j] and near[j]
             if not good:
                 continue
             if sign < 0 and abs(p._lo - ug[a]) < 1e-9:
                 p._lo = max(ug[b], ug[np.nonzero(p.keep)[0][0]])
             elif sign > 0 and abs(p._hi - ug[a]) < 1e-9:
                 p._hi = min(ug[b], ug[np.nonzero(p.keep)[0][-1]])
+
+
+_EDGE_SEGS: dict = {}
+
+
+def _edge_segments(ug, Lu, R):
+    """(segments (sign, a, b) between the nodes at 7/8, 0.95 and 0.99 R out on both sides,
+    their quarter points uq (read-only)), or None where the grid lacks those nodes. Kept
+    per read-only grid (the placement's), else computed each call."""
+    key = (id(ug), float(Lu), float(R))
+    hit = _EDGE_SEGS.get(key)
+    if hit is not None and hit[0] is ug:
+        return hit[1]
+    outs = (0.875, 0.95, 0.99)
+    sides = []
+    out = None
+    for sign, edge in ((-1.0, 0.0), (1.0, Lu)):
+        nodes = [edge + sign * f * R for f in outs]
+        idx = [int(np.argmin(np.abs(ug - n))) for n in nodes]
+        if any(abs(ug[i] - n) > 1e-9 for i, n in zip(idx, nodes)):
+            break
+        sides.append((sign, idx))
+    else:
+        t = np.array([0.25, 0.5, 0.75])
+        segs = [(sign, a, b) for sign, idx in sides for a, b in zip(idx[:-1], idx[1:])]
+        uq = np.concatenate([ug[a] + t * (ug[b] - ug[a]) for _, a, b in segs])
+        uq.flags.writeable = False
+        out = (segs, uq)
+    if isinstance(ug, np.ndarray) and not ug.flags.writeable:
+        if len(_EDGE_SEGS) > 16:
+            _EDGE_SEGS.clear()
+        _EDGE_SEGS[key] = (ug, out)
+    return out
 
 
 def _exact_where_contact_changes(ws, fr, R, ug, uf, passes, kind, target):
