@@ -114,6 +114,51 @@ def test_tight_fraction_of_a_parabolic_valley():
     assert _fraction(lambda x: 4.0 + 0 * x, R)[0] == 0.0
 
 
+def _creases(m, R=2.0, L=12.0, W=12.0, n=201, k=2.0):
+    """guards._creases of the V crease k |y - m x| on [0, L] x [-W/2, W/2], passes along x."""
+    from fabkit.toolpath.guards import _creases
+
+    u, v = np.linspace(0.0, L, n), np.linspace(-W / 2, W / 2, n)
+    UU, VV = np.meshgrid(u, v)
+    sgn = np.sign(VV - m * UU)
+    Hu, Hv = -k * m * sgn, k * sgn            # the exact slopes along (x) and across (y)
+    tight, oblique, rows = _creases(None, R, Hu, Hv, np.ones_like(Hu, bool), u, v)
+    return tight, oblique, rows, v
+
+
+def test_a_crease_along_or_across_the_passes_is_not_oblique():
+    """k |y| (along the passes) and k |x - 6| (across them): no oblique crease, no
+    crowded rows, whatever the ball."""
+    for R in (1.5875, 3.0):
+        tight, oblique, rows, _ = _creases(0.0, R)
+        assert tight > 0 and oblique == 0.0 and not rows.any()
+    from fabkit.toolpath.guards import _creases as creases
+
+    u, v = np.linspace(0.0, 12.0, 201), np.linspace(-6.0, 6.0, 201)
+    UU, _ = np.meshgrid(u, v)
+    Hu = 2.0 * np.sign(UU - 6.0)
+    tight, oblique, rows = creases(None, 2.0, Hu, np.zeros_like(Hu), np.ones_like(Hu, bool), u, v)
+    assert tight > 0 and oblique == 0.0 and not rows.any()
+
+
+def test_an_oblique_crease_crowds_the_rows_it_crosses():
+    """k |y - m x| over x in [0, 12]: the crease crosses the rows y in [0, 12 m] (clipped
+    to the block), and those within R of them are the crowded ones (to a grid cell); the
+    obliqueness grows with the angle (the slope jumps along and across are in the ratio
+    m = tan(angle))."""
+    R = 2.0
+    last = 0.0
+    for m in (0.3, 0.577, 1.0):
+        tight, oblique, rows, v = _creases(m, R)
+        dv = v[1] - v[0]
+        lo, hi = -R, min(12.0 * m, 6.0) + R
+        inside = (v >= lo + 1.5 * dv) & (v <= hi - 1.5 * dv)
+        outside = (v < lo - 1.5 * dv) | (v > hi + 1.5 * dv)
+        assert rows[inside].all() and not rows[outside].any()
+        assert oblique > last
+        last = oblique
+
+
 def test_preview_draws_each_feed_move_at_its_place_in_its_colour():
     """Two feed moves across a 10 x 10 mm block, at Y = 2 (Z -1) and Y = 8 (Z -3): the
     deeper is drawn in the colour map's lowest colour (viridis 0: 68, 1, 84), the other

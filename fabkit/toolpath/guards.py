@@ -55,12 +55,13 @@ PLAN_SCALE = 0.72
 #: cutter's batched samples): the pass and steep factors x 0.75, the points' x 0.7, the
 #: tight points' 1.0 -> 0.8 and the fixed cost 1.7 -> 1.1 s, fitted over plane, tiny,
 #: block, steep, vee, bowl, surface, surface_eps015, the 1/8 in ball job and the roughing
-#: job, two runs each (load 1.1): measured / estimated 0.66-1.48 there. The extremes are
-#: the two creases: the block's (along the passes) is cheaper per tight point than the
-#: oblique V's, whose passes crowd where the crease crosses them (123 against 34
-#: estimated); a V at 45 degrees to the passes is under-estimated more (about 2.4x:
-#: 214 passes against 25), which this model of the passes does not capture
-#: (benchmarks/notes_gcode_profile.md, "Third pass")
+#: job, two runs each (load 1.1): measured / estimated 0.60-1.49 there. The extremes were
+#: the two creases: a crease oblique to the passes crowds them where it crosses them (the
+#: V at 17 degrees: 123 passes against 34 estimated; at 45 degrees 214 against 25, 3x
+#: under) and costs more per tight point to verify. Hence OBLIQUE_*: the rows an oblique
+#: crease crosses at 0.08 of the flat stepover, and its tight points' verification by
+#: obliqueness and ball; on V creases at 0, 17, 30, 35 and 45 degrees, along and across
+#: the passes, 3.2-6 mm balls: 0.66-1.23 (benchmarks/notes_gcode_profile.md, "Third pass")
 FIT_PASS, FIT_BALL, FIT_STEEP, FIT_POINT, FIT_VERIFY, FIT_TIGHT = 0.15, 0.33, 0.2775, 0.273, 0.5, 0.8
 SEC_PER_PASS = 4.8e-3 * PLAN_SCALE * FIT_PASS       # pass placement, per pass: fixed cost (two bounds, a few calls)
 SEC_PER_PASS_NODE = 1.2e-5 * PLAN_SCALE * FIT_PASS  # per node along a pass: exact tip heights (incl. trial passes)
@@ -77,6 +78,10 @@ SEC_PER_TIGHT_POINT = 2.0e-4 * FIT_TIGHT    # per verify point within R of a con
                                # than the ball: the reachable height's search (the model descent:
                                # 7.8e-5 on the 3*abs(x) block, 2.8e-4 on the oblique V; it was
                                # 7.6e-4 and 7.0e-4 with the compass search)
+OBLIQUE_STEP = 0.08            # stepover over strips an oblique tight crease crosses, share of the flat one
+OBLIQUE_MIN = 0.15             # a crease counts as oblique beyond this tan(angle to the passes)
+OBLIQUE_VERIFY = 4.0           # a tight point's verification costs (1 + this x obliqueness x (R / OBLIQUE_R)^2)
+OBLIQUE_R = 2.0                # times more (mm)
 STEEP_ALONG = 1.5              # as fabkit.toolpath.passes.STEEP_ALONG
 # memory (peak resident, bytes): the process with the verification and the setup sheet
 # (measured 470-810 MB end to end on the jobs above, programs of 900-91 000 lines;
@@ -139,6 +144,11 @@ def estimate(spec, ws, fr, R: float, target: float, tolerance: float, depth_mm: 
     s_flat = float(stepover_on_slope(R, target, 0.0))
     s_row = np.where(cut, s_pt, s_flat).min(axis=1)
     s_row = np.maximum(s_row, 0.02 * s_flat)
+    # a crease (or a valley) tighter than the ball running obliquely across the passes:
+    # the placement crowds the passes over the strips it crosses (measured 0.07-0.09 of the
+    # flat stepover on V creases at 17, 30 and 45 degrees to the passes)
+    tight, oblique, oblique_rows = _creases(fr, R, Hu, Hv, cut, u, v)
+    s_row = np.where(oblique_rows, np.minimum(s_row, OBLIQUE_STEP * s_flat), s_row)
     passes = float(np.trapezoid(1.0 / s_row, v)) + 2.0
     # points per pass: chord spacing sqrt(8 e / k) along the arc, k the curvature along
     # the pass (at most 1/R: the tip path is an offset of the surface by R), x1.6 for the
@@ -179,8 +189,12 @@ def estimate(spec, ws, fr, R: float, target: float, tolerance: float, depth_mm: 
     # a valley tighter than the ball: within R of where the concave curvature exceeds
     # 1/R) the reachable height's search (tens of drop cutters per point)
     vp = float(getattr(spec.machining, "verify_points", 40000))
-    out["tight_fraction"] = tight = _tight_fraction(fr, R, Hu, Hv, cut, u, v)
-    out["verify_seconds"] = vp * (SEC_PER_VERIFY_POINT + SEC_PER_TIGHT_POINT * tight)
+    out["tight_fraction"] = tight
+    out["oblique"] = oblique
+    # (an oblique crease's points cost more, the more so the larger the ball: measured on V
+    # creases at 0-45 degrees to the passes under 3.2-6 mm balls)
+    out["verify_seconds"] = vp * (SEC_PER_VERIFY_POINT + SEC_PER_TIGHT_POINT * tight
+                                  * (1.0 + OBLIQUE_VERIFY * oblique * (R / OBLIQUE_R) ** 2))
     # roughing with its own tool (the spec's `roughing` section): its levels, the rest
     # passes and the whole job's stock simulation, per node of the stock's grid
     out["roughing_seconds"] = out["roughing_bytes"] = 0.0
@@ -213,6 +227,34 @@ def _dilate(mask: np.ndarray, r: int, axis: int) -> np.ndarray:
     i = np.arange(n)
     hi, lo = np.minimum(i + r + 1, n), np.maximum(i - r, 0)
     return np.moveaxis((c[..., hi] - c[..., lo]) > 0, -1, axis)
+
+
+def _creases(fr, R: float, Hu, Hv, cut, u, v):
+    """(:func:`_tight_fraction`, how oblique to the passes the tight creases run, the rows
+    across (v) they cross obliquely). At each point concave tighter than the ball the
+    jumps of the slope along and across the passes, over one grid cell, are in the ratio
+    tan(angle between the crease and the passes): ``oblique`` is the mean over those
+    points of min/max of the two (0 along or across the passes, 1 at 45 degrees); a row
+    within R of a point whose ratio exceeds OBLIQUE_MIN is crossed obliquely."""
+    tight = _tight_fraction(fr, R, Hu, Hv, cut, u, v)
+    rows = np.zeros(len(v), dtype=bool)
+    if tight == 0.0 or len(u) < 2 or len(v) < 2:
+        return tight, 0.0, rows
+    du, dv = u[1] - u[0], v[1] - v[0]
+    with np.errstate(all="ignore"):
+        su = np.where(np.isfinite(Hu), Hu, 0.0)
+        sv = np.where(np.isfinite(Hv), Hv, 0.0)
+        ju = np.maximum(np.gradient(su, du, axis=1) / (1.0 + su * su) ** 1.5, 0.0)
+        jv = np.maximum(np.gradient(sv, dv, axis=0) / (1.0 + sv * sv) ** 1.5, 0.0)
+        at = cut & ((ju > 1.0 / R) | (jv > 1.0 / R))
+        a, b = ju * du, jv * dv
+        ratio = np.where(at, np.minimum(a, b) / np.maximum(np.maximum(a, b), 1e-300), 0.0)
+    if not at.any():
+        return tight, 0.0, rows
+    oblique = float(ratio[at].mean())
+    crossed = (at & (ratio > OBLIQUE_MIN)).any(axis=1)
+    rows = _dilate(crossed, int(math.ceil(R / dv)), 0)
+    return tight, oblique, rows
 
 
 def _tight_fraction(fr, R: float, Hu, Hv, cut, u, v) -> float:
