@@ -842,6 +842,7 @@ def _candidates(ws, cx, cy, R, rings, angles, starts, iters):
         # several nearest points, and a tongue of the top face narrower than the rings'
         # spacing holds no sample (8*x + 2*sin(3*y) under a 3 mm ball: the tip 0.11 mm low)
         low_s = inF & (HS < 0)
+        first_extra = len(seeds_i)
         for q in range(4):
             lq = low_s & (quad == q)[None, :]
             hq = lq.any(axis=1)
@@ -874,7 +875,7 @@ def _candidates(ws, cx, cy, R, rings, angles, starts, iters):
                 b = a + g.size
                 if g.size:
                     vg = v[a:b]
-                    if j >= 5:      # the quadrants' highest samples: only another maximum
+                    if j >= first_extra:    # the quadrants' highest samples: only another maximum
                         vg = np.where(vg > best.val[todo[g]] + SEED_MARGIN, vg, -np.inf)
                     best.offer(todo[g], vg, qx[a:b], qy[a:b], CREASE)
                 a = b

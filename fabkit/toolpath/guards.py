@@ -236,32 +236,24 @@ def _creases(fr, R: float, Hu, Hv, cut, u, v):
     tan(angle between the crease and the passes): ``oblique`` is the mean over those
     points of min/max of the two (0 along or across the passes, 1 at 45 degrees); a row
     within R of a point whose ratio exceeds OBLIQUE_MIN is crossed obliquely."""
-    tight = _tight_fraction(fr, R, Hu, Hv, cut, u, v)
+    du, dv, ku, kv, at = _concave(R, Hu, Hv, cut, u, v)
+    tight = _tight_band(R, at, cut, du, dv)
     rows = np.zeros(len(v), dtype=bool)
     if tight == 0.0 or len(u) < 2 or len(v) < 2:
         return tight, 0.0, rows
-    du, dv = u[1] - u[0], v[1] - v[0]
     with np.errstate(all="ignore"):
-        su = np.where(np.isfinite(Hu), Hu, 0.0)
-        sv = np.where(np.isfinite(Hv), Hv, 0.0)
-        ju = np.maximum(np.gradient(su, du, axis=1) / (1.0 + su * su) ** 1.5, 0.0)
-        jv = np.maximum(np.gradient(sv, dv, axis=0) / (1.0 + sv * sv) ** 1.5, 0.0)
-        at = cut & ((ju > 1.0 / R) | (jv > 1.0 / R))
-        a, b = ju * du, jv * dv
+        a, b = np.maximum(ku, 0.0) * du, np.maximum(kv, 0.0) * dv
         ratio = np.where(at, np.minimum(a, b) / np.maximum(np.maximum(a, b), 1e-300), 0.0)
-    if not at.any():
-        return tight, 0.0, rows
     oblique = float(ratio[at].mean())
     crossed = (at & (ratio > OBLIQUE_MIN)).any(axis=1)
     rows = _dilate(crossed, int(math.ceil(R / dv)), 0)
     return tight, oblique, rows
 
 
-def _tight_fraction(fr, R: float, Hu, Hv, cut, u, v) -> float:
-    """Fraction of the footprint within R of where the surface is concave tighter than
-    the ball (curvature along u or v above 1/R, from differences of the exact slopes on
-    the grid, so that a V crease counts too): where the verification's reachable height
-    needs its compass search."""
+def _concave(R: float, Hu, Hv, cut, u, v):
+    """(du, dv, curvature along u, across v, the cut points concave tighter than the
+    ball), the curvatures from differences of the exact slopes on the grid, so that a V
+    crease counts too."""
     with np.errstate(all="ignore"):
         du = u[1] - u[0] if len(u) > 1 else 1.0
         dv = v[1] - v[0] if len(v) > 1 else 1.0
@@ -270,10 +262,23 @@ def _tight_fraction(fr, R: float, Hu, Hv, cut, u, v) -> float:
         ku = np.gradient(su, du, axis=1) / (1.0 + su * su) ** 1.5
         kv = np.gradient(sv, dv, axis=0) / (1.0 + sv * sv) ** 1.5
         tight = cut & ((ku > 1.0 / R) | (kv > 1.0 / R))
+    return du, dv, ku, kv, tight
+
+
+def _tight_band(R: float, tight, cut, du, dv) -> float:
+    """The share of the footprint cut within R of the points ``tight``."""
     if not tight.any():
         return 0.0
     near = _dilate(_dilate(tight, int(math.ceil(R / du)), 1), int(math.ceil(R / dv)), 0)
     return float((near & cut).mean())
+
+
+def _tight_fraction(fr, R: float, Hu, Hv, cut, u, v) -> float:
+    """Fraction of the footprint within R of where the surface is concave tighter than
+    the ball (curvature along u or v above 1/R, :func:`_concave`): where the
+    verification's reachable height needs its search."""
+    du, dv, _, _, tight = _concave(R, Hu, Hv, cut, u, v)
+    return _tight_band(R, tight, cut, du, dv)
 
 
 MIN_LENGTH_MM = 1e-4   # scallop and tolerance below this are below any machine's resolution

@@ -39,7 +39,7 @@ from ..errors import SpecError
 from .compensate import INTERIOR, TOP, compensate
 # the scallop bound has its own module; its names stay importable from here
 from .scallop import (EDGE_NODES, SCALLOP_SAFETY, STEEP_ALONG, between_rows, flat_stepover,  # noqa: F401
-                      hermite_profile, hermite_weights, node_index, slope_scale, stack_profiles,
+                      grid_memo, hermite_profile, hermite_weights, node_index, slope_scale, stack_profiles,
                       sweep_material, tilted_plane_cusp)
 
 AIR_EPS = 1e-7          # mm: a tip this close below the top face touches nothing worth a move
@@ -208,37 +208,25 @@ def _extend_where_profile_holds(ws, fr, R, ug, passes, target):
                 p._hi = min(ug[b], ug[np.nonzero(p.keep)[0][-1]])
 
 
-_EDGE_SEGS: dict = {}
-
-
 def _edge_segments(ug, Lu, R):
     """(segments (sign, a, b) between the nodes at 7/8, 0.95 and 0.99 R out on both sides,
     their quarter points uq (read-only)), or None where the grid lacks those nodes. Kept
-    per read-only grid (the placement's), else computed each call."""
-    key = (id(ug), float(Lu), float(R))
-    hit = _EDGE_SEGS.get(key)
-    if hit is not None and hit[0] is ug:
-        return hit[1]
-    outs = (0.875, 0.95, 0.99)
-    sides = []
-    out = None
-    for sign, edge in ((-1.0, 0.0), (1.0, Lu)):
-        nodes = [edge + sign * f * R for f in outs]
-        idx = [int(np.argmin(np.abs(ug - n))) for n in nodes]
-        if any(abs(ug[i] - n) > 1e-9 for i, n in zip(idx, nodes)):
-            break
-        sides.append((sign, idx))
-    else:
+    per read-only grid (:func:`fabkit.toolpath.scallop.grid_memo`)."""
+    def make():
+        sides = []
+        for sign, edge in ((-1.0, 0.0), (1.0, Lu)):
+            nodes = [edge + sign * f * R for f in (0.875, 0.95, 0.99)]
+            idx = [int(np.argmin(np.abs(ug - n))) for n in nodes]
+            if any(abs(ug[i] - n) > 1e-9 for i, n in zip(idx, nodes)):
+                return None
+            sides.append((sign, idx))
         t = np.array([0.25, 0.5, 0.75])
         segs = [(sign, a, b) for sign, idx in sides for a, b in zip(idx[:-1], idx[1:])]
         uq = np.concatenate([ug[a] + t * (ug[b] - ug[a]) for _, a, b in segs])
         uq.flags.writeable = False
-        out = (segs, uq)
-    if isinstance(ug, np.ndarray) and not ug.flags.writeable:
-        if len(_EDGE_SEGS) > 16:
-            _EDGE_SEGS.clear()
-        _EDGE_SEGS[key] = (ug, out)
-    return out
+        return segs, uq
+
+    return grid_memo(("edges", float(Lu), float(R)), (ug,), make)
 
 
 def _exact_where_contact_changes(ws, fr, R, ug, uf, passes, kind, target):

@@ -109,50 +109,54 @@ def hermite_profile(ug, Z, dZ, uf, kink=None, rows=None):
     return np.where(np.isfinite(z), z, np.inf)
 
 
-_WEIGHTS: dict = {}
+_GRID_MEMO: dict = {}
+
+
+def grid_memo(tag, arrays, make):
+    """``make()``, kept per ``tag`` and the identity of ``arrays`` when they are all
+    read-only numpy arrays (the pass placement's grids, fixed for its run: a kept value
+    cannot go stale); computed on every call otherwise."""
+    frozen = all(isinstance(a, np.ndarray) and not a.flags.writeable for a in arrays)
+    if not frozen:
+        return make()
+    key = (tag, *map(id, arrays))
+    hit = _GRID_MEMO.get(key)
+    if hit is not None and all(x is a for x, a in zip(hit[0], arrays)):
+        return hit[1]
+    val = make()
+    if len(_GRID_MEMO) > 32:
+        _GRID_MEMO.clear()
+    _GRID_MEMO[key] = (tuple(arrays), val)
+    return val
 
 
 def hermite_weights(ug, uf):
     """(i, t, w0, w1, w2, w3) of :func:`hermite_profile` at uf between the nodes ug: the
     segment i of each point, its parameter t and the weights of Z[i], dZ[i], Z[i + 1] and
     dZ[i + 1] (those of h * dZ computed as the profile multiplies them, (w * h) * dZ).
-    Kept per pair of read-only grids (the same arrays, unchanged: the placement's), else
-    computed each call."""
-    key = (id(ug), id(uf))
-    hit = _WEIGHTS.get(key)
-    if hit is not None and hit[0] is ug and hit[1] is uf:
-        return hit[2]
-    i = np.clip(np.searchsorted(ug, uf, side="right") - 1, 0, len(ug) - 2)
-    h = ug[i + 1] - ug[i]
-    t = (uf - ug[i]) / h
-    t2, t3 = t * t, t * t * t
-    with np.errstate(invalid="ignore"):
-        w = (i, t, 2 * t3 - 3 * t2 + 1, (t3 - 2 * t2 + t) * h, -2 * t3 + 3 * t2, (t3 - t2) * h)
-    frozen = isinstance(ug, np.ndarray) and isinstance(uf, np.ndarray) \
-        and not ug.flags.writeable and not uf.flags.writeable
-    if frozen:
-        if len(_WEIGHTS) > 16:
-            _WEIGHTS.clear()
-        _WEIGHTS[key] = (ug, uf, w)
-    return w
+    Kept per pair of read-only grids (:func:`grid_memo`)."""
+    def make():
+        i = np.clip(np.searchsorted(ug, uf, side="right") - 1, 0, len(ug) - 2)
+        h = ug[i + 1] - ug[i]
+        t = (uf - ug[i]) / h
+        t2, t3 = t * t, t * t * t
+        with np.errstate(invalid="ignore"):
+            return (i, t, 2 * t3 - 3 * t2 + 1, (t3 - 2 * t2 + t) * h, -2 * t3 + 3 * t2, (t3 - t2) * h)
+
+    return grid_memo("hermite", (ug, uf), make)
 
 
 def node_index(ug, uf):
     """Per point of uf, the index of the node of ug equal to it, else -1 (so that
     ``np.isin(uf, ug[m])`` is ``(j >= 0) & m[max(j, 0)]``: the nodes are distinct).
-    Kept per pair of read-only grids, as :func:`hermite_weights`."""
-    key = ("nodes", id(ug), id(uf))
-    hit = _WEIGHTS.get(key)
-    if hit is not None and hit[0] is ug and hit[1] is uf:
-        return hit[2]
-    j = np.clip(np.searchsorted(ug, uf), 0, max(len(ug) - 1, 0))
-    j = np.where(ug[j] == uf, j, -1) if len(ug) else np.full(uf.shape, -1)
-    if isinstance(ug, np.ndarray) and isinstance(uf, np.ndarray) \
-            and not ug.flags.writeable and not uf.flags.writeable:
-        if len(_WEIGHTS) > 16:
-            _WEIGHTS.clear()
-        _WEIGHTS[key] = (ug, uf, j)
-    return j
+    Kept per pair of read-only grids (:func:`grid_memo`)."""
+    def make():
+        if not len(ug):
+            return np.full(uf.shape, -1)
+        j = np.clip(np.searchsorted(ug, uf), 0, len(ug) - 1)
+        return np.where(ug[j] == uf, j, -1)
+
+    return grid_memo("nodes", (ug, uf), make)
 
 
 def stack_profiles(cutters):
