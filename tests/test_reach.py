@@ -1,4 +1,4 @@
-"""The verification's reachable height (:func:`fabkit.toolpath.verify.reachable_height`)
+"""The verification's reachable height (:func:`fabkit.toolpath.reach.reachable_height`)
 on creases and valleys tighter than the ball, against independent answers: the closed
 form of the ball bridging a V crease (straight and oblique to the axes) and a brute-force
 zooming search over ball centres written here (exact drop-cutter heights, no model)."""
@@ -30,7 +30,7 @@ def test_v_crease_closed_form(k, m):
     only, K u higher. The lowest ball surface above a point at distance u from the crease
     is therefore the centred ball's, -D + R sqrt(1 + K^2) - sqrt(R^2 - u^2), for
     |u| < R K / sqrt(1 + K^2) (beyond, the ball touches the design: it reaches)."""
-    from fabkit.toolpath.verify import reachable_height
+    from fabkit.toolpath.reach import reachable_height
 
     D = 12.0
     # the crease crosses the block's middle; the points stay more than R from the edges
@@ -106,7 +106,7 @@ def test_reachable_height_against_brute_force_search(formula, x, y, pts):
     """Against a brute-force zooming search over ball centres (exact drops): never more
     than 2e-5 mm above it, and not below it by more than the brute search's own
     resolution (both are real balls: the reachable height is a valid upper bound)."""
-    from fabkit.toolpath.verify import OVERHANG, reachable_height
+    from fabkit.toolpath.reach import OVERHANG, reachable_height
 
     ws = _ws(formula, x, y)
     px, py = np.array([p[0] for p in pts]), np.array([p[1] for p in pts])
@@ -121,7 +121,7 @@ def test_compiled_loops_match_the_numpy_code(monkeypatch):
     """The reachable height's grid minimum and shared balls run compiled (dropcut.py's
     reach_grid_best, reach_share) or in numpy (FABKIT_NO_KERNELS=1, the drop cutter too):
     the same heights and normal scales, to the drop cutter's own agreement (1e-9 mm)."""
-    from fabkit.toolpath.verify import OVERHANG, reachable_height
+    from fabkit.toolpath.reach import OVERHANG, reachable_height
 
     rng = np.random.default_rng(5)
     X, Y = rng.uniform(2.5, 5.5, 400), rng.uniform(0.0, 6.0, 400)

@@ -1,4 +1,4 @@
-"""verify.read_program against a model of the programs written inside this test.
+"""reader.read_program against a model of the programs written inside this test.
 
 Random programs are generated together with what they mean: a small machine model here
 (motion, feed, units, tool, offset, tip position, as the reader's docstring states
@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 from fabkit.errors import DesignError
-from fabkit.toolpath import verify
+from fabkit.toolpath import reader as readback
 from fabkit.units import MM_PER_INCH
 
 NAN = float("nan")
@@ -179,7 +179,7 @@ def _program(rng, n: int):
     return "\n".join(lines) + "\n", m, ln
 
 
-def _same(p: verify.Program, m: _Model, n_lines: int) -> None:
+def _same(p: readback.Program, m: _Model, n_lines: int) -> None:
     start = m.start if m.start is not None else m.pos
     np.testing.assert_array_equal(p.start, np.array(start, dtype=float))
     np.testing.assert_array_equal(p.points, np.array(m.pts, dtype=float).reshape(-1, 3))
@@ -197,8 +197,8 @@ def _same(p: verify.Program, m: _Model, n_lines: int) -> None:
 @pytest.fixture(params=["fast", "general"])
 def reader(request, monkeypatch):
     if request.param == "general":
-        monkeypatch.setattr(verify, "_FAST", re.compile(r"(?!)"))    # matches nothing
-    return verify.read_program
+        monkeypatch.setattr(readback, "_FAST", re.compile(r"(?!)"))    # matches nothing
+    return readback.read_program
 
 
 @pytest.mark.parametrize("seed", range(12))
@@ -210,9 +210,9 @@ def test_random_programs_read_as_modelled(reader, seed):
 
 def test_fabkit_shapes_take_the_fast_path():
     for line in ["X486 Y4.3772", "Z1", "G1 Z0 F600", "X487 Z-0.0057 F2500", "G0 Z1", "G1 X1 Y2 Z3 F10", "X.5"]:
-        assert verify._FAST.fullmatch(line), line
+        assert readback._FAST.fullmatch(line), line
     for line in ["x1", " X1", "G01 X1", "Y1 X2", "X1 ; c", "X1 (c)", "G2 X1", "X1  Y2", "X1..2", "T1 M6"]:
-        assert not verify._FAST.fullmatch(line), line
+        assert not readback._FAST.fullmatch(line), line
 
 
 BAD = [

@@ -140,7 +140,7 @@ def _family_case(cli, tmp_path, height, x, y, direction, units, band, measure):
         from fabkit.spec import load_spec
         from fabkit.surface import Surface
         from fabkit.toolpath.compensate import WorkSurface
-        from fabkit.toolpath.verify import reachable_height
+        from fabkit.toolpath.reach import reachable_height
         ws = WorkSurface(Surface.from_spec(load_spec(spec)))
         _, reach = reachable_height(ws, px, py, R)
     elif band is not None:
@@ -214,7 +214,7 @@ def test_reachable_height_in_a_valley_tighter_than_the_ball_closed_form():
     from fabkit.expr import compile_surface
     from fabkit.surface import Surface
     from fabkit.toolpath.compensate import WorkSurface
-    from fabkit.toolpath.verify import reachable_height
+    from fabkit.toolpath.reach import reachable_height
 
     ws = WorkSurface(Surface(compile_surface("2*x**2 - 12", {}), (-2.4, 2.4), (0.0, 6.0), 0.0))
     x = np.linspace(-1.4, 0.0, 15)
