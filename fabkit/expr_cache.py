@@ -11,7 +11,7 @@ bit for bit, as ``lambdify``'s own functions (the same source, the same numpy
 functions by identity).
 
 Entry: ``cache_dir()/formulas/fk_formula_<key>.json`` (the simulator's cache folder,
-:func:`fabkit.physics.engine.codegen.cache_dir`), the key a hash of this format's
+:func:`fabkit.cache.cache_dir`), the key a hash of this format's
 number, the formula's text, its parameters (names and exact values: the source has
 the values in it), the expression limits of the tolerances, the fabkit, sympy, numpy
 and Python versions and the source of ``expr.py`` and of this module. It holds the
@@ -33,6 +33,8 @@ import json
 import sys
 from pathlib import Path
 
+from .cache import cache_dir, replace_quietly
+
 #: bump on any change of the entry's layout or of what the functions are built from
 FORMAT = 1
 #: the generated functions of a formula, as compile_surface names them
@@ -44,8 +46,6 @@ _HERE = Path(__file__).resolve().parent
 
 
 def folder() -> Path:
-    from .physics.engine.codegen import cache_dir
-
     return cache_dir() / "formulas"
 
 
@@ -202,6 +202,4 @@ def store(k: str, text: str, sources: dict, names: dict, sizes: dict, part: str 
     cache cannot be."""
     body = {"format": FORMAT, "key": k, "text": text, "source": dict(sources),
             "names": names, "sizes": {str(order): int(n) for order, n in sizes.items()}}
-    from .physics.engine.codegen import replace_quietly
-
     return replace_quietly(_path(k, part), json.dumps({"body": body, "sha256": _checksum(body)}, sort_keys=True))

@@ -13,10 +13,9 @@ at run time, so a design study over ``surface.params`` compiles once), the names
 of the parameters, the template's name and source, the step loop's source, and
 the fabkit and numba versions.
 
-Cache directory: ``FABKIT_CACHE_DIR`` if set, else the user cache
-(``$XDG_CACHE_HOME/fabkit`` or ``~/.cache/fabkit`` on Linux, ``~/Library/Caches/fabkit``
-on macOS, ``%LOCALAPPDATA%\\fabkit\\Cache`` on Windows), subfolder ``engine``.
-Never the repository or site-packages. Deleting the folder is always safe.
+Cache directory: :func:`fabkit.cache.cache_dir` (``FABKIT_CACHE_DIR`` if set, else the
+user cache); deleting it is always safe. This module depends on the formula layer
+(:mod:`fabkit.expr`, :mod:`fabkit.expr_cache`), never the other way.
 """
 
 from __future__ import annotations
@@ -27,6 +26,8 @@ import os
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
+
+from ...cache import cache_dir, replace_quietly  # noqa: F401  (the engine's cache, named here too)
 
 _HERE = Path(__file__).resolve().parent
 
@@ -70,20 +71,6 @@ def template_of(model: str) -> Template:
     """The template that runs ``simulation.model``: the finite ball's, or the point's
     (``full``, ``simplified``)."""
     return BALL if model == "ball" else POINT
-
-
-def cache_dir() -> Path:
-    """The folder of generated and compiled engines (created on demand)."""
-    env = os.environ.get("FABKIT_CACHE_DIR")
-    if env:
-        base = Path(env).expanduser()
-    elif sys.platform == "darwin":
-        base = Path.home() / "Library" / "Caches" / "fabkit"
-    elif os.name == "nt":
-        base = Path(os.environ.get("LOCALAPPDATA", Path.home() / "AppData" / "Local")) / "fabkit" / "Cache"
-    else:
-        base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "fabkit"
-    return base / "engine"
 
 
 @dataclass(frozen=True)
@@ -355,23 +342,6 @@ def generate_engine(template: Template = POINT) -> str:
     for src in (template.source, ENGINE_TEMPLATE):
         parts.append(f"# ---- {src} " + "-" * 60 + "\n" + _source(src))
     return "\n\n".join(parts)
-
-
-def replace_quietly(path: Path, text: str) -> bool:
-    """Write ``text`` to ``path`` atomically (a temporary renamed over it), for the cache:
-    False, with nothing left behind, where the cache cannot be written."""
-    tmp = path.parent / f".{path.name}.{os.getpid()}.tmp"
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp.write_text(text)
-        os.replace(tmp, path)
-        return True
-    except OSError:
-        try:
-            tmp.unlink()
-        except OSError:
-            pass
-        return False
 
 
 def _write_once(path: Path, make) -> Path:
