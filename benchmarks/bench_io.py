@@ -1,5 +1,5 @@
 """CPU time of the two pure-Python text stages of ``fabkit gcode``: the verifier's
-reader (``verify.read_program``) and the writer's coordinate formatting and move
+reader (``reader.read_program``) and the writer's coordinate formatting and move
 lines (``gcode._format_array`` / ``gcode._move_lines``), best of N.
 
     fabkit gcode specs/surface.yaml -o /tmp/x.ngc
@@ -9,7 +9,7 @@ The writer's input is rebuilt from the program itself (the points read back in m
 kinds: G0 -> RAPID, G1 at the first G1's feed -> PLUNGE, other G1 -> CUT), so the
 formatting sees the same values and modality as in the command. Prints CPU seconds
 (time.process_time) and the load average. ``--against DIR``: also time the
-verify.py and gcode.py of another checkout (e.g. ``git archive REV fabkit | tar -x -C DIR``),
+reader.py (verify.py before it) and gcode.py of another checkout (e.g. ``git archive REV fabkit | tar -x -C DIR``),
 the two versions' runs interleaved (the same load for both), and check that they
 give the same Program and the same lines.
 """
@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fabkit.toolpath import gcode, verify
+from fabkit.toolpath import gcode, reader
 from fabkit.toolpath.path import CUT, PLUNGE, RAPID
 
 
@@ -47,18 +47,19 @@ def main() -> None:
     ap.add_argument("--against", type=Path, help="a checkout's root (its fabkit/toolpath is compared)")
     a = ap.parse_args()
     text = a.program.read_text()
-    prog = verify.read_program(text)
-    g1 = prog.kinds == verify.FEED
+    prog = reader.read_program(text)
+    g1 = prog.kinds == reader.FEED
     plunge = np.nanmin(prog.feed[g1]) if g1.any() else np.nan
     kinds = np.where(~g1, RAPID, np.where(prog.feed == plunge, PLUNGE, CUT))
     pts = prog.points
     txt = gcode._format_array(pts, a.decimals)
     lines = gcode._move_lines(txt, kinds, "5", "2500", "600")
     print(f"program: {a.program} ({prog.lines} lines, {len(pts)} moves, {len(lines)} move lines rebuilt)")
-    versions = [("", verify, gcode)]
+    versions = [("", reader, gcode)]
     if a.against:
         d = a.against / "fabkit" / "toolpath"
-        versions.insert(0, (" (against)", load(d / "verify.py", "_against_verify"),
+        older = d / "reader.py" if (d / "reader.py").is_file() else d / "verify.py"
+        versions.insert(0, (" (against)", load(older, "_against_reader"),
                             load(d / "gcode.py", "_against_gcode")))
         _, v0, g0 = versions[0]
         p0 = v0.read_program(text)
