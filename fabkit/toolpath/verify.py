@@ -1,8 +1,6 @@
-"""Verification of a written program: read the TEXT back, sweep the ball-end tool
-along its moves, and compare the cut with the design.
-
-:func:`read_program` is an independent reader of the G-code subset fabkit writes
-(it shares no code with the writer): modal G0/G1, G20/G21, G90, F, X/Y/Z.
+"""Verification of a written program: sweep the ball-end tool along the moves READ BACK
+from its text (:func:`fabkit.toolpath.reader.read_program`) and compare the cut with the
+design.
 
 :func:`verify_cut` computes the material surface left by the program at many
 sample points and compares it with the clipped design surface. The swept volume
@@ -16,7 +14,9 @@ spatial grid of segments keeps the work O(points x nearby segments). The cut
 height at a point is min(0, lowest capsule point over all moves) (0 = the top
 face: nothing is above it). Figures are exact at the sample points (floating
 point, ~1e-9 mm); between samples the cut is not checked, so the sample count
-(``machining.verify_points``) and the jitter set how sharp the check is.
+(``machining.verify_points``) and the jitter set how sharp the check is. Material
+the ball cannot reach (:mod:`fabkit.toolpath.reach`) is told apart from material the
+program leaves.
 """
 
 from __future__ import annotations
