@@ -53,6 +53,9 @@ from ..physics.ramp_profile import (ANGLE_DEG, RampProfile, StraightRamp, design
 GROOVE_WIDTH_MM = 0.6
 GROOVE_DEPTH_MM = 0.8
 GROOVE_GAP_MM = 2.0          # between the two lines of a double groove
+GROOVE_CLEAR_MM = 0.4        # least wall between two grooves in one lane (else set apart across the ramp)
+LANE_GAP_MM = 2.0            # between two lanes of grooves across the ramp
+LANE_MIN_MM = 3.0            # the shortest groove a lane may hold
 STEP_MM = 1.0                # grid spacing along the ramp
 STEP_Y_MM = 2.0              # grid spacing across
 
@@ -121,8 +124,10 @@ class RampSolid:
 
 
 def build_ramp(spec, prof: RampProfile, marks: list[dict]) -> RampSolid:
-    """The ramp as one watertight body in the block's work coordinates (mm), with the
-    marks' grooves engraved. ``marks``: dicts with ``u`` (design units) and ``double``."""
+    """The ramp as one body in the block's work coordinates (mm), with the marks' grooves
+    engraved. ``marks``: from :func:`place_marks` (``u`` design units, ``double``, and
+    ``grooves``, each side's extent across the ramp). Whether the mesh is one watertight
+    body is checked on the bytes written (:func:`mesh_verdict`)."""
     s = float(spec.scale)
     x0f, y0f = float(spec.surface.x[0]), float(spec.surface.y[0])
     top = float(spec.surface.top)
@@ -155,18 +160,14 @@ def build_ramp(spec, prof: RampProfile, marks: list[dict]) -> RampSolid:
         Vb, Fb = heightfield((bx - x0f) * s, (by - y0f) * s, (Bz - top) * s, z_table - 10.0)
         ramp = ramp - _manifold(Vb, Fb)
     # grooves: a thin solid following the surface, from the depth to above it
-    r = prof.radius
     for mk in marks:
         offsets = [-0.5 * GROOVE_GAP_MM / s, 0.5 * GROOVE_GAP_MM / s] if mk.get("double") else [0.0]
-        signs = {"+y": (1,), "-y": (-1,)}.get(mk.get("side", "both"), (1, -1))
         for off in offsets:
             xm = prof.start - mk["u"] + off
             half = 0.5 * GROOVE_WIDTH_MM / s
             gxm = np.array([xm - half, xm, xm + half])
-            for sign in signs:
-                a, b = 0.4 * r, hw - 2.0 / s
-                if not b > a:
-                    continue
+            for side, (a, b) in sorted(mk["grooves"].items()):
+                sign = 1 if side == "+y" else -1
                 gym = prof.y0 + sign * np.linspace(a, b, max(4, int(math.ceil((b - a) * s / STEP_Y_MM)) + 1))
                 gym = np.sort(gym)
                 MX, MY = np.meshgrid(gxm, gym, indexing="ij")
@@ -238,9 +239,114 @@ def place_marks(spec, prof: RampProfile, targets: list[dict]) -> list[dict]:
         else:
             m["side"] = "+y" if side % 2 == 0 else "-y"
             side += 1
-    gw = GROOVE_WIDTH_MM
-    for m in out:
-        near = [o for o in out if o is not m and (o["side"] in (m["side"], "both") or m["side"] == "both")]
-        reach = lambda o: gw + (GROOVE_GAP_MM if o["double"] else 0.0) / 2 + (GROOVE_GAP_MM if m["double"] else 0.0) / 2
-        m["crowded"] = any(abs(o["X"] - m["X"]) < reach(o) for o in near)
+    assign_lanes(out)
+    _lane_spans(out, 0.4 * prof.radius, half_width(spec, prof) - 2.0 / s, s)
     return out
+
+
+def _groove_lines(m: dict) -> list[float]:
+    """The work X (mm) of a mark's groove lines: one, or two GROOVE_GAP_MM apart."""
+    return [m["X"] - 0.5 * GROOVE_GAP_MM, m["X"] + 0.5 * GROOVE_GAP_MM] if m["double"] else [m["X"]]
+
+
+def _sides(m: dict) -> tuple:
+    return ("+y", "-y") if m["side"] == "both" else (m["side"],)
+
+
+def assign_lanes(marks: list[dict]) -> None:
+    """Set apart the grooves of marks that lie too close along the ramp, in place.
+
+    Two groove lines on the same side of the path whose centres are closer than
+    GROOVE_WIDTH_MM + GROOVE_CLEAR_MM would overlap or leave a wall too thin to see (and
+    a mesh with slivers): such marks go into separate lanes across the ramp, each mark
+    keeping its exact place along it. Greedy, v_critical first, then by height: a mark
+    takes the lowest lane (0: nearest the path) where it is clear of every groove
+    already there. Sets ``lane`` ({side: lane}) and ``crowded`` (True when the mark's
+    grooves would have met another's in one lane)."""
+    need = GROOVE_WIDTH_MM + GROOVE_CLEAR_MM
+    lanes: dict = {"+y": [], "-y": []}          # side -> list of lanes, each a list of groove X
+    order = sorted(range(len(marks)), key=lambda i: (not marks[i]["double"], i))
+    for i in order:
+        m = marks[i]
+        xs = _groove_lines(m)
+        m["lane"] = {}
+        crowded = False
+        for side in _sides(m):
+            for j, lane in enumerate(lanes[side] + [[]]):
+                if all(abs(x - o) >= need for x in xs for o in lane):
+                    break
+                crowded = True
+            if j == len(lanes[side]):
+                lanes[side].append([])
+            lanes[side][j].extend(xs)
+            m["lane"][side] = j
+        m["crowded"] = crowded
+    for m in marks:
+        m["lanes"] = {side: len(lanes[side]) for side in _sides(m)}
+
+
+def _lane_spans(marks: list[dict], a: float, b: float, s: float) -> None:
+    """Each mark's grooves' extent across the ramp, in place: ``grooves`` {side: (lo, hi)},
+    distances from the launch line (design units; a the first, b the last, s mm per design
+    unit). A side's span [a, b] is shared by its lanes, LANE_GAP_MM apart; lanes that would
+    be shorter than LANE_MIN_MM are dropped from the far end: a mark left without a groove
+    on any side is ``engraved`` False (its place stays in the table)."""
+    for m in marks:
+        m["grooves"] = {}
+        for side in _sides(m):
+            n = m["lanes"][side]
+            fit = int(math.floor(((b - a) * s + LANE_GAP_MM) / (LANE_MIN_MM + LANE_GAP_MM)))
+            n_used = max(0, min(n, fit))
+            j = m["lane"][side]
+            if j >= n_used:
+                continue
+            ll = ((b - a) - (n_used - 1) * LANE_GAP_MM / s) / n_used
+            lo = a + j * (ll + LANE_GAP_MM / s)
+            m["grooves"][side] = (lo, lo + ll)
+        m["engraved"] = bool(m["grooves"])
+
+
+# ----------------------------------------------------------------------------
+# the mesh as written, read back
+# ----------------------------------------------------------------------------
+#: a face smaller than this (mm^2) is degenerate: a sliver a slicer flags (a triangle 1 um
+#: long and 1 nm high)
+DEGENERATE_AREA_MM2 = 1e-9
+
+
+@dataclass(frozen=True)
+class MeshVerdict:
+    """The written mesh read back by trimesh (vertices merged, as a slicer reads it):
+    ``ok`` when it is one watertight body of positive volume with no degenerate face."""
+
+    watertight: bool
+    bodies: int
+    volume_mm3: float
+    degenerate: int
+    triangles: int
+
+    @property
+    def ok(self) -> bool:
+        return self.watertight and self.bodies == 1 and self.volume_mm3 > 0 and self.degenerate == 0
+
+    @property
+    def message(self) -> str:
+        return (f"{'watertight' if self.watertight else 'NOT watertight'}, {self.bodies} "
+                f"bod{'y' if self.bodies == 1 else 'ies'}, volume {self.volume_mm3:.6e} mm^3, "
+                f"{self.degenerate} degenerate of {self.triangles} triangles")
+
+
+def mesh_verdict(data: bytes, fmt: str) -> MeshVerdict:
+    """Read the bytes about to be written (format ``fmt``, a file extension) with trimesh
+    and judge them: watertight (every edge shared by exactly two faces, consistently
+    wound), the number of connected bodies (faces joined by edges), the volume and the
+    faces of area under DEGENERATE_AREA_MM2."""
+    import io
+
+    import trimesh
+
+    m = trimesh.load(io.BytesIO(data), file_type=fmt, force="mesh")
+    bodies = len(m.split(only_watertight=False)) if len(m.faces) else 0
+    return MeshVerdict(watertight=bool(m.is_watertight), bodies=int(bodies), volume_mm3=float(m.volume),
+                       degenerate=int(np.count_nonzero(m.area_faces < DEGENERATE_AREA_MM2)),
+                       triangles=int(len(m.faces)))
