@@ -395,9 +395,10 @@ def entry() -> int:
     "nothing written"; during the command's work, KeyboardInterrupt, which main() turns
     into 130 with the staged outputs discarded; once outputs are renamed into place
     (:mod:`fabkit.io` records them), 4 and the outputs named; after the command returned,
-    its own code. (Before this function runs, Python's own start-up and the import of
-    this module take a few tens of milliseconds in which Python's default applies.) A
-    SIGINT ignored by the parent (a background job) stays ignored.
+    its own code; in the interpreter's last teardown (after the exit functions), ignored.
+    (Before this function runs, Python's own start-up and the import of this module take
+    a few tens of milliseconds in which Python's default applies.) A SIGINT ignored by
+    the parent (a background job) stays ignored.
 
     After Ctrl-C the process ends with ``os._exit`` once the streams are flushed. A
     normal exit is not used there: CPython (3.11) marks a KeyboardInterrupt raised
@@ -410,6 +411,12 @@ def entry() -> int:
 
     if signal.getsignal(signal.SIGINT) is not signal.SIG_IGN:
         signal.signal(signal.SIGINT, _on_sigint)
+        # registered first, so run last of the exit functions: from then on the interpreter's
+        # own teardown would put back SIGINT's default (death by signal, no message), so
+        # Ctrl-C is ignored for those last milliseconds
+        import atexit
+
+        atexit.register(signal.signal, signal.SIGINT, signal.SIG_IGN)
     sys.unraisablehook = _quiet_interrupts
     RUN.reset()
     pause_at("start")
