@@ -228,7 +228,7 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--dx", type=float, metavar="DX", help="grid spacing, in kink length units (default 0.25)")
     c.add_argument("--dt", type=float, metavar="DT", help="ETDRK4 time step, in the PDE's time unit (default 0.05)")
     c.add_argument("--x0", type=float, metavar="X0",
-                   help="initial half-separation of the kinks, >= 10 (default 10)")
+                   help="initial half-separation of the kinks, in kink length units (as --dx), >= 10 (default 10)")
     c.add_argument("--json", action="store_true", help="print JSON")
     c.add_argument("--plot", metavar="FILE", help="one speed: X(t) and A(t) (the paper's Fig. 3); a sweep: "
                    "v_out against v_in. " + PLOT)

@@ -305,7 +305,7 @@ def test_sigint_at_the_edges_of_a_run(tmp_path, point, code, words):
         assert target.read_bytes() == OLD
     else:                                                 # written, whole: the profile it would always write
         text = target.read_text()
-        assert text.startswith("# fabkit machine profile") and "max_rate: [5000.0, 4000.0, 1000.0]" in text
+        assert text.startswith("# fabkit machine profile") and "max_rate: [5000.0, 4000.0, 1000.0]  # mm/min" in text
         assert point != "written" or str(target) in lines[0]
     assert temporaries(tmp_path) == []
 
