@@ -165,6 +165,10 @@ def test_marks_closer_than_a_groove_are_set_apart_into_one_watertight_body():
     targets = [{"height": float(prof.drop(u)), "v_in": 0.0, "label": f"m{i}", "double": False}
                for i, u in enumerate(us[:4])]
     targets.append({"height": float(prof.drop(us[4])), "v_in": 0.0, "label": "v_critical", "double": True})
+    # and a mark near the launch point, where the ramp is 0.6 mm thick: its groove must not cut through
+    u_thin = float(__import__("scipy.optimize").optimize.brentq(lambda u: float(prof.lift(u)) * s - 0.6, 1e-6,
+                                                                 prof.L))
+    targets.append({"height": float(prof.drop(u_thin + 0.3 / s)), "v_in": 0.0, "label": "thin", "double": False})
     targets.sort(key=lambda t: t["height"])
     marks = place_marks(spec, prof, targets)
     for m in marks:                                      # each where its height puts it
@@ -177,6 +181,8 @@ def test_marks_closer_than_a_groove_are_set_apart_into_one_watertight_body():
             if (sa, la) == (sb, lb):
                 assert abs(xa - xb) >= GROOVE_WIDTH_MM + GROOVE_CLEAR_MM - 1e-9
     assert all(m["engraved"] for m in marks) and sum(m["crowded"] for m in marks) >= 2
+    thin = next(m for m in marks if m["label"] == "thin")
+    assert 0.05 <= thin["groove_depth_mm"] <= 0.3 + 1e-9          # half the ramp's 0.6 mm there
     data = stl_bytes(*(lambda r: (r.vertices, r.faces))(build_ramp(spec, prof, marks)))
     mesh = trimesh.load(io.BytesIO(data), file_type="stl")
     assert mesh.is_watertight and mesh.body_count == 1 and len(mesh.split(only_watertight=False)) == 1

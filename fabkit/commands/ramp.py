@@ -13,7 +13,7 @@ from ._common import Timer, check_paths, default_output, emit, launch_stages, pr
 def run(args) -> int:
     from ..errors import DesignError
     from ..io import atomic_outputs
-    from ..lab.ramp import (GROOVE_CLEAR_MM, GROOVE_WIDTH_MM, build_ramp, mark_targets, mesh_verdict, place_marks,
+    from ..lab.ramp import (GROOVE_CLEAR_MM, GROOVE_DEPTH_MM, GROOVE_WIDTH_MM, build_ramp, mark_targets, mesh_verdict, place_marks,
                             ramp_angle, ramp_profile)
     from ..physics.calibrate import ball_k, entry, ramp_heights
     from ..physics.check import check
@@ -69,7 +69,7 @@ def run(args) -> int:
     u = spec.units
     pub = [{"height": m["height"], "v_in": m["v_in"], "label": m["label"], "X": m["X"], "Y": m["Y"], "Z": m["Z"],
             "along_mm": m["along_mm"], "groove": "double" if m["double"] else "single", "side": m["side"],
-            "crowded": m["crowded"], "engraved": m["engraved"],
+            "crowded": m["crowded"], "engraved": m["engraved"], "groove_depth_mm": m["groove_depth_mm"],
             "lane": {side: [m["lane"][side], m["lanes"][side]] for side in m["lane"]}} for m in marks]
     payload = {
         "path": str(path), "marks": pub, "triangles": int(len(solid.faces)), "volume_mm3": solid.volume_mm3,
@@ -100,10 +100,16 @@ def run(args) -> int:
         lines.append(f"set apart: marks closer along the ramp than a groove's width ({GROOVE_WIDTH_MM:g} mm) plus "
                      f"{GROOVE_CLEAR_MM:g} mm are engraved in separate lanes across it, lane 1 nearest the "
                      f"ball's path, each at its own place along it ({where})")
-    for m in pub:
-        if not m["engraved"]:
+    for m, mk in zip(pub, marks):
+        if mk.get("too_thin"):
+            lines.append(f"not engraved: {m['label']}: the ramp is too thin there for a groove (it thins to nothing "
+                         "at the launch point); measure it off by 'along (mm)'")
+        elif not m["engraved"]:
             lines.append(f"not engraved: {m['label']}: no room across the ramp for another lane of grooves "
                          "(too close to a neighbouring mark); measure it off by 'along (mm)'")
+        elif mk["groove_depth_mm"] < GROOVE_DEPTH_MM:
+            lines.append(f"shallow groove: {m['label']}: {mk['groove_depth_mm']:.2g} mm deep (half the ramp's "
+                         "thickness there)")
     for t in beyond:
         lines.append(f"not marked: {t['label']} at {t['v_in']:.5f} {u}/s is beyond the ramp's reach (its top, "
                      f"H = {payload['top_height']:.4g} {u}, gives less with the ramp's losses)")

@@ -52,6 +52,7 @@ from ..physics.ramp_profile import (ANGLE_DEG, RampProfile, StraightRamp, design
 
 GROOVE_WIDTH_MM = 0.6
 GROOVE_DEPTH_MM = 0.8
+GROOVE_MIN_DEPTH_MM = 0.05   # shallower than this a groove is not cut (the ramp under it is too thin)
 GROOVE_GAP_MM = 2.0          # between the two lines of a double groove
 GROOVE_CLEAR_MM = 0.4        # least wall between two grooves in one lane (else set apart across the ramp)
 LANE_GAP_MM = 2.0            # between two lanes of grooves across the ramp
@@ -173,7 +174,7 @@ def build_ramp(spec, prof: RampProfile, marks: list[dict]) -> RampSolid:
                 MX, MY = np.meshgrid(gxm, gym, indexing="ij")
                 Tm = fns.h(MX, MY) + prof.lift(prof.start - MX)
                 Vg, Fg = heightfield((gxm - x0f) * s, (gym - y0f) * s, (Tm - top) * s + 2.0,
-                                     (Tm - top) * s - GROOVE_DEPTH_MM)
+                                     (Tm - top) * s - mk.get("groove_depth_mm", GROOVE_DEPTH_MM))
                 ramp = ramp - _manifold(Vg, Fg)
     mesh = ramp.to_mesh()
     Vr = np.asarray(mesh.vert_properties, dtype=float)[:, :3]
@@ -241,6 +242,18 @@ def place_marks(spec, prof: RampProfile, targets: list[dict]) -> list[dict]:
             side += 1
     assign_lanes(out)
     _lane_spans(out, 0.4 * prof.radius, half_width(spec, prof) - 2.0 / s, s)
+    # a groove never cuts through: where the ramp rests on the block it is D(u) thick under
+    # the running surface (the lift, least at the groove's edge nearest the launch point)
+    x0f = float(spec.surface.x[0])
+    for m in out:
+        reach = (0.5 * GROOVE_WIDTH_MM + (0.5 * GROOVE_GAP_MM if m["double"] else 0.0)) / s
+        u_near = max(0.0, m["u"] - reach)
+        on_block = prof.start - m["u"] - reach >= x0f
+        thick = float(prof.lift(u_near)) * s if on_block else math.inf
+        m["groove_depth_mm"] = float(min(GROOVE_DEPTH_MM, 0.5 * thick))
+        if m["groove_depth_mm"] < GROOVE_MIN_DEPTH_MM:
+            m["grooves"], m["engraved"] = {}, False
+            m["too_thin"] = True
     return out
 
 
