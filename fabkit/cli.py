@@ -411,9 +411,9 @@ def entry() -> int:
 
     if signal.getsignal(signal.SIGINT) is not signal.SIG_IGN:
         signal.signal(signal.SIGINT, _on_sigint)
-        # registered first, so run last of the exit functions: from then on the interpreter's
-        # own teardown would put back SIGINT's default (death by signal, no message), so
-        # Ctrl-C is ignored for those last milliseconds
+        # registered before the command's imports, so run after their exit functions: from
+        # then on the interpreter's own teardown would put back SIGINT's default (death by
+        # signal, no message), so Ctrl-C is ignored for those last milliseconds
         import atexit
 
         atexit.register(signal.signal, signal.SIGINT, signal.SIG_IGN)

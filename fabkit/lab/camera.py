@@ -77,11 +77,12 @@ class MarkerLayout:
 class TopFacePlan:
     """Where paper can be stuck on the block's top face, on a grid in work mm.
 
-    ``X`` (nx,), ``Y`` (ny,) the grid; ``depth_mm`` (ny, nx) how far the milled surface lies
-    below the top face (top - h, mm; negative where h is above it and the top face is
-    uncut); ``cut`` where it is below (h < top); ``blocked`` (ny, nx) the cut grown by ``margin_mm`` (the
-    finishing ball-end tool's radius) and one grid step, or under the ramp; ``ramp`` the
-    ramp's footprint on the block, [X0, X1, Y0, Y1] work mm, or None."""
+    ``X`` (nx,), ``Y`` (ny,) the grid; ``depth_mm`` (ny, nx) how far the milled surface
+    lies below the top face (top - h, mm; negative where h is above it and the top face
+    is uncut); ``cut`` where it is below (h < top); ``blocked`` (ny, nx) the cut grown by
+    ``margin_mm`` (the finishing ball-end tool's radius) and one grid step, or under the
+    ramp; ``ramp`` the ramp's footprint on the block, [X0, X1, Y0, Y1] work mm, or None
+    (a straight ramp's width taken as 3 ball diameters each side)."""
 
     X: np.ndarray
     Y: np.ndarray
