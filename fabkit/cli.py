@@ -10,7 +10,8 @@ exit codes here and nowhere else:
     2  bad input (file, YAML, key, value, expression, depth over a limit, size guard), or an
        output that cannot be written (full disk, read-only folder: an I/O error line)
     3  internal error (a bug: please report it; FABKIT_DEBUG=1 shows the traceback)
-  130  interrupted (Ctrl-C); existing outputs are left intact
+    4  interrupted (Ctrl-C) after outputs were written: each one named is complete
+  130  interrupted (Ctrl-C) before any output was written; existing outputs are left intact
 """
 
 from __future__ import annotations
@@ -22,7 +23,8 @@ import os
 import sys
 
 from . import __version__
-from .errors import EXIT_INTERNAL, EXIT_INTERRUPTED, FabkitError, one_line
+from .errors import (EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_INTERRUPTED_WRITTEN, RUN, FabkitError, interrupted_line,
+                     one_line, pause_at)
 
 
 class _Parser(argparse.ArgumentParser):
@@ -42,7 +44,8 @@ EXIT_CODES = """exit codes:
     2  bad input: file, YAML, key, value, option or output path, or an output that cannot
        be written (full disk): one line naming it; nothing written
     3  internal error: a bug, please report it (FABKIT_DEBUG=1 shows the traceback)
-  130  interrupted (Ctrl-C): existing outputs left intact
+    4  interrupted (Ctrl-C) after the outputs were written: the outputs named are complete
+  130  interrupted (Ctrl-C) before any output was written: existing outputs left intact
 
 units: speeds are in the spec's design units per second (units: mm | cm | in), heights and
 lengths of the surface, ball, ramp and simulation in design units, machining lengths in mm.
@@ -225,7 +228,7 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--dx", type=float, metavar="DX", help="grid spacing, in kink length units (default 0.25)")
     c.add_argument("--dt", type=float, metavar="DT", help="ETDRK4 time step, in the PDE's time unit (default 0.05)")
     c.add_argument("--x0", type=float, metavar="X0",
-                   help="initial half-separation of the kinks, >= 10 (default 10)")
+                   help="initial half-separation of the kinks, in kink length units (as --dx), >= 10 (default 10)")
     c.add_argument("--json", action="store_true", help="print JSON")
     c.add_argument("--plot", metavar="FILE", help="one speed: X(t) and A(t) (the paper's Fig. 3); a sweep: "
                    "v_out against v_in. " + PLOT)
@@ -283,9 +286,21 @@ def _non_finite_option(parser: argparse.ArgumentParser, args) -> str | None:
     return None
 
 
+def _from_interrupt(exc: BaseException) -> bool:
+    """True when ``exc`` was raised while handling a KeyboardInterrupt (its cause or context)."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return False
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run fabkit; returns the exit code (never raises, never exits)."""
     argv = sys.argv[1:] if argv is None else list(argv)
+    RUN.reset()
     parser = build_parser()
     try:
         args = parser.parse_args(argv)
@@ -301,6 +316,7 @@ def main(argv: list[str] | None = None) -> int:
     if bad:
         print(f"fabkit {args.command}: {bad}", file=sys.stderr)
         return 2
+    RUN.command, RUN.phase = args.command, "run"
     try:
         module = importlib.import_module(f"fabkit.commands.{args.command}")
         return int(module.run(args))
@@ -309,8 +325,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{where}{one_line(exc, 4000)}", file=sys.stderr)
         return exc.exit_code
     except KeyboardInterrupt:
-        print(f"fabkit {args.command}: interrupted; existing outputs left intact", file=sys.stderr)
-        return EXIT_INTERRUPTED
+        line, code = interrupted_line()
+        print(line, file=sys.stderr)
+        return code
     except MemoryError:
         print(f"fabkit {args.command}: out of memory: the request is too large for this machine", file=sys.stderr)
         return 2
@@ -323,6 +340,13 @@ def main(argv: list[str] | None = None) -> int:
         print(f"fabkit {args.command}: {where}I/O error: {one_line(exc.strerror or exc, 300)}", file=sys.stderr)
         return 2
     except Exception as exc:  # a bug: one line, traceback only on request
+        # numpy turns a Ctrl-C during its import into an ImportError; one raised inside a ctypes
+        # callback (numba's compiler) is swallowed there and the compiler then fails: either way
+        # this error is the interrupt's doing
+        if _from_interrupt(exc) or RUN.interrupted:
+            line, code = interrupted_line()
+            print(line, file=sys.stderr)
+            return code
         if os.environ.get("FABKIT_DEBUG"):
             raise
         print(f"fabkit {args.command}: internal error ({type(exc).__name__}: {one_line(exc, 300)}); "
@@ -330,22 +354,77 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_INTERNAL
 
 
+def _on_sigint(signum, frame):
+    """Ctrl-C, from the entry point's first instruction to the process's end (see :func:`entry`)."""
+    RUN.interrupted = True
+    if RUN.phase == "run" and not RUN.written:
+        raise KeyboardInterrupt          # main() discards the staged outputs and says so
+    if RUN.phase == "exit":
+        _exit(RUN.code)                  # the command is done: its code already says what was written
+    line, code = interrupted_line()      # starting: nothing written; or after writing: which outputs
+    _exit(code, line)
+
+
+def _exit(code: int, line: str | None = None) -> None:
+    """End the process now with ``code``: the streams flushed (a flush the signal
+    interrupted is skipped), ``line`` written straight to stderr."""
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):
+            stream.flush()
+    if line:
+        with contextlib.suppress(OSError):
+            os.write(2, (line + "\n").encode("utf-8", "replace"))
+    os._exit(code)
+
+
+def _quiet_interrupts(unraisable) -> None:
+    """sys.unraisablehook: a KeyboardInterrupt that Python cannot raise (it came inside a
+    ctypes callback or a finalizer) is not printed as a traceback; the run reports the
+    interrupt in its one line. Anything else goes to Python's own hook."""
+    if isinstance(unraisable.exc_value, KeyboardInterrupt):
+        RUN.interrupted = True
+        return
+    sys.__unraisablehook__(unraisable)
+
+
 def entry() -> int:
     """The console entry point: :func:`main`, then the process exit.
 
-    After Ctrl-C the process ends with ``os._exit(130)`` once the streams are
-    flushed. A normal exit is not used there: CPython (3.11) marks a
-    KeyboardInterrupt raised inside code run by ``exec`` of a string (scipy does
-    so while it is imported) as unhandled even when it is caught, and then kills
-    the process with SIGINT at exit, so the shell would see -2 instead of 130.
-    Outputs are already discarded by then; nothing else needs the shutdown.
+    Its first instruction installs the Ctrl-C handler (before any heavy import), so the
+    exit code says what was written whenever SIGINT comes: while starting, 130 and
+    "nothing written"; during the command's work, KeyboardInterrupt, which main() turns
+    into 130 with the staged outputs discarded; once outputs are renamed into place
+    (:mod:`fabkit.io` records them), 4 and the outputs named; after the command returned,
+    its own code; in the interpreter's last teardown (after the exit functions), ignored.
+    (Before this function runs, Python's own start-up and the import of this module take
+    a few tens of milliseconds in which Python's default applies.) A SIGINT ignored by
+    the parent (a background job) stays ignored.
+
+    After Ctrl-C the process ends with ``os._exit`` once the streams are flushed. A
+    normal exit is not used there: CPython (3.11) marks a KeyboardInterrupt raised
+    inside code run by ``exec`` of a string (scipy does so while it is imported) as
+    unhandled even when it is caught, and then kills the process with SIGINT at exit,
+    so the shell would see -2 instead of 130. Outputs are already discarded (or
+    complete) by then; nothing else needs the shutdown.
     """
+    import signal
+
+    if signal.getsignal(signal.SIGINT) is not signal.SIG_IGN:
+        signal.signal(signal.SIGINT, _on_sigint)
+        # registered before the command's imports, so run after their exit functions: from
+        # then on the interpreter's own teardown would put back SIGINT's default (death by
+        # signal, no message), so Ctrl-C is ignored for those last milliseconds
+        import atexit
+
+        atexit.register(signal.signal, signal.SIGINT, signal.SIG_IGN)
+    sys.unraisablehook = _quiet_interrupts
+    RUN.reset()
+    pause_at("start")
     code = main()
-    if code == EXIT_INTERRUPTED:
-        for stream in (sys.stdout, sys.stderr):
-            with contextlib.suppress(Exception):
-                stream.flush()
-        os._exit(code)
+    RUN.phase, RUN.code = "exit", code
+    if code in (EXIT_INTERRUPTED, EXIT_INTERRUPTED_WRITTEN):
+        _exit(code)
+    pause_at("exit")
     return code
 
 

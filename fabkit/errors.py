@@ -7,6 +7,8 @@ or prints.
 
 from __future__ import annotations
 
+import os
+
 
 class FabkitError(Exception):
     """Base class of every error fabkit reports to a user."""
@@ -68,3 +70,59 @@ EXIT_CHECK_FAILED = DesignError.exit_code
 EXIT_BAD_INPUT = SpecError.exit_code
 EXIT_INTERRUPTED = 130
 EXIT_INTERNAL = 3
+#: interrupted (Ctrl-C) after outputs were renamed into place: each output named is complete
+EXIT_INTERRUPTED_WRITTEN = 4
+
+
+# ----------------------------------------------------------------------------
+# what a Ctrl-C means at each point of a run
+# ----------------------------------------------------------------------------
+class RunState:
+    """Where the command line's run is, for the Ctrl-C handler :func:`fabkit.cli.entry`
+    installs: ``phase`` "start" (parsing, importing), "run" (the command's work),
+    "exit" (the command returned ``code``); ``written`` the outputs renamed into place
+    so far (set by :mod:`fabkit.io` as it commits them); ``interrupted`` once a SIGINT
+    has come (an error after it is the interrupt's doing, not a bug)."""
+
+    def __init__(self) -> None:
+        self.reset()
+
+    def reset(self) -> None:
+        self.phase = "start"
+        self.command: str | None = None
+        self.code = 0
+        self.written: list[str] = []
+        self.interrupted = False         # a SIGINT has come (set by the handler)
+
+
+RUN = RunState()
+
+
+def outputs_written(paths) -> None:
+    """Record outputs renamed into place (called by :mod:`fabkit.io` once they are)."""
+    RUN.written.extend(str(p) for p in paths)
+
+
+def interrupted_line() -> tuple[str, int]:
+    """The line and exit code for a Ctrl-C now: after outputs were written, code
+    EXIT_INTERRUPTED_WRITTEN naming them; before, EXIT_INTERRUPTED (nothing written)."""
+    who = f"fabkit {RUN.command}" if RUN.command else "fabkit"
+    if RUN.written:
+        names = ", ".join(RUN.written[:6]) + (f" and {len(RUN.written) - 6} more" if len(RUN.written) > 6 else "")
+        return (f"{who}: interrupted after writing {one_line(names, 2000)} (complete); any other output of this run "
+                "was not written", EXIT_INTERRUPTED_WRITTEN)
+    if RUN.phase == "start":
+        return f"{who}: interrupted while starting; nothing written", EXIT_INTERRUPTED
+    return f"{who}: interrupted; existing outputs left intact", EXIT_INTERRUPTED
+
+
+def pause_at(point: str) -> None:
+    """A hook for testing Ctrl-C at the edges of a run: with ``FABKIT_PAUSE_AT=point``
+    (start, written, exit) the process says ``fabkit: paused at <point>`` on stderr and
+    waits up to 60 s for a signal there. Without it, nothing."""
+    if os.environ.get("FABKIT_PAUSE_AT") != point:
+        return
+    import time
+
+    os.write(2, f"fabkit: paused at {point}\n".encode())
+    time.sleep(60)

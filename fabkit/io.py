@@ -25,7 +25,7 @@ import tempfile
 import threading
 from pathlib import Path
 
-from .errors import OutputError, SpecError
+from .errors import OutputError, SpecError, outputs_written, pause_at
 
 
 #: characters of the target's name kept in the temporary name (at most 4 bytes each; the rest is
@@ -156,12 +156,19 @@ class _Outputs:
     def _commit(self) -> None:
         # Ctrl-C between two renames would leave a new program beside an old setup sheet:
         # SIGINT/SIGTERM are held for the microseconds of the renames and delivered after.
+        # Once renamed, the outputs are recorded before the held signal is delivered: a Ctrl-C
+        # from then on reports them written (fabkit.errors.interrupted_line), never "intact".
         with _signals_held():
-            for tmp, target in self._pending:
-                try:
-                    os.replace(tmp, target)
-                except OSError as exc:
-                    raise OutputError(f"cannot write output: {exc.strerror or exc}", file=str(target)) from None
+            done = []
+            try:
+                for tmp, target in self._pending:
+                    try:
+                        os.replace(tmp, target)
+                    except OSError as exc:
+                        raise OutputError(f"cannot write output: {exc.strerror or exc}", file=str(target)) from None
+                    done.append(target)
+            finally:
+                outputs_written(done)
             self._pending.clear()
 
     def _discard(self) -> None:
@@ -221,6 +228,7 @@ def atomic_outputs():
     except BaseException:
         outputs._discard()
         raise
+    pause_at("written")
 
 
 def text_of(data: bytes, path, limit: int) -> str:

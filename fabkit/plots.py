@@ -388,10 +388,11 @@ def analyze_figure(rows: list[dict], *, title: str = "", units: str = "", fmt: s
         else:
             sim = r.get("simulation") or {}
             vo = r.get("v_out")
-            head = (f"{name}: launch v_in {r.get('v_in') or float('nan'):.4g}, {r.get('bounces')} bounce(s), "
-                    f"{r.get('outcome')}" + (f" v_out {vo:.4g}" if vo else "")
+            vu = f" {units}/s" if units else ""
+            head = (f"{name}: launch v_in {r.get('v_in') or float('nan'):.4g}{vu}, {r.get('bounces')} bounce(s), "
+                    f"{r.get('outcome')}" + (f" v_out {vo:.4g}{vu}" if vo else "")
                     + (f" | sim: {sim.get('bounces')} bounce(s), {sim.get('outcome')}"
-                       + (f" v_out {sim['v_out']:.4g}" if sim.get("v_out") else "") if sim else ""))
+                       + (f" v_out {sim['v_out']:.4g}{vu}" if sim.get("v_out") else "") if sim else ""))
         ax1.set_title(head, fontsize=8, loc="left")
         if k == 0:
             ax1.legend(loc="best", fontsize=7)

@@ -249,3 +249,100 @@ def test_ctrl_c_during_the_renames_leaves_a_consistent_pair(tmp_path, monkeypatc
     assert a.read_text() == "new program" and b.read_text() == "new sheet"
     assert temporaries(tmp_path) == []
 
+
+
+# ----------------------------------------------------------------------------
+# Ctrl-C at the edges of a run: real SIGINT at known points (FABKIT_PAUSE_AT)
+# ----------------------------------------------------------------------------
+GRBL_DUMP = "".join(f"${k}={v}\n" for k, v in [(11, 0.02), (12, 0.002), (30, 24000), (31, 1000), (100, 800),
+                                                 (101, 800), (102, 400), (110, 5000), (111, 4000), (112, 1000),
+                                                 (120, 500), (121, 400), (122, 100), (130, 300), (131, 180),
+                                                 (132, 80)])
+
+
+def _sigint_at(tmp_path, point: str, *args: str):
+    """Run ``python -m fabkit ARGS`` with FABKIT_PAUSE_AT=point; once it says it has paused
+    there (a line on stderr, read before anything is sent: no timing), send SIGINT."""
+    env = dict(os.environ, PYTHONPATH=str(ROOT), FABKIT_PAUSE_AT=point)
+    env.pop("FABKIT_DEBUG", None)
+    proc = subprocess.Popen([sys.executable, "-m", "fabkit", *args], cwd=tmp_path, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, preexec_fn=_ctrl_c_reaches_children)
+    first = proc.stderr.readline().decode()
+    if first == f"fabkit: paused at {point}\n":
+        proc.send_signal(signal.SIGINT)
+    try:
+        out, err = proc.communicate(timeout=90)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.communicate()
+        pytest.fail(f"fabkit did not stop after SIGINT at {point}")
+    assert first == f"fabkit: paused at {point}\n", first + err.decode()
+    return proc.returncode, out.decode(), err.decode()
+
+
+@pytest.mark.parametrize("point,code,words", [
+    ("start", 130, "interrupted while starting; nothing written"),
+    ("written", 4, "interrupted after writing"),
+    ("exit", 0, None),
+])
+def test_sigint_at_the_edges_of_a_run(tmp_path, point, code, words):
+    """Ctrl-C from the first instruction to the last: at start-up (before the command's
+    imports) 130 and nothing written; right after the output is renamed into place 4,
+    naming it, and it is complete; after the command returned, its own code."""
+    dump = tmp_path / "dump.txt"
+    dump.write_text(GRBL_DUMP)
+    target = tmp_path / "profile.yaml"
+    target.write_bytes(OLD)
+    rc, out, err = _sigint_at(tmp_path, point, "machine", "import", str(dump), "-o", str(target))
+    assert "Traceback" not in err
+    lines = err.splitlines()
+    assert rc == code, err
+    if words is None:
+        assert lines == [] and "machine:" in out          # the summary, whole
+    else:
+        assert len(lines) == 1 and words in lines[0], err
+    if point == "start":
+        assert target.read_bytes() == OLD
+    else:                                                 # written, whole: the profile it would always write
+        text = target.read_text()
+        assert text.startswith("# fabkit machine profile") and "max_rate: [5000.0, 4000.0, 1000.0]  # mm/min" in text
+        assert point != "written" or str(target) in lines[0]
+    assert temporaries(tmp_path) == []
+
+
+def test_cli_interrupted_after_the_renames_says_written(cli, tmp_path, monkeypatch):
+    """In-process: a KeyboardInterrupt once the outputs are renamed (a held SIGINT delivered
+    as the renames end) reports them written, exit 4, not "left intact"."""
+    dump = tmp_path / "dump.txt"
+    dump.write_text(GRBL_DUMP)
+    target = tmp_path / "profile.yaml"
+    original = fabkit.io._Outputs._commit
+
+    def commit_then_ctrl_c(self):
+        original(self)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(fabkit.io._Outputs, "_commit", commit_then_ctrl_c)
+    code, out, err = cli("machine", "import", dump, "-o", target)
+    assert code == 4 and err.count("\n") == 1 and "interrupted after writing" in err and str(target) in err
+    assert target.read_text().startswith("# fabkit machine profile")
+
+
+def test_ctrl_c_inside_an_import_is_an_interrupt(cli, tmp_path, monkeypatch):
+    """numpy re-raises a KeyboardInterrupt that lands in its import as an ImportError: still
+    exit 130 and the interrupt's line, not an internal error."""
+    import importlib
+
+    real = importlib.import_module
+
+    def interrupted_import(name, *a, **k):
+        if name.startswith("fabkit.commands."):
+            try:
+                raise KeyboardInterrupt
+            except KeyboardInterrupt:
+                raise ImportError("IMPORTANT: PLEASE READ THIS FOR ADVICE") from None
+        return real(name, *a, **k)
+
+    monkeypatch.setattr(importlib, "import_module", interrupted_import)
+    code, out, err = cli("stl", tmp_path / "x.yaml")
+    assert code == 130 and "interrupted" in err and "internal error" not in err

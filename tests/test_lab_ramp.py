@@ -34,7 +34,8 @@ def test_one_watertight_body(ramp_run):
     _, stl, res = ramp_run
     m = trimesh.load(stl)
     assert m.is_watertight and m.is_volume and len(m.split(only_watertight=False)) == 1
-    assert res["bodies"] == 1 and res["genus"] == 0
+    assert m.body_count == 1 and int((m.area_faces < 1e-9).sum()) == 0
+    assert res["bodies"] == 1 and res["genus"] == 0 and res["degenerate_triangles"] == 0
     assert m.volume == pytest.approx(res["volume_mm3"], rel=1e-5)
     # it meets the block at the launch point (work X = (start - x0) * 10 = 140 mm) and rests
     # on the table (Z = -thickness) beyond the block's end (X < 0)
@@ -139,3 +140,71 @@ def test_straight_profile_is_not_built(cli, tmp_path):
     assert code == 2 and "ramp.profile" in err and err.count("\n") == 1
     code, out, err = cli("calibrate", spec, "--v-in", "50")
     assert code == 0 and "straight" in out
+
+
+def test_marks_closer_than_a_groove_are_set_apart_into_one_watertight_body():
+    """The grooves of marks 0.43 mm apart (narrower than a 0.6 mm groove) overlapped
+    and left 26 zero-area triangles and a stray body. Marks at 0.43, 0.1 and 0.0 mm from
+    each other and from v_critical's double groove: each keeps its place along the ramp,
+    crowded ones go to separate lanes, and trimesh reads the STL as one watertight body."""
+    trimesh = pytest.importorskip("trimesh")
+    import io
+
+    from fabkit.lab.ramp import GROOVE_CLEAR_MM, GROOVE_WIDTH_MM, build_ramp, mesh_verdict, place_marks
+    from fabkit.physics.ramp_profile import design_profile
+    from fabkit.solid import stl_bytes
+    from fabkit.spec import load_spec
+    from conftest import PAPER
+
+    spec = load_spec(PAPER)
+    prof = design_profile(spec, 4.5)
+    s = float(spec.scale)
+    u0 = prof.u_for_height(2.55)
+    # along the launch line: window marks 0.43 mm, 0.1 mm and 0 mm apart, and one on v_critical's groove
+    us = [u0, u0 + 0.43 / s, u0 + 0.53 / s, u0 + 0.53 / s, u0 + 1.0 / s + 1.5 / s]
+    targets = [{"height": float(prof.drop(u)), "v_in": 0.0, "label": f"m{i}", "double": False}
+               for i, u in enumerate(us[:4])]
+    targets.append({"height": float(prof.drop(us[4])), "v_in": 0.0, "label": "v_critical", "double": True})
+    # and a mark near the launch point, where the ramp is 0.6 mm thick: its groove must not cut through
+    u_thin = float(__import__("scipy.optimize").optimize.brentq(lambda u: float(prof.lift(u)) * s - 0.6, 1e-6,
+                                                                 prof.L))
+    targets.append({"height": float(prof.drop(u_thin + 0.3 / s)), "v_in": 0.0, "label": "thin", "double": False})
+    targets.sort(key=lambda t: t["height"])
+    marks = place_marks(spec, prof, targets)
+    for m in marks:                                      # each where its height puts it
+        assert m["drop_check"] == pytest.approx(m["height"], abs=1e-9)
+    # no two grooves of one side and lane closer than a width plus the clearance
+    lines = [(side, m["lane"][side], x) for m in marks if m["engraved"] for side in m["grooves"]
+             for x in ([m["X"] - 1.0, m["X"] + 1.0] if m["double"] else [m["X"]])]
+    for i, (sa, la, xa) in enumerate(lines):
+        for sb, lb, xb in lines[i + 1:]:
+            if (sa, la) == (sb, lb):
+                assert abs(xa - xb) >= GROOVE_WIDTH_MM + GROOVE_CLEAR_MM - 1e-9
+    assert all(m["engraved"] for m in marks) and sum(m["crowded"] for m in marks) >= 2
+    thin = next(m for m in marks if m["label"] == "thin")
+    assert 0.05 <= thin["groove_depth_mm"] <= 0.3 + 1e-9          # half the ramp's 0.6 mm there
+    data = stl_bytes(*(lambda r: (r.vertices, r.faces))(build_ramp(spec, prof, marks)))
+    mesh = trimesh.load(io.BytesIO(data), file_type="stl")
+    assert mesh.is_watertight and mesh.body_count == 1 and len(mesh.split(only_watertight=False)) == 1
+    assert mesh.volume > 0 and int((mesh.area_faces < 1e-9).sum()) == 0
+    assert mesh_verdict(data, "stl").ok
+
+
+def test_mesh_verdict_refuses_a_stray_body_and_slivers():
+    """The read-back check the command runs before writing: a cube is one watertight body; a
+    cube with a zero-volume sliver beside it (the issue's stray body) or a duplicated
+    degenerate face is not."""
+    from fabkit.lab.ramp import mesh_verdict
+    from fabkit.solid import stl_bytes
+
+    V = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]], float)
+    F = np.array([[0, 2, 1], [0, 3, 2], [4, 5, 6], [4, 6, 7], [0, 1, 5], [0, 5, 4], [1, 2, 6], [1, 6, 5],
+                  [2, 3, 7], [2, 7, 6], [3, 0, 4], [3, 4, 7]])
+    good = mesh_verdict(stl_bytes(V, F), "stl")
+    assert good.ok and good.bodies == 1 and good.volume_mm3 == pytest.approx(1.0)
+    # a flat, zero-volume "body": two coincident triangles, back to back
+    Vs = np.vstack([V, [[3, 0, 0], [4, 0, 0], [3, 1, 0]]])
+    stray = mesh_verdict(stl_bytes(Vs, np.vstack([F, [[8, 9, 10], [8, 10, 9]]])), "stl")
+    assert not stray.ok and stray.bodies == 2
+    sliver = mesh_verdict(stl_bytes(Vs, np.vstack([F, [[8, 9, 9]]])), "stl")
+    assert not sliver.ok

@@ -231,11 +231,15 @@ def test_spec_lab_keys(tmp_path, capsys):
     p.write_text(vr.SPEC_TEXT + "lab:\n  markers: [[20, 20], [330, 20], [480, 230]]\n")
     assert main(["markers", str(p), "-o", str(tmp_path / "m.pdf")]) == 2
     assert "lab.markers: must be a list of 4 points" in capsys.readouterr().err
-    # the default corner (L, 0) lies over the paper surface's rising end: said, named
+    # the old default corner (L, 0) lies over the paper surface's rising end: given, refused
+    # naming the marker; the default now places all four on the uncut top face, unwarned
+    p.write_text(vr.SPEC_TEXT + "lab:\n  markers: [[20, 20], [480, 20], [480, 230], [20, 230]]\n")
+    assert main(["markers", str(p), "-o", str(tmp_path / "m.pdf")]) == 2
+    err = capsys.readouterr().err
+    assert "marker 1 at [480, 20]" in err and "lab.markers[1]" in err
     p.write_text(vr.SPEC_TEXT)
     assert main(["markers", str(p), "-o", str(tmp_path / "m.pdf")]) == 0
-    err = capsys.readouterr().err
-    assert "marker 1 at [480, 20]" in err and "lab.markers" in err
+    assert capsys.readouterr().err == ""
 
 
 # ---------------------------------------------------------------------------- the page to print

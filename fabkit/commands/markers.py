@@ -3,15 +3,21 @@
 ArUco markers 0-3 of OpenCV's DICT_4X4_50 at true size (``lab.marker_size``: the
 black square's side, default 30 mm), each with its white quiet zone one module wide
 and a thin cut line around it, and where each goes: its centre in work mm
-(``lab.markers``, or 5 mm from the two nearest block edges at the corners (0, 0),
-(L, 0), (L, W), (0, W)), its top edge toward +Y, and a plan of the block. The page
-is A4 (larger when the markers need it); PDF and SVG are vector, PNG is 600 dpi.
-Print at 100 % ("actual size"), then measure the 100 mm scale bar.
+(``lab.markers``, or by default at the block's corners on the uncut top face, clear of
+the milled surface by the tool's radius and off the ramp:
+:func:`fabkit.lab.camera.marker_layout`), its top edge toward +Y, and a plan of the
+block to scale with the milled region (the surface below the top face, shaded), the
+ramp's footprint and the markers' papers. The page is A4 (larger when the markers need
+it); PDF and SVG are vector (the markers are drawn module by module, never rasterised),
+PNG is 600 dpi up to MAX_PNG_PIXELS (a larger page is rendered at the dpi that fits, and
+said: print the PDF for true size). Print at 100 % ("actual size"), then measure the
+100 mm scale bar.
 """
 
 from __future__ import annotations
 
 import io
+import math
 from pathlib import Path
 
 import numpy as np
@@ -22,6 +28,22 @@ from ._common import Timer, check_paths, default_output, emit, warn
 
 FORMATS = {".pdf": "pdf", ".svg": "svg", ".png": "png"}
 A4 = (210.0, 297.0)
+PNG_DPI = 600
+MAX_PNG_PIXELS = 40_000_000      # an A4 page at 600 dpi is 35 Mpx (140 MB of RGBA while drawn)
+
+
+def png_dpi(page_mm: tuple[float, float]) -> int:
+    """The PNG's resolution: PNG_DPI, or less so that the page stays within MAX_PNG_PIXELS."""
+    w, h = (v / MM_PER_INCH for v in page_mm)
+    return int(min(PNG_DPI, math.floor(math.sqrt(MAX_PNG_PIXELS / (w * h)))))
+
+
+def page_size(layout) -> tuple[float, float]:
+    """The page (width, height) in mm for the layout's markers (A4 or larger)."""
+    s, m = layout.size, layout.module
+    cell = s + 2 * m + 12.0
+    margin = 15.0
+    return max(A4[0], 2 * cell + 2 * margin), max(A4[1], 2 * (cell + 16.0) + 70.0 + 60.0 + 2 * margin)
 
 
 def _bits(i: int) -> np.ndarray:
@@ -32,8 +54,10 @@ def _bits(i: int) -> np.ndarray:
     return cv2.aruco.generateImageMarker(d, int(i), 6) < 128
 
 
-def sheet(layout, L: float, W: float, name: str, camera_height, fmt: str) -> bytes:
-    """The page as bytes (see the module doc). Lengths in mm; ``layout`` a MarkerLayout."""
+def sheet(layout, L: float, W: float, name: str, camera_height, fmt: str, plan=None) -> bytes:
+    """The page as bytes (see the module doc). Lengths in mm; ``layout`` a MarkerLayout;
+    ``plan`` the block's top face (:func:`fabkit.lab.camera.top_face_plan`) to draw the
+    milled region and the ramp on the block's plan."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -44,9 +68,8 @@ def sheet(layout, L: float, W: float, name: str, camera_height, fmt: str) -> byt
     paper = s + 2 * m                              # the square and its quiet zone
     cell = paper + 12.0                            # room for the label under each
     margin = 15.0
-    pw = max(A4[0], 2 * cell + 2 * margin)
     plan_h = 70.0
-    ph = max(A4[1], 2 * (cell + 16.0) + plan_h + 60.0 + 2 * margin)
+    pw, ph = page_size(layout)
     fig = plt.figure(figsize=(pw / MM_PER_INCH, ph / MM_PER_INCH))
     ax = fig.add_axes([0, 0, 1, 1])
     ax.set_xlim(0, pw)
@@ -92,7 +115,22 @@ def sheet(layout, L: float, W: float, name: str, camera_height, fmt: str) -> byt
     k = min((pw - 2 * margin) / L, plan_h / W)
     bx, by = margin, margin + 12
     ax.add_patch(Rectangle((bx, by), L * k, W * k, fill=False, ec="black", lw=0.6))
+    legend = []
+    if plan is not None:
+        if plan.cut.any():
+            # the milled region: the surface below the top face (vector polygons, 0.05 mm and deeper)
+            ax.contourf(bx + plan.X * k, by + plan.Y * k, plan.depth_mm, levels=[0.0, np.inf], colors=["0.82"])
+            ax.contour(bx + plan.X * k, by + plan.Y * k, plan.depth_mm, levels=[0.0], colors=["0.45"],
+                       linewidths=0.3)
+            legend.append("grey: milled (the surface below the top face)")
+        if plan.ramp is not None:
+            X0, X1, Y0, Y1 = plan.ramp
+            ax.add_patch(Rectangle((bx + X0 * k, by + Y0 * k), (X1 - X0) * k, (Y1 - Y0) * k, fill=False,
+                                   ec="0.3", lw=0.4, hatch="////"))
+            legend.append("hatched: the ramp's footprint")
     for i, (cx, cy) in enumerate(layout.centres):
+        ax.add_patch(Rectangle((bx + (cx - paper / 2) * k, by + (cy - paper / 2) * k), paper * k, paper * k,
+                               fill=True, fc="white", ec="0.4", lw=0.3))
         ax.add_patch(Rectangle((bx + (cx - s / 2) * k, by + (cy - s / 2) * k), s * k, s * k, color="black", lw=0))
         ax.text(bx + cx * k, by + (cy + s / 2) * k + 1, str(i), fontsize=7, ha="center", va="bottom")
     ax.annotate("", xy=(bx + 14, by - 4), xytext=(bx, by - 4), arrowprops={"arrowstyle": "->", "lw": 0.6})
@@ -105,17 +143,19 @@ def sheet(layout, L: float, W: float, name: str, camera_height, fmt: str) -> byt
            if camera_height else "camera: 1 to 1.6 m above the top face, looking down; measure its height "
            "(lab.camera_height) to improve the calibration")
     ax.text(bx, by - 9, cam, fontsize=7, va="top")
+    if legend:
+        ax.text(bx, by - 13, "; ".join(legend) + "; each marker's paper outlined", fontsize=7, va="top")
     buf = io.BytesIO()
     meta = {"pdf": {"CreationDate": None, "Producer": None, "Creator": None},
             "svg": {"Date": None, "Creator": None}, "png": {"Software": None}}[fmt]
-    fig.savefig(buf, format=fmt, dpi=600, metadata=meta)
+    fig.savefig(buf, format=fmt, dpi=png_dpi((pw, ph)) if fmt == "png" else PNG_DPI, metadata=meta)
     plt.close(fig)
     return buf.getvalue()
 
 
 def run(args) -> int:
     from ..io import atomic_outputs
-    from ..lab.camera import marker_layout
+    from ..lab.camera import marker_layout, top_face_plan
     from ..spec import load_spec
     from ..surface import Surface
 
@@ -133,13 +173,25 @@ def run(args) -> int:
         warn(n)
     L, W = surface.stock_size_mm
     height = spec.lab.camera_height if spec.has("lab") else None
-    data = sheet(layout, L, W, spec.name, height, fmt)
+    plan = top_face_plan(spec, surface)
+    data = sheet(layout, L, W, spec.name, height, fmt, plan=plan)
+    dpi = png_dpi(page_size(layout)) if fmt == "png" else None
     with atomic_outputs() as out:
         out.write(path, data)
     payload = {"path": str(path), "dictionary": "DICT_4X4_50", "ids": [0, 1, 2, 3], "marker_size_mm": layout.size,
                "quiet_zone_mm": layout.module, "centres_mm": layout.centres.tolist(), "block_mm": [L, W],
-               "camera_height_mm": height, "notes": list(layout.notes), "seconds": timer.seconds}
+               "camera_height_mm": height, "notes": list(layout.notes), "page_mm": list(page_size(layout)),
+               "dpi": dpi, "tool_margin_mm": plan.margin_mm,
+               "ramp_footprint_mm": list(plan.ramp) if plan.ramp is not None else None, "seconds": timer.seconds}
     where = "; ".join(f"{i}: [{c[0]:.1f}, {c[1]:.1f}]" for i, c in enumerate(layout.centres))
-    emit([f"markers: {path}, 4 markers of {layout.size:g} mm (DICT_4X4_50), centres in work mm {where}"],
-         payload, args.json)
+    where_from = "lab.markers" if spec.has("lab") and spec.lab.markers is not None else (
+        "each paper on the uncut top face, clear of the milled surface"
+        + (f" by the tool's radius {plan.margin_mm:g} mm" if plan.margin_mm else "")
+        + (" and off the ramp" if plan.ramp is not None else ""))
+    lines = [f"markers: {path}, 4 markers of {layout.size:g} mm (DICT_4X4_50), centres in work mm {where} "
+             f"({where_from})"]
+    if dpi is not None and dpi < PNG_DPI:
+        lines.append(f"note: the page ({page_size(layout)[0]:.0f} x {page_size(layout)[1]:.0f} mm) is rendered at "
+                     f"{dpi} dpi to stay within {MAX_PNG_PIXELS / 1e6:g} Mpx; print the PDF for true size")
+    emit(lines, payload, args.json)
     return 0

@@ -13,7 +13,8 @@ from ._common import Timer, check_paths, default_output, emit, launch_stages, pr
 def run(args) -> int:
     from ..errors import DesignError
     from ..io import atomic_outputs
-    from ..lab.ramp import build_ramp, mark_targets, place_marks, ramp_angle, ramp_profile
+    from ..lab.ramp import (GROOVE_CLEAR_MM, GROOVE_DEPTH_MM, GROOVE_WIDTH_MM, build_ramp, mark_targets, mesh_verdict, place_marks,
+                            ramp_angle, ramp_profile)
     from ..physics.calibrate import ball_k, entry, ramp_heights
     from ..physics.check import check
     from ..solid import EXPORT_FORMATS, export_bytes
@@ -55,9 +56,12 @@ def run(args) -> int:
         marks = place_marks(spec, prof, targets)
         stage("building the solid")
         solid = build_ramp(spec, prof, marks)
-        if solid.bodies != 1:
-            raise RuntimeError(f"the ramp came out as {solid.bodies} bodies")
         data = export_bytes(solid.vertices, solid.faces, fmt)
+        # the bytes about to be written, read back as a slicer reads them
+        verdict = mesh_verdict(data, fmt)
+        if not verdict.ok:
+            raise DesignError(f"{spec.path}: the ramp's mesh is not one watertight body ({verdict.message}); "
+                              "nothing written")
     finally:
         close()
     with atomic_outputs() as out:
@@ -65,10 +69,12 @@ def run(args) -> int:
     u = spec.units
     pub = [{"height": m["height"], "v_in": m["v_in"], "label": m["label"], "X": m["X"], "Y": m["Y"], "Z": m["Z"],
             "along_mm": m["along_mm"], "groove": "double" if m["double"] else "single", "side": m["side"],
-            "crowded": m["crowded"]} for m in marks]
+            "crowded": m["crowded"], "engraved": m["engraved"], "groove_depth_mm": m["groove_depth_mm"],
+            "lane": {side: [m["lane"][side], m["lanes"][side]] for side in m["lane"]}} for m in marks]
     payload = {
         "path": str(path), "marks": pub, "triangles": int(len(solid.faces)), "volume_mm3": solid.volume_mm3,
-        "bodies": solid.bodies, "genus": solid.genus, "watertight": True,
+        "bodies": verdict.bodies, "genus": solid.genus, "watertight": verdict.watertight,
+        "degenerate_triangles": verdict.degenerate,
         "angle_deg": ramp_angle(spec), "transition_length": prof.L, "length": prof.u_end,
         "damping": ent.mu, "rolling_resistance": ent.c, "calibration": ent.method,
         "beyond_reach": [{"v_in": t["v_in"], "label": t["label"]} for t in beyond],
@@ -76,15 +82,34 @@ def run(args) -> int:
         "extent_mm": solid.extent_mm, "safe": chk["safe"], "highest_safe_height": chk["highest_safe_height"], "model": chk["model"],
         "units": u, "seconds": timer.seconds, "check_seconds": t_check,
     }
-    lines = [f"ramp: {Path(path)}, one watertight body ({len(solid.faces)} triangles, volume "
-             f"{solid.volume_mm3:.6e} mm^3), {prof.u_end:.4g} {u} long, rises to release height "
-             f"{payload['top_height']:.4g} {u}, incline {ramp_angle(spec):g} deg, curvature-continuous at the "
-             f"launch point (work X {solid.extent_mm['launch_point'][0]:.2f} mm)",
+    lo, hi = float(min(H)), float(max(H))
+    lines = [f"ramp: {Path(path)}, one watertight body (read back: {verdict.bodies} body, {verdict.triangles} "
+             f"triangles, none degenerate, volume {solid.volume_mm3:.6e} mm^3), {prof.u_end:.4g} {u} long; its "
+             f"top is a release height of {payload['top_height']:.4g} {u} (the spec's release heights "
+             f"{lo:.4g}-{hi:.4g} {u}, the ball's room above), incline {ramp_angle(spec):g} deg, "
+             f"curvature-continuous at the launch point (work X {solid.extent_mm['launch_point'][0]:.2f} mm)",
              f"{'mark':<44} {'H (' + u + ')':>10} {'v_in (' + u + '/s)':>14} {'X (mm)':>9} {'along (mm)':>11}"]
     lines += [f"{m['label']:<44} {m['height']:10.5f} {m['v_in']:14.5f} {m['X']:9.2f} {m['along_mm']:11.2f}"
               for m in pub]
     if not pub:
         lines.append("no marks: the ramp reaches no two-bounce window and not v_critical")
+    apart = [m for m in pub if m["crowded"] and m["engraved"]]
+    if apart:
+        where = "; ".join(f"{m['label'].split(' (')[0]}: " + ", ".join(
+            f"{side} side lane {j + 1} of {n}" for side, (j, n) in sorted(m["lane"].items())) for m in apart)
+        lines.append(f"set apart: marks closer along the ramp than a groove's width ({GROOVE_WIDTH_MM:g} mm) plus "
+                     f"{GROOVE_CLEAR_MM:g} mm are engraved in separate lanes across it, lane 1 nearest the "
+                     f"ball's path, each at its own place along it ({where})")
+    for m, mk in zip(pub, marks):
+        if mk.get("too_thin"):
+            lines.append(f"not engraved: {m['label']}: the ramp is too thin there for a groove (it thins to nothing "
+                         "at the launch point); measure it off by 'along (mm)'")
+        elif not m["engraved"]:
+            lines.append(f"not engraved: {m['label']}: no room across the ramp for another lane of grooves "
+                         "(too close to a neighbouring mark); measure it off by 'along (mm)'")
+        elif mk["groove_depth_mm"] < GROOVE_DEPTH_MM:
+            lines.append(f"shallow groove: {m['label']}: {mk['groove_depth_mm']:.2g} mm deep (half the ramp's "
+                         "thickness there)")
     for t in beyond:
         lines.append(f"not marked: {t['label']} at {t['v_in']:.5f} {u}/s is beyond the ramp's reach (its top, "
                      f"H = {payload['top_height']:.4g} {u}, gives less with the ramp's losses)")

@@ -82,7 +82,7 @@ def _lines(results, outs, units, seconds):
         j = r.to_json()
         cam = j["camera"]
         lines.append(f"{r.path}: {j['tracked']}/{j['frames']} frames tracked ({100 * j['fraction_tracked']:.1f} %), "
-                     f"{j['frame_rate']:.4g} frames/s" + (" (variable)" if j["variable_frame_rate"] else "")
+                     f"video at {j['frame_rate']:.4g} frames/s" + (" (variable)" if j["variable_frame_rate"] else "")
                      + f" -> {o}")
         lines.append(f"  camera {cam['height_mm']:.0f} mm up (± {cam['height_sigma_mm']:.2g}), tilt "
                      f"{cam['tilt_deg']:.1f} deg, f {cam['focal_px']:.0f} px, k1 {cam['k1']:+.3f}; markers "

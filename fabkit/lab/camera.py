@@ -44,6 +44,7 @@ EDGE_GAP_MM = 5.0            # default: the black square this far from the two n
 HEIGHT_SIGMA_MM = 10.0       # lab.camera_height: a tape measure, good to about 1 cm
 CORNER_SIGMA_PX = 0.2        # the weight of a corner in the fit (px); reported errors are measured
 FLAT_MM = 0.05               # a marker's paper may lie over a cut this shallow (mm)
+SMALLER_SIZES_MM = (25.0, 20.0, 15.0, 12.0, 10.0)   # tried in turn when the default size finds no room
 
 
 # ----------------------------------------------------------------------------
@@ -72,38 +73,204 @@ class MarkerLayout:
         return np.concatenate([xy, np.zeros((4, 4, 1))], axis=2)
 
 
+@dataclass(frozen=True)
+class TopFacePlan:
+    """Where paper can be stuck on the block's top face, on a grid in work mm.
+
+    ``X`` (nx,), ``Y`` (ny,) the grid; ``depth_mm`` (ny, nx) how far the milled surface
+    lies below the top face (top - h, mm; negative where h is above it and the top face
+    is uncut); ``cut`` where it is below (h < top); ``blocked`` (ny, nx) the cut grown by
+    ``margin_mm`` (the finishing ball-end tool's radius) and one grid step, or under the
+    ramp; ``ramp`` the ramp's footprint on the block, [X0, X1, Y0, Y1] work mm, or None
+    (a straight ramp's width taken as 3 ball diameters each side)."""
+
+    X: np.ndarray
+    Y: np.ndarray
+    depth_mm: np.ndarray
+    cut: np.ndarray
+    blocked: np.ndarray
+    margin_mm: float
+    ramp: tuple | None
+    step_mm: float
+
+
+#: grid nodes across the block's longer side for :func:`top_face_plan` (at most)
+PLAN_NODES = 801
+
+
+def _ramp_footprint(spec, surface):
+    """The ramp's footprint on the block in work mm [X0, X1, Y0, Y1] (the launch point back
+    to the block's end, the ramp's width), or None when the spec has no ramp to build."""
+    if not all(spec.has(k) for k in ("ramp", "ball", "simulation")):
+        return None
+    from ..physics.ramp_profile import ramp_profile
+    from .ramp import half_width
+
+    try:
+        prof = ramp_profile(spec)
+        if getattr(spec.ramp, "profile", "fabkit") == "straight":
+            hw = min(3.0 * float(spec.ball.diameter), prof.u_end)
+            start, y0 = float(spec.simulation.start), float(spec.simulation.y0)
+            back = prof.u_end
+        else:
+            hw, start, y0, back = half_width(spec, prof), prof.start, prof.y0, prof.u_end
+    except SpecError:
+        return None
+    X0, Y0 = surface.to_work(start - back, y0 - hw, surface.top)[:2]
+    X1, Y1 = surface.to_work(start, y0 + hw, surface.top)[:2]
+    L, W = surface.stock_size_mm
+    box = (max(0.0, float(X0)), min(L, float(X1)), max(0.0, float(Y0)), min(W, float(Y1)))
+    return box if box[0] < box[1] and box[2] < box[3] else None
+
+
+def top_face_plan(spec, surface) -> TopFacePlan:
+    """The block's top face from above (see :class:`TopFacePlan`): h evaluated on a grid of
+    at most PLAN_NODES nodes a side (0.5 mm apart or coarser); a cell is blocked within the
+    tool's radius plus one grid step of a cut node, so a marker clear of ``blocked`` is
+    clear of the cut by the tool's radius."""
+    from scipy.ndimage import distance_transform_edt
+
+    L, W = surface.stock_size_mm
+    step = max(0.5, max(L, W) / (PLAN_NODES - 1))
+    X = np.linspace(0.0, L, int(math.ceil(L / step)) + 1)
+    Y = np.linspace(0.0, W, int(math.ceil(W / step)) + 1)
+    dx, dy = X[1] - X[0], Y[1] - Y[0]
+    GX, GY = np.meshgrid(X, Y)
+    xs, ys = surface.from_work(GX, GY)
+    with np.errstate(all="ignore"):
+        h = np.broadcast_to(np.asarray(surface.height(xs, ys), dtype=float), GX.shape)
+    cut = ~(h >= surface.top)
+    margin = 0.5 * float(spec.tool.diameter) if spec.has("tool") else 0.0
+    dist = distance_transform_edt(~cut, sampling=(dy, dx)) if cut.any() else np.full(cut.shape, np.inf)
+    blocked = dist <= margin + max(dx, dy)
+    ramp = _ramp_footprint(spec, surface)
+    if ramp is not None:
+        g = max(dx, dy)
+        blocked |= ((GX >= ramp[0] - g) & (GX <= ramp[1] + g) & (GY >= ramp[2] - g) & (GY <= ramp[3] + g))
+    depth = np.where(np.isfinite(h), (surface.top - h) * surface.scale, np.inf)
+    return TopFacePlan(X=X, Y=Y, depth_mm=depth, cut=cut, blocked=blocked, margin_mm=margin, ramp=ramp,
+                       step_mm=max(dx, dy))
+
+
+def _default_centres(spec, plan: TopFacePlan, size: float, L: float, W: float) -> np.ndarray:
+    """Markers 0-3 at the corners (0, 0), (L, 0), (L, W), (0, W): each black square
+    EDGE_GAP_MM from the two nearest edges when all four papers are clear there; else, in
+    turn, each at the place nearest its corner where its paper (square and quiet zone,
+    inside the block) is clear of the plan's blocked cells and of the markers placed."""
+    from scipy.ndimage import maximum_filter
+
+    paper = size + 2.0 * size / MODULES
+    dx, dy = plan.X[1] - plan.X[0], plan.Y[1] - plan.Y[0]
+    kx, ky = int(math.ceil(0.5 * paper / dx)), int(math.ceil(0.5 * paper / dy))
+    free = ~maximum_filter(plan.blocked, size=(2 * ky + 1, 2 * kx + 1), mode="nearest")
+    e = 0.5 * paper                   # elsewhere the paper may reach the block's edge
+    GX, GY = np.meshgrid(plan.X, plan.Y)
+    free &= (GX >= e - 1e-9) & (GX <= L - e + 1e-9) & (GY >= e - 1e-9) & (GY <= W - e + 1e-9)
+    c = EDGE_GAP_MM + size / 2.0
+    corners = np.array([[0.0, 0.0], [L, 0.0], [L, W], [0.0, W]])
+    exact = np.array([[c, c], [L - c, c], [L - c, W - c], [c, W - c]])
+    if all(_paper_clear(plan, q, paper) for q in exact):
+        return exact
+    out = []
+    for i, corner in enumerate(corners):
+        ok = free.copy()
+        for q in out:
+            ok &= np.maximum(np.abs(GX - q[0]), np.abs(GY - q[1])) >= paper + 1.0
+        if not ok.any():
+            raise SpecError(f"no room for marker {i} ({size:g} mm square, {paper:g} mm with its quiet zone) on the "
+                            f"block's top face clear of the milled surface (and the tool's radius "
+                            f"{plan.margin_mm:g} mm{' and the ramp' if plan.ramp else ''}): give a smaller "
+                            "lab.marker_size, or place the markers with lab.markers", file=spec.path,
+                            key="lab.marker_size")
+        d = np.where(ok, np.hypot(GX - corner[0], GY - corner[1]), np.inf)
+        k, j = np.unravel_index(int(np.argmin(d)), d.shape)
+        out.append(np.array([float(plan.X[j]), float(plan.Y[k])]))
+    return np.array(out)
+
+
+def _paper_clear(plan: TopFacePlan, centre, paper: float) -> bool:
+    """True when no blocked node of the plan lies within the paper's square (half side
+    paper / 2 plus one grid step) around ``centre``."""
+    h = 0.5 * paper + plan.step_mm
+    ix = (plan.X >= centre[0] - h) & (plan.X <= centre[0] + h)
+    iy = (plan.Y >= centre[1] - h) & (plan.Y <= centre[1] + h)
+    return not plan.blocked[np.ix_(iy, ix)].any()
+
+
+def _over_cut(surface, centre, paper: float):
+    """The deepest point of the milled surface under a paper square (work mm, sampled at most
+    0.5 mm apart, 401 nodes a side at most): (depth below the top face mm, X, Y)."""
+    L, W = surface.stock_size_mm
+    n = int(min(401, max(13, math.ceil(paper / 0.5) + 1)))
+    g = np.linspace(-0.5 * paper, 0.5 * paper, n)
+    X, Y = np.meshgrid(np.clip(centre[0] + g, 0, L), np.clip(centre[1] + g, 0, W))
+    xs, ys = surface.from_work(X, Y)
+    with np.errstate(all="ignore"):
+        depth = (surface.top - np.broadcast_to(surface.height(xs, ys), X.shape)) * surface.scale
+    depth = np.where(np.isnan(depth), np.inf, depth)
+    j = int(np.argmax(depth))
+    return float(depth.ravel()[j]), float(X.ravel()[j]), float(Y.ravel()[j])
+
+
 def marker_layout(spec, surface) -> MarkerLayout:
-    """The markers' layout from the spec's ``lab`` section (defaults when absent); a
-    marker that does not lie on the block's top face is a SpecError naming the key."""
+    """The markers' layout from the spec's ``lab`` section (defaults when absent).
+
+    Default: each marker nearest its corner of the block ((0, 0), (L, 0), (L, W), (0, W),
+    the black square EDGE_GAP_MM inside the edges) with its paper (square and quiet zone)
+    on the top face, clear of the milled surface by the finishing tool's radius and off the
+    ramp's footprint (:func:`top_face_plan`); SpecError (``lab.marker_size``) when one
+    does not fit. Given (``lab.markers``): a marker off the top face, or whose paper lies
+    over the cut (more than FLAT_MM below the top face), is a SpecError naming the marker
+    (``lab.markers[i]``); one within the tool's radius of the cut or on the ramp's
+    footprint is a note."""
     lab = spec.lab if spec.has("lab") else None
     size = float(lab.marker_size) if lab is not None else 30.0
+    paper = size + 2.0 * size / MODULES
     L, W = surface.stock_size_mm
-    if lab is not None and lab.markers is not None:
+    given = lab is not None and lab.markers is not None
+    plan = top_face_plan(spec, surface)
+    notes = []
+    if given:
         centres = np.array(lab.markers, dtype=float)
     else:
-        c = EDGE_GAP_MM + size / 2.0
-        centres = np.array([[c, c], [L - c, c], [L - c, W - c], [c, W - c]])
+        raw_lab = spec.raw.get("lab") if isinstance(spec.raw, dict) else None
+        size_given = isinstance(raw_lab, dict) and "marker_size" in raw_lab
+        ladder = [size] if size_given else [size] + [v for v in SMALLER_SIZES_MM if v < size]
+        for k, trial in enumerate(ladder):
+            try:
+                if 2 * (EDGE_GAP_MM + trial / 2.0) > min(L, W) + 1e-9:
+                    raise SpecError(f"a {trial:g} mm marker {EDGE_GAP_MM:g} mm inside the edges does not fit on the "
+                                    f"block's top face [0, {L:g}] x [0, {W:g}] work mm", file=spec.path,
+                                    key="lab.marker_size")
+                centres = _default_centres(spec, plan, trial, L, W)
+                break
+            except SpecError:
+                if k == len(ladder) - 1:
+                    raise
+        if trial != size:
+            notes.append(f"{spec.path}: lab.marker_size: {size:g} mm markers do not fit on the top face clear of the "
+                         f"cut; {trial:g} mm markers are placed instead (set lab.marker_size, or lab.markers, to "
+                         "choose)")
+            size, paper = trial, trial + 2.0 * trial / MODULES
     for i, (x, y) in enumerate(centres):
         h = size / 2.0
         if x - h < -1e-9 or x + h > L + 1e-9 or y - h < -1e-9 or y + h > W + 1e-9:
             raise SpecError(f"marker {i} at [{x:g}, {y:g}] ({size:g} mm square) does not lie on the "
                             f"block's top face [0, {L:g}] x [0, {W:g}] work mm", file=spec.path,
-                            key="lab.markers" if lab is not None and lab.markers is not None else "lab.marker_size")
-    key = "lab.markers" if lab is not None and lab.markers is not None else "lab.markers (default placement)"
-    # the paper (the square and its quiet zone) should lie flat on the top face, not over the cut
-    notes = []
-    q = size / 2.0 + size / MODULES
-    g = np.linspace(-q, q, 13)
-    for i, (x, y) in enumerate(centres):
-        X, Y = np.meshgrid(np.clip(x + g, 0, L), np.clip(y + g, 0, W))
-        xs, ys = surface.from_work(X, Y)
-        cut = (surface.top - surface.height(xs, ys)) * surface.scale > FLAT_MM
-        if np.any(cut):
-            j = np.argmax(cut.ravel())
-            notes.append(f"{spec.path}: {key}: marker {i} at [{x:g}, {y:g}] work mm lies partly over the milled "
-                         f"surface (at [{X.ravel()[j]:.4g}, {Y.ravel()[j]:.4g}] the surface is below the top face): "
-                         "it must still lie flat at the top face's level; better, give its centre on the flat "
-                         "top face in lab.markers")
+                            key=f"lab.markers[{i}]" if given else "lab.marker_size")
+    if given:
+        for i, (x, y) in enumerate(centres):
+            depth, X, Y = _over_cut(surface, (x, y), paper)
+            if depth > FLAT_MM:
+                raise SpecError(f"marker {i} at [{x:g}, {y:g}] work mm ({paper:g} mm square with its quiet zone) "
+                                f"lies over the milled surface (at [{X:.4g}, {Y:.4g}] the surface is {depth:.3g} mm "
+                                "below the top face): give its centre on the flat top face (`fabkit markers` "
+                                "without lab.markers places all four there)", file=spec.path, key=f"lab.markers[{i}]")
+            if not _paper_clear(plan, (x, y), paper):
+                what = ("the milled edge by the tool's radius " f"({plan.margin_mm:g} mm)"
+                        + (" or on the ramp's footprint" if plan.ramp else ""))
+                notes.append(f"{spec.path}: lab.markers[{i}]: marker {i} at [{x:g}, {y:g}] work mm lies within "
+                             f"{what}: make sure its paper lies flat and the ramp leaves it in view")
     d = np.hypot(*(centres[:, None, :] - centres[None, :, :]).transpose(2, 0, 1))
     np.fill_diagonal(d, np.inf)
     if d.min() < size * math.sqrt(2):

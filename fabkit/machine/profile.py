@@ -99,8 +99,15 @@ def to_yaml(machine: Machine, comment: str | None = None) -> str:
             v = '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
         else:
             v = repr(float(v))
-        lines.append(f"{k}: {v}")
+        lines.append(f"{k}: {v}" + (f"  # {YAML_UNITS[k]}" if k in YAML_UNITS else ""))
     return "\n".join(lines) + "\n"
+
+
+#: the unit of each key, written beside it in the profile's YAML (docs/machine.md)
+YAML_UNITS = {"max_rate": "mm/min, X Y Z", "acceleration": "mm/s^2, X Y Z", "travel": "mm, X Y Z",
+              "steps_per_mm": "steps/mm, X Y Z", "junction_deviation": "mm", "arc_tolerance": "mm",
+              "path_tolerance": "mm", "max_velocity": "mm/min", "max_acceleration": "mm/s^2", "rapid": "mm/min",
+              "spindle": "rpm, min max"}
 
 
 def from_mapping(body, file: str, flat: bool = True) -> Machine:

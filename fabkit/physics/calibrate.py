@@ -32,7 +32,7 @@ along y = y0 (its cross slope is neglected: on the paper's spec it is below 3e-5
 The integration is in the kinetic energy E = s'^2 / 2 along the path (all heights at
 once, DOP853, rtol 1e-11), so the ramp's length bounds it; a ball whose speed falls to
 zero stops on the ramp and does not reach the block. A straight ramp ends in a kink
-that costs a factor (k + cos kink) / (1 + k) in speed (``lab/ramp.py``,
+that costs a factor (k + cos kink) / (1 + k) in speed (``physics/ramp_profile.py``,
 :class:`StraightRamp`); fabkit's ramp is curvature-continuous and has none.
 
 :func:`entry_speed` and :func:`release_height` are the two public directions; every
@@ -52,6 +52,7 @@ import numpy as np
 
 from ..errors import DesignError, SpecError
 from ..units import gravity
+from .ramp_profile import ramp_heights, ramp_profile
 
 #: relative tolerance of the descent's integration (DOP853); the entry speeds it gives
 #: agree with an independent integration to ~1e-10 relative (tests/test_calibrate.py)
@@ -79,24 +80,6 @@ def height_from_v_in(v, g: float, k: float):
     v = np.asarray(v, dtype=float)
     with np.errstate(over="ignore"):
         return (1.0 + k) / (2.0 * g) * v * v
-
-
-def ramp_heights(spec) -> np.ndarray:
-    """The ramp's release heights, (M,) design units.
-
-    ``ramp.heights`` with 2 values is ``[min, max]`` sampled at ``ramp.samples``
-    evenly spaced points (both ends included); 3 or more values are used as given.
-    """
-    spec.require("ramp")
-    hs = [float(h) for h in spec.ramp.heights]
-    if len(hs) == 2:
-        lo, hi = hs
-        if not hi >= lo:
-            raise SpecError(f"[min, max] must have min <= max, got [{lo:g}, {hi:g}]",
-                            file=spec.path, key="ramp.heights")
-        n = int(spec.ramp.samples)
-        return np.linspace(lo, hi, n)
-    return np.asarray(hs, dtype=float)
 
 
 def ball_k(spec) -> float:
@@ -157,8 +140,6 @@ def entry(spec, heights) -> Entry:
         v = v_in_from_height(H, g, k)
         return Entry(H, v, np.ones(H.shape, bool), g, k, mu, c, "fabkit", True, 1e-16, math.inf,
                      method="closed form sqrt(2 g H / (1 + k))")
-    from ..lab.ramp import ramp_profile
-
     if not straight and not (spec.has("surface") and spec.has("simulation")):
         spec.require("surface", "simulation")
     prof = ramp_profile(spec)
@@ -176,8 +157,6 @@ def height_resolution(spec) -> float:
     mu, c = ramp_losses(spec)
     if getattr(spec.ramp, "profile", "fabkit") != "straight" and mu == 0 and c == 0:
         return 0.0
-    from ..lab.ramp import ramp_profile
-
     return float(ramp_profile(spec).resolution)
 
 
