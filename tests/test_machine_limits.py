@@ -93,8 +93,11 @@ def test_feed_above_rate_warns_with_its_cost(cli, tmp_path, plain_planner):
     cap = np.min(np.where(u > 0, 500.0 / np.where(u > 0, u, 1), np.inf), axis=1)
     f = p.feed[g1][m]
     lost = float(np.sum(L[m] * (1 / np.minimum(f, cap) - 1 / f)) * 60)
-    assert rt["time_lost_to_axis_rates_s"] == pytest.approx(lost, rel=2e-3, abs=0.1)   # whole-step lengths
-    assert f"+{lost:.0f} s" in err or f"+{lost + 0.5:.0f} s" in err or f"+{lost - 0.5:.0f} s" in err
+    # the cap's cost is planned (the rates raised to F): acceleration already slows these
+    # short moves, so it is below the length/feed difference
+    cost = rt["time_lost_to_axis_rates_s"]
+    assert 0 < cost < lost
+    assert rt["feed_cap_cost_s"] == cost and f"+{cost:.0f} s of run time" in err
     assert "above the machine's rates" in err and "Run time on this machine" in \
         (tmp_path / "toolpaths" / "small.setup.md").read_text()
 

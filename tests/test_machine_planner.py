@@ -47,7 +47,8 @@ def test_axis_rate_clips_feed():
     a = min(10 / u, 6 / u)
     L = 80 * math.sqrt(2)
     assert r.total_s == pytest.approx(L / V + V / a, rel=1e-12)
-    assert r.lost_rate_s == pytest.approx(L / V - L / (5000 / 60), rel=1e-9)
+    # the cap's cost: the same move with the rates raised to F (5000 mm/min: a triangle)
+    assert r.lost_rate_s == pytest.approx(L / V + V / a - 2 * math.sqrt(L / a), rel=1e-9)
 
 
 def test_junction_deviation_corner():

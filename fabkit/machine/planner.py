@@ -99,6 +99,11 @@ class RunTime:
     passes: dict | None = None  # per raster pass (see :func:`pass_times`), when the raster axis is known
     blocks: int = 0
     model: str = ""
+    dwell_s: float = 0.0        # G4 (grbl: in its 50 ms steps)
+    syncs: int = 0              # buffer syncs (the move before ends at rest)
+    arcs: int = 0
+    arc_segments: int = 0       # the lines the arcs were cut into
+    cap_cost_model: str = "length/feed"
 
     def to_json(self) -> dict:
         return {"controller": self.controller, "machine": self.machine, "total_s": round(self.total_s, 1),
@@ -110,11 +115,15 @@ class RunTime:
                 "time_lost_to_axis_rates_s": round(self.lost_rate_s, 1),
                 "time_lost_to_acceleration_s": round(self.lost_lookahead_s, 1),
                 "capped_regions": [r.to_json() for r in self.regions], "per_pass": self.passes,
-                "blocks": self.blocks, "model": self.model}
+                "blocks": self.blocks, "model": self.model, "dwell_s": round(self.dwell_s, 2),
+                "buffer_syncs": self.syncs, "arcs": self.arcs, "arc_segments": self.arc_segments,
+                "feed_cap_cost_s": round(self.lost_rate_s, 1), "feed_cap_cost_model": self.cap_cost_model}
 
     def summary(self) -> str:
         s = (f"run time on {self.machine}: {_hm(self.total_s)} ({self.total_s:.0f} s: feeds {self.feed_s:.0f}, "
-             f"plunges {self.plunge_s:.0f}, rapids {self.rapid_s:.0f}); length/feed {_hm(self.length_over_feed_s)}")
+             f"plunges {self.plunge_s:.0f}, rapids {self.rapid_s:.0f}"
+             + (f", dwells {self.dwell_s:.0f}" if self.dwell_s else "")
+             + f"); length/feed {_hm(self.length_over_feed_s)}")
         if self.passes:
             p = self.passes
             s += (f"; {p['passes']} passes of {p['median_s']:.1f} s median ({p['min_s']:.1f}-{p['max_s']:.1f}; "
@@ -171,8 +180,12 @@ class Blocks:
     fresh: np.ndarray           # bool: starts from an empty buffer
 
 
-def make_blocks(program: Program, machine, sync: np.ndarray | None = None, quantize: bool = True) -> Blocks:
-    """Blocks of ``program`` on ``machine`` (positions in whole steps when ``quantize``)."""
+def make_blocks(program, machine, sync: np.ndarray | None = None, quantize: bool = True,
+                uncap: bool = False) -> Blocks:
+    """Blocks of ``program`` (a :class:`fabkit.machine.program.Moves` or a read-back
+    Program) on ``machine`` (positions in whole steps when ``quantize``). ``uncap``: the
+    feed moves run at their programmed F whatever the axis rates (the axis rates raised
+    to the programmed feed; rapids and accelerations unchanged), for the feed cap's cost."""
     pts = np.vstack([program.start[None, :], program.points]) if len(program) else program.start[None, :]
     pts = np.nan_to_num(pts, nan=0.0)
     spm = np.asarray(machine.steps_per_mm, dtype=float)
@@ -204,6 +217,8 @@ def make_blocks(program: Program, machine, sync: np.ndarray | None = None, quant
     if amax:
         accel = np.minimum(accel, amax * 3600.0)
     feed = np.where(rapid, rate_g0, program.feed[keep])
+    if uncap:
+        rate = np.maximum(rate, np.where(rapid, 0.0, feed))
     nominal = np.maximum(np.where(rapid, rate_g0, np.minimum(feed, rate)), MINIMUM_FEED_RATE)
     plunge = ~rapid & (np.abs(d[:, 0]) + np.abs(d[:, 1]) == 0) & (d[:, 2] < 0)
     fresh = np.zeros(len(keep), dtype=bool)
@@ -319,26 +334,68 @@ def trapezoid_times(v0: np.ndarray, v1: np.ndarray, vmax: np.ndarray, accel: np.
 # ----------------------------------------------------------------------------
 # the run time
 # ----------------------------------------------------------------------------
-def run_time(text: str, machine, program: Program | None = None, top: int = 5,
-             raster_axis: int | None = None) -> RunTime:
+def run_time(text: str | None, machine, program=None, top: int = 5, raster_axis: int | None = None,
+             moves=None, cap_cost: bool = True, file: str | None = None) -> RunTime:
     """The controller's run time of the program ``text`` on ``machine``
-    (:class:`fabkit.machine.profile.Machine`). ``program``: the text already read back;
-    ``raster_axis`` (0: x, 1: y): the passes' direction, for the per-pass figures."""
-    from ..toolpath.verify import read_program
+    (:class:`fabkit.machine.profile.Machine`), read by the permissive reader
+    (:func:`fabkit.machine.program.read_moves`) unless ``moves`` is given; ``program``
+    (the strict read-back) is no longer needed and kept for the callers.
+    ``raster_axis`` (0: x, 1: y): the passes' direction, for the per-pass figures.
+    ``cap_cost``: also plan the program with the axis rates raised to the programmed
+    feeds, for the feed cap's cost (``lost_rate_s``)."""
+    from .program import read_moves
 
-    if program is None:
-        program = read_program(text)
-    sync = sync_starts(text, program)
+    if moves is None:
+        moves = read_moves(text, machine.controller, machine.arc_tolerance, file=file)
+    t, peak, blocks, model = _plan(moves, machine)
+    rt = _report(moves, blocks, t, peak, machine, model, top)
+    rt.dwell_s = float(moves.dwell_s)
+    rt.total_s += rt.dwell_s
+    rt.syncs, rt.arcs, rt.arc_segments = int(moves.syncs), int(moves.arcs), int(moves.arc_segments)
+    cut = ~blocks.rapid
+    if cap_cost and bool(np.any(cut & (blocks.rate_cap < CAPPED_BELOW * blocks.feed))):
+        t_free, _, _, _ = _plan(moves, raised_rates(machine, moves))
+        rt.lost_rate_s = float(t.sum() - t_free.sum())
+        rt.cap_cost_model = ("planner: the run time minus the run time with the axis rates raised to the "
+                             "highest programmed feed")
+    elif cap_cost:
+        rt.lost_rate_s = 0.0
+    ideal = blocks.length / np.where(blocks.rapid, blocks.rate_cap, blocks.feed) * 60.0
+    rt.lost_lookahead_s = float(np.sum((t - ideal)[cut])) - rt.lost_rate_s
+    if raster_axis is not None:
+        rt.passes = pass_times(moves, blocks, t, ideal, raster_axis)
+    return rt
+
+
+def raised_rates(machine, moves):
+    """``machine`` with each axis rate (and [TRAJ] velocity) raised to the highest
+    programmed feed: the same machine without the feed cap (its rapids also run at
+    the raised rates, as the controller would run them)."""
+    import dataclasses
+
+    f = moves.feed[np.isfinite(moves.feed)]
+    fmax = float(f.max()) if len(f) else 0.0
+    return dataclasses.replace(machine, max_rate=tuple(max(float(r), fmax) for r in machine.max_rate),
+                               max_velocity=None if machine.max_velocity is None else max(machine.max_velocity, fmax))
+
+
+def _plan(moves, machine, uncap: bool = False):
+    """(block times s, peak speeds, blocks, model) of ``moves`` on ``machine``."""
     grbl = machine.controller == "grbl"
-    blocks = make_blocks(program, machine, sync, quantize=grbl)
+    blocks = make_blocks(moves, machine, moves.sync, quantize=grbl, uncap=uncap)
     acc = np.asarray(machine.acceleration, dtype=float) * 3600.0
     if grbl:
         junction = grbl_junction_sqr(blocks.unit, acc, machine.junction_deviation)
         window = GRBL_LOOKAHEAD
         model = "grbl 1.1 planner: 15-block streamed look-ahead, junction deviation, axis limits, trapezoids"
     else:
-        tol = machine.path_tolerance if machine.path_tolerance is not None else _g64_p(text)
+        tol = machine.path_tolerance
+        if tol is None:
+            given = moves.tolerance[np.isfinite(moves.tolerance)] if len(moves.tolerance) else []
+            tol = float(given[0]) if len(given) else None
         junction = blend_junction_sqr(blocks.unit, blocks.length, blocks.accel, tol)
+        term = moves.term[blocks.move] if len(moves.term) else np.zeros(0)
+        junction = np.where(term == 2, junction, np.where(np.isclose(junction, SOME_LARGE_VALUE), junction, 0.0))
         window = LINUXCNC_LOOKAHEAD
         model = ("LinuxCNC trajectory planner, approximate: trapezoids, axis and [TRAJ] limits, "
                  f"{LINUXCNC_LOOKAHEAD}-segment look-ahead, circular G64 P blends at half acceleration")
@@ -348,12 +405,7 @@ def run_time(text: str, machine, program: Program | None = None, top: int = 5,
     v2 = streamed_speeds(max_entry, blocks.accel, blocks.length, blocks.fresh, window)
     v = np.sqrt(v2)
     t_min, peak = trapezoid_times(v[:-1], v[1:], nom, blocks.accel, blocks.length)
-    t = t_min * 60.0
-    rt = _report(program, blocks, t, peak, machine, model, top)
-    if raster_axis is not None:
-        ideal = blocks.length / np.where(blocks.rapid, blocks.rate_cap, blocks.feed) * 60.0
-        rt.passes = pass_times(program, blocks, t, ideal, raster_axis)
-    return rt
+    return t_min * 60.0, peak, blocks, model
 
 
 def pass_times(program, blocks: Blocks, t: np.ndarray, ideal: np.ndarray, axis: int) -> dict | None:

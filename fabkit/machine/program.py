@@ -1,0 +1,434 @@
+"""Any grbl or LinuxCNC program, read as its controller runs it: the moves the motion
+planner receives (mm, machine coordinates), with the points where the planner's buffer
+empties and the dwell time.
+
+This reader is permissive where :func:`fabkit.toolpath.verify.read_program` (the
+verification's reader of fabkit's own programs) is strict: it takes programs from any
+CAM tool or written by hand. Understood:
+
+- G0 G1 G2 G3 (arcs by I J K or R, in the G17/G18/G19 plane, helical with the third
+  axis), G4 P (dwell, seconds), G17-G19, G20/G21, G90/G91, G90.1/G91.1 (LinuxCNC's
+  arc centre modes; grbl has only G91.1), G53 (machine coordinates, one line),
+  G92/G92.1 (offsets), G94, G40, G49, G80, G54 (the work offset, taken as zero),
+  G61, G61.1, G64 P Q (LinuxCNC path control), G43 H (LinuxCNC tool length; the
+  tip's moves are timed), M0-M9, M30, M48-M53 (no motion), S F T, N line numbers,
+  comments in parentheses or after ``;``, ``%`` lines, a leading ``/``.
+- grbl 1.1h's arcs exactly as its ``mc_arc`` cuts them into lines:
+  ``floor(|theta r / 2| / sqrt(tol (2 r - tol)))`` segments, ``tol`` = $12, the
+  end points on the arc; its centre from R as ``gcode.c`` computes it, and its
+  errors (error:33 when the end point is off the arc by more than 0.005 mm and
+  0.1 % of the radius).
+- grbl's buffer syncs (``gcode.c``, ``spindle_control.c``, ``coolant_control.c``):
+  a spindle state change (M3/M4/M5 to another state), an S change while the spindle
+  runs, a coolant state change (M7/M8/M9), G4, M0/M1/M2/M30. A repeated M3, the
+  same S, or M8 when flood is on do not empty the buffer.
+  grbl's dwell runs in 50 ms steps: ``ceil(20 P) x 0.05`` s (``delay_sec``).
+- LinuxCNC: every spindle, speed and coolant word, G4, M0-M2, M30 and M6 stop the
+  motion queue (the task waits for motion before a spindle or coolant command);
+  arcs are cut into chords at the profile's arc tolerance for the approximate planner.
+
+Anything else (G28, G10, canned cycles, cutter compensation, inverse time, parameters
+and expressions, A/B/C axes, another work offset) is refused naming the word and its
+line: the time of such a program is not known.
+
+Positions: the machine starts at the work origin (0, 0, 0) with the work offset zero;
+a G53 move therefore assumes the work offset is zero (a warning says so).
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import SpecError
+from ..units import MM_PER_INCH
+
+RAPID, FEED = 0, 1
+#: grbl config.h
+N_ARC_CORRECTION = 12
+ARC_ANGULAR_TRAVEL_EPSILON = 5e-7
+DWELL_TIME_STEP_MS = 50
+#: LinuxCNC path control modes per move (``term``)
+TERM_STOP, TERM_EXACT, TERM_BLEND = 0, 1, 2
+
+_NUM = r"[-+]?(?:\d+\.?\d*|\.\d+)"
+_WORD = re.compile(rf"([A-Z])({_NUM})")
+_CLEAN = re.compile(rf"(?:[A-Z]{_NUM})*")
+_COMMENT = re.compile(r"\([^)]*\)?")
+
+#: G words understood (as written by _gname)
+_G_OK = {"0", "1", "2", "3", "4", "17", "18", "19", "20", "21", "90", "91", "90.1", "91.1", "53", "92",
+         "92.1", "94", "40", "49", "80", "54", "61", "61.1", "64", "43"}
+_G_GRBL = {"0", "1", "2", "3", "4", "17", "18", "19", "20", "21", "90", "91", "91.1", "53", "92", "92.1",
+           "94", "40", "49", "80", "54", "61"}
+_M_OK = {0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 30, 48, 49, 50, 51, 52, 53}
+_M_GRBL = {0, 1, 2, 3, 4, 5, 7, 8, 9, 30}
+_LETTERS_OK = set("GMXYZIJKRFSTPQHNDL")
+
+
+@dataclass
+class Moves:
+    """A program as the controller's planner receives it (mm, mm/min, machine
+    coordinates; arcs already cut into lines).
+
+    start: (3,) the position before the first move; points: (n, 3) end points;
+    kinds: RAPID | FEED; feed: mm/min (nan for rapids); line: 1-based source line;
+    sync: True where the buffer empties before the move; term/tolerance: LinuxCNC's
+    path control per move (G61.1 stop, G61 exact, G64 blend with P mm or nan);
+    dwell_s: the dwell time in total; syncs: the number of buffer syncs.
+    """
+
+    controller: str
+    start: np.ndarray
+    points: np.ndarray
+    kinds: np.ndarray
+    feed: np.ndarray
+    line: np.ndarray
+    sync: np.ndarray
+    term: np.ndarray
+    tolerance: np.ndarray
+    lines: int
+    units: str = "mm"
+    dwell_s: float = 0.0
+    dwells: int = 0
+    syncs: int = 0
+    arcs: int = 0
+    arc_segments: int = 0
+    pauses: int = 0
+    tool_changes: int = 0
+    warnings: list = field(default_factory=list)
+
+    def __len__(self) -> int:
+        return len(self.points)
+
+
+def _gname(v: str) -> str:
+    f = float(v)
+    return str(int(f)) if f.is_integer() else f"{f:g}"
+
+
+def _bad(line_no: int, what: str, file: str | None) -> SpecError:
+    return SpecError(f"line {line_no}: {what}", file=file)
+
+
+def read_moves(text: str, controller: str = "grbl", arc_tolerance: float = 0.002,
+               file: str | None = None) -> Moves:
+    """Read ``text`` (a grbl or LinuxCNC program) as ``controller`` runs it. Raises
+    SpecError (naming the line and word) on what it does not support."""
+    grbl = controller == "grbl"
+    g_ok = _G_GRBL if grbl else _G_OK
+    m_ok = _M_GRBL if grbl else _M_OK
+    pos = [0.0, 0.0, 0.0]           # machine position, mm
+    g92 = [0.0, 0.0, 0.0]           # work offset (G92), mm
+    motion = 0 if not grbl else 0
+    plane = 17
+    inch = False
+    absolute = True
+    arc_abs = False
+    feed = math.nan
+    spindle = 5
+    speed = 0.0
+    coolant = 0                      # bit 1 flood, bit 2 mist
+    term, tol = TERM_BLEND, math.nan
+    pts: list = []
+    kinds: list = []
+    feeds: list = []
+    lines: list = []
+    syncs_at: list = []              # indices of moves that start after a sync
+    terms: list = []
+    tols: list = []
+    out = Moves(controller=controller, start=np.zeros(3), points=np.zeros((0, 3)), kinds=np.zeros(0, np.int8),
+                feed=np.zeros(0), line=np.zeros(0, int), sync=np.zeros(0, bool), term=np.zeros(0, np.int8),
+                tolerance=np.zeros(0), lines=0)
+    g53_warned = False
+    src = text.upper().split("\n")
+    out.lines = len(src)
+    for ln, s in enumerate(src, start=1):
+        if "(" in s or ";" in s:
+            if ";" in s:
+                s = s.split(";", 1)[0]
+            if "(" in s:
+                if s.count("(") != s.count(")"):
+                    raise _bad(ln, "unclosed comment", file)
+                s = _COMMENT.sub("", s)
+        s = s.replace(" ", "").replace("\t", "").replace("\r", "")
+        if not s or s[0] == "%":
+            continue
+        if s[0] == "/":
+            s = s[1:]
+        if not _CLEAN.fullmatch(s):
+            bad = _CLEAN.match(s).end()
+            raise _bad(ln, f"unsupported text {s[bad:bad + 12]!r} (parameters, expressions and O-words "
+                           "are not read)", file)
+        words = _WORD.findall(s)
+        gs = ms = None
+        axes = {}
+        ijk = {}
+        r = None
+        p = None
+        f_word = s_word = None
+        for letter, v in words:
+            if letter == "G":
+                name = _gname(v)
+                if name not in g_ok:
+                    raise _bad(ln, f"G{name} is not supported" + (" by grbl 1.1 (error:20)" if grbl and name in _G_OK
+                                                                 else " for timing"), file)
+                (gs := gs if gs is not None else []).append(name)
+            elif letter == "M":
+                m = float(v)
+                if not m.is_integer() or int(m) not in m_ok:
+                    raise _bad(ln, f"M{_gname(v)} is not supported" + (" by grbl 1.1 (error:20)"
+                                                                       if grbl and m.is_integer() and int(m) in _M_OK
+                                                                       else " for timing"), file)
+                (ms := ms if ms is not None else []).append(int(m))
+            elif letter in "XYZ":
+                axes["XYZ".index(letter)] = float(v)
+            elif letter in "IJK":
+                ijk["IJK".index(letter)] = float(v)
+            elif letter == "F":
+                f_word = float(v)
+            elif letter == "S":
+                s_word = float(v)
+            elif letter == "R":
+                r = float(v)
+            elif letter == "P":
+                p = float(v)
+            elif letter not in _LETTERS_OK:
+                raise _bad(ln, f"{letter} words are not supported for timing ({letter}{v})", file)
+        g53 = False
+        dwell = False
+        g92_set = False
+        if gs:
+            for name in gs:
+                if name in ("0", "1", "2", "3"):
+                    motion = int(name)
+                elif name == "4":
+                    dwell = True
+                elif name in ("17", "18", "19"):
+                    plane = int(name)
+                elif name == "20":
+                    inch = True
+                elif name == "21":
+                    inch = False
+                elif name == "90":
+                    absolute = True
+                elif name == "91":
+                    absolute = False
+                elif name == "90.1":
+                    arc_abs = True
+                elif name == "91.1":
+                    arc_abs = False
+                elif name == "53":
+                    g53 = True
+                elif name == "92":
+                    g92_set = True
+                elif name == "92.1":
+                    g92 = [0.0, 0.0, 0.0]
+                elif name == "61":
+                    term = TERM_EXACT
+                elif name == "61.1":
+                    term = TERM_STOP
+                elif name == "64":
+                    term = TERM_BLEND
+                    tol = p * (MM_PER_INCH if inch else 1.0) if p is not None else math.nan
+        k = MM_PER_INCH if inch else 1.0
+        sync = False
+        # [3] feed, [4] speed, [7] spindle, [8] coolant, [10] dwell: before the motion
+        if f_word is not None:
+            feed = f_word * k
+        if grbl:
+            new_spindle = spindle
+            new_coolant = coolant
+            if ms:
+                for m in ms:
+                    if m in (3, 4, 5):
+                        new_spindle = m
+                    elif m == 7:
+                        new_coolant |= 2
+                    elif m == 8:
+                        new_coolant |= 1
+                    elif m == 9:
+                        new_coolant = 0
+            if s_word is not None and s_word != speed:
+                if spindle != 5:
+                    sync = True
+                speed = s_word
+            if new_spindle != spindle:
+                sync = True
+                spindle = new_spindle
+            if new_coolant != coolant:
+                sync = True
+                coolant = new_coolant
+        else:
+            if s_word is not None:
+                sync = True
+            if ms and any(m in (3, 4, 5, 6, 7, 8, 9) for m in ms):
+                sync = True
+                if 6 in ms:
+                    out.tool_changes += 1
+        if dwell:
+            if p is None or p < 0:
+                raise _bad(ln, "G4 needs P (seconds, >= 0)", file)
+            sync = True
+            if grbl:
+                out.dwell_s += math.ceil(np.float32(1000 // DWELL_TIME_STEP_MS) * np.float32(p)) \
+                    * DWELL_TIME_STEP_MS / 1000.0
+            else:
+                out.dwell_s += p
+            out.dwells += 1
+        if sync:
+            out.syncs += 1
+            syncs_at.append(len(pts))
+        # [19] offsets
+        if g92_set:
+            for i, v in axes.items():
+                g92[i] = pos[i] - v * k
+            axes = {}
+        # [20] motion
+        if axes and not dwell:
+            if motion is None:
+                raise _bad(ln, "axis words without a motion mode", file)
+            target = list(pos)
+            for i, v in axes.items():
+                if g53:
+                    target[i] = v * k
+                elif absolute:
+                    target[i] = v * k + g92[i]
+                else:
+                    target[i] = pos[i] + v * k
+            if g53 and not g53_warned:
+                out.warnings.append(f"line {ln}: G53 (machine coordinates): its moves assume the work offset "
+                                    "is zero")
+                g53_warned = True
+            if motion in (0, 1):
+                if motion == 1 and not feed > 0:
+                    raise _bad(ln, "G1 without a feed (F)", file)
+                pts.append(target)
+                kinds.append(motion)
+                feeds.append(feed if motion == 1 else math.nan)
+                lines.append(ln)
+                terms.append(term)
+                tols.append(tol)
+            else:
+                if not feed > 0:
+                    raise _bad(ln, f"G{motion} without a feed (F)", file)
+                seg = _arc(pos, target, plane, motion == 2, ijk, r, k, arc_abs, g92, grbl, arc_tolerance, ln, file)
+                out.arcs += 1
+                out.arc_segments += len(seg)
+                pts.extend(seg)
+                kinds.extend([FEED] * len(seg))
+                feeds.extend([feed] * len(seg))
+                lines.extend([ln] * len(seg))
+                terms.extend([term] * len(seg))
+                tols.extend([tol] * len(seg))
+            pos = target
+        elif (ijk or r is not None) and not dwell:
+            raise _bad(ln, "arc words (I J K R) without an arc move", file)
+        # [21] program flow: after the motion
+        if ms and any(m in (0, 1, 2, 30) for m in ms):
+            out.syncs += 1
+            syncs_at.append(len(pts))
+            if 0 in ms or 1 in ms:
+                out.pauses += 1
+            if 2 in ms or 30 in ms:
+                motion, plane, absolute, g92_set = 1, 17, True, False
+                spindle, coolant = 5, 0
+    n = len(pts)
+    out.points = np.asarray(pts, dtype=float).reshape(n, 3)
+    out.kinds = np.asarray(kinds, dtype=np.int8)
+    out.feed = np.asarray(feeds, dtype=float)
+    out.line = np.asarray(lines, dtype=int)
+    out.term = np.asarray(terms, dtype=np.int8)
+    out.tolerance = np.asarray(tols, dtype=float)
+    out.sync = np.zeros(n, dtype=bool)
+    if syncs_at:
+        idx = np.asarray(syncs_at)
+        out.sync[idx[idx < n]] = True
+    out.units = "in" if inch else "mm"
+    if out.pauses:
+        out.warnings.append(f"{out.pauses} program pause(s) (M0/M1): the time waiting for the operator is not "
+                            "counted")
+    if out.tool_changes:
+        out.warnings.append(f"{out.tool_changes} tool change(s) (M6): the time of the change is not counted")
+    return out
+
+
+_PLANES = {17: (0, 1, 2), 18: (2, 0, 1), 19: (1, 2, 0)}
+
+
+def _arc(pos, target, plane, cw, ijk, r, k, arc_abs, g92, grbl, tol, ln, file) -> list:
+    """The end points of the lines an arc is cut into (grbl's mc_arc; LinuxCNC: chords
+    at the same tolerance)."""
+    a0, a1, al = _PLANES[plane]
+    x = target[a0] - pos[a0]
+    y = target[a1] - pos[a1]
+    if r is not None:
+        if ijk:
+            pass          # R wins over IJK in LinuxCNC; grbl refuses the mix
+        if grbl and ijk:
+            raise _bad(ln, "an arc with both R and I/J/K (grbl error:26)", file)
+        rr = r * k
+        if x == 0 and y == 0:
+            raise _bad(ln, "an R arc whose end point is its start (grbl error:33)", file)
+        h = 4.0 * rr * rr - x * x - y * y
+        if h < 0:
+            if grbl or h < -1e-6 * rr * rr:
+                raise _bad(ln, f"arc radius R{r:g} is too small for its end point (grbl error:34)", file)
+            h = 0.0
+        h = -math.sqrt(h) / math.hypot(x, y)
+        if not cw:
+            h = -h
+        if rr < 0:
+            h = -h
+            rr = -rr
+        off0 = 0.5 * (x - y * h)
+        off1 = 0.5 * (y + x * h)
+        radius = rr
+    else:
+        axis_letters = "IJK"
+        needed = (a0, a1)
+        if not any(i in ijk for i in needed):
+            raise _bad(ln, f"an arc in G{plane} needs {axis_letters[a0]} or {axis_letters[a1]} (or R) (grbl error:35)", file)
+        if arc_abs:
+            off0 = ijk.get(a0, 0.0) * k + g92[a0] - pos[a0]
+            off1 = ijk.get(a1, 0.0) * k + g92[a1] - pos[a1]
+        else:
+            off0 = ijk.get(a0, 0.0) * k
+            off1 = ijk.get(a1, 0.0) * k
+        radius = math.hypot(off0, off1)
+        target_r = math.hypot(x - off0, y - off1)
+        dr = abs(target_r - radius)
+        if dr > 0.005 and (dr > 0.5 or dr > 0.001 * radius):
+            raise _bad(ln, f"the arc's end point is {dr:.4g} mm off its circle (grbl error:33; LinuxCNC refuses it too)",
+                       file)
+    c0, c1 = pos[a0] + off0, pos[a1] + off1
+    r0, r1 = -off0, -off1
+    rt0, rt1 = target[a0] - c0, target[a1] - c1
+    ang = math.atan2(r0 * rt1 - r1 * rt0, r0 * rt0 + r1 * rt1)
+    if cw:
+        if ang >= -ARC_ANGULAR_TRAVEL_EPSILON:
+            ang -= 2 * math.pi
+    elif ang <= ARC_ANGULAR_TRAVEL_EPSILON:
+        ang += 2 * math.pi
+    if radius <= 0:
+        return [list(target)]
+    t = tol if tol > 0 else 0.002
+    den = math.sqrt(t * (2 * radius - t)) if 2 * radius > t else 0.0
+    segments = int(math.floor(abs(0.5 * ang * radius) / den)) if den > 0 else 0
+    if grbl:
+        segments = min(segments, 65535)       # uint16_t
+    out = []
+    if segments:
+        i = np.arange(1, segments)
+        th = ang / segments * i
+        c, sn = np.cos(th), np.sin(th)
+        p = np.empty((segments - 1, 3))
+        p[:, a0] = c0 + r0 * c - r1 * sn
+        p[:, a1] = c1 + r0 * sn + r1 * c
+        p[:, al] = pos[al] + (target[al] - pos[al]) / segments * i
+        out = p.tolist()
+    out.append(list(target))
+    return out
