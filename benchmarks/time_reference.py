@@ -184,7 +184,43 @@ def main() -> int:
             worst = max(worst, abs(err))
             print(f"| {name} | {pname} | {ref:.2f} | {ours:.2f} | {err:+.2f} % |")
     print(f"\nworst |error| {worst:.2f} %")
+    # the feed cap's cost: fabkit's stated cost against grbl's run time with the profile
+    # minus grbl's run time with $110-$112 raised to the highest programmed feed
+    print("\n| program | profile | stated cost (s) | grbl's difference (s) | error |\n|---|---|---|---|---|")
+    worst_c = 0.0
+    for name, text in cases(a.seed):
+        for pname, settings in PROFILES.items():
+            m = parse_grbl(settings, pname)
+            rt = run_time(text, m)
+            if rt.rate_capped_fraction == 0:
+                continue
+            fmax = max(f for f in run_feeds(text, m))
+            raised = settings
+            for n, v in zip((110, 111, 112), m.max_rate):
+                raised = raised.replace(f"${n}={v:g}\n", f"${n}={max(v, fmax):.3f}\n")
+            d = _ref(exe, settings + text) - _ref(exe, raised + text)
+            err = 100 * (rt.lost_rate_s / d - 1) if d > 0 else float("nan")
+            if d > 1.0:
+                worst_c = max(worst_c, abs(err))
+            print(f"| {name} | {pname} | {rt.lost_rate_s:.2f} | {d:.2f} | {err:+.2f} % |")
+    print(f"\nworst |error| of the cap's cost (differences over 1 s) {worst_c:.2f} %")
     return 0
+
+
+def run_feeds(text, m):
+    from fabkit.machine.program import read_moves
+
+    f = read_moves(text, m.controller, m.arc_tolerance).feed
+    return f[np.isfinite(f)]
+
+
+def _ref(exe, text) -> float:
+    with tempfile.NamedTemporaryFile("w", suffix=".nc", delete=False) as fh:
+        fh.write(text)
+    try:
+        return float(subprocess.run([exe, fh.name], capture_output=True, text=True, check=True).stdout.split()[0])
+    finally:
+        os.unlink(fh.name)
 
 
 if __name__ == "__main__":
