@@ -239,6 +239,25 @@ def machine_from_spec(spec, machine_file: str | None = None) -> Machine | None:
     return None
 
 
+def dialect_for_machine(spec, machine: Machine | None):
+    """The spec with the program's dialect of ``machine`` (grbl for a grbl profile or
+    ``$$`` dump, linuxcnc for a LinuxCNC one). A spec whose own ``machining.dialect``
+    contradicts the machine is refused naming both."""
+    if machine is None:
+        return spec
+    want = "grbl" if machine.controller == "grbl" else "linuxcnc"
+    explicit = (spec.raw.get("machining") or {}).get("dialect") if isinstance(spec.raw, dict) else None
+    if explicit is not None and explicit != want:
+        who = machine.name or machine.controller
+        src = f" ({safe_name(machine.source)})" if machine.source and machine.source != spec.path else ""
+        raise SpecError(f"the spec's machining.dialect is {explicit}, the machine {who}{src} runs {want}: remove "
+                        f"machining.dialect (the machine sets it) or give a {explicit} machine",
+                        file=spec.path, key="machining.dialect")
+    if spec.machining.dialect != want:
+        return spec.with_overrides({"machining.dialect": want})
+    return spec
+
+
 # ----------------------------------------------------------------------------
 # import: grbl $$ and LinuxCNC INI
 # ----------------------------------------------------------------------------
