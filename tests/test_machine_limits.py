@@ -63,8 +63,14 @@ def test_tool_change_without_changer_refused(cli, tmp_path, plain_planner):
     raw["tool"]["number"] = 3
     spec = write_spec(tmp_path, raw)
     code, out, err = cli("gcode", spec, "--machine", dump(tmp_path), "--no-verify")
-    assert code == 2 and "T3" in err and "no tool changer" in err
-    assert "machining.dialect is linuxcnc, the machine runs grbl" in err     # grbl rejects G64, G43, M6
+    # an explicit dialect the machine contradicts: refused naming both
+    assert code == 2 and "machining.dialect is linuxcnc" in err and "runs grbl" in err
+    del raw["machining"]["dialect"]                  # no dialect: the grbl machine makes a grbl program
+    code, out, err = cli("gcode", write_spec(tmp_path, raw), "--machine", dump(tmp_path), "--no-verify")
+    assert code == 0, err
+    text = (tmp_path / "toolpaths" / "small.ngc").read_text()
+    code_only = "\n".join(ln.split("(")[0] for ln in text.splitlines())
+    assert "grbl dialect" in text and "M6" not in code_only and "G64" not in code_only
     raw["machine"] = {"controller": "linuxcnc", "max_rate": [3000, 3000, 1000], "tool_changer": True,
                       "travel": [500, 500, 100]}
     spec = write_spec(tmp_path, raw)                 # the spec's own machine section
