@@ -278,7 +278,7 @@ def parse_grbl(text: str, file: str = "<grbl>") -> Machine:
             raise SpecError(f"line {ln}: not a grbl setting ($N=value): {line[:60]!r}", file=file)
         n = int(m.group(1))
         if n in where:
-            raise SpecError(f"${n} is set twice: line {where[n]} and line {ln}", file=file, key=f"${n}")
+            raise SpecError(f"set twice: line {where[n]} and line {ln}", file=file, key=f"${n}")
         where[n] = ln
         values[n] = float(m.group(2))
     missing = [n for n in GRBL_REQUIRED if n not in values]
@@ -346,7 +346,7 @@ def _ini_scan(text: str, file: str) -> dict:
             name = line[1:end].strip() if end > 0 else line[1:].strip()
             if _INI_READ.match(name):
                 if name in seen_sec:
-                    raise SpecError(f"section [{safe_name(name)}] appears twice: line {seen_sec[name]} and line {ln}",
+                    raise SpecError(f"the section appears twice: line {seen_sec[name]} and line {ln}",
                                     file=file, key=f"[{safe_name(name)}]")
                 seen_sec[name] = ln
                 out[name] = {}
@@ -359,7 +359,7 @@ def _ini_scan(text: str, file: str) -> dict:
         key, val = line.split("=", 1)
         key = key.strip()
         if key in out[cur]:
-            raise SpecError(f"[{cur}]{safe_name(key)} is set twice: line {out[cur][key][1]} and line {ln}", file=file,
+            raise SpecError(f"set twice: line {out[cur][key][1]} and line {ln}", file=file,
                             key=f"[{cur}]{safe_name(key)}")
         out[cur][key] = (val.strip(), ln)
     return out
