@@ -22,6 +22,7 @@ import tempfile
 
 import numpy as np
 
+from fabkit.errors import SpecError
 from fabkit.machine.planner import run_time
 from fabkit.machine.profile import parse_grbl
 
@@ -172,7 +173,12 @@ def main() -> int:
                 fh.write(text)
         for pname, settings in PROFILES.items():
             m = parse_grbl(settings, pname)
-            ours = run_time(text, m).total_s
+            try:
+                ours = run_time(text, m).total_s
+            except SpecError as exc:          # grbl refuses it too (checked): not timed
+                r = subprocess.run([exe, "/dev/stdin"], input=settings + text, capture_output=True, text=True)
+                print(f"| {name} | {pname} | refused: {r.stderr.strip()[:40]} | refused: {exc.detail[:40]} | |")
+                break
             with tempfile.NamedTemporaryFile("w", suffix=".nc", delete=False) as fh:
                 fh.write(settings + text)
             try:
@@ -191,7 +197,10 @@ def main() -> int:
     for name, text in cases(a.seed):
         for pname, settings in PROFILES.items():
             m = parse_grbl(settings, pname)
-            rt = run_time(text, m)
+            try:
+                rt = run_time(text, m)
+            except SpecError:
+                break
             if rt.rate_capped_fraction == 0:
                 continue
             fmax = max(f for f in run_feeds(text, m))

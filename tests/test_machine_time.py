@@ -27,11 +27,11 @@ def test_arc_segments_as_grbl_mc_arc():
     n = math.floor(0.5 * math.pi * 10 / math.sqrt(0.002 * (20 - 0.002)))
     assert mv.arc_segments == n == 78
     pts = mv.points[1:]
-    assert np.allclose(np.hypot(pts[:, 0], pts[:, 1]), 10.0, atol=1e-12)        # end points on the arc
+    assert np.allclose(np.hypot(pts[:, 0], pts[:, 1]), 10.0, rtol=0, atol=1e-5)  # on the arc (grbl's floats)
     assert np.all(pts[:-1, 1] > 0)                                                # CCW from +X: through +Y
     assert pts[-1] == pytest.approx([-10, 0, 0])
     chord = 2 * 10 * math.sin(math.pi / n / 2)
-    assert np.allclose(np.linalg.norm(np.diff(mv.points[0:], axis=0)[1:], axis=1), chord, rtol=1e-9)
+    assert np.allclose(np.linalg.norm(np.diff(mv.points[0:], axis=0)[1:], axis=1), chord, rtol=1e-4)
 
 
 @pytest.mark.parametrize("plane,axes", [(18, (2, 0, 1)), (19, (1, 2, 0))])

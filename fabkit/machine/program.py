@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import math
 import re
+from array import array
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -103,6 +104,63 @@ class Moves:
 
     def __len__(self) -> int:
         return len(self.points)
+
+
+_F32 = array("f", [0.0])
+MAX_INT_DIGITS = 8          # grbl nuts_bolts.h
+
+
+def f32(x: float) -> float:
+    """``x`` rounded to a 32-bit float (grbl's ``float`` on the ATmega328p)."""
+    _F32[0] = x
+    return _F32[0]
+
+
+_F001, _F01, _F10, _F_INCH = f32(0.01), f32(0.1), f32(10.0), f32(MM_PER_INCH)
+
+
+def grbl_float(text: str) -> float:
+    """A number as grbl 1.1h's ``read_float`` reads it on the AVR (where a double is a
+    float): at most 8 digits as an integer, then scaled by float multiplications by 0.01,
+    0.1 or 10 (not always the correctly rounded float of the decimal)."""
+    got = _GRBL_FLOATS.get(text)
+    if got is not None:
+        return got
+    neg = text[0] == "-"
+    body = text[1:] if text[0] in "+-" else text
+    ip, _, fp = body.partition(".")
+    digits = ip + fp
+    if len(digits) <= MAX_INT_DIGITS:
+        intval = int(digits) if digits else 0
+        exp = -len(fp)
+    else:
+        n_int = len(ip)
+        intval = exp = 0
+        for i, ch in enumerate(digits):
+            if i < MAX_INT_DIGITS:
+                if i >= n_int:
+                    exp -= 1
+                intval = intval * 10 + (ord(ch) - 48)
+            elif i < n_int:
+                exp += 1            # an integer digit past the eighth: dropped, the value scaled
+    f = f32(float(intval))
+    if f != 0:
+        while exp <= -2:
+            f = f32(f * _F001)
+            exp += 2
+        if exp < 0:
+            f = f32(f * _F01)
+        while exp > 0:
+            f = f32(f * _F10)
+            exp -= 1
+    f = -f if neg else f
+    if len(_GRBL_FLOATS) > 200_000:
+        _GRBL_FLOATS.clear()
+    _GRBL_FLOATS[text] = f
+    return f
+
+
+_GRBL_FLOATS: dict = {}
 
 
 def _gname(v: str) -> str:
@@ -185,15 +243,15 @@ def read_moves(text: str, controller: str = "grbl", arc_tolerance: float = 0.002
                                                                        else " for timing"), file)
                 (ms := ms if ms is not None else []).append(int(m))
             elif letter in "XYZ":
-                axes["XYZ".index(letter)] = float(v)
+                axes["XYZ".index(letter)] = grbl_float(v) if grbl else float(v)
             elif letter in "IJK":
-                ijk["IJK".index(letter)] = float(v)
+                ijk["IJK".index(letter)] = grbl_float(v) if grbl else float(v)
             elif letter == "F":
                 f_word = float(v)
             elif letter == "S":
                 s_word = float(v)
             elif letter == "R":
-                r = float(v)
+                r = grbl_float(v) if grbl else float(v)
             elif letter == "P":
                 p = float(v)
             elif letter not in _LETTERS_OK:
@@ -281,7 +339,7 @@ def read_moves(text: str, controller: str = "grbl", arc_tolerance: float = 0.002
             out.dwells += 1
         if sync:
             out.syncs += 1
-            syncs_at.append(len(pts))
+            syncs_at.append(len(kinds))
         # [19] offsets
         if g92_set:
             for i, v in axes.items():
@@ -292,13 +350,18 @@ def read_moves(text: str, controller: str = "grbl", arc_tolerance: float = 0.002
             if motion is None:
                 raise _bad(ln, "axis words without a motion mode", file)
             target = list(pos)
-            for i, v in axes.items():
-                if g53:
-                    target[i] = v * k
-                elif absolute:
-                    target[i] = v * k + g92[i]
-                else:
-                    target[i] = pos[i] + v * k
+            if grbl:            # grbl's float arithmetic (gcode.c): the arcs' full-circle test depends on it
+                for i, v in axes.items():
+                    v = f32(v * _F_INCH) if inch else v
+                    target[i] = v if g53 else f32(v + g92[i]) if absolute else f32(pos[i] + v)
+            else:
+                for i, v in axes.items():
+                    if g53:
+                        target[i] = v * k
+                    elif absolute:
+                        target[i] = v * k + g92[i]
+                    else:
+                        target[i] = pos[i] + v * k
             if g53 and not g53_warned:
                 out.warnings.append(f"line {ln}: G53 (machine coordinates): its moves assume the work offset "
                                     "is zero")
@@ -306,7 +369,7 @@ def read_moves(text: str, controller: str = "grbl", arc_tolerance: float = 0.002
             if motion in (0, 1):
                 if motion == 1 and not feed > 0:
                     raise _bad(ln, "G1 without a feed (F)", file)
-                pts.append(target)
+                pts.extend(target)
                 kinds.append(motion)
                 feeds.append(feed if motion == 1 else math.nan)
                 lines.append(ln)
@@ -317,27 +380,28 @@ def read_moves(text: str, controller: str = "grbl", arc_tolerance: float = 0.002
                     raise _bad(ln, f"G{motion} without a feed (F)", file)
                 seg = _arc(pos, target, plane, motion == 2, ijk, r, k, arc_abs, g92, grbl, arc_tolerance, ln, file)
                 out.arcs += 1
-                out.arc_segments += len(seg)
+                out.arc_segments += len(seg) // 3
                 pts.extend(seg)
-                kinds.extend([FEED] * len(seg))
-                feeds.extend([feed] * len(seg))
-                lines.extend([ln] * len(seg))
-                terms.extend([term] * len(seg))
-                tols.extend([tol] * len(seg))
+                nseg = len(seg) // 3
+                kinds.extend([FEED] * nseg)
+                feeds.extend([feed] * nseg)
+                lines.extend([ln] * nseg)
+                terms.extend([term] * nseg)
+                tols.extend([tol] * nseg)
             pos = target
         elif (ijk or r is not None) and not dwell:
             raise _bad(ln, "arc words (I J K R) without an arc move", file)
         # [21] program flow: after the motion
         if ms and any(m in (0, 1, 2, 30) for m in ms):
             out.syncs += 1
-            syncs_at.append(len(pts))
+            syncs_at.append(len(kinds))
             if 0 in ms or 1 in ms:
                 out.pauses += 1
             if 2 in ms or 30 in ms:
                 motion, plane, absolute, g92_set = 1, 17, True, False
                 spindle, coolant = 5, 0
-    n = len(pts)
-    out.points = np.asarray(pts, dtype=float).reshape(n, 3)
+    n = len(kinds)
+    out.points = np.array(pts, dtype=float).reshape(n, 3)
     out.kinds = np.asarray(kinds, dtype=np.int8)
     out.feed = np.asarray(feeds, dtype=float)
     out.line = np.asarray(lines, dtype=int)
@@ -360,9 +424,14 @@ _PLANES = {17: (0, 1, 2), 18: (2, 0, 1), 19: (1, 2, 0)}
 
 
 def _arc(pos, target, plane, cw, ijk, r, k, arc_abs, g92, grbl, tol, ln, file) -> list:
-    """The end points of the lines an arc is cut into (grbl's mc_arc; LinuxCNC: chords
-    at the same tolerance)."""
+    """The end points of the lines an arc is cut into, flat (x, y, z, x, ...) (grbl's
+    mc_arc; LinuxCNC: chords at the same tolerance)."""
     a0, a1, al = _PLANES[plane]
+    k0 = k
+    if grbl and k != 1.0:       # gcode.c: the words times MM_PER_INCH, in floats
+        ijk = {i: f32(v * _F_INCH) for i, v in ijk.items()}
+        r = None if r is None else f32(r * _F_INCH)
+        k = 1.0
     x = target[a0] - pos[a0]
     y = target[a1] - pos[a1]
     if r is not None:
@@ -376,7 +445,7 @@ def _arc(pos, target, plane, cw, ijk, r, k, arc_abs, g92, grbl, tol, ln, file) -
         h = 4.0 * rr * rr - x * x - y * y
         if h < 0:
             if grbl or h < -1e-6 * rr * rr:
-                raise _bad(ln, f"arc radius R{r:g} is too small for its end point (grbl error:34)", file)
+                raise _bad(ln, f"arc radius R{r / k0:g} is too small for its end point (grbl error:34)", file)
             h = 0.0
         h = -math.sqrt(h) / math.hypot(x, y)
         if not cw:
@@ -404,17 +473,24 @@ def _arc(pos, target, plane, cw, ijk, r, k, arc_abs, g92, grbl, tol, ln, file) -
         if dr > 0.005 and (dr > 0.5 or dr > 0.001 * radius):
             raise _bad(ln, f"the arc's end point is {dr:.4g} mm off its circle (grbl error:33; LinuxCNC refuses it too)",
                        file)
-    c0, c1 = pos[a0] + off0, pos[a1] + off1
-    r0, r1 = -off0, -off1
-    rt0, rt1 = target[a0] - c0, target[a1] - c1
-    ang = math.atan2(r0 * rt1 - r1 * rt0, r0 * rt0 + r1 * rt1)
+    if grbl:            # mc_arc in grbl's floats: a full circle far from the origin may become a sliver
+        off0, off1 = f32(off0), f32(off1)
+        c0, c1 = f32(pos[a0] + off0), f32(pos[a1] + off1)
+        r0, r1 = -off0, -off1
+        rt0, rt1 = f32(target[a0] - c0), f32(target[a1] - c1)
+        ang = f32(math.atan2(f32(f32(r0 * rt1) - f32(r1 * rt0)), f32(f32(r0 * rt0) + f32(r1 * rt1))))
+    else:
+        c0, c1 = pos[a0] + off0, pos[a1] + off1
+        r0, r1 = -off0, -off1
+        rt0, rt1 = target[a0] - c0, target[a1] - c1
+        ang = math.atan2(r0 * rt1 - r1 * rt0, r0 * rt0 + r1 * rt1)
     if cw:
         if ang >= -ARC_ANGULAR_TRAVEL_EPSILON:
             ang -= 2 * math.pi
     elif ang <= ARC_ANGULAR_TRAVEL_EPSILON:
         ang += 2 * math.pi
     if radius <= 0:
-        return [list(target)]
+        return list(target)
     t = tol if tol > 0 else 0.002
     den = math.sqrt(t * (2 * radius - t)) if 2 * radius > t else 0.0
     segments = int(math.floor(abs(0.5 * ang * radius) / den)) if den > 0 else 0
@@ -429,6 +505,6 @@ def _arc(pos, target, plane, cw, ijk, r, k, arc_abs, g92, grbl, tol, ln, file) -
         p[:, a0] = c0 + r0 * c - r1 * sn
         p[:, a1] = c1 + r0 * sn + r1 * c
         p[:, al] = pos[al] + (target[al] - pos[al]) / segments * i
-        out = p.tolist()
-    out.append(list(target))
+        out = p.ravel().tolist()
+    out.extend(target)
     return out
