@@ -43,18 +43,23 @@ corner's (the path is taken as the programmed polyline), spindle-synchronised mo
 
 from __future__ import annotations
 
+import math
 import re
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..toolpath.verify import RAPID, Program
+from ..toolpath.verify import FEED, RAPID, Program
 from ..units import MM_PER_INCH
 
 #: grbl 1.1: BLOCK_BUFFER_SIZE 16 on the ATmega328p, one slot kept empty
 GRBL_LOOKAHEAD = 15
-#: LinuxCNC's trajectory optimiser depth (TP_LOOKAHEAD_DEPTH)
-LINUXCNC_LOOKAHEAD = 200
+#: LinuxCNC's trajectory optimiser depth ([TRAJ] ARC_BLEND_OPTIMIZATION_DEPTH, default 50)
+LINUXCNC_LOOKAHEAD = 50
+#: LinuxCNC blendmath.h: the share of the acceleration a blend arc may use normal to the path
+BLEND_ACC_RATIO_NORMAL = math.sqrt(1.0 - 0.5 ** 2)
+#: emccanon.cc linkable(): at most this many points merged into one line
+NAIVECAM_MAX_POINTS = 100
 MINIMUM_FEED_RATE = 1.0          # mm/min (grbl config.h)
 SOME_LARGE_VALUE = 1.0e38
 #: a feed block counts as capped when its peak speed is below this fraction of F
@@ -254,30 +259,114 @@ def grbl_junction_sqr(unit: np.ndarray, accel_limits: np.ndarray, deviation: flo
     return out
 
 
-def blend_junction_sqr(unit: np.ndarray, length: np.ndarray, accel: np.ndarray, tolerance: float | None) -> np.ndarray:
-    """(n,) LinuxCNC-like corner speed^2 with a circular blend: deviation at most
-    ``tolerance`` from the corner (None/0: no limit but the segments), tangent length
-    at most half of each segment; speed^2 = (accel / 2) * radius."""
+def blend_junction_sqr(unit: np.ndarray, length: np.ndarray, accel: np.ndarray, tolerance: float | None,
+                       axis_accel: np.ndarray | None = None, nominal: np.ndarray | None = None,
+                       arcs: bool = False):
+    """(n,) LinuxCNC's corner speed^2 through its tangent blend arc (tp.c, blendmath.c
+    ``blendComputeParameters``); with ``arcs`` also (d, s): how much of each line the arc
+    takes at the corner and the arc's length.
+
+    The arc touches both lines at ``d`` from the corner, ``d <= min(L1, L2) / 2`` and
+    within the G64 P ``tolerance`` (None or 0: no limit but the segments),
+    ``d_tol = cos(t) P / (1 - sin(t))``, ``t`` half the angle between the lines; radius
+    ``R = tan(t) d``; speed ``v = min(sqrt(a_n R), v_goal)``, ``a_n`` the normal share
+    (sqrt(1 - 0.5^2)) of the acceleration in the plane of the two lines
+    (``calculateInscribedDiameter``: min over axes of ``a_axis / sqrt(1 - n_axis^2)``, n
+    the plane's normal; ``axis_accel`` the axes' limits, else the lines' own), ``v_goal``
+    the faster line's feed (``nominal``). The arc actually planned: ``R = max(v^2 / a_n,
+    min(t_b v / phi, R))``, ``t_b = min(sqrt(a d), v) / (a / 2)`` (the "equivalent parabolic
+    blend"), phi the turning angle. A reversal stops; a straight junction is free."""
     n = len(unit)
     out = np.zeros(n)
+    d_out = np.zeros(n)
+    s_out = np.zeros(n)
     if n < 2:
-        return out
-    cosd = np.clip(np.sum(unit[:-1] * unit[1:], axis=1), -1.0, 1.0)    # cos of the turning angle
-    theta = np.arccos(cosd)
-    half = 0.5 * theta
-    tan_h = np.tan(half)
-    lim_len = 0.5 * np.minimum(length[:-1], length[1:])
+        return (out, d_out, s_out, np.zeros(n)) if arcs else out
+    u1, u2 = unit[:-1], unit[1:]
+    cosd = np.clip(np.sum(u1 * u2, axis=1), -1.0, 1.0)      # cos of the turning angle
+    turn = np.arccos(cosd)
+    t = 0.5 * (np.pi - turn)
+    sin_t, cos_t, tan_t = np.sin(t), np.cos(t), np.tan(t)
+    if axis_accel is not None:
+        nrm = np.cross(u1, u2)
+        nn = np.linalg.norm(nrm, axis=1)
+        nrm = nrm / np.where(nn > 0, nn, 1.0)[:, None]
+        scale = np.maximum(np.sqrt(np.clip(1.0 - nrm * nrm, 0.0, 1.0)), 1e-12)
+        a_plane = np.min(np.asarray(axis_accel, dtype=float)[None, :] / scale, axis=1)
+    else:
+        a_plane = np.minimum(accel[:-1], accel[1:])
+    a_n = BLEND_ACC_RATIO_NORMAL * a_plane
+    d = 0.5 * np.minimum(length[:-1], length[1:])
     with np.errstate(divide="ignore", invalid="ignore"):
-        r_len = lim_len / tan_h
         if tolerance:
-            r_tol = tolerance / (1.0 / np.cos(half) - 1.0)
-            r = np.minimum(r_len, r_tol)
-        else:
-            r = r_len
-        v2 = 0.5 * np.minimum(accel[:-1], accel[1:]) * r
-    v2 = np.where(theta < 1e-9, SOME_LARGE_VALUE, np.where(theta > np.pi / 2 + 1e-9, 0.0, v2))
+            d = np.minimum(d, cos_t * tolerance / (1.0 - sin_t))
+        r_geom = tan_t * d
+        v = np.sqrt(a_n * r_geom)
+        if nominal is not None:
+            v = np.minimum(v, np.maximum(nominal[:-1], nominal[1:]))
+        a_par = 0.5 * a_plane
+        t_b = np.minimum(np.sqrt(2.0 * a_par * d), v) / a_par
+        r_blend = np.minimum(t_b * v / np.maximum(turn, 1e-12), r_geom)
+        r_plan = np.maximum(v * v / a_n, r_blend)
+        d_plan = np.minimum(r_plan / tan_t, d)
+        s_arc = r_plan * turn
+    ok = (turn >= 1e-6) & (t >= 1e-6)
+    v2 = np.where(turn < 1e-6, SOME_LARGE_VALUE, np.where(t < 1e-6, 0.0, v * v))
     out[1:] = np.nan_to_num(v2, nan=0.0, posinf=SOME_LARGE_VALUE)
+    d_out[1:] = np.where(ok, np.nan_to_num(d_plan), 0.0)
+    s_out[1:] = np.where(ok, np.nan_to_num(s_arc), 0.0)
+    if arcs:
+        a_out = np.zeros(n)
+        a_out[1:] = a_plane
+        return out, d_out, s_out, a_out
     return out
+
+
+def naivecam_keep(points: np.ndarray, start: np.ndarray, kinds: np.ndarray, feed: np.ndarray, sync: np.ndarray,
+                  term: np.ndarray, q: float) -> np.ndarray:
+    """(n,) bool: the feed moves LinuxCNC's canon keeps after its naive-CAM merge (G64 Q,
+    emccanon.cc ``see_segment``/``linkable``): consecutive G1 points at one feed join
+    into one line while every point of the chain lies within ``q`` of the line from the
+    chain's start to the new point (at most 100 points). A rapid, a feed change, a sync
+    or another path mode ends a chain."""
+    n = len(points)
+    keep = np.ones(n, dtype=bool)
+    if not q or q <= 0 or n == 0:
+        return keep
+    pts = np.nan_to_num(points)
+    end = np.nan_to_num(np.asarray(start, dtype=float))       # canon.endPoint
+    chain: list = []
+    f_chain = None
+    for i in range(n):
+        linkable_mode = kinds[i] == FEED and term[i] == 2 and not sync[i]
+        if chain and (not linkable_mode or feed[i] != f_chain or len(chain) > NAIVECAM_MAX_POINTS):
+            for j in chain[:-1]:
+                keep[j] = False
+            end = pts[chain[-1]]
+            chain = []
+        if not linkable_mode:
+            end = pts[i]
+            continue
+        p = pts[i]
+        if chain:
+            m = p - end
+            mm = float(m @ m)
+            ok = mm > 0
+            if ok:
+                c = pts[chain] - end
+                t0 = np.clip(c @ m / mm, 0.0, 1.0)
+                d = c - t0[:, None] * m
+                ok = bool(np.all(np.einsum("ij,ij->i", d, d) <= q * q))
+            if not ok:
+                for j in chain[:-1]:
+                    keep[j] = False
+                end = pts[chain[-1]]
+                chain = []
+        chain.append(i)
+        f_chain = feed[i]
+    for j in chain[:-1]:
+        keep[j] = False
+    return keep
 
 
 # ----------------------------------------------------------------------------
@@ -367,6 +456,29 @@ def run_time(text: str | None, machine, program=None, top: int = 5, raster_axis:
     return rt
 
 
+def _merged(moves, machine):
+    """``moves`` after LinuxCNC canon's naive-CAM merge (Q: the program's G64 Q, else P)."""
+    import dataclasses
+
+    q = getattr(moves, "naivecam", None)
+    if q is None:
+        given = moves.tolerance[np.isfinite(moves.tolerance)] if len(moves.tolerance) else []
+        q = machine.path_tolerance if machine.path_tolerance is not None else (float(given[0]) if len(given) else 0.0)
+    keep = naivecam_keep(moves.points, moves.start, moves.kinds, moves.feed, moves.sync, moves.term, q)
+    if keep.all():
+        return moves
+    # a sync before a dropped point moves to the next kept one
+    sync = moves.sync.copy()
+    idx = np.flatnonzero(sync & ~keep)
+    for i in idx:
+        j = i + 1 + int(np.argmax(keep[i + 1:])) if keep[i + 1:].any() else None
+        if j is not None:
+            sync[j] = True
+    return dataclasses.replace(moves, points=moves.points[keep], kinds=moves.kinds[keep], feed=moves.feed[keep],
+                               line=moves.line[keep], sync=sync[keep], term=moves.term[keep],
+                               tolerance=moves.tolerance[keep])
+
+
 def raised_rates(machine, moves):
     """``machine`` with each axis rate (and [TRAJ] velocity) raised to the highest
     programmed feed: the same machine without the feed cap (its rapids also run at
@@ -382,6 +494,8 @@ def raised_rates(machine, moves):
 def _plan(moves, machine, uncap: bool = False):
     """(block times s, peak speeds, blocks, model) of ``moves`` on ``machine``."""
     grbl = machine.controller == "grbl"
+    if not grbl:
+        moves = _merged(moves, machine)
     blocks = make_blocks(moves, machine, moves.sync, quantize=grbl, uncap=uncap)
     acc = np.asarray(machine.acceleration, dtype=float) * 3600.0
     if grbl:
@@ -393,19 +507,73 @@ def _plan(moves, machine, uncap: bool = False):
         if tol is None:
             given = moves.tolerance[np.isfinite(moves.tolerance)] if len(moves.tolerance) else []
             tol = float(given[0]) if len(given) else None
-        junction = blend_junction_sqr(blocks.unit, blocks.length, blocks.accel, tol)
+        junction, d_arc, s_arc, a_arc = blend_junction_sqr(blocks.unit, blocks.length, blocks.accel, tol, acc,
+                                                           blocks.nominal, arcs=True)
         term = moves.term[blocks.move] if len(moves.term) else np.zeros(0)
-        junction = np.where(term == 2, junction, np.where(np.isclose(junction, SOME_LARGE_VALUE), junction, 0.0))
+        blend = (term == 2) & ~blocks.fresh
+        junction = np.where(blend, junction, np.where(np.isclose(junction, SOME_LARGE_VALUE), junction, 0.0))
+        d_arc = np.where(blend, d_arc, 0.0)
+        s_arc = np.where(blend, s_arc, 0.0)
+        # the blend arcs take d from the lines on both sides of each corner
+        if len(blocks.length):
+            take = d_arc + np.concatenate([d_arc[1:], [0.0]])
+            blocks.length = np.maximum(blocks.length - take, 1e-9)
+        # the last segment of a blended run keeps LinuxCNC's parabolic term condition:
+        # half its acceleration (tc.c tcGetOverallMaxAccel)
+        if len(blocks.length):
+            stops_after = np.concatenate([blocks.fresh[1:], [True]])
+            blocks.accel = np.where(stops_after & (term == 2), 0.5 * blocks.accel, blocks.accel)
         window = LINUXCNC_LOOKAHEAD
-        model = ("LinuxCNC trajectory planner, approximate: trapezoids, axis and [TRAJ] limits, "
-                 f"{LINUXCNC_LOOKAHEAD}-segment look-ahead, circular G64 P blends at half acceleration")
+        model = ("LinuxCNC trajectory planner, approximate: canon's naive-CAM merge (G64 Q), axis limits, "
+                 f"{LINUXCNC_LOOKAHEAD}-segment look-ahead, tangent arc blends within G64 P at the normal "
+                 "acceleration share, half acceleration on a run's last segment, trapezoids")
     nom = blocks.nominal
     prev_nom = np.concatenate([[0.0], nom[:-1]])
     max_entry = np.minimum(junction, np.minimum(nom, prev_nom) ** 2)
+    if not grbl and np.any(s_arc > 0):
+        t_min, peak = _with_blend_arcs(blocks, nom, max_entry, junction, s_arc, a_arc, window)
+        return t_min * 60.0, peak, blocks, model
     v2 = streamed_speeds(max_entry, blocks.accel, blocks.length, blocks.fresh, window)
     v = np.sqrt(v2)
     t_min, peak = trapezoid_times(v[:-1], v[1:], nom, blocks.accel, blocks.length)
     return t_min * 60.0, peak, blocks, model
+
+
+def _with_blend_arcs(blocks, nom, max_entry, junction, s_arc, a_arc, window):
+    """LinuxCNC's queue with a blend arc between two lines where it blends: each arc a
+    segment of its own (length ``s_arc``, at most the corner's speed, tangential
+    acceleration half the plane's, BLEND_ACC_RATIO_TANGENTIAL), tangent to both lines.
+    Returns (minutes per line, the arc before it counted with it; peak speed per line)."""
+    n = len(blocks.length)
+    arc = s_arc > 0                       # arc at the start of line i (between i-1 and i)
+    n_before = np.cumsum(arc)             # arcs up to and including line i's own
+    line_pos = np.arange(n) + n_before
+    arc_idx = np.flatnonzero(arc)
+    arc_pos = line_pos[arc_idx] - 1
+    m = n + len(arc_idx)
+    length = np.empty(m)
+    accel = np.empty(m)
+    nominal = np.empty(m)
+    entry = np.empty(m)
+    fresh = np.zeros(m, dtype=bool)
+    v_arc = np.sqrt(np.minimum(junction[arc_idx], SOME_LARGE_VALUE))
+    length[line_pos] = blocks.length
+    accel[line_pos] = blocks.accel
+    nominal[line_pos] = nom
+    fresh[line_pos] = blocks.fresh
+    e = max_entry.copy()
+    e[arc_idx] = np.minimum(v_arc, nom[arc_idx]) ** 2     # tangent from the arc
+    entry[line_pos] = e
+    length[arc_pos] = s_arc[arc_idx]
+    accel[arc_pos] = 0.5 * a_arc[arc_idx]
+    nominal[arc_pos] = v_arc
+    entry[arc_pos] = np.minimum(v_arc, nom[arc_idx - 1]) ** 2
+    v2 = streamed_speeds(entry, accel, length, fresh, window)
+    v = np.sqrt(v2)
+    t, peak = trapezoid_times(v[:-1], v[1:], nominal, accel, length)
+    t_line = t[line_pos].copy()
+    t_line[arc_idx] += t[arc_pos]
+    return t_line, peak[line_pos]
 
 
 def pass_times(program, blocks: Blocks, t: np.ndarray, ideal: np.ndarray, axis: int) -> dict | None:

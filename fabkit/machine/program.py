@@ -100,6 +100,7 @@ class Moves:
     arc_segments: int = 0
     pauses: int = 0
     tool_changes: int = 0
+    naivecam: float | None = None     # LinuxCNC G64 Q, mm (None: Q = P)
     warnings: list = field(default_factory=list)
 
     def __len__(self) -> int:
@@ -227,6 +228,7 @@ def read_moves(text: str, controller: str = "grbl", arc_tolerance: float = 0.002
         ijk = {}
         r = None
         p = None
+        q_word = None
         f_word = s_word = None
         for letter, v in words:
             if letter == "G":
@@ -254,6 +256,8 @@ def read_moves(text: str, controller: str = "grbl", arc_tolerance: float = 0.002
                 r = grbl_float(v) if grbl else float(v)
             elif letter == "P":
                 p = float(v)
+            elif letter == "Q":
+                q_word = float(v)
             elif letter not in _LETTERS_OK:
                 raise _bad(ln, f"{letter} words are not supported for timing ({letter}{v})", file)
         g53 = False
@@ -292,6 +296,8 @@ def read_moves(text: str, controller: str = "grbl", arc_tolerance: float = 0.002
                 elif name == "64":
                     term = TERM_BLEND
                     tol = p * (MM_PER_INCH if inch else 1.0) if p is not None else math.nan
+                    if q_word is not None:
+                        out.naivecam = q_word * (MM_PER_INCH if inch else 1.0)
         k = MM_PER_INCH if inch else 1.0
         sync = False
         # [3] feed, [4] speed, [7] spindle, [8] coolant, [10] dwell: before the motion
