@@ -1,9 +1,10 @@
 """The run time the controller really takes: its motion planner simulated on the
-program text (read back by :func:`fabkit.toolpath.verify.read_program`).
+program as the controller reads it (:func:`fabkit.machine.program.read_moves`: arcs cut
+as grbl's mc_arc cuts them, the buffer syncs, the dwells).
 
 grbl 1.1 (planner.c, stepper.c), as modelled here:
 
-- **Blocks.** Each G0/G1 is a block between whole-step positions
+- **Blocks.** Each line is a block between whole-step positions
   (``round(mm * steps_per_mm)``, grbl's ``lround``); a block of no steps is dropped.
   Its length, unit vector, acceleration and rapid rate follow
   ``limit_value_by_axis_maximum``: min over moving axes of ``limit_i / |u_i|``.
@@ -20,37 +21,36 @@ grbl 1.1 (planner.c, stepper.c), as modelled here:
   Each block's exit speed is fixed when it starts (no new block arrives while it
   runs: a slot frees only when the segment generator finishes a block). The host
   is assumed to keep the buffer full (the serial line keeps up).
-- **Synchronisation.** M3/M4/M5/M6, M2/M30 and G4 wait until the buffer is empty
-  (grbl's ``protocol_buffer_synchronize``): the move before them ends at rest.
+- **Synchronisation.** grbl 1.1h's rules (gcode.c): a spindle or coolant state change,
+  an S change while the spindle runs, G4, M0-M2, M30 empty the buffer: the move before
+  them ends at rest.
 - **Trapezoids.** Each block runs accelerate / cruise / decelerate at the block's
   acceleration between its entry and exit speeds; the time is the integral of this
   profile (closed form). The segment generator runs it in 10 ms segments of whole
   steps; the difference is the step-timing rounding (measured against grbl 1.1h's
-  own planner and segment generator: docs/machine.md).
+  own parser, planner and segment generator: docs/machine.md).
 
 Not modelled: the spindle's spin-up (M3 dwell on controllers that have one),
 feed/rapid overrides (100 %), the serial line's own limit on short blocks.
 
-LinuxCNC (approximate, see :func:`linuxcnc_time`): the same trapezoids and per-axis
-limits, the [TRAJ] velocity/acceleration caps, a look-ahead over the whole queue
-(its optimiser looks 200 segments ahead), and G64 P blending as a circular blend at
-each corner: the blend may deviate P from the corner and use at most half of each
-segment; its speed is ``sqrt(a_n * r)`` with ``a_n`` half the acceleration (the
-tangential/normal split LinuxCNC's planner uses for blends). Not modelled: the
-naive-CAM collinear merge (G64 Q), the blend's own time being shorter than the
-corner's (the path is taken as the programmed polyline), spindle-synchronised motion.
+LinuxCNC (:func:`_plan` with :func:`naivecam_keep`, :func:`blend_junction_sqr`,
+:func:`_with_blend_arcs`): canon's naive-CAM merge (G64 Q), its axis-limited velocity
+and acceleration, tangent blend arcs within G64 P as segments of their own, half
+acceleration on a run's last segment, a 50-segment look-ahead; measured against
+LinuxCNC's own planner in docs/machine.md, with what is still approximated.
+
+The feed cap's cost (``lost_rate_s``): the run time minus the run time with the axis
+rates raised to the highest programmed feed (:func:`raised_rates`).
 """
 
 from __future__ import annotations
 
 import math
-import re
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..toolpath.verify import FEED, RAPID, Program
-from ..units import MM_PER_INCH
+from ..toolpath.verify import FEED, RAPID
 
 #: grbl 1.1: BLOCK_BUFFER_SIZE 16 on the ATmega328p, one slot kept empty
 GRBL_LOOKAHEAD = 15
@@ -64,7 +64,6 @@ MINIMUM_FEED_RATE = 1.0          # mm/min (grbl config.h)
 SOME_LARGE_VALUE = 1.0e38
 #: a feed block counts as capped when its peak speed is below this fraction of F
 CAPPED_BELOW = 0.99
-_SYNC = re.compile(r"(?:^|[^A-Z])(?:M0*[2-6]|M30|G0*4)(?![0-9.])")
 
 
 @dataclass
@@ -148,20 +147,6 @@ def _hm(seconds: float) -> str:
 # ----------------------------------------------------------------------------
 # blocks
 # ----------------------------------------------------------------------------
-def sync_starts(text: str, program: Program) -> np.ndarray:
-    """(n,) bool: the move starts after a line that empties the buffer (M2-M6, M30, G4)."""
-    out = np.zeros(len(program), dtype=bool)
-    if not len(program):
-        return out
-    lines = [i + 1 for i, ln in enumerate(text.splitlines())
-             if ("M" in ln.upper() or "G4" in ln.upper()) and _SYNC.search(re.sub(r"\([^)]*\)|;.*", "", ln.upper()))]
-    if lines:
-        idx = np.searchsorted(program.line, np.asarray(lines), side="right")
-        idx = idx[idx < len(program)]
-        out[idx] = True
-    return out
-
-
 def _axis_limit(limit: np.ndarray, u: np.ndarray) -> np.ndarray:
     """grbl's limit_value_by_axis_maximum, row-wise: min over u_i != 0 of limit_i / |u_i|."""
     with np.errstate(divide="ignore"):
@@ -609,14 +594,6 @@ def pass_times(program, blocks: Blocks, t: np.ndarray, ideal: np.ndarray, axis: 
             "min_s": round(float(pt.min()), 2), "max_s": round(float(pt.max()), 2),
             "median_length_over_feed_s": round(float(np.median(pi)), 2),
             "slowest_lines": [int(program.line[blocks.move[starts[k]]]), int(program.line[blocks.move[end]])]}
-
-
-def _g64_p(text: str) -> float | None:
-    m = re.search(r"G64\s*P\s*([0-9.]+)", text[:20000].upper())
-    if not m:
-        return None
-    p = float(m.group(1))
-    return p * (MM_PER_INCH if "G20" in text[:2000].upper() else 1.0)
 
 
 def _report(program, blocks: Blocks, t: np.ndarray, peak: np.ndarray, machine, model: str, top: int) -> RunTime:
