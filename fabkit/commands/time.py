@@ -20,6 +20,7 @@ MAX_PROGRAM_BYTES = 512 * 1024 * 1024
 
 
 def run(args) -> int:
+    from ..errors import SpecError
     from ..io import read_regular, text_of
     from ..machine.planner import _hm, run_time
     from ..machine.profile import grbl_defaults, resolve_machine, safe_name
@@ -30,7 +31,13 @@ def run(args) -> int:
     text = text_of(read_regular(p, MAX_PROGRAM_BYTES, "program"), p, MAX_PROGRAM_BYTES)
     if text.startswith("\ufeff"):
         text = text[1:]
-    moves = read_moves(text, machine.controller, machine.arc_tolerance, file=p)
+    try:
+        moves = read_moves(text, machine.controller, machine.arc_tolerance, file=p)
+    except SpecError as exc:
+        if args.machine or "grbl 1.1" not in exc.detail:
+            raise
+        raise SpecError(exc.detail + "; without --machine the program is timed on grbl 1.1h's defaults: for a "
+                        "LinuxCNC program give its INI or --machine linuxcnc-mill", file=exc.file) from None
     rt = run_time(None, machine, moves=moves)
     who = machine.name or machine.controller
     default = "" if args.machine else " (no --machine: grbl 1.1h's defaults)"
