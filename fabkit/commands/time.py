@@ -41,7 +41,8 @@ def run(args) -> int:
     rt = run_time(None, machine, moves=moves)
     who = machine.name or machine.controller
     default = "" if args.machine else " (no --machine: grbl 1.1h's defaults)"
-    lines = [f"time: {safe_name(p)} on {who}{default}: {_hm(rt.total_s)} ({rt.total_s:.1f} s)",
+    total = f"{_hm(rt.total_s)} ({rt.total_s:.1f} s)" if rt.total_s >= 60 else f"{rt.total_s:.1f} s"
+    lines = [f"time: {safe_name(p)} on {who}{default}: {total}",
              rt.summary(),
              f"program: {moves.lines} lines, {len(moves)} moves ({rt.blocks} planner blocks), "
              f"{moves.arcs} arcs ({moves.arc_segments} lines), {moves.dwells} dwells ({moves.dwell_s:.2f} s), "
