@@ -149,7 +149,7 @@ def check_program(program, text: str, machine, run=None, name: str | None = None
                     run = None
             cost = (f" (+{run.lost_rate_s:.0f} s of run time: the planner with these rates and with the rates "
                     "raised to the programmed feed)") if run is not None else ""
-            who = f"{name}: " if name else ""
+            who = f"the {name.lstrip('.')} program: " if name else ""
             chk.warnings.append(f"{who}feed up to F{f[over].max():g} mm/min is above the machine's rates along "
                                 f"{100 * share:.0f} % of the cut length (axis rates X/Y/Z "
                                 f"{'/'.join(f'{v:g}' for v in machine.max_rate)} mm/min): the controller runs "
