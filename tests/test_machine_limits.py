@@ -72,6 +72,13 @@ def test_tool_change_without_changer_refused(cli, tmp_path, plain_planner):
     text = (tmp_path / "toolpaths" / "small.ngc").read_text()
     code_only = "\n".join(ln.split("(")[0] for ln in text.splitlines())
     assert "grbl dialect" in text and "M6" not in code_only and "G64" not in code_only
+    # the sheet compares every need with this machine (its $130 travel, $110 rate, $30 spindle)
+    sheet = json.loads((tmp_path / "toolpaths" / "small.setup.json").read_text())
+    cmp_ = sheet["machine_comparison"]
+    assert cmp_["travel_x"] == {"need": sheet["machine_needs"]["travel"]["x"], "machine": 200.0, "ok": True}
+    assert cmp_["axis_rate_x"]["machine"] == 500.0 and cmp_["spindle"]["machine"] == [0.0, 24000.0]
+    md = (tmp_path / "toolpaths" / "small.setup.md").read_text()
+    assert "| X travel used / available |" in md and "grbl's default" not in md
     raw["machine"] = {"controller": "linuxcnc", "max_rate": [3000, 3000, 1000], "tool_changer": True,
                       "travel": [500, 500, 100]}
     spec = write_spec(tmp_path, raw)                 # the spec's own machine section

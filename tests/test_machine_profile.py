@@ -200,3 +200,22 @@ def test_profile_names_and_hostile_paths(tmp_path, capsys):
             target.write_bytes(before)           # the setup sheet's own path given as the profile
         assert main(argv + ["--machine", str(target)]) == 2
         assert "is the input" in capsys.readouterr().err and target.read_bytes() == before
+
+
+def test_dialect_from_the_machine(tmp_path):
+    from fabkit.machine.profile import dialect_for_machine
+    from fabkit.spec import load_spec
+
+    p = tmp_path / "s.yaml"
+    p.write_text("name: s\nmachining:\n  feed: 1000\n")
+    spec = load_spec(p)
+    grbl, lcnc = parse_grbl(DUMP, "dump.txt"), parse_linuxcnc_ini(INI, "mill.ini")
+    assert dialect_for_machine(spec, grbl).machining.dialect == "grbl"
+    assert dialect_for_machine(spec, lcnc).machining.dialect == "linuxcnc"
+    assert dialect_for_machine(spec, None).machining.dialect == "linuxcnc"          # the default
+    p.write_text("name: s\nmachining:\n  feed: 1000\n  dialect: linuxcnc\n")
+    with pytest.raises(SpecError, match="machining.dialect is linuxcnc, the machine grbl .dump.txt.* runs grbl"):
+        dialect_for_machine(load_spec(p), grbl)
+    p.write_text("name: s\nmachining:\n  feed: 1000\n  dialect: grbl\n")
+    with pytest.raises(SpecError, match="machining.dialect is grbl, the machine LinuxCNC .mill.ini.* runs linuxcnc"):
+        dialect_for_machine(load_spec(p), lcnc)
