@@ -312,45 +312,60 @@ def naivecam_keep(points: np.ndarray, start: np.ndarray, kinds: np.ndarray, feed
     """(n,) bool: the feed moves LinuxCNC's canon keeps after its naive-CAM merge (G64 Q,
     emccanon.cc ``see_segment``/``linkable``): consecutive G1 points at one feed join
     into one line while every point of the chain lies within ``q`` of the line from the
-    chain's start to the new point (at most 100 points). A rapid, a feed change, a sync
-    or another path mode ends a chain."""
+    chain's start to the new point (at most 101 points). A rapid, a feed change, a sync
+    or another path mode ends a chain. (Short chains in plain Python, long ones with
+    numpy: the same test.)"""
     n = len(points)
     keep = np.ones(n, dtype=bool)
     if not q or q <= 0 or n == 0:
         return keep
     pts = np.nan_to_num(points)
-    end = np.nan_to_num(np.asarray(start, dtype=float))       # canon.endPoint
+    xs, ys, zs = pts[:, 0].tolist(), pts[:, 1].tolist(), pts[:, 2].tolist()
+    st = np.nan_to_num(np.asarray(start, dtype=float))
+    ex, ey, ez = float(st[0]), float(st[1]), float(st[2])          # canon.endPoint
+    linkable_mode = ((kinds == FEED) & (term == 2) & ~sync).tolist()
+    fl = feed.tolist()
+    qq = q * q
     chain: list = []
     f_chain = None
     for i in range(n):
-        linkable_mode = kinds[i] == FEED and term[i] == 2 and not sync[i]
-        if chain and (not linkable_mode or feed[i] != f_chain or len(chain) > NAIVECAM_MAX_POINTS):
-            for j in chain[:-1]:
-                keep[j] = False
-            end = pts[chain[-1]]
+        if chain and (not linkable_mode[i] or fl[i] != f_chain or len(chain) > NAIVECAM_MAX_POINTS):
+            keep[chain[:-1]] = False
+            j = chain[-1]
+            ex, ey, ez = xs[j], ys[j], zs[j]
             chain = []
-        if not linkable_mode:
-            end = pts[i]
+        if not linkable_mode[i]:
+            ex, ey, ez = xs[i], ys[i], zs[i]
             continue
-        p = pts[i]
         if chain:
-            m = p - end
-            mm = float(m @ m)
+            mx, my, mz = xs[i] - ex, ys[i] - ey, zs[i] - ez
+            mm = mx * mx + my * my + mz * mz
             ok = mm > 0
-            if ok:
-                c = pts[chain] - end
-                t0 = np.clip(c @ m / mm, 0.0, 1.0)
-                d = c - t0[:, None] * m
-                ok = bool(np.all(np.einsum("ij,ij->i", d, d) <= q * q))
+            if ok and len(chain) <= 16:
+                for j in chain:
+                    px, py, pz = xs[j] - ex, ys[j] - ey, zs[j] - ez
+                    t0 = (px * mx + py * my + pz * mz) / mm
+                    t0 = 0.0 if t0 < 0 else 1.0 if t0 > 1 else t0
+                    dx, dy, dz = px - t0 * mx, py - t0 * my, pz - t0 * mz
+                    if dx * dx + dy * dy + dz * dz > qq:
+                        ok = False
+                        break
+            elif ok:                # a chain is consecutive points: a slice
+                m = np.array([mx, my, mz])
+                c = pts[chain[0]:i] - np.array([ex, ey, ez])
+                t0 = c @ m / mm
+                np.clip(t0, 0.0, 1.0, out=t0)
+                c -= t0[:, None] * m
+                ok = float((c * c).sum(axis=1).max()) <= qq
             if not ok:
-                for j in chain[:-1]:
-                    keep[j] = False
-                end = pts[chain[-1]]
+                keep[chain[:-1]] = False
+                j = chain[-1]
+                ex, ey, ez = xs[j], ys[j], zs[j]
                 chain = []
         chain.append(i)
-        f_chain = feed[i]
-    for j in chain[:-1]:
-        keep[j] = False
+        f_chain = fl[i]
+    if chain:
+        keep[chain[:-1]] = False
     return keep
 
 
