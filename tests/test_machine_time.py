@@ -144,3 +144,16 @@ def test_time_command(cli, tmp_path):
     bad.write_text("G21\nG1 X1 F100\nG81 Z-1 R1\n")
     code, out, err = cli("time", bad)
     assert code == 2 and "bad.nc: line 3: G81" in err and len(err.strip().splitlines()) == 1
+
+
+def test_g28_goes_to_its_stored_position():
+    # grbl and LinuxCNC: G28 without words goes to its stored position (machine zero unless
+    # G28.1 set it), with words through them to the stored position on those axes only
+    mv = read_moves("G21 G90\nG0 X10 Y4 Z5\nG28 G91 Z0\nG90 G0 X20\nG28\n", "grbl")
+    np.testing.assert_allclose(mv.points, [[10, 4, 5], [10, 4, 5], [10, 4, 0], [20, 4, 0], [0, 0, 0]])
+    assert any("G28" in w for w in mv.warnings)
+    rt = run_time("G21 G90\nG0 X10\nG28\n", GRBL)            # 10 mm out and back at 500 mm/min
+    v, a = 500 / 60, 10.0
+    assert rt.total_s == pytest.approx(2 * (10 / v + v / a), rel=1e-12)
+    mv = read_moves("G21\nG0 X3\nG28.1\nG0 X9\nG28\n", "linuxcnc")
+    assert mv.points[-1][0] == 3.0 and not mv.warnings

@@ -27,9 +27,11 @@ CAM tool or written by hand. Understood:
   motion queue (the task waits for motion before a spindle or coolant command);
   arcs are cut into chords at the profile's arc tolerance for the approximate planner.
 
-Anything else (G28, G10, canned cycles, cutter compensation, inverse time, parameters
-and expressions, A/B/C axes, another work offset) is refused naming the word and its
-line: the time of such a program is not known.
+G28/G30 move through their axis words to the stored position (machine zero, with the
+work offset zero, unless G28.1/G30.1 set it: a warning says so). Anything else (G10,
+canned cycles, cutter compensation, inverse time, parameters and expressions, A/B/C
+axes, another work offset) is refused naming the word and its line: the time of such a
+program is not known.
 
 Positions: the machine starts at the work origin (0, 0, 0) with the work offset zero;
 a G53 move therefore assumes the work offset is zero (a warning says so).
@@ -62,9 +64,9 @@ _COMMENT = re.compile(r"\([^)]*\)?")
 
 #: G words understood (as written by _gname)
 _G_OK = {"0", "1", "2", "3", "4", "17", "18", "19", "20", "21", "90", "91", "90.1", "91.1", "53", "92",
-         "92.1", "94", "40", "49", "80", "54", "61", "61.1", "64", "43"}
+         "92.1", "94", "40", "49", "80", "54", "61", "61.1", "64", "43", "28", "30", "28.1", "30.1"}
 _G_GRBL = {"0", "1", "2", "3", "4", "17", "18", "19", "20", "21", "90", "91", "91.1", "53", "92", "92.1",
-           "94", "40", "49", "80", "54", "61"}
+           "94", "40", "49", "80", "54", "61", "28", "30", "28.1", "30.1"}
 _M_OK = {0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 30, 48, 49, 50, 51, 52, 53}
 _M_GRBL = {0, 1, 2, 3, 4, 5, 7, 8, 9, 30}
 _LETTERS_OK = set("GMXYZIJKRFSTPQHNDL")
@@ -203,6 +205,9 @@ def read_moves(text: str, controller: str = "grbl", arc_tolerance: float = 0.002
                 feed=np.zeros(0), line=np.zeros(0, int), sync=np.zeros(0, bool), term=np.zeros(0, np.int8),
                 tolerance=np.zeros(0), lines=0)
     g53_warned = False
+    stored = {28: [0.0, 0.0, 0.0], 30: [0.0, 0.0, 0.0]}      # G28/G30 positions, machine mm
+    stored_set: set = set()
+    home_warned = False
     src = text.upper().split("\n")
     out.lines = len(src)
     for ln, s in enumerate(src, start=1):
@@ -263,6 +268,7 @@ def read_moves(text: str, controller: str = "grbl", arc_tolerance: float = 0.002
         g53 = False
         dwell = False
         g92_set = False
+        go_home = 0
         if gs:
             for name in gs:
                 if name in ("0", "1", "2", "3"):
@@ -287,6 +293,11 @@ def read_moves(text: str, controller: str = "grbl", arc_tolerance: float = 0.002
                     g53 = True
                 elif name == "92":
                     g92_set = True
+                elif name in ("28", "30"):
+                    go_home = int(name)
+                elif name in ("28.1", "30.1"):
+                    stored[int(float(name))] = list(pos)
+                    stored_set.add(int(float(name)))
                 elif name == "92.1":
                     g92 = [0.0, 0.0, 0.0]
                 elif name == "61":
@@ -346,10 +357,40 @@ def read_moves(text: str, controller: str = "grbl", arc_tolerance: float = 0.002
         if sync:
             out.syncs += 1
             syncs_at.append(len(kinds))
-        # [19] offsets
+        # [19] offsets, G28/G30
         if g92_set:
             for i, v in axes.items():
                 g92[i] = pos[i] - v * k
+            axes = {}
+        if go_home:
+            # an intermediate point (the axis words, as a rapid), then the stored position
+            # on those axes (all axes without words), both rapids
+            dest = list(pos)
+            if axes:
+                mid = list(pos)
+                for i, v in axes.items():
+                    mid[i] = v * k + g92[i] if absolute else pos[i] + v * k
+                pts.extend(mid)
+                kinds.append(RAPID)
+                feeds.append(math.nan)
+                lines.append(ln)
+                terms.append(term)
+                tols.append(tol)
+                dest = mid
+            for i in (axes if axes else range(3)):
+                dest = list(dest)
+                dest[i] = stored[go_home][i]
+            pts.extend(dest)
+            kinds.append(RAPID)
+            feeds.append(math.nan)
+            lines.append(ln)
+            terms.append(term)
+            tols.append(tol)
+            pos = dest
+            if go_home not in stored_set and not home_warned:
+                out.warnings.append(f"line {ln}: G{go_home}: its stored position is taken as machine zero with the "
+                                    "work offset zero (the controller's G28/G30 data are not in the program)")
+                home_warned = True
             axes = {}
         # [20] motion
         if axes and not dwell:
