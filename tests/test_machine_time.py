@@ -118,7 +118,7 @@ def test_incremental_inch_g53_and_offsets():
 
 
 def test_words_refused_with_their_line():
-    for text, what in [("G0 X1\nG28\n", "line 2: G28"), ("G0 X1\nG1 X#1 F100\n", "line 2: unsupported text"),
+    for text, what in [("G0 X1\nG10 L2 P1 X0\n", "line 2: G10"), ("G0 X1\nG1 X#1 F100\n", "line 2: unsupported text"),
                        ("G1 X1 F10\nG1 B5\n", "line 2: B words"), ("G21\nG64 P0.1\n", "G64 is not supported by grbl"),
                        ("G21\n(open\nG1 X1 F1\n", "line 2: unclosed"), ("G21\nM6 T2\n", "M6 is not supported by grbl"),
                        ("G21\nG1 X1\n", "line 2: G1 without a feed")]:
