@@ -120,10 +120,15 @@ def test_incremental_inch_g53_and_offsets():
 def test_words_refused_with_their_line():
     for text, what in [("G0 X1\nG10 L2 P1 X0\n", "line 2: G10"), ("G0 X1\nG1 X#1 F100\n", "line 2: unsupported text"),
                        ("G1 X1 F10\nG1 B5\n", "line 2: B words"), ("G21\nG64 P0.1\n", "G64 is not supported by grbl"),
-                       ("G21\n(open\nG1 X1 F1\n", "line 2: unclosed"), ("G21\nM6 T2\n", "M6 is not supported by grbl"),
+                       ("G21\nM6 T2\n", "M6 is not supported by grbl"),
                        ("G21\nG1 X1\n", "line 2: G1 without a feed")]:
         with pytest.raises(SpecError, match=what):
             read_moves(text, "grbl")
+    with pytest.raises(SpecError, match="line 2: unclosed comment"):
+        read_moves("G21\n(open\nG1 X1 F1\n", "linuxcnc")
+    # grbl reads comments left to right: a ';' inside ( ) is part of it, an unclosed ( ends the line
+    mv = read_moves("G21\n(a; b) G1 X1 F100\nG1 X2 ; c (d\n(open G1 X9\n", "grbl")
+    np.testing.assert_allclose(mv.points[:, 0], [1, 2])
     # LinuxCNC takes its own words (tool call, path control) and `%`, line numbers, comments
     mv = read_moves("%\nN10 G21 G64 P0.05 (path)\nN20 T2 M6 G43 H2\nN30 G1 X5 F100 ; cut\n%\n", "linuxcnc")
     assert len(mv) == 1 and mv.tolerance[0] == pytest.approx(0.05) and mv.tool_changes == 1

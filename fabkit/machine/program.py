@@ -60,7 +60,6 @@ TERM_STOP, TERM_EXACT, TERM_BLEND = 0, 1, 2
 _NUM = r"[-+]?(?:\d+\.?\d*|\.\d+)"
 _WORD = re.compile(rf"([A-Z])({_NUM})")
 _CLEAN = re.compile(rf"(?:[A-Z]{_NUM})*")
-_COMMENT = re.compile(r"\([^)]*\)?")
 
 #: G words understood (as written by _gname)
 _G_OK = {"0", "1", "2", "3", "4", "17", "18", "19", "20", "21", "90", "91", "90.1", "91.1", "53", "92",
@@ -212,12 +211,7 @@ def read_moves(text: str, controller: str = "grbl", arc_tolerance: float = 0.002
     out.lines = len(src)
     for ln, s in enumerate(src, start=1):
         if "(" in s or ";" in s:
-            if ";" in s:
-                s = s.split(";", 1)[0]
-            if "(" in s:
-                if s.count("(") != s.count(")"):
-                    raise _bad(ln, "unclosed comment", file)
-                s = _COMMENT.sub("", s)
+            s = _strip_comments(s, grbl, ln, file)
         s = s.replace(" ", "").replace("\t", "").replace("\r", "")
         if not s or s[0] == "%":
             continue
@@ -465,6 +459,27 @@ def read_moves(text: str, controller: str = "grbl", arc_tolerance: float = 0.002
     if out.tool_changes:
         out.warnings.append(f"{out.tool_changes} tool change(s) (M6): the time of the change is not counted")
     return out
+
+
+def _strip_comments(s: str, grbl: bool, ln: int, file) -> str:
+    """The line without its comments, read left to right as the controllers do: ``(...)``
+    (a ``;`` inside is part of it) and ``;`` to the end of the line. An unclosed ``(``:
+    grbl ignores the rest of the line, LinuxCNC refuses it."""
+    out = []
+    depth = False
+    for ch in s:
+        if depth:
+            if ch == ")":
+                depth = False
+        elif ch == "(":
+            depth = True
+        elif ch == ";":
+            break
+        else:
+            out.append(ch)
+    if depth and not grbl:
+        raise _bad(ln, "unclosed comment", file)
+    return "".join(out)
 
 
 _PLANES = {17: (0, 1, 2), 18: (2, 0, 1), 19: (1, 2, 0)}
