@@ -81,8 +81,8 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("-o", "--output", metavar="PATH", help="output program (default toolpaths/<name>.ngc)")
     c.add_argument("--no-verify", action="store_true", help="skip the built-in cut verification")
     c.add_argument("--json", action="store_true", help="print the summary as JSON")
-    c.add_argument("--machine", metavar="FILE", help="machine profile (YAML; `fabkit machine import`): the "
-                   "controller's run time and the checks before cutting (default: the spec's machine section)")
+    c.add_argument("--machine", metavar="FILE", help="machine profile (YAML, grbl $$ dump, LinuxCNC INI, or a "
+                   "shipped name: `fabkit machine list`): the program's dialect, the controller's run time and the checks before cutting (default: the spec's machine section)")
     c.add_argument("--no-progress", action="store_true", help="no progress bar")
     c.add_argument("--max-time", type=float, default=None, metavar="SECONDS", dest="max_time",
                    help="CPU seconds the toolpath job may take, estimated before planning (default: the spec's "
@@ -212,9 +212,17 @@ def build_parser() -> argparse.ArgumentParser:
 
     h = "machine profiles: `import FILE` reads a grbl $$ dump or a LinuxCNC INI into a profile (YAML)"
     c = sub.add_parser("machine", help=h, description=h)
-    c.add_argument("action", choices=["import"], help="import: settings file -> profile")
-    c.add_argument("file", metavar="FILE", help="grbl $$ dump (text) or LinuxCNC .ini")
+    c.add_argument("action", choices=["import", "list"], help="import: settings file -> profile; list: the "
+                   "shipped profiles (by name: --machine grbl)")
+    c.add_argument("file", metavar="FILE", nargs="?", help="grbl $$ dump (text) or LinuxCNC .ini")
     c.add_argument("-o", "--output", metavar="OUT.yaml", help="write the profile here (default: print it)")
+    c.add_argument("--json", action="store_true", help="print JSON")
+
+    h = "the controller's run time of any grbl or LinuxCNC program (its planner simulated)"
+    c = sub.add_parser("time", help=h, description=h)
+    c.add_argument("program", metavar="PROGRAM", help="a G-code program (.nc, .ngc, .gcode, ...)")
+    c.add_argument("--machine", metavar="PROFILE", help="machine profile: a file (YAML, grbl $$ dump, LinuxCNC "
+                   "INI) or a shipped profile's name (`fabkit machine list`; default: grbl)")
     c.add_argument("--json", action="store_true", help="print JSON")
 
     # the solitary-wave side: phi^4 collisions and the seed paper's Fig. 1

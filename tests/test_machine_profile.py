@@ -1,6 +1,8 @@
 """Machine profiles: grbl $$ dumps and LinuxCNC INIs -> profile, the shipped
 grbl 1.1 defaults, the spec's machine section, and bad files (exit 2)."""
 
+from pathlib import Path
+
 import pytest
 
 from fabkit.cli import main
@@ -128,3 +130,92 @@ def test_bad_profile_file(tmp_path):
     p.write_text("controller: grbl\ntool_changer: maybe\n")
     with pytest.raises(SpecError, match="tool_changer: must be true"):
         load_machine(p)
+
+
+@pytest.mark.parametrize("text, words", [
+    (DUMP + "$110=4000\n", "$110: set twice: line 9 and line 19"),
+    (INI + "[AXIS_X]\nMAX_VELOCITY = 3\n", "[AXIS_X]: the section appears twice: line 12 and line 27"),
+    (INI.replace("MAX_VELOCITY = 0.5\n", "MAX_VELOCITY = 0.5\nMAX_VELOCITY = 9\n"),
+     "[AXIS_Z]MAX_VELOCITY: set twice: line 25 and line 26"),
+    (DUMP.replace("$121=400.000", "$121=0.0000000001"), "$121: 1e-10 mm/s^2 is outside the physical range 0.1 to"),
+    (DUMP.replace("$100=800.000", "$100=0.000000001"), "$100: 1e-09 steps/mm is outside the physical range 1 to"),
+    (DUMP.replace("$110=5000.000", "$110=0.000001"), "$110: 1e-06 mm/min is outside the physical range 1 to"),
+    (INI.replace("MAX_ACCELERATION = 10.0", "MAX_ACCELERATION = 1e-300"),
+     "[AXIS_Z]MAX_ACCELERATION: 2.54e-299 mm/s^2 is outside the physical range 0.1 to"),
+    (INI.replace("MAX_VELOCITY = 0.5", "MAX_VELOCITY = fast"), "[AXIS_Z]MAX_VELOCITY: line 25: not a number"),
+])
+def test_hostile_settings_exit_2(tmp_path, capsys, text, words):
+    test_bad_settings_exit_2(tmp_path, capsys, text, words)
+
+
+def test_numbers_read_as_the_controller_reads_them(tmp_path):
+    # LinuxCNC reads numbers with sscanf("%lf"): 1_000 is 1 (then refused: 60 in/min... is
+    # in range, so it stands, as the controller would run it); a byte-order mark is accepted
+    m = parse_linuxcnc_ini("\ufeff" + INI.replace("MAX_VELOCITY = 0.5", "MAX_VELOCITY = 1_000"), "m.ini")
+    assert m.max_rate[2] == pytest.approx(1 * 25.4 * 60)
+    from fabkit.machine.profile import c_double
+
+    assert [c_double(s) for s in ("2.5 # c", "0x10", "1e3x", ".5", "-7,5", "abc")] == [2.5, 16.0, 1000.0, 0.5,
+                                                                                        -7.0, None]
+    p = tmp_path / "bom.txt"
+    p.write_bytes(b"\xef\xbb\xbf" + DUMP.encode())
+    assert load_machine(p).max_rate == (5000.0, 4000.0, 1000.0)
+
+
+def test_joint_limits_imported():
+    # [JOINT_1] slower than [AXIS_Y]: Y runs at the joint's limits
+    ini = INI + "[KINS]\nKINEMATICS = trivkins coordinates=XYZ\n[JOINT_1]\nMAX_VELOCITY = 1.0\n" \
+                "MAX_ACCELERATION = 5.0\nMIN_LIMIT = 0\nMAX_LIMIT = 6\n"
+    m = parse_linuxcnc_ini(ini, "m.ini")
+    assert m.max_rate[1] == pytest.approx(1.0 * 25.4 * 60) and m.acceleration[1] == pytest.approx(5 * 25.4)
+    assert m.max_rate[0] == pytest.approx(1.5 * 25.4 * 60)
+
+
+def test_profile_names_and_hostile_paths(tmp_path, capsys):
+    from fabkit.machine.profile import resolve_machine
+
+    assert resolve_machine("grbl").max_rate == (500.0,) * 3
+    assert main(["machine", "list"]) == 0 and "grbl-router" in capsys.readouterr().out
+    with pytest.raises(SpecError, match="not a shipped profile"):
+        resolve_machine("grbl-nosuch")
+    spec = tmp_path / "s.yaml"
+    spec.write_text("surface:\n  height: x\nmachining:\n  feed: 100\n")
+    with pytest.raises(SpecError, match="a spec without a machine section"):
+        load_machine(spec)
+    # a file name with control characters: the profile loads back, the summary is escaped
+    src = tmp_path / "we\x1b[31mird\x07.txt"
+    src.write_text(DUMP)
+    out = tmp_path / "w.yaml"
+    assert main(["machine", "import", str(src), "-o", str(out)]) == 0
+    said = capsys.readouterr().out
+    assert "\x1b" not in said and "\\x1b" in said
+    assert load_machine(out).to_dict() == {**parse_grbl(DUMP, str(src)).to_dict()}
+    # the --machine file is an input: no output may replace it
+    before = out.read_bytes()
+    bowl = str(Path(__file__).resolve().parents[1] / "specs" / "bowl.yaml")
+    for argv in (["gcode", bowl, "-o", str(out)], ["gcode", bowl, "-o", str(tmp_path / "w.ngc")],
+                 ["report", bowl, "-o", str(out)]):
+        target = tmp_path / "w.setup.json" if argv[-1].endswith(".ngc") else out
+        if target != out:
+            target.write_bytes(before)           # the setup sheet's own path given as the profile
+        assert main(argv + ["--machine", str(target)]) == 2
+        assert "is the input" in capsys.readouterr().err and target.read_bytes() == before
+
+
+def test_dialect_from_the_machine(tmp_path):
+    from fabkit.machine.profile import dialect_for_machine
+    from fabkit.spec import load_spec
+
+    p = tmp_path / "s.yaml"
+    p.write_text("name: s\nmachining:\n  feed: 1000\n")
+    spec = load_spec(p)
+    grbl, lcnc = parse_grbl(DUMP, "dump.txt"), parse_linuxcnc_ini(INI, "mill.ini")
+    assert dialect_for_machine(spec, grbl).machining.dialect == "grbl"
+    assert dialect_for_machine(spec, lcnc).machining.dialect == "linuxcnc"
+    assert dialect_for_machine(spec, None).machining.dialect == "linuxcnc"          # the default
+    p.write_text("name: s\nmachining:\n  feed: 1000\n  dialect: linuxcnc\n")
+    with pytest.raises(SpecError, match="machining.dialect is linuxcnc, the machine grbl .dump.txt.* runs grbl"):
+        dialect_for_machine(load_spec(p), grbl)
+    p.write_text("name: s\nmachining:\n  feed: 1000\n  dialect: grbl\n")
+    with pytest.raises(SpecError, match="machining.dialect is grbl, the machine LinuxCNC .mill.ini.* runs linuxcnc"):
+        dialect_for_machine(load_spec(p), lcnc)

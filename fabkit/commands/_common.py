@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import threading
 import math
+import os
 import sys
 import time
 from pathlib import Path
@@ -41,7 +42,9 @@ def check_paths(args, outputs: dict) -> None:
     spec as the input, and the figure format of ``--plot``."""
     from ..io import check_outputs
 
-    check_outputs(outputs, inputs=[getattr(args, "spec", None)])
+    machine = getattr(args, "machine", None)          # --machine FILE is an input too
+    check_outputs(outputs, inputs=[getattr(args, "spec", None)] + ([machine] if machine and os.path.exists(machine)
+                                                                   else []))
     if outputs.get("--plot") is not None:
         plot_format(outputs["--plot"])
 

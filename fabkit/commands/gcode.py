@@ -33,7 +33,7 @@ def _hm(seconds: float) -> str:
 
 
 def run(args) -> int:
-    from ..machine.profile import machine_from_spec
+    from ..machine.profile import dialect_for_machine, machine_from_spec
     from ..toolpath.guards import with_time_budget
     from ..toolpath.job import run_job
     from ..toolpath.raster import plan_estimate
@@ -42,13 +42,14 @@ def run(args) -> int:
     total = Timer()
     spec = load_spec(args.spec, need=NEEDS, command="gcode")
     spec = with_time_budget(spec, getattr(args, "max_time", None))     # --max-time over machining.max_time
+    machine = machine_from_spec(spec, getattr(args, "machine", None))    # a bad profile: exit 2 now
+    spec = dialect_for_machine(spec, machine)        # the program for the machine given
     out = default_output(spec, ".ngc", args.output)
     paths = sheet_paths(out)
     # refuse now, not after minutes of planning
     check_paths(args, {"--output": out, **{f"--output (setup sheet .{k})": p for k, p in paths.items()},
                        **_job_paths(spec, out)})
     surface = Surface.from_spec(spec)
-    machine = machine_from_spec(spec, getattr(args, "machine", None))    # a bad profile: exit 2 now
     _machine_precheck(spec, surface, machine)  # the machine's travel, spindle, tool changer: before planning
     est = plan_estimate(spec, surface)  # the guards first: a refusal costs about a second
     if est.get("build_seconds", 0.0) > 0 and not getattr(args, "no_progress", False) and sys.stderr.isatty():
@@ -67,9 +68,9 @@ def run(args) -> int:
     step, close = stage_bar(3 if args.no_verify else 4, getattr(args, "no_progress", False), "gcode")
     try:
         job = run_job(spec, surface, machine=machine, verify=not args.no_verify, progress=step, program_path=out)
-        return _finish(args, job, out, paths, total)
     finally:
-        close()
+        close()          # the bar is gone before any warning or the summary: each starts on its own line
+    return _finish(args, job, out, paths, total)
 
 
 def _job_paths(spec, out) -> dict:

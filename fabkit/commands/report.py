@@ -121,9 +121,10 @@ def run(args) -> int:
         raise SpecError(f"the report is an HTML page: name it .html, not '{path.suffix}'", key="--output")
     surface = Surface.from_spec(spec)
     check_depth(spec, surface)
-    from ..machine.profile import machine_from_spec
+    from ..machine.profile import dialect_for_machine, machine_from_spec
 
     machine = machine_from_spec(spec, getattr(args, "machine", None))    # a bad profile: exit 2 now
+    spec = dialect_for_machine(spec, machine)        # the toolpath in the machine's dialect
 
     step, close = stage_bar(5, getattr(args, "no_progress", False), "report")
     try:

@@ -100,9 +100,11 @@ def precheck(spec, surface, machine) -> MachineCheck:
     return chk
 
 
-def check_program(program, text: str, machine, run=None) -> MachineCheck:
+def check_program(program, text: str, machine, run=None, name: str | None = None) -> MachineCheck:
     """The program read back (``program``, mm) and its ``text`` against ``machine``;
-    ``run``: its :class:`fabkit.machine.planner.RunTime` (for the cost of clipped feeds)."""
+    ``run``: its :class:`fabkit.machine.planner.RunTime` (for the cost of clipped feeds:
+    planned here when not given); ``name``: the program's name in a multi-program job,
+    for the warnings."""
     chk = MachineCheck(machine=machine.name or machine.controller)
     pts = np.vstack([program.start[None, :], program.points]) if len(program) else program.start[None, :]
     span = {}
@@ -138,8 +140,17 @@ def check_program(program, text: str, machine, run=None) -> MachineCheck:
         over = f > cap * (1 + SLACK)
         if over.any():
             share = float(length[moving][over].sum() / length[moving].sum())
-            cost = f" (+{run.lost_rate_s:.0f} s over length/feed)" if run is not None else ""
-            chk.warnings.append(f"feed up to F{f[over].max():g} mm/min is above the machine's rates along "
+            if run is None:
+                from .planner import run_time
+
+                try:
+                    run = run_time(text, machine)
+                except SpecError:           # words the controller refuses: refused above, no time
+                    run = None
+            cost = (f" (+{run.lost_rate_s:.0f} s of run time: the planner with these rates and with the rates "
+                    "raised to the programmed feed)") if run is not None else ""
+            who = f"the {name.lstrip('.')} program: " if name else ""
+            chk.warnings.append(f"{who}feed up to F{f[over].max():g} mm/min is above the machine's rates along "
                                 f"{100 * share:.0f} % of the cut length (axis rates X/Y/Z "
                                 f"{'/'.join(f'{v:g}' for v in machine.max_rate)} mm/min): the controller runs "
                                 f"those moves slower{cost}")

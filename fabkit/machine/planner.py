@@ -1,9 +1,10 @@
 """The run time the controller really takes: its motion planner simulated on the
-program text (read back by :func:`fabkit.toolpath.verify.read_program`).
+program as the controller reads it (:func:`fabkit.machine.program.read_moves`: arcs cut
+as grbl's mc_arc cuts them, the buffer syncs, the dwells).
 
 grbl 1.1 (planner.c, stepper.c), as modelled here:
 
-- **Blocks.** Each G0/G1 is a block between whole-step positions
+- **Blocks.** Each line is a block between whole-step positions
   (``round(mm * steps_per_mm)``, grbl's ``lround``); a block of no steps is dropped.
   Its length, unit vector, acceleration and rapid rate follow
   ``limit_value_by_axis_maximum``: min over moving axes of ``limit_i / |u_i|``.
@@ -20,46 +21,49 @@ grbl 1.1 (planner.c, stepper.c), as modelled here:
   Each block's exit speed is fixed when it starts (no new block arrives while it
   runs: a slot frees only when the segment generator finishes a block). The host
   is assumed to keep the buffer full (the serial line keeps up).
-- **Synchronisation.** M3/M4/M5/M6, M2/M30 and G4 wait until the buffer is empty
-  (grbl's ``protocol_buffer_synchronize``): the move before them ends at rest.
+- **Synchronisation.** grbl 1.1h's rules (gcode.c): a spindle or coolant state change,
+  an S change while the spindle runs, G4, M0-M2, M30 empty the buffer: the move before
+  them ends at rest.
 - **Trapezoids.** Each block runs accelerate / cruise / decelerate at the block's
   acceleration between its entry and exit speeds; the time is the integral of this
   profile (closed form). The segment generator runs it in 10 ms segments of whole
   steps; the difference is the step-timing rounding (measured against grbl 1.1h's
-  own planner and segment generator: docs/machine.md).
+  own parser, planner and segment generator: docs/machine.md).
 
 Not modelled: the spindle's spin-up (M3 dwell on controllers that have one),
 feed/rapid overrides (100 %), the serial line's own limit on short blocks.
 
-LinuxCNC (approximate, see :func:`linuxcnc_time`): the same trapezoids and per-axis
-limits, the [TRAJ] velocity/acceleration caps, a look-ahead over the whole queue
-(its optimiser looks 200 segments ahead), and G64 P blending as a circular blend at
-each corner: the blend may deviate P from the corner and use at most half of each
-segment; its speed is ``sqrt(a_n * r)`` with ``a_n`` half the acceleration (the
-tangential/normal split LinuxCNC's planner uses for blends). Not modelled: the
-naive-CAM collinear merge (G64 Q), the blend's own time being shorter than the
-corner's (the path is taken as the programmed polyline), spindle-synchronised motion.
+LinuxCNC (:func:`_plan` with :func:`naivecam_keep`, :func:`blend_junction_sqr`,
+:func:`_with_blend_arcs`): canon's naive-CAM merge (G64 Q), its axis-limited velocity
+and acceleration, tangent blend arcs within G64 P as segments of their own, half
+acceleration on a run's last segment, a 50-segment look-ahead; measured against
+LinuxCNC's own planner in docs/machine.md, with what is still approximated.
+
+The feed cap's cost (``lost_rate_s``): the run time minus the run time with the axis
+rates raised to the highest programmed feed (:func:`raised_rates`).
 """
 
 from __future__ import annotations
 
-import re
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..toolpath.verify import RAPID, Program
-from ..units import MM_PER_INCH
+from ..toolpath.verify import FEED, RAPID
 
 #: grbl 1.1: BLOCK_BUFFER_SIZE 16 on the ATmega328p, one slot kept empty
 GRBL_LOOKAHEAD = 15
-#: LinuxCNC's trajectory optimiser depth (TP_LOOKAHEAD_DEPTH)
-LINUXCNC_LOOKAHEAD = 200
+#: LinuxCNC's trajectory optimiser depth ([TRAJ] ARC_BLEND_OPTIMIZATION_DEPTH, default 50)
+LINUXCNC_LOOKAHEAD = 50
+#: LinuxCNC blendmath.h: the share of the acceleration a blend arc may use normal to the path
+BLEND_ACC_RATIO_NORMAL = math.sqrt(1.0 - 0.5 ** 2)
+#: emccanon.cc linkable(): at most this many points merged into one line
+NAIVECAM_MAX_POINTS = 100
 MINIMUM_FEED_RATE = 1.0          # mm/min (grbl config.h)
 SOME_LARGE_VALUE = 1.0e38
 #: a feed block counts as capped when its peak speed is below this fraction of F
 CAPPED_BELOW = 0.99
-_SYNC = re.compile(r"(?:^|[^A-Z])(?:M0*[2-6]|M30|G0*4)(?![0-9.])")
 
 
 @dataclass
@@ -99,6 +103,11 @@ class RunTime:
     passes: dict | None = None  # per raster pass (see :func:`pass_times`), when the raster axis is known
     blocks: int = 0
     model: str = ""
+    dwell_s: float = 0.0        # G4 (grbl: in its 50 ms steps)
+    syncs: int = 0              # buffer syncs (the move before ends at rest)
+    arcs: int = 0
+    arc_segments: int = 0       # the lines the arcs were cut into
+    cap_cost_model: str = "length/feed"
 
     def to_json(self) -> dict:
         return {"controller": self.controller, "machine": self.machine, "total_s": round(self.total_s, 1),
@@ -110,11 +119,15 @@ class RunTime:
                 "time_lost_to_axis_rates_s": round(self.lost_rate_s, 1),
                 "time_lost_to_acceleration_s": round(self.lost_lookahead_s, 1),
                 "capped_regions": [r.to_json() for r in self.regions], "per_pass": self.passes,
-                "blocks": self.blocks, "model": self.model}
+                "blocks": self.blocks, "model": self.model, "dwell_s": round(self.dwell_s, 2),
+                "buffer_syncs": self.syncs, "arcs": self.arcs, "arc_segments": self.arc_segments,
+                "feed_cap_cost_s": round(self.lost_rate_s, 1), "feed_cap_cost_model": self.cap_cost_model}
 
     def summary(self) -> str:
         s = (f"run time on {self.machine}: {_hm(self.total_s)} ({self.total_s:.0f} s: feeds {self.feed_s:.0f}, "
-             f"plunges {self.plunge_s:.0f}, rapids {self.rapid_s:.0f}); length/feed {_hm(self.length_over_feed_s)}")
+             f"plunges {self.plunge_s:.0f}, rapids {self.rapid_s:.0f}"
+             + (f", dwells {self.dwell_s:.0f}" if self.dwell_s else "")
+             + f"); length/feed {_hm(self.length_over_feed_s)}")
         if self.passes:
             p = self.passes
             s += (f"; {p['passes']} passes of {p['median_s']:.1f} s median ({p['min_s']:.1f}-{p['max_s']:.1f}; "
@@ -134,20 +147,6 @@ def _hm(seconds: float) -> str:
 # ----------------------------------------------------------------------------
 # blocks
 # ----------------------------------------------------------------------------
-def sync_starts(text: str, program: Program) -> np.ndarray:
-    """(n,) bool: the move starts after a line that empties the buffer (M2-M6, M30, G4)."""
-    out = np.zeros(len(program), dtype=bool)
-    if not len(program):
-        return out
-    lines = [i + 1 for i, ln in enumerate(text.splitlines())
-             if ("M" in ln.upper() or "G4" in ln.upper()) and _SYNC.search(re.sub(r"\([^)]*\)|;.*", "", ln.upper()))]
-    if lines:
-        idx = np.searchsorted(program.line, np.asarray(lines), side="right")
-        idx = idx[idx < len(program)]
-        out[idx] = True
-    return out
-
-
 def _axis_limit(limit: np.ndarray, u: np.ndarray) -> np.ndarray:
     """grbl's limit_value_by_axis_maximum, row-wise: min over u_i != 0 of limit_i / |u_i|."""
     with np.errstate(divide="ignore"):
@@ -171,8 +170,12 @@ class Blocks:
     fresh: np.ndarray           # bool: starts from an empty buffer
 
 
-def make_blocks(program: Program, machine, sync: np.ndarray | None = None, quantize: bool = True) -> Blocks:
-    """Blocks of ``program`` on ``machine`` (positions in whole steps when ``quantize``)."""
+def make_blocks(program, machine, sync: np.ndarray | None = None, quantize: bool = True,
+                uncap: bool = False) -> Blocks:
+    """Blocks of ``program`` (a :class:`fabkit.machine.program.Moves` or a read-back
+    Program) on ``machine`` (positions in whole steps when ``quantize``). ``uncap``: the
+    feed moves run at their programmed F whatever the axis rates (the axis rates raised
+    to the programmed feed; rapids and accelerations unchanged), for the feed cap's cost."""
     pts = np.vstack([program.start[None, :], program.points]) if len(program) else program.start[None, :]
     pts = np.nan_to_num(pts, nan=0.0)
     spm = np.asarray(machine.steps_per_mm, dtype=float)
@@ -204,6 +207,8 @@ def make_blocks(program: Program, machine, sync: np.ndarray | None = None, quant
     if amax:
         accel = np.minimum(accel, amax * 3600.0)
     feed = np.where(rapid, rate_g0, program.feed[keep])
+    if uncap:
+        rate = np.maximum(rate, np.where(rapid, 0.0, feed))
     nominal = np.maximum(np.where(rapid, rate_g0, np.minimum(feed, rate)), MINIMUM_FEED_RATE)
     plunge = ~rapid & (np.abs(d[:, 0]) + np.abs(d[:, 1]) == 0) & (d[:, 2] < 0)
     fresh = np.zeros(len(keep), dtype=bool)
@@ -239,30 +244,129 @@ def grbl_junction_sqr(unit: np.ndarray, accel_limits: np.ndarray, deviation: flo
     return out
 
 
-def blend_junction_sqr(unit: np.ndarray, length: np.ndarray, accel: np.ndarray, tolerance: float | None) -> np.ndarray:
-    """(n,) LinuxCNC-like corner speed^2 with a circular blend: deviation at most
-    ``tolerance`` from the corner (None/0: no limit but the segments), tangent length
-    at most half of each segment; speed^2 = (accel / 2) * radius."""
+def blend_junction_sqr(unit: np.ndarray, length: np.ndarray, accel: np.ndarray, tolerance: float | None,
+                       axis_accel: np.ndarray | None = None, nominal: np.ndarray | None = None,
+                       arcs: bool = False):
+    """(n,) LinuxCNC's corner speed^2 through its tangent blend arc (tp.c, blendmath.c
+    ``blendComputeParameters``); with ``arcs`` also (d, s): how much of each line the arc
+    takes at the corner and the arc's length.
+
+    The arc touches both lines at ``d`` from the corner, ``d <= min(L1, L2) / 2`` and
+    within the G64 P ``tolerance`` (None or 0: no limit but the segments),
+    ``d_tol = cos(t) P / (1 - sin(t))``, ``t`` half the angle between the lines; radius
+    ``R = tan(t) d``; speed ``v = min(sqrt(a_n R), v_goal)``, ``a_n`` the normal share
+    (sqrt(1 - 0.5^2)) of the acceleration in the plane of the two lines
+    (``calculateInscribedDiameter``: min over axes of ``a_axis / sqrt(1 - n_axis^2)``, n
+    the plane's normal; ``axis_accel`` the axes' limits, else the lines' own), ``v_goal``
+    the faster line's feed (``nominal``). The arc actually planned: ``R = max(v^2 / a_n,
+    min(t_b v / phi, R))``, ``t_b = min(sqrt(a d), v) / (a / 2)`` (the "equivalent parabolic
+    blend"), phi the turning angle. A reversal stops; a straight junction is free."""
     n = len(unit)
     out = np.zeros(n)
+    d_out = np.zeros(n)
+    s_out = np.zeros(n)
     if n < 2:
-        return out
-    cosd = np.clip(np.sum(unit[:-1] * unit[1:], axis=1), -1.0, 1.0)    # cos of the turning angle
-    theta = np.arccos(cosd)
-    half = 0.5 * theta
-    tan_h = np.tan(half)
-    lim_len = 0.5 * np.minimum(length[:-1], length[1:])
+        return (out, d_out, s_out, np.zeros(n)) if arcs else out
+    u1, u2 = unit[:-1], unit[1:]
+    cosd = np.clip(np.sum(u1 * u2, axis=1), -1.0, 1.0)      # cos of the turning angle
+    turn = np.arccos(cosd)
+    t = 0.5 * (np.pi - turn)
+    sin_t, cos_t, tan_t = np.sin(t), np.cos(t), np.tan(t)
+    if axis_accel is not None:
+        nrm = np.cross(u1, u2)
+        nn = np.linalg.norm(nrm, axis=1)
+        nrm = nrm / np.where(nn > 0, nn, 1.0)[:, None]
+        scale = np.maximum(np.sqrt(np.clip(1.0 - nrm * nrm, 0.0, 1.0)), 1e-12)
+        a_plane = np.min(np.asarray(axis_accel, dtype=float)[None, :] / scale, axis=1)
+    else:
+        a_plane = np.minimum(accel[:-1], accel[1:])
+    a_n = BLEND_ACC_RATIO_NORMAL * a_plane
+    d = 0.5 * np.minimum(length[:-1], length[1:])
     with np.errstate(divide="ignore", invalid="ignore"):
-        r_len = lim_len / tan_h
         if tolerance:
-            r_tol = tolerance / (1.0 / np.cos(half) - 1.0)
-            r = np.minimum(r_len, r_tol)
-        else:
-            r = r_len
-        v2 = 0.5 * np.minimum(accel[:-1], accel[1:]) * r
-    v2 = np.where(theta < 1e-9, SOME_LARGE_VALUE, np.where(theta > np.pi / 2 + 1e-9, 0.0, v2))
+            d = np.minimum(d, cos_t * tolerance / (1.0 - sin_t))
+        r_geom = tan_t * d
+        v = np.sqrt(a_n * r_geom)
+        if nominal is not None:
+            v = np.minimum(v, np.maximum(nominal[:-1], nominal[1:]))
+        a_par = 0.5 * a_plane
+        t_b = np.minimum(np.sqrt(2.0 * a_par * d), v) / a_par
+        r_blend = np.minimum(t_b * v / np.maximum(turn, 1e-12), r_geom)
+        r_plan = np.maximum(v * v / a_n, r_blend)
+        d_plan = np.minimum(r_plan / tan_t, d)
+        s_arc = r_plan * turn
+    ok = (turn >= 1e-6) & (t >= 1e-6)
+    v2 = np.where(turn < 1e-6, SOME_LARGE_VALUE, np.where(t < 1e-6, 0.0, v * v))
     out[1:] = np.nan_to_num(v2, nan=0.0, posinf=SOME_LARGE_VALUE)
+    d_out[1:] = np.where(ok, np.nan_to_num(d_plan), 0.0)
+    s_out[1:] = np.where(ok, np.nan_to_num(s_arc), 0.0)
+    if arcs:
+        a_out = np.zeros(n)
+        a_out[1:] = a_plane
+        return out, d_out, s_out, a_out
     return out
+
+
+def naivecam_keep(points: np.ndarray, start: np.ndarray, kinds: np.ndarray, feed: np.ndarray, sync: np.ndarray,
+                  term: np.ndarray, q: float) -> np.ndarray:
+    """(n,) bool: the feed moves LinuxCNC's canon keeps after its naive-CAM merge (G64 Q,
+    emccanon.cc ``see_segment``/``linkable``): consecutive G1 points at one feed join
+    into one line while every point of the chain lies within ``q`` of the line from the
+    chain's start to the new point (at most 101 points). A rapid, a feed change, a sync
+    or another path mode ends a chain. (Short chains in plain Python, long ones with
+    numpy: the same test.)"""
+    n = len(points)
+    keep = np.ones(n, dtype=bool)
+    if not q or q <= 0 or n == 0:
+        return keep
+    pts = np.nan_to_num(points)
+    xs, ys, zs = pts[:, 0].tolist(), pts[:, 1].tolist(), pts[:, 2].tolist()
+    st = np.nan_to_num(np.asarray(start, dtype=float))
+    ex, ey, ez = float(st[0]), float(st[1]), float(st[2])          # canon.endPoint
+    linkable_mode = ((kinds == FEED) & (term == 2) & ~sync).tolist()
+    fl = feed.tolist()
+    qq = q * q
+    chain: list = []
+    f_chain = None
+    for i in range(n):
+        if chain and (not linkable_mode[i] or fl[i] != f_chain or len(chain) > NAIVECAM_MAX_POINTS):
+            keep[chain[:-1]] = False
+            j = chain[-1]
+            ex, ey, ez = xs[j], ys[j], zs[j]
+            chain = []
+        if not linkable_mode[i]:
+            ex, ey, ez = xs[i], ys[i], zs[i]
+            continue
+        if chain:
+            mx, my, mz = xs[i] - ex, ys[i] - ey, zs[i] - ez
+            mm = mx * mx + my * my + mz * mz
+            ok = mm > 0
+            if ok and len(chain) <= 16:
+                for j in chain:
+                    px, py, pz = xs[j] - ex, ys[j] - ey, zs[j] - ez
+                    t0 = (px * mx + py * my + pz * mz) / mm
+                    t0 = 0.0 if t0 < 0 else 1.0 if t0 > 1 else t0
+                    dx, dy, dz = px - t0 * mx, py - t0 * my, pz - t0 * mz
+                    if dx * dx + dy * dy + dz * dz > qq:
+                        ok = False
+                        break
+            elif ok:                # a chain is consecutive points: a slice
+                m = np.array([mx, my, mz])
+                c = pts[chain[0]:i] - np.array([ex, ey, ez])
+                t0 = c @ m / mm
+                np.clip(t0, 0.0, 1.0, out=t0)
+                c -= t0[:, None] * m
+                ok = float((c * c).sum(axis=1).max()) <= qq
+            if not ok:
+                keep[chain[:-1]] = False
+                j = chain[-1]
+                ex, ey, ez = xs[j], ys[j], zs[j]
+                chain = []
+        chain.append(i)
+        f_chain = fl[i]
+    if chain:
+        keep[chain[:-1]] = False
+    return keep
 
 
 # ----------------------------------------------------------------------------
@@ -319,41 +423,157 @@ def trapezoid_times(v0: np.ndarray, v1: np.ndarray, vmax: np.ndarray, accel: np.
 # ----------------------------------------------------------------------------
 # the run time
 # ----------------------------------------------------------------------------
-def run_time(text: str, machine, program: Program | None = None, top: int = 5,
-             raster_axis: int | None = None) -> RunTime:
+def run_time(text: str | None, machine, program=None, top: int = 5, raster_axis: int | None = None,
+             moves=None, cap_cost: bool = True, file: str | None = None) -> RunTime:
     """The controller's run time of the program ``text`` on ``machine``
-    (:class:`fabkit.machine.profile.Machine`). ``program``: the text already read back;
-    ``raster_axis`` (0: x, 1: y): the passes' direction, for the per-pass figures."""
-    from ..toolpath.verify import read_program
+    (:class:`fabkit.machine.profile.Machine`), read by the permissive reader
+    (:func:`fabkit.machine.program.read_moves`) unless ``moves`` is given; ``program``
+    (the strict read-back) is no longer needed and kept for the callers.
+    ``raster_axis`` (0: x, 1: y): the passes' direction, for the per-pass figures.
+    ``cap_cost``: also plan the program with the axis rates raised to the programmed
+    feeds, for the feed cap's cost (``lost_rate_s``)."""
+    from .program import read_moves
 
-    if program is None:
-        program = read_program(text)
-    sync = sync_starts(text, program)
+    if moves is None:
+        moves = read_moves(text, machine.controller, machine.arc_tolerance, file=file)
+    t, peak, blocks, model = _plan(moves, machine)
+    rt = _report(moves, blocks, t, peak, machine, model, top)
+    rt.dwell_s = float(moves.dwell_s)
+    rt.total_s += rt.dwell_s
+    rt.syncs, rt.arcs, rt.arc_segments = int(moves.syncs), int(moves.arcs), int(moves.arc_segments)
+    cut = ~blocks.rapid
+    if cap_cost and bool(np.any(cut & (blocks.rate_cap < CAPPED_BELOW * blocks.feed))):
+        t_free, _, _, _ = _plan(moves, raised_rates(machine, moves))
+        rt.lost_rate_s = float(t.sum() - t_free.sum())
+        rt.cap_cost_model = ("planner: the run time minus the run time with the axis rates raised to the "
+                             "highest programmed feed")
+    elif cap_cost:
+        rt.lost_rate_s = 0.0
+    ideal = blocks.length / np.where(blocks.rapid, blocks.rate_cap, blocks.feed) * 60.0
+    rt.lost_lookahead_s = float(np.sum((t - ideal)[cut])) - rt.lost_rate_s
+    if raster_axis is not None:
+        rt.passes = pass_times(moves, blocks, t, ideal, raster_axis)
+    return rt
+
+
+def _merged(moves, machine):
+    """``moves`` after LinuxCNC canon's naive-CAM merge (Q: the program's G64 Q, else P)."""
+    import dataclasses
+
+    q = getattr(moves, "naivecam", None)
+    if q is None:
+        given = moves.tolerance[np.isfinite(moves.tolerance)] if len(moves.tolerance) else []
+        q = machine.path_tolerance if machine.path_tolerance is not None else (float(given[0]) if len(given) else 0.0)
+    keep = naivecam_keep(moves.points, moves.start, moves.kinds, moves.feed, moves.sync, moves.term, q)
+    if keep.all():
+        return moves
+    # a sync before a dropped point moves to the next kept one
+    sync = moves.sync.copy()
+    idx = np.flatnonzero(sync & ~keep)
+    for i in idx:
+        j = i + 1 + int(np.argmax(keep[i + 1:])) if keep[i + 1:].any() else None
+        if j is not None:
+            sync[j] = True
+    return dataclasses.replace(moves, points=moves.points[keep], kinds=moves.kinds[keep], feed=moves.feed[keep],
+                               line=moves.line[keep], sync=sync[keep], term=moves.term[keep],
+                               tolerance=moves.tolerance[keep])
+
+
+def raised_rates(machine, moves):
+    """``machine`` with each axis rate (and [TRAJ] velocity) raised to the highest
+    programmed feed: the same machine without the feed cap (its rapids also run at
+    the raised rates, as the controller would run them)."""
+    import dataclasses
+
+    f = moves.feed[np.isfinite(moves.feed)]
+    fmax = float(f.max()) if len(f) else 0.0
+    return dataclasses.replace(machine, max_rate=tuple(max(float(r), fmax) for r in machine.max_rate),
+                               max_velocity=None if machine.max_velocity is None else max(machine.max_velocity, fmax))
+
+
+def _plan(moves, machine, uncap: bool = False):
+    """(block times s, peak speeds, blocks, model) of ``moves`` on ``machine``."""
     grbl = machine.controller == "grbl"
-    blocks = make_blocks(program, machine, sync, quantize=grbl)
+    if not grbl:
+        moves = _merged(moves, machine)
+    blocks = make_blocks(moves, machine, moves.sync, quantize=grbl, uncap=uncap)
     acc = np.asarray(machine.acceleration, dtype=float) * 3600.0
     if grbl:
         junction = grbl_junction_sqr(blocks.unit, acc, machine.junction_deviation)
         window = GRBL_LOOKAHEAD
         model = "grbl 1.1 planner: 15-block streamed look-ahead, junction deviation, axis limits, trapezoids"
     else:
-        tol = machine.path_tolerance if machine.path_tolerance is not None else _g64_p(text)
-        junction = blend_junction_sqr(blocks.unit, blocks.length, blocks.accel, tol)
+        tol = machine.path_tolerance
+        if tol is None:
+            given = moves.tolerance[np.isfinite(moves.tolerance)] if len(moves.tolerance) else []
+            tol = float(given[0]) if len(given) else None
+        junction, d_arc, s_arc, a_arc = blend_junction_sqr(blocks.unit, blocks.length, blocks.accel, tol, acc,
+                                                           blocks.nominal, arcs=True)
+        term = moves.term[blocks.move] if len(moves.term) else np.zeros(0)
+        blend = (term == 2) & ~blocks.fresh
+        junction = np.where(blend, junction, np.where(np.isclose(junction, SOME_LARGE_VALUE), junction, 0.0))
+        d_arc = np.where(blend, d_arc, 0.0)
+        s_arc = np.where(blend, s_arc, 0.0)
+        # the blend arcs take d from the lines on both sides of each corner
+        if len(blocks.length):
+            take = d_arc + np.concatenate([d_arc[1:], [0.0]])
+            blocks.length = np.maximum(blocks.length - take, 1e-9)
+        # the last segment of a blended run keeps LinuxCNC's parabolic term condition:
+        # half its acceleration (tc.c tcGetOverallMaxAccel)
+        if len(blocks.length):
+            stops_after = np.concatenate([blocks.fresh[1:], [True]])
+            blocks.accel = np.where(stops_after & (term == 2), 0.5 * blocks.accel, blocks.accel)
         window = LINUXCNC_LOOKAHEAD
-        model = ("LinuxCNC trajectory planner, approximate: trapezoids, axis and [TRAJ] limits, "
-                 f"{LINUXCNC_LOOKAHEAD}-segment look-ahead, circular G64 P blends at half acceleration")
+        model = ("LinuxCNC trajectory planner, approximate: canon's naive-CAM merge (G64 Q), axis limits, "
+                 f"{LINUXCNC_LOOKAHEAD}-segment look-ahead, tangent arc blends within G64 P at the normal "
+                 "acceleration share, half acceleration on a run's last segment, trapezoids")
     nom = blocks.nominal
     prev_nom = np.concatenate([[0.0], nom[:-1]])
     max_entry = np.minimum(junction, np.minimum(nom, prev_nom) ** 2)
+    if not grbl and np.any(s_arc > 0):
+        t_min, peak = _with_blend_arcs(blocks, nom, max_entry, junction, s_arc, a_arc, window)
+        return t_min * 60.0, peak, blocks, model
     v2 = streamed_speeds(max_entry, blocks.accel, blocks.length, blocks.fresh, window)
     v = np.sqrt(v2)
     t_min, peak = trapezoid_times(v[:-1], v[1:], nom, blocks.accel, blocks.length)
-    t = t_min * 60.0
-    rt = _report(program, blocks, t, peak, machine, model, top)
-    if raster_axis is not None:
-        ideal = blocks.length / np.where(blocks.rapid, blocks.rate_cap, blocks.feed) * 60.0
-        rt.passes = pass_times(program, blocks, t, ideal, raster_axis)
-    return rt
+    return t_min * 60.0, peak, blocks, model
+
+
+def _with_blend_arcs(blocks, nom, max_entry, junction, s_arc, a_arc, window):
+    """LinuxCNC's queue with a blend arc between two lines where it blends: each arc a
+    segment of its own (length ``s_arc``, at most the corner's speed, tangential
+    acceleration half the plane's, BLEND_ACC_RATIO_TANGENTIAL), tangent to both lines.
+    Returns (minutes per line, the arc before it counted with it; peak speed per line)."""
+    n = len(blocks.length)
+    arc = s_arc > 0                       # arc at the start of line i (between i-1 and i)
+    n_before = np.cumsum(arc)             # arcs up to and including line i's own
+    line_pos = np.arange(n) + n_before
+    arc_idx = np.flatnonzero(arc)
+    arc_pos = line_pos[arc_idx] - 1
+    m = n + len(arc_idx)
+    length = np.empty(m)
+    accel = np.empty(m)
+    nominal = np.empty(m)
+    entry = np.empty(m)
+    fresh = np.zeros(m, dtype=bool)
+    v_arc = np.sqrt(np.minimum(junction[arc_idx], SOME_LARGE_VALUE))
+    length[line_pos] = blocks.length
+    accel[line_pos] = blocks.accel
+    nominal[line_pos] = nom
+    fresh[line_pos] = blocks.fresh
+    e = max_entry.copy()
+    e[arc_idx] = np.minimum(v_arc, nom[arc_idx]) ** 2     # tangent from the arc
+    entry[line_pos] = e
+    length[arc_pos] = s_arc[arc_idx]
+    accel[arc_pos] = 0.5 * a_arc[arc_idx]
+    nominal[arc_pos] = v_arc
+    entry[arc_pos] = np.minimum(v_arc, nom[arc_idx - 1]) ** 2
+    v2 = streamed_speeds(entry, accel, length, fresh, window)
+    v = np.sqrt(v2)
+    t, peak = trapezoid_times(v[:-1], v[1:], nominal, accel, length)
+    t_line = t[line_pos].copy()
+    t_line[arc_idx] += t[arc_pos]
+    return t_line, peak[line_pos]
 
 
 def pass_times(program, blocks: Blocks, t: np.ndarray, ideal: np.ndarray, axis: int) -> dict | None:
@@ -389,14 +609,6 @@ def pass_times(program, blocks: Blocks, t: np.ndarray, ideal: np.ndarray, axis: 
             "min_s": round(float(pt.min()), 2), "max_s": round(float(pt.max()), 2),
             "median_length_over_feed_s": round(float(np.median(pi)), 2),
             "slowest_lines": [int(program.line[blocks.move[starts[k]]]), int(program.line[blocks.move[end]])]}
-
-
-def _g64_p(text: str) -> float | None:
-    m = re.search(r"G64\s*P\s*([0-9.]+)", text[:20000].upper())
-    if not m:
-        return None
-    p = float(m.group(1))
-    return p * (MM_PER_INCH if "G20" in text[:2000].upper() else 1.0)
 
 
 def _report(program, blocks: Blocks, t: np.ndarray, peak: np.ndarray, machine, model: str, top: int) -> RunTime:

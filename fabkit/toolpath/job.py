@@ -561,8 +561,8 @@ def _machine_checks(programs, readback, machine, finish_check):
     from .verify import read_program
 
     merged = MachineCheck(machine=finish_check.machine, travel=dict(finish_check.travel))
-    for _, text in programs:
-        chk = check_program(read_program(text), text, machine)
+    for suffix, text in programs:
+        chk = check_program(read_program(text), text, machine, name=suffix if len(programs) > 1 else None)
         merged.refusals += [r for r in chk.refusals if r not in merged.refusals]
         merged.warnings += [w for w in chk.warnings if w not in merged.warnings]
         for ax, (span, avail) in chk.travel.items():

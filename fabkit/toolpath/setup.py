@@ -249,6 +249,8 @@ def setup_sheet(spec, surface, toolpath, profile, program_path, check: dict | No
         sheet["grbl_defaults"] = dict(GRBL_DEFAULTS)
     if machine is not None:
         sheet.update(_machine_keys(machine, run, machine_check, k))
+        if sheet.get("machine_needs"):
+            sheet["machine_comparison"] = machine_comparison(sheet["machine_needs"], sheet["machine"], k)
     if operations:
         sheet.update(_operations_keys(operations, job_path if job_path is not None else program_path,
                                       profile.dialect, k, job_check))
@@ -325,8 +327,11 @@ def _needs_markdown(sheet: dict) -> list[str]:
     if not need:
         return []
     u = sheet["units"]
-    k = MM_PER_INCH if u == "in" else 1.0     # program units -> mm, for the grbl comparison
+    k = MM_PER_INCH if u == "in" else 1.0     # program units -> mm, for the comparison
     g = sheet.get("grbl_defaults", GRBL_DEFAULTS)
+    mach = sheet.get("machine")
+    if mach:
+        return _needs_vs_machine(sheet, need, mach, u, k)
 
     def cmp(v_mm, limit_mm):
         return " (above grbl's default)" if v_mm is not None and v_mm > limit_mm * (1 + 1e-9) else ""
@@ -355,6 +360,69 @@ def _needs_markdown(sheet: dict) -> list[str]:
              f"grbl 1.1's defaults for comparison: max rates $110-$112 {g['max_rate_mm_min']:g} mm/min, "
              f"max spindle $30 {g['spindle_max_rpm']:g} rpm, max travel $130-$132 {g['max_travel_mm']:g} mm.",
              ""]
+    if sheet.get("tool_number") is not None:
+        lines.insert(4, f"- Tool T{sheet['tool_number']}"
+                     + (": the program calls T M6 G43 H (tool change and length offset)"
+                        if sheet["dialect"] == "linuxcnc" else ": load it by hand before the start (grbl has no M6)"))
+    return lines
+
+
+def machine_comparison(need: dict, machine: dict, k: float) -> dict:
+    """Every need of the program (program units; ``k`` mm per unit) against the machine
+    given (its profile in mm): ``{item: {"need", "machine", "ok"}}`` in mm (rpm for the
+    spindle). Feeds above the axis rates are not refused (the controller runs them
+    slower): ``ok`` false there means slower than programmed."""
+    rates = machine["max_rate"]
+    out: dict = {}
+    feed = need.get("feed_max")
+    vmax = machine.get("max_velocity")
+    if feed is not None:
+        lim = min(rates[:2]) if vmax is None else min(min(rates[:2]), vmax)
+        out["feed"] = {"need": _r(feed * k), "machine": _r(lim), "ok": feed * k <= lim * (1 + 1e-9)}
+    for i, ax in enumerate("xyz"):
+        v = need["axis_rate_max"].get(ax)
+        if v is not None:
+            out[f"axis_rate_{ax}"] = {"need": _r(v * k), "machine": _r(rates[i]), "ok": v * k <= rates[i] * (1 + 1e-9)}
+    for i, ax in enumerate("xyz"):
+        t = need["travel"][ax] * k
+        have = machine["travel"][i]
+        out[f"travel_{ax}"] = {"need": _r(t), "machine": _r(have), "ok": t <= have * (1 + 1e-9) + 1e-9}
+    sp = machine.get("spindle")
+    rpm = need.get("spindle_rpm")
+    if sp is not None and rpm:
+        out["spindle"] = {"need": _r(rpm), "machine": [_r(sp[0]), _r(sp[1])],
+                          "ok": sp[0] * (1 - 1e-9) <= rpm <= sp[1] * (1 + 1e-9)}
+    return out
+
+
+def _needs_vs_machine(sheet: dict, need: dict, mach: dict, u: str, k: float) -> list[str]:
+    """'What the machine must do', each need against the machine given (in mm)."""
+    cmpd = sheet.get("machine_comparison") or machine_comparison(need, mach, k)
+    name = mach.get("name") or mach.get("controller")
+
+    def row(label, key, unit, note_bad):
+        c = cmpd.get(key)
+        if c is None:
+            return None
+        have = c["machine"]
+        have_s = f"{have[0]:g}-{have[1]:g}" if isinstance(have, list) else f"{have:g}"
+        verdict = "ok" if c["ok"] else note_bad
+        return f"| {label} | {c['need']:g} {unit} | {have_s} {unit} | {verdict} |"
+
+    rows = [row("Largest feed F", "feed", "mm/min", "above the axis rates: runs slower (see the run time)")]
+    rows += [row(f"{ax.upper()} axis speed in a feed move", f"axis_rate_{ax}", "mm/min", "above the axis rate: runs "
+                 "slower") for ax in "xyz"]
+    rows += [row(f"{ax.upper()} travel used / available", f"travel_{ax}", "mm", "REFUSED: beyond the travel")
+             for ax in "xyz"]
+    rows.append(row("Spindle", "spindle", "rpm", "REFUSED: outside the range"))
+    lines = ["## What the machine must do", "",
+             f"Each need against the machine given: {name} ({mach.get('controller')}"
+             + (f", from {mach['source']}" if mach.get("source") else "") + "), in mm.", "",
+             "| need | program | machine | verdict |", "|---|---|---|---|"]
+    lines += [r for r in rows if r]
+    lines += ["", f"- Largest plunge F " + (f"{need['plunge_max']:g} {u}/min" if need["plunge_max"] is not None
+                                             else "none"),
+              f"- Program ends parked at X{sheet['park'][0]:g} Y{sheet['park'][1]:g} at the safe height", ""]
     if sheet.get("tool_number") is not None:
         lines.insert(4, f"- Tool T{sheet['tool_number']}"
                      + (": the program calls T M6 G43 H (tool change and length offset)"
