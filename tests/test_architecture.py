@@ -19,7 +19,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "docs"))
 import architecture as A  # noqa: E402
 
 #: waiting for another branch: the cycle and the long modules known when this was written
-KNOWN_CYCLES = {("fabkit.lab.ramp", "fabkit.physics.calibrate")}
+KNOWN_CYCLES: set = set()   # none left: the ramp's profile lives in physics (fabkit.physics.ramp_profile)
 KNOWN_LONG = {"fabkit.toolpath.roughing", "fabkit.toolpath.rough.roughing",
               "fabkit.lab.track"}     # the video branch grew it to 1091 lines: to split
 
@@ -60,8 +60,6 @@ def test_no_new_cycle_through_function_imports(graphs):
     assert found <= KNOWN_CYCLES, found - KNOWN_CYCLES
 
 
-@pytest.mark.xfail(strict=False, reason="lab/ramp.py <-> physics/calibrate.py until the ramp's profile moves "
-                                        "to physics (36, the lab branch)")
 def test_no_import_cycle_counting_function_imports(graphs):
     assert A.cycles(graphs[1]) == []
 
