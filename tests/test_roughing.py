@@ -408,3 +408,123 @@ def test_spec_errors_one_line_exit_2(tmp_path, change, key, words):
     lines = err.strip().splitlines()
     assert len(lines) == 1 and f"{p}: {key}: " in lines[0], err
     assert not out_dir.exists() or not any(out_dir.iterdir())
+
+
+# ----------------------------------------------------------------------------
+# every input bounded (issue 37, item 4): refused up front, naming the key
+# ----------------------------------------------------------------------------
+HOSTILE = [
+    ({"tools": [{"number": 1, "shape": "flat", "diameter": 12.7, "spindle": 0.4}]}, "tools[0].spindle", "S0"),
+    ({"tools": [{"number": 1, "shape": "flat", "diameter": 12.7, "feed": 1e-6}]}, "tools[0].feed", "F0"),
+    ({"tools": [{"number": 1, "shape": "flat", "diameter": 12.7, "plunge": 1e-6}]}, "tools[0].plunge", "F0"),
+    ({"roughing": {"tool": 1, "stepdown": 5, "leave": 7}}, "roughing.leave", "depth_of_cut"),
+    ({"roughing": {"tool": 1, "stepdown": 5, "stepover": 1e-6}}, "roughing.stepover", "finer than"),
+    ({"tool": {"shape": "ball", "diameter": 6.35}}, "tool.number", "M6"),   # no number, LinuxCNC
+]
+
+
+@pytest.mark.parametrize("change,key,words", HOSTILE, ids=[h[1] for h in HOSTILE])
+def test_tool_and_roughing_keys_refused_up_front(tmp_path, change, key, words):
+    raw = bowl_raw()
+    for sec, body in change.items():
+        raw[sec] = body if sec == "tool" else {**raw[sec], **body} if isinstance(body, dict) else body
+    with pytest.raises(SpecError) as e:
+        load(tmp_path, raw)
+    assert e.value.key == key and words in e.value.detail, e.value
+
+
+def _refusal(tmp_path, raw):
+    from fabkit.toolpath.raster import plan_estimate
+
+    spec, surface = load(tmp_path, raw)
+    with pytest.raises(SpecError) as e:
+        plan_estimate(spec, surface)
+    return e.value
+
+
+def test_loops_beyond_the_guards_refused_before_planning(tmp_path):
+    # stepover 0.001 mm on a 100 x 100 mm bowl 30 mm deep: ~1e8 mm of loops (the planner's
+    # offset tree once overflowed Python's recursion on it)
+    e = _refusal(tmp_path, bowl_raw(roughing={"tool": 1, "stepdown": 5, "stepover": 0.001, "leave": 0.5}))
+    assert e.key == "roughing.stepover" and "mm of loops" in e.detail
+    # a 0.05 mm end mill at stepover 0.02: the loops' vertices on a fine design grid (memory)
+    e = _refusal(tmp_path, bowl_raw(tools=[{"number": 1, "shape": "flat", "diameter": 0.05, "depth_of_cut": 5}],
+                                    roughing={"tool": 1, "stepdown": 5, "stepover": 0.02, "leave": 0.5}))
+    assert e.key == "roughing.stepover", e
+
+
+def test_tool_too_large_for_the_reach_search_and_too_short(tmp_path):
+    e = _refusal(tmp_path, bowl_raw(tools=[{"number": 1, "shape": "flat", "diameter": 190, "depth_of_cut": 20}],
+                                    roughing={"tool": 1, "stepdown": 5, "stepover": 80, "leave": 0.5}))
+    assert e.key == "tools[0].diameter" and "centre-offset pairs" in e.detail
+    # the bowl is 30 mm deep: a 20 mm reach cannot come within one 5 mm stepdown of 29.5 mm
+    e = _refusal(tmp_path, bowl_raw(tools=[{"number": 1, "shape": "flat", "diameter": 12.7, "reach": 20}]))
+    assert e.key == "tools[0].reach" and "24.5" in e.detail
+    from fabkit.toolpath.raster import plan_estimate
+
+    spec, surface = load(tmp_path, bowl_raw(tools=[{"number": 1, "shape": "flat", "diameter": 12.7, "reach": 25}]))
+    est = plan_estimate(spec, surface)
+    # the levels' length: per level the area below it over the stepover, closed form on the
+    # paraboloid (area pi (z + D - leave) / A, plus the band beyond the edges: none here)
+    exact = sum(math.pi * (DEPTH - 0.5 - 5 * k) / A for k in range(1, 6)) / 6
+    assert est["rough_levels"] == 5 and est["rough_length_mm"] == pytest.approx(exact, rel=0.03)
+
+
+def test_offset_tree_walked_without_recursion():
+    from fabkit.toolpath.roughing import _post_order, _pre_order
+
+    class N:
+        def __init__(self, i):
+            self.i, self.children = i, []
+
+    root = N(0)
+    node = root
+    for i in range(1, 20000):        # deeper than Python's recursion limit
+        ch = N(i)
+        node.children.append(ch)
+        node.children.append(N(-i))
+        node = ch
+    post = [n.i for n in _post_order(root)]
+    pre = [n.i for n in _pre_order(root)]
+    assert len(post) == len(pre) == 39999
+    assert pre[:4] == [0, 1, 2, 3] and post[0] == 19999 and post[-1] == 0
+    assert post.index(-1) > post.index(1) and pre.index(-1) > pre.index(19999)
+
+
+def test_level_cleared_region_by_pocket_fill_equals_the_discs():
+    """_Level's region from the loops' bounded region (stepover well inside the disc) is the
+    union of every loop's disc (shapely's own buffer of all the lines)."""
+    import shapely
+    from shapely.geometry import Polygon, box
+    from fabkit.toolpath.roughing import _erosion_tree, _Level, _pre_order, _ring_region
+
+    P = Polygon([(0, 0), (40, 0), (40, 25), (22, 25), (22, 12), (16, 12), (16, 25), (0, 25)]).difference(
+        box(5, 5, 9, 9))
+    s, simp = 2.0, 0.01
+    tree = _erosion_tree(P, s, simp)
+    lines = [r for n in _pre_order(tree) for r in n.rings]
+    tool = Tool("flat", 12.7)
+    out = box(-100, -100, 200, 200).difference(box(0, 0, 40, 25))
+    fast = _Level(-1.0, [], tool, out, 0.01, 1.0, [(_ring_region(P, simp), lines)], s, simp)
+    slow = shapely.multilinestrings([shapely.linestrings(r) for r in lines]).buffer(6.35, quad_segs=32)
+    assert fast.cleared.symmetric_difference(slow).area < 1e-3 * slow.area
+
+
+def test_kernels_in_chunks_give_the_same_stock(monkeypatch):
+    from fabkit.toolpath import stock as st
+
+    s0 = st.make_stock(20.0, 12.0, 0.25)
+    X, Y = s0.grid()
+    target = -0.05 * (X - 10) ** 2 - 2.0
+    tool = Tool("bull", 6.0, 1.5)
+    pts = np.array([[1, 1, 1], [1, 1, -2], [18, 3, -2.5], [18, 9, -1], [3, 10, -3], [3, 10, 5]], float)
+    kinds = np.array([RAPID, PLUNGE, CUT, CUT, CUT, RAPID], np.int8)
+    a, b = s0.copy(), s0.copy()
+    ra = st.cut(a, tool, pts, kinds)
+    mask = target < -2.5
+    ha = st.reach_height(target, a, tool, mask)
+    monkeypatch.setattr(st, "KERNEL_CHUNK_WORK", 500.0)       # many small calls
+    rb = st.cut(b, tool, pts, kinds)
+    hb = st.reach_height(target, b, tool, mask)
+    assert np.array_equal(a.z, b.z) and np.array_equal(ra.engagement, rb.engagement)
+    assert np.array_equal(ha, hb, equal_nan=True)

@@ -347,29 +347,62 @@ class _Level:
     ``cleared``: the material there is at most the level + ``tolerance`` (a bull nose's
     or ball's discs shrink to where the corner stands within it; between loops further
     apart the cusps count as uncut: rest passes are then conservative); ``free`` (links
-    1 mm above the level): within half the link clearance."""
+    1 mm above the level): within half the link clearance.
 
-    def __init__(self, z, lines, tool, outside, tolerance, clr):
-        from shapely.geometry import MultiLineString, Point
+    ``pockets``: [(Q, lines)] per pocket cleared by loops or rows at most ``s`` apart
+    (:func:`_ring_region`: Q the region its outermost loops bound); where s + 4 simp <=
+    the disc's radius rho every point of Q lies within rho of a cut line (consecutive
+    loops are at most s + 2 simp apart, the innermost encloses no disc of radius s), so
+    the discs' union is Q dilated by rho with the discs of the lines leaving Q: the same
+    region as every line's disc, in time linear in the lines (their discs overlap about
+    rho / s deep otherwise)."""
+
+    def __init__(self, z, lines, tool, outside, tolerance, clr, pockets=(), s=math.inf, simp=0.0):
+        from shapely.geometry import Point
         from shapely.ops import unary_union
         import shapely
 
         self.z = z
-        geoms = []
-        for ln in lines:
-            if len(ln) >= 2:
-                geoms.append(ln)
         empty = Point(0, 0).buffer(0)
-        if geoms:
-            ml = MultiLineString([g.tolist() for g in geoms])
-            # inscribed polygons: contained in the true swept discs
-            self.cleared = ml.buffer(_cleared_radius(tool, tolerance), quad_segs=QUAD_SEGS)
-            low = self.cleared if tool.corner_radius <= 0 else \
-                ml.buffer(_cleared_radius(tool, 0.5 * clr), quad_segs=QUAD_SEGS)
-        else:
-            self.cleared = low = empty
+
+        def swept(rho):
+            parts = []
+            loose = [ln for ln in lines if len(ln) >= 2]
+            for Q, plines in pockets:
+                if Q is not None and s + 4.0 * simp <= rho:
+                    shapely.prepare(Q)
+                    out = [ln for ln in plines if len(ln) >= 2
+                           and not Q.covers(shapely.linestrings(ln))]
+                    parts.append(Q.buffer(rho, quad_segs=QUAD_SEGS))
+                    loose += out
+                else:
+                    loose += [ln for ln in plines if len(ln) >= 2]
+            if loose:
+                # inscribed polygons: contained in the true swept discs
+                parts.append(shapely.multilinestrings([shapely.linestrings(ln) for ln in loose])
+                             .buffer(rho, quad_segs=QUAD_SEGS))
+            return unary_union(parts) if parts else empty
+
+        rho = _cleared_radius(tool, tolerance)
+        self.cleared = swept(rho)
+        low = self.cleared if tool.corner_radius <= 0 else swept(_cleared_radius(tool, 0.5 * clr))
         self.free = unary_union([low, outside])
         shapely.prepare(self.free)
+
+
+def _ring_region(poly, simp=0.0):
+    """The region the loops of :func:`_rings` (poly, simp) bound: their polygons."""
+    from shapely.ops import unary_union
+
+    if simp > 0:
+        out = []
+        for q in _polys(poly.buffer(-simp, quad_segs=QUAD_SEGS)):
+            q = q.simplify(0.99 * simp, preserve_topology=True)
+            if len(q.exterior.coords) >= 4:
+                out.append(q)
+        if out:
+            return unary_union(out)
+    return poly
 
 
 def plan_rough(spec, surface, tool: Tool | None = None, *, ws=None, sets=None, timings=None) -> Operation:
@@ -498,20 +531,24 @@ def plan_rough(spec, surface, tool: Tool | None = None, *, ws=None, sets=None, t
         path.level_lines = []
         # pockets in order of their lowest x, y (a stable, short tour)
         pockets.sort(key=lambda p: (round(p.bounds[0], 3), round(p.bounds[1], 3)))
+        done = []                 # per pocket: (the region its loops bound, its cut lines)
         for P in pockets:
             shapely.prepare(P)
             fig["pockets"] += 1
+            n0 = len(path.level_lines)
             open_ = not P.difference(F.buffer(0.25 * e_out, join_style=2)).is_empty if e_out > 0 else False
             if rg.strategy == "raster":
                 _raster_pocket(P, z, z_above, s, R, spec, path, enter, link_to, fig, F, open_, simp)
-                continue
-            tree = _erosion_tree(P, s, simp)
-            if open_:
-                _cut_outside_in(tree, P, z, z_above, path, enter, link_to, fig, F, R, e_out)
             else:
-                _cut_inside_out(tree, P, z, z_above, path, enter, link_to, fig, R, rg.entry, polylabel, s)
+                tree = _erosion_tree(P, s, simp)
+                if open_:
+                    _cut_outside_in(tree, P, z, z_above, path, enter, link_to, fig, F, R, e_out)
+                else:
+                    _cut_inside_out(tree, P, z, z_above, path, enter, link_to, fig, R, rg.entry, polylabel, s)
+            done.append((_ring_region(P, simp), path.level_lines[n0:]))
+            del path.level_lines[n0:]
         tg = time.process_time()
-        above = _Level(z, path.level_lines, tool, outside, tolerance, clr)
+        above = _Level(z, path.level_lines, tool, outside, tolerance, clr, done, s, simp)
         cleared_levels.append(above)
         t_geom += time.process_time() - tg
     if path.pts:
@@ -634,10 +671,32 @@ def _go(path, P, b_xy, z, z_above, link_to, enter, fig):
     path.add((b_xy[0], b_xy[1], z), PLUNGE)
 
 
+def _post_order(root):
+    """The tree's nodes, children (in order) before their parent: no recursion (a tree
+    as deep as the pocket's inradius / stepover)."""
+    out, stack = [], [(root, False)]
+    while stack:
+        node, seen = stack.pop()
+        if seen:
+            out.append(node)
+            continue
+        stack.append((node, True))
+        stack.extend((ch, False) for ch in reversed(node.children))
+    return out
+
+
+def _pre_order(root):
+    """The tree's nodes, each before its children (in order): no recursion."""
+    out, stack = [], [root]
+    while stack:
+        node = stack.pop()
+        out.append(node)
+        stack.extend(reversed(node.children))
+    return out
+
+
 def _cut_inside_out(tree, P, z, z_above, path, enter, link_to, fig, R, how, polylabel, s):
-    def visit(node):
-        for ch in node.children:
-            visit(ch)
+    for node in _post_order(tree):
         for j, ring in enumerate(node.rings):
             if not node.children and j == 0:
                 # an innermost loop: material all round it at this level
@@ -659,8 +718,6 @@ def _cut_inside_out(tree, P, z, z_above, path, enter, link_to, fig, R, how, poly
             fig["loops"] += 1
             path.cut_xy(ring, z)
 
-    visit(tree)
-
 
 def _nearest_on(line, pt):
     q = line.interpolate(line.project(pt))
@@ -671,9 +728,7 @@ def _cut_outside_in(tree, P, z, z_above, path, enter, link_to, fig, F, R, e_out)
     """A pocket reaching beyond the stock: enter from outside it (the tool's centre
     over air), loops from the outermost in."""
     first = True
-
-    def visit(node):
-        nonlocal first
+    for node in _pre_order(tree):
         for j, ring in enumerate(node.rings):
             if first:
                 # the ring point farthest outside the footprint
@@ -690,10 +745,6 @@ def _cut_outside_in(tree, P, z, z_above, path, enter, link_to, fig, F, R, e_out)
                 _go(path, P, ring[0], z, z_above, link_to, enter, fig)
             fig["loops"] += 1
             path.cut_xy(ring, z)
-        for ch in node.children:
-            visit(ch)
-
-    visit(tree)
 
 
 def _raster_pocket(P, z, z_above, s, R, spec, path, enter, link_to, fig, F, open_, simp=0.0):

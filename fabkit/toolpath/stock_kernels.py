@@ -210,12 +210,14 @@ def cut_moves(Z, hx, hy, A, B, feed, R, r, f, rapid_tol, engage, rapid_depth, ra
 
 
 @jit
-def reach_at(S, hx, hy, R, r, f, pi, pj):
+def reach_at(S, hx, hy, R, r, f, pi, pj, D):
     """Lowest height the tool can cut at the nodes (pi[k], pj[k]) without cutting below
     S anywhere on the grid: the grey-scale opening of S by the tool, min over tool
     positions c on the grid nodes (and up to R beyond the edges, where there is no
     material) within R of p of drop(c) + lift(|p - c|), drop(c) = max over nodes q
-    within R of c of S(q) - lift(|q - c|). The drops are computed once per centre."""
+    within R of c of S(q) - lift(|q - c|). The drops are computed once per centre and
+    kept in ``D`` ((nx + 2 ceil(R / hx), ny + 2 ceil(R / hy)), nan: not yet), so that the
+    nodes can be given in chunks (the caller stays interruptible between them)."""
     nx, ny = S.shape
     pi_ = int(math.ceil(R / hx))
     pj_ = int(math.ceil(R / hy))
@@ -236,7 +238,6 @@ def reach_at(S, hx, hy, R, r, f, pi, pj):
                 oi[n], oj[n] = di, dj
                 ol[n] = lift(math.sqrt(rho2), R, r, f)
                 n += 1
-    D = np.full((nx + 2 * pi_, ny + 2 * pj_), np.nan)
     out = np.empty(pi.size)
     for k in range(pi.size):
         best = np.inf
