@@ -528,3 +528,29 @@ def test_kernels_in_chunks_give_the_same_stock(monkeypatch):
     hb = st.reach_height(target, b, tool, mask)
     assert np.array_equal(a.z, b.z) and np.array_equal(ra.engagement, rb.engagement)
     assert np.array_equal(ha, hb, equal_nan=True)
+
+
+@pytest.mark.parametrize("dialect", ["linuxcnc", "grbl"])
+def test_sheet_names_each_tool_its_number_offset_and_touch_off(dialect):
+    from types import SimpleNamespace
+
+    from fabkit.toolpath.setup import _operations_keys, _tool_line
+
+    def fig(kind, n, shape, d, prog):
+        js = {"kind": kind, "tool": {"number": n, "shape": shape, "diameter": d}}
+        return SimpleNamespace(program=prog, to_json=lambda k, js=js: dict(js))
+
+    progs = ("", "", "") if dialect == "linuxcnc" else (".1-rough.nc", ".2-rest.nc", ".3-finish.nc")
+    figs = [fig("rough", 1, "flat", 12.7, progs[0]), fig("rest", 2, "ball", 6.35, progs[1]),
+            fig("finish", 2, "ball", 6.35, progs[2])]
+    keys = _operations_keys(figs, "job.ngc", dialect, 1.0, None)
+    first, second = keys["tools_loaded"]
+    assert (first["number"], first["operations"]) == (1, ["rough"])
+    assert (second["number"], second["operations"]) == (2, ["rest", "finish"])
+    if dialect == "linuxcnc":
+        assert _tool_line(first, dialect).endswith("the program calls T1 M6 G43 H1 (tool change and length offset)")
+        assert "T2 M6 G43 H2" in _tool_line(second, dialect) and "H2" in keys["steps"][1]
+    else:
+        assert first["programs"] == ["job.1-rough.nc"] and "before running job.1-rough.nc" in _tool_line(first, dialect)
+        assert second["programs"] == ["job.2-rest.nc", "job.3-finish.nc"]
+        assert "touch off Z0" in _tool_line(second, dialect) and first["tool_call"] is None
