@@ -283,11 +283,11 @@ def plan_rough(spec, surface, tool: Tool | None = None, *, ws=None, sets=None, t
     e_out = max(0.0, R - 0.5 * s)
     simp = LOOP_INSET * tolerance     # loops eroded by it and simplified within it (_rings)
     F = box(0.0, 0.0, L, W)
-    # centres up to R beyond the stock's edges: a tool standing there still cuts the edge
+    # centres whose disc meets the stock: up to R beyond its edges a tool still cuts them
     # (the whole job's check takes its reach so; within R - s/2 a wall meeting the edge was
-    # left up to a stepdown and more above its bound there)
+    # left up to a stepdown and more above its bound there); beyond its corners only as far
     e_reach = max(0.0, R - simp)
-    outer = box(-e_reach, -e_reach, L + e_reach, W + e_reach)
+    outer = box(0.0, 0.0, L, W).buffer(e_reach, quad_segs=QUAD_SEGS) if e_reach > 0 else box(0.0, 0.0, L, W)
     big = box(-10 * R - L, -10 * R - W, 2 * L + 10 * R, 2 * W + 10 * R)
     outside = big.difference(F)
     path = _Path()
