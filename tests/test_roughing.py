@@ -557,3 +557,28 @@ def test_sheet_names_each_tool_its_number_offset_and_touch_off(dialect):
         assert first["programs"] == ["job.1-rough.nc"] and "before running job.1-rough.nc" in _tool_line(first, dialect)
         assert second["programs"] == ["job.2-rest.nc", "job.3-finish.nc"]
         assert "touch off Z0" in _tool_line(second, dialect) and first["tool_call"] is None
+
+
+def test_wall_meeting_the_stock_edge_is_roughed_from_beyond_it(tmp_path):
+    """A 90-degree V trench along x, 8 mm deep, under an 8 mm flat end mill (stepdown 3,
+    leave 0.4): inside the block the tool reaches only -3 (its disc touches the walls
+    + leave there); at the block's ends it stands beyond the stock, where the level -6
+    lets its centre within R of the trench's bottom: exactly where hypot(x, 1.6) >= 4
+    (K(-6) = {|y - 10| > 1.6}), so the end faces are cut to -6 within 1.59 mm of y = 10."""
+    raw = bowl_raw(height="-8 + abs(y - 10)",
+                   tools=[{"number": 1, "shape": "flat", "diameter": 8, "reach": 40, "depth_of_cut": 8}],
+                   roughing={"tool": 1, "stepdown": 3, "stepover": 3.5, "leave": 0.4})
+    raw["surface"].update(x=[0, 20], y=[0, 20])
+    spec, surf = load(tmp_path, raw)
+    op = plan_rough(spec, surf)
+    assert op.info["level_z_mm"] == [-3.0, -6.0]
+    h, n = 0.5, 41
+    S = simulate([op], n, h)
+    y = np.arange(n) * h
+    D = np.minimum(-8 + np.abs(y - 10), 0.0)
+    # the allowance kept everywhere (tolerance 0.01)
+    assert (S - np.minimum(D[:, None] + 0.4, 0.0) >= -0.01 - 1e-9).all()
+    mid = np.abs(y - 10) <= 1.5
+    for j in (0, n - 1):                     # the two end faces, x = 0 and x = 20
+        assert np.allclose(S[mid, j], -6.0), S[mid, j]
+    assert np.allclose(S[mid, 4], -3.0)      # 2 mm in: the level -3
