@@ -204,7 +204,7 @@ def estimate(spec, ws, fr, R: float, target: float, tolerance: float, depth_mm: 
 
         h = grid_spacing(list(spec_tools(spec).values()), tolerance)
         nodes = (ws.L / h + 1.0) * (ws.W / h + 1.0)
-        rough = roughing_estimate(spec, ws, H, hxx, hxy, hyy, depth_mm, tolerance, h)
+        rough = roughing_estimate(spec, ws, H, hx, hy, hxx, hxy, hyy, depth_mm, tolerance, h)
         out.update(rough)
         out["roughing_seconds"] = SEC_PER_STOCK_NODE * nodes + rough["rough_seconds"]
         out["roughing_bytes"] = BYTES_PER_STOCK_NODE * nodes + rough["rough_bytes"]
@@ -237,7 +237,7 @@ SEC_PER_REACH_PAIR = 3.0e-9
 ROUGH_GRID_MAX_NODES = 1_500_000    # as roughing.GRID_MAX_NODES
 
 
-def roughing_estimate(spec, ws, H, hxx, hxy, hyy, depth_mm: float, tolerance: float, h: float) -> dict:
+def roughing_estimate(spec, ws, H, hx, hy, hxx, hxy, hyy, depth_mm: float, tolerance: float, h: float) -> dict:
     """The roughing's work before planning, from the design H on the grid X, Y (work mm):
     its levels (every ``roughing.stepdown`` down to the allowance's lowest point or the
     tool's reach and stock.depth_limit), the length of its loops or rows (per level the
@@ -281,9 +281,15 @@ def roughing_estimate(spec, ws, H, hxx, hxy, hyy, depth_mm: float, tolerance: fl
     # coarse second differences see no more, so this step is at most the planner's)
     band = np.isfinite(H) & (H >= -lim - leave - 1.0) & (H <= 0.0)
     C = float(np.max((np.abs(fin(hxx)) + np.abs(fin(hyy)) + 2.0 * np.abs(fin(hxy)))[band])) if band.any() else 0.0
-    hg = min(1.0, R / 4.0, math.sqrt(8.0 * tolerance / (6.0 * C)) if C > 0 else 1.0)
+    hg = min(1.0, R / 4.0, math.sqrt(8.0 * 0.5 * tolerance / (6.0 * C)) if C > 0 else 1.0)
     hg = max(hg, math.sqrt(ws.L * ws.W / ROUGH_GRID_MAX_NODES))
-    pts = length * ROUGH_POINTS_MM_HG / hg
+    # the loops' inset shrinks on steep walls (roughing.plan_rough: down to a tenth of the
+    # tolerance); the points grow as the square root of tolerance / inset (paper: 3.2x at 0.1)
+    slope = np.hypot(fin(hx), fin(hy))[band] if band.any() else np.zeros(1)
+    m = float(min(20.0, slope.max())) if slope.size else 0.0
+    chord = R * (1.0 / math.cos(math.pi / 128) - 1.0)
+    inset = tolerance if m <= 0 else min(tolerance, max(0.1 * tolerance, (0.5 * tolerance - chord * m) / (2 * m)))
+    pts = length * ROUGH_POINTS_MM_HG / hg * math.sqrt(tolerance / inset)
     # the reach search's worst case, per tool of the job: centres (the stock grid grown by R)
     # times the tool's offsets within R
     reach_pairs, reach_key, worst = 0.0, None, 0.0

@@ -268,10 +268,25 @@ def plan_rough(spec, surface, tool: Tool | None = None, *, ws=None, sets=None, t
     if sets is None:
         sets = design_sets(ws, R, tolerance, leave, lim)
     bottom = float(sets.H.min()) + leave          # the lowest allowance on the grid
+    # the allowance bound held strictly: the tool stands at most 2 e + Delta (vertical)
+    # and the dilations' chord + twice the loops' inset (horizontal, x the slope m) higher
+    # than it could; the inset shrinks (down to a tenth of the tolerance) until that stays
+    # within the tolerance on the steepest wall the levels cut, and what it cannot bring
+    # within comes off the level step (leave + step + that error <= leave + stepdown + tol)
+    m_max = _band_slope(sets, -lim - leave - 1.0)
+    chord = R * (1.0 / math.cos(math.pi / (4 * QUAD_SEGS)) - 1.0)
+    delta0 = _ladder(tool)[1]
+    room = tolerance - 2 * sets.err - delta0 - chord * m_max
+    simp = LOOP_INSET * tolerance if m_max <= 0 else \
+        min(LOOP_INSET * tolerance, max(0.1 * tolerance, room / (2.0 * m_max)))
+    excess = 2 * sets.err + delta0 + (chord + 2 * simp) * m_max
+    step_eff = step - max(0.0, excess - tolerance - 1e-12)
+    if step_eff < 0.5 * step:
+        step_eff = 0.5 * step     # (a wall steeper than the guards' slope cap: the check states the rest)
     levels = []
     k = 1
     while True:
-        z = -k * step
+        z = -k * step_eff
         if z <= bottom - 1e-9 or z < -lim - 1e-9:
             z = max(z, -lim)
             if z <= bottom + 1e-9 or (levels and z >= levels[-1] - 1e-9):
@@ -281,7 +296,6 @@ def plan_rough(spec, surface, tool: Tool | None = None, *, ws=None, sets=None, t
         levels.append(z)
         k += 1
     e_out = max(0.0, R - 0.5 * s)
-    simp = LOOP_INSET * tolerance     # loops eroded by it and simplified within it (_rings)
     F = box(0.0, 0.0, L, W)
     # centres whose disc meets the stock: up to R beyond its edges a tool still cuts them
     # (the whole job's check takes its reach so; within R - s/2 a wall meeting the edge was
@@ -406,7 +420,7 @@ def plan_rough(spec, surface, tool: Tool | None = None, *, ws=None, sets=None, t
     tp = Toolpath(pts, kinds, tool_radius=R, safe_z=safe_z)
     feed, plunge = feeds_of(spec, tool)
     info = _figures(pts, kinds, feed, plunge)
-    cusp = step + _stepover_cusp(tool, s)
+    cusp = step_eff + _stepover_cusp(tool, s)
     info.update({
         "tool": tool.describe(), "levels": len(levels), "level_z_mm": [round(v, 4) for v in levels],
         "loops": fig["loops"], "pockets": fig["pockets"], "stepdown_mm": step, "stepover_mm": s,
@@ -418,7 +432,8 @@ def plan_rough(spec, surface, tool: Tool | None = None, *, ws=None, sets=None, t
         # horizontal: the dilations' circumscribed polygons and the loops' inset keep the
         # tool up to this much farther from the level set than it could stand; on a wall of
         # slope m the material left grows by m times it (the stock check adds it)
-        "allowance_offset_mm": R * (1.0 / math.cos(math.pi / (4 * QUAD_SEGS)) - 1.0) + 2 * simp, "depth_limit_mm": lim,
+        "allowance_offset_mm": chord + 2 * simp, "depth_limit_mm": lim,
+        "level_step_mm": step_eff, "steepest_slope": m_max,
         "stopped_at_limit": bool(levels and levels[-1] <= -lim + 1e-9 and bottom < -lim),
         "plan_seconds": time.process_time() - t0,
     })
@@ -431,9 +446,22 @@ def plan_rough(spec, surface, tool: Tool | None = None, *, ws=None, sets=None, t
     return op
 
 
+def _band_slope(sets, low: float) -> float:
+    """The steepest slope of the design (grid differences) where it lies between ``low``
+    and the top face: the walls the levels cut. At most 20 (beyond, a wall is cut by its rim)."""
+    H = sets.H
+    gy, gx = np.gradient(H, sets.hy, sets.hx)
+    band = (H >= low) & (H <= 0.0) & np.isfinite(gx) & np.isfinite(gy)
+    if not band.any():
+        return 0.0
+    return float(min(20.0, np.hypot(gx, gy)[band].max()))
+
+
 def design_sets(ws, R, tolerance, leave, lim):
     band = (-lim - leave - 1.0, 0.0)
-    h, coarse = grid_step(ws, R, tolerance, band)
+    # 2 e within half the tolerance: the other half for the dilations' chords and the loops'
+    # inset on the walls (plan_rough), so that the levels keep their step where they can
+    h, coarse = grid_step(ws, R, 0.5 * tolerance, band)
     if abs(h - min(1.0, R / 4)) < 1e-12:
         return coarse
     return LevelSets(ws, h, band)
