@@ -586,3 +586,22 @@ def test_wall_meeting_the_stock_edge_is_roughed_from_beyond_it(tmp_path):
     for j in (0, n - 1):                     # the two end faces, x = 0 and x = 20
         assert np.allclose(S[mid, j], z2, atol=1e-4), S[mid, j]
     assert np.allclose(S[mid, 4], z1, atol=1e-4)        # 2 mm in: the first level
+
+
+def test_finish_reach_only_as_far_beyond_the_edge_as_its_passes():
+    """A ball of R 3 mm over a 90-degree V's bottom at the block's end: standing wholly
+    beyond the end (up to R out) it reaches the bottom; up to 2.9 mm out (a grid node:
+    centres stand on nodes) its section at the end face has radius sqrt(9 - 2.9^2) =
+    0.768 mm and stays 0.768 (sqrt(2) - 1) = 0.318 mm above the bottom."""
+    from fabkit.toolpath import stock as st
+
+    s0 = st.make_stock(6.0, 6.0, 0.1)
+    X, Y = s0.grid()
+    target = -3.0 + np.abs(Y - 3.0)
+    mask = np.zeros(target.shape, bool)
+    mask[0, 30] = True                       # x = 0, y = 3: the bottom at the end face
+    ball = Tool.ball(6.0)
+    full = st.reach_height(target, s0, ball, mask)[0, 30] + 3.0
+    part = st.reach_height(target, s0, ball, mask, beyond=2.9 + 1e-9)[0, 30] + 3.0
+    assert full == pytest.approx(0.0, abs=1e-9)
+    assert part == pytest.approx(math.sqrt(9 - 2.9 ** 2) * (math.sqrt(2) - 1), abs=0.005), part

@@ -238,12 +238,13 @@ def cut(stock: Stock, tool: Tool, points, kinds, start=None) -> CutResult:
 
 
 def reach_height(target: np.ndarray, stock: Stock, tool: Tool, mask: np.ndarray,
-                 max_nodes: int = MAX_REACH_NODES) -> np.ndarray:
+                 max_nodes: int = MAX_REACH_NODES, beyond: float | None = None) -> np.ndarray:
     """Lowest height ``tool`` can cut at the nodes where ``mask`` holds without cutting
     below ``target`` (nx, ny) anywhere (nan elsewhere); see the module's accuracy note.
     Over ``max_nodes`` masked nodes (a job that left much of the block), the reach is
     computed on every k-th node of the mask in each direction and the others take the
-    value of the nearest computed node."""
+    value of the nearest computed node. ``beyond`` (mm, default R): how far outside the
+    block the tool's centre may stand."""
     from .stock_kernels import reach_at
 
     out = np.full(target.shape, np.nan)
@@ -272,7 +273,8 @@ def reach_height(target: np.ndarray, stock: Stock, tool: Tool, mask: np.ndarray,
     step = max(1, int(KERNEL_CHUNK_WORK / (n_off * (2.0 * R / min(stock.hx, stock.hy) + 2.0))))
     vals = np.empty(len(pi))
     for a in range(0, len(pi), step):
-        vals[a:a + step] = reach_at(T, stock.hx, stock.hy, R, r, f, pi[a:a + step], pj[a:a + step], D)
+        vals[a:a + step] = reach_at(T, stock.hx, stock.hy, R, r, f, pi[a:a + step], pj[a:a + step], D,
+                                    float(R if beyond is None else min(beyond, R)))
     out[pi, pj] = vals
     if sub is not mask:
         from scipy.ndimage import distance_transform_edt
@@ -516,7 +518,14 @@ def verify_job(surface, operations, tolerance: float, *, spacing: float | None =
         # material above the bound is excused where the tool cannot reach the target:
         # the allowance then holds above the tool's reach (z - max(T, reach) <= slack)
         high = above * (normal_scale if op.kind == "finish" else 1.0) > hi_n
-        reach = reach_height(target, stock, op.tool, high)
+        # the finishing passes end EDGE_NODES[-1] x R beyond the stock (passes.u_grid): the
+        # finish is judged where its ball can stand (as its own verification judges it)
+        if op.kind == "finish":
+            from .scallop import EDGE_NODES
+
+            reach = reach_height(target, stock, op.tool, high, beyond=float(EDGE_NODES[-1]) * op.tool.radius)
+        else:
+            reach = reach_height(target, stock, op.tool, high)
         scale = normal_scale if op.kind == "finish" else 1.0
         excess = np.where(high, (z - np.fmax(target, reach + reach_err)) * scale - slack, -np.inf)
         over = high & (excess > 0)

@@ -210,7 +210,7 @@ def cut_moves(Z, hx, hy, A, B, feed, R, r, f, rapid_tol, engage, rapid_depth, ra
 
 
 @jit
-def reach_at(S, hx, hy, R, r, f, pi, pj, D):
+def reach_at(S, hx, hy, R, r, f, pi, pj, D, beyond):
     """Lowest height the tool can cut at the nodes (pi[k], pj[k]) without cutting below
     S anywhere on the grid: the grey-scale opening of S by the tool, min over tool
     positions c on the grid nodes (and up to R beyond the edges, where there is no
@@ -243,6 +243,12 @@ def reach_at(S, hx, hy, R, r, f, pi, pj, D):
         best = np.inf
         for a in range(n_off):
             ci, cj = pi[k] + oi[a], pj[k] + oj[a]
+            # centres at most ``beyond`` outside the grid (a tool standing farther out
+            # than its passes go is no position it takes)
+            ex = max(0.0, -ci * hx, (ci - (nx - 1)) * hx)
+            ey = max(0.0, -cj * hy, (cj - (ny - 1)) * hy)
+            if ex * ex + ey * ey > beyond * beyond:
+                continue
             dd = D[ci + pi_, cj + pj_]
             if dd != dd:
                 dd = -np.inf
