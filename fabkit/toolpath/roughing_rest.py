@@ -86,25 +86,25 @@ def drop_on_grid(S, x, y, X, Y, tool: Tool, slack: float = 0.0) -> np.ndarray:
     ok = rho - diag <= R
     di, dj = di[ok], dj[ok]
     lift = tool.lift(np.clip(rho[ok] - diag, 0.0, R))
+    from .stock_kernels import drop_grid
+
     X, Y = np.asarray(X, float), np.asarray(Y, float)
-    i0 = np.rint(Y / hy).astype(np.int64)
-    j0 = np.rint(X / hx).astype(np.int64)
-    out = np.full(X.shape, -np.inf)
-    ny, nx = S.shape
-    c = max(1, int(DROP_CHUNK_PAIRS / max(len(di), 1)))    # positions per chunk: bounded temporaries
-    for a in range(0, X.size, c):
-        ii = i0.ravel()[a:a + c, None] + di[None, :]
-        jj = j0.ravel()[a:a + c, None] + dj[None, :]
-        inside = (ii >= 0) & (ii < ny) & (jj >= 0) & (jj < nx)
-        v = np.where(inside, S[np.clip(ii, 0, ny - 1), np.clip(jj, 0, nx - 1)] - lift[None, :], -np.inf)
-        out.ravel()[a:a + c] = v.max(axis=1)
-    return out
+    Xf, Yf = np.ascontiguousarray(X.ravel()), np.ascontiguousarray(Y.ravel())
+    out = np.full(Xf.size, -np.inf)
+    Sc = np.ascontiguousarray(S, dtype=float)
+    di, dj = np.ascontiguousarray(di, np.int64), np.ascontiguousarray(dj, np.int64)
+    lift = np.ascontiguousarray(lift, float)
+    # compiled, in chunks of about DROP_CHUNK_PAIRS position-offset pairs (Ctrl-C between them)
+    c = max(1, int(DROP_CHUNK_PAIRS / max(len(di), 1)))
+    for a in range(0, Xf.size, c):
+        drop_grid(Sc, hx, hy, Xf[a:a + c], Yf[a:a + c], di, dj, lift, out[a:a + c])
+    return out.reshape(X.shape)
 
 
 #: drop_on_grid: grid cells per tool radius at most (finer grids are pooled), and
-#: position-offset pairs per chunk (about 8 temporaries of 8 bytes each)
+#: position-offset pairs per call of its compiled kernel
 DROP_CELLS_PER_R = 12
-DROP_CHUNK_PAIRS = 2_000_000
+DROP_CHUNK_PAIRS = 50_000_000
 
 
 def drop_on_levels(rough: Operation, ws, X, Y, tool: Tool, need=None) -> np.ndarray:

@@ -264,3 +264,23 @@ def reach_at(S, hx, hy, R, r, f, pi, pj, D, beyond):
                 best = v
         out[k] = best
     return out
+
+
+@jit
+def drop_grid(S, hx, hy, X, Y, di, dj, lift, out):
+    """roughing_rest.drop_on_grid's maximum: per position k, max over the offsets a of
+    S[i0 + di[a], j0 + dj[a]] - lift[a] over the nodes inside the grid (S is (ny, nx):
+    rows along y), i0, j0 the node nearest (X[k], Y[k]); -inf where none."""
+    ny, nx = S.shape
+    for k in range(X.size):
+        i0 = int(np.rint(Y[k] / hy))
+        j0 = int(np.rint(X[k] / hx))
+        best = -np.inf
+        for a in range(di.size):
+            i = i0 + di[a]
+            j = j0 + dj[a]
+            if 0 <= i < ny and 0 <= j < nx:
+                v = S[i, j] - lift[a]
+                if v > best:
+                    best = v
+        out[k] = best
