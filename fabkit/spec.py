@@ -817,10 +817,15 @@ def _tool_checks(s: dict, file: str) -> None:
             raise SpecError(f"tool {n} is the roughing tool; rest passes need a smaller tool", file=file, key=key)
         if n not in listed and n != finish_no:
             raise SpecError(f"tool {n} is not in `tools` (nor tool.number)", file=file, key=key)
-        if n in listed and listed[n][1].shape != "ball":
-            raise SpecError(f"tool {n} is a {listed[n][1].shape} end mill: rest passes follow the finishing "
-                            "passes and need a ball-end mill", file=file, key=key)
         out.append(n)
+    if out and out[-1] != finish_no and "tool" in s:
+        last = listed[out[-1]][1] if out[-1] in listed else None
+        if last is not None and last.diameter > s["tool"].diameter:
+            raise SpecError(f"the last rest tool (T{out[-1]}, {last.diameter:g} mm) is larger than the finishing "
+                            f"tool ({s['tool'].diameter:g} mm): the finish would meet what it cannot reach; end "
+                            f"with the finishing tool"
+                            + (f" ({finish_no})" if finish_no is not None else "") + " or a smaller one",
+                            file=file, key=f"roughing.rest[{len(out) - 1}]")
     r._values["rest"] = tuple(out) if r.rest is not None else None
 
 

@@ -605,3 +605,35 @@ def test_finish_reach_only_as_far_beyond_the_edge_as_its_passes():
     part = st.reach_height(target, s0, ball, mask, beyond=2.9 + 1e-9)[0, 30] + 3.0
     assert full == pytest.approx(0.0, abs=1e-9)
     assert part == pytest.approx(math.sqrt(9 - 2.9 ** 2) * (math.sqrt(2) - 1), abs=0.005), part
+
+
+def test_flat_rest_tool_stands_on_the_design_from_above(tmp_path):
+    """A rest flat end mill's tip on the bowl H = A rho^2 - D: exactly A (rho + r)^2 - D
+    (its disc's highest point, on its rim away from the axis); the grid bound is never
+    below it and at most the slope x a cell's diagonal + 2 e above it."""
+    from fabkit.toolpath.roughing_rest import _tool_on_design
+
+    spec, surf = load(tmp_path, bowl_raw())
+    op = plan_rough(spec, surf)
+    r = 2.0
+    rho = np.linspace(0.0, 40.0, 41)
+    X, Y = HALF + rho * math.cos(0.3), HALF + rho * math.sin(0.3)
+    got = _tool_on_design(op, X, Y, Tool("flat", 2 * r))
+    exact = np.minimum(A * (rho + r) ** 2 - DEPTH, 0.0)
+    sets = op.sets
+    diag = math.hypot(sets.hx, sets.hy)
+    slope = 2 * A * (rho + r + 2 * diag)
+    assert (got >= exact - 1e-9).all()
+    assert (got - exact <= slope * 2 * diag + 2 * sets.err + 1e-9).all(), float((got - exact).max())
+
+
+def test_last_rest_tool_larger_than_the_finish_refused(tmp_path):
+    raw = bowl_raw(tools=[{"number": 1, "shape": "flat", "diameter": 12.7, "reach": 60},
+                          {"number": 3, "shape": "bull", "diameter": 8, "corner_radius": 1}],
+                   roughing={"tool": 1, "stepdown": 5, "rest": [3]})
+    with pytest.raises(SpecError) as e:
+        load(tmp_path, raw)
+    assert e.value.key == "roughing.rest[0]" and "larger than the finishing" in e.value.detail
+    raw["roughing"]["rest"] = [3, 2]
+    spec, _ = load(tmp_path, raw)
+    assert spec.roughing.rest == (3, 2)

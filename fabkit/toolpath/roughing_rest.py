@@ -177,7 +177,14 @@ def plan_rest(spec, surface, rough: Operation, finish: Toolpath, *, ws=None) -> 
             j = int(np.searchsorted(V, V[i] + Rr, side="right")) - 1
             sel.append(max(j, i + 1))
         spacing = float(np.diff(V[sel]).max()) if len(sel) > 1 else 0.0
-        cusp = Rr - math.sqrt(max(Rr * Rr - 0.25 * spacing * spacing, 0.0))
+        ball = tool.corner_radius >= Rr - 1e-12
+        if ball:
+            cusp = Rr - math.sqrt(max(Rr * Rr - 0.25 * spacing * spacing, 0.0))
+        else:
+            # a flat bottom or a bull nose: the cusp of its corners (none within twice its flat)
+            half = min(max(0.5 * spacing - tool.flat_radius, 0.0), tool.corner_radius)
+            r_c = tool.corner_radius
+            cusp = r_c - math.sqrt(max(r_c * r_c - half * half, 0.0)) if r_c > 0 else 0.0
         step_r = doc - cusp
         if step_r <= 0:
             raise SpecError(f"rest passes {spacing:.3g} mm apart leave {cusp:.3g} mm cusps, more than the tool's "
@@ -190,7 +197,7 @@ def plan_rest(spec, surface, rough: Operation, finish: Toolpath, *, ws=None) -> 
         if is_fin:
             Z = np.vstack([plan.passes[i].Z for i in sel])
         else:
-            Z = compensate(ws, X, Y, Rr)
+            Z = _tool_on_design(rough, X, Y, tool) if not ball else compensate(ws, X, Y, Rr)
         keep = np.vstack([plan.passes[i].keep for i in sel]) if is_fin else np.isfinite(Z)
         Sb = drop_on_grid(S, x, y, X, Y, tool)
         floor = np.maximum(Z + leave, -lim)
@@ -256,7 +263,8 @@ def plan_rest(spec, surface, rough: Operation, finish: Toolpath, *, ws=None) -> 
                         levels_cut.add(j)
         if not runs:
             continue
-        runs = _refine_runs(ws, runs, Rr, leave, lim, 0.5 * tolerance)
+        runs = _refine_runs(ws, runs, Rr, leave, lim, 0.5 * tolerance,
+                            drop=None if ball else (lambda px, py, t=tool: _tool_on_design(rough, px, py, t)))
         fig_low = 0
         zlink = _link_heights(S, x, y, runs, tool, clr)
         path = _Path()
@@ -331,7 +339,25 @@ def _between_zone(plan, fr, sel, V, ug, S, x, y, tool, rough, ws, leave, thresho
     return out
 
 
-def _refine_runs(ws, runs, Rr, leave, lim, tolerance, rounds=10):
+def _tool_on_design(rough: Operation, X, Y, tool: Tool) -> np.ndarray:
+    """The tip height at which a flat end mill or bull nose at (X, Y) first touches the
+    design clipped at the top face: :func:`drop_on_grid` onto the level sets' design grid,
+    each node raised to the highest of its neighbours plus the grid's interpolation bound
+    (an upper bound of the design over its cell), so an upper bound of the exact drop: the
+    tool never enters the allowance; it stands at most the slope x a cell's diagonal + 2 e
+    higher than it could."""
+    from scipy.ndimage import maximum_filter
+
+    sets = rough.sets
+    key = "_design_upper"
+    S = getattr(sets, key, None)
+    if S is None:
+        S = maximum_filter(np.minimum(sets.H, 0.0), size=3, mode="nearest") + sets.err
+        setattr(sets, key, S)
+    return drop_on_grid(S, sets.x, sets.y, X, Y, tool)
+
+
+def _refine_runs(ws, runs, Rr, leave, lim, tolerance, rounds=10, drop=None):
     """Midpoints inserted where a run's chord passes more than ``tolerance`` below
     the tip the exact drop cutter asks there (max(level, Z + leave)), asked at a
     quarter, half and three quarters of each chord: the nodes are up to 1 mm apart, a
@@ -347,8 +373,8 @@ def _refine_runs(ws, runs, Rr, leave, lim, tolerance, rounds=10):
         P = A[None, :, :] + fr[:, None, None] * (B - A)[None, :, :]        # (3, n, 3)
         # the level a segment is cut at: its two tips' lower value bounds it from below
         lev = np.minimum(A[:, 2], B[:, 2])
-        Zp = compensate(ws, np.ascontiguousarray(P[..., 0].ravel()), np.ascontiguousarray(P[..., 1].ravel()),
-                        Rr).reshape(P.shape[:2])
+        px, py = np.ascontiguousarray(P[..., 0].ravel()), np.ascontiguousarray(P[..., 1].ravel())
+        Zp = (compensate(ws, px, py, Rr) if drop is None else drop(px, py)).reshape(P.shape[:2])
         needs = np.maximum(np.maximum(lev[None, :], Zp + leave), -lim)
         bad = (needs > P[..., 2] + tolerance).any(axis=0)
         M = P[1]
