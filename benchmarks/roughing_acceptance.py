@@ -48,10 +48,8 @@ def main(argv=None):
     spec = load_spec(a.spec)
     ws = WorkSurface(Surface.from_spec(spec))
     tools = spec_tools(spec)
-    T.TOOLS = {n: ("ball" if t.corner_radius >= t.radius - 1e-12 else "flat" if t.corner_radius <= 0 else "bull",
-                   t.radius) for n, t in tools.items()}
-    if any(s == "bull" for s, _ in T.TOOLS.values()):
-        raise SystemExit("a bull nose is not simulated here")
+    T.TOOLS = {n: ("ball" if t.corner_radius >= t.radius - 1e-12 else "flat" if t.corner_radius <= 0
+                   else f"bull{t.corner_radius!r}", t.radius) for n, t in tools.items()}
     tol, leave = float(spec.machining.tolerance), float(spec.roughing.leave)
     scallop = float(spec.machining.scallop)
     doc = float(spec.tool.depth_of_cut)
@@ -94,7 +92,7 @@ def main(argv=None):
             print(f"  after roughing: material left above design + leave {left.min():+.4f} .. {left.max():.4f} mm "
                   f"(allowance {leave} mm: left above the design {leave + left.min():.4f} .. "
                   f"{leave + left.max():.4f} mm)")
-            print(f"  where the end mill reaches T ({100 * there.mean():.1f} % of the nodes): largest "
+            print(f"  where the roughing tool reaches T ({100 * there.mean():.1f} % of the nodes): largest "
                   f"{leave + float(left[there].max()):.4f} mm above the design (bound leave + stepdown = "
                   f"{leave + step:g} mm, + tolerance {tol:g}); above its own reach elsewhere: largest "
                   f"{leave + float(over.max()):.4f} mm; largest excess over leave + stepdown + tol "

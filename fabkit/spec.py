@@ -794,6 +794,14 @@ def _tool_checks(s: dict, file: str) -> None:
         if levels > DEFAULT.max_rough_levels:
             raise SpecError(f"{r.stepdown:g} mm would rough up to {levels:.3g} levels, more than the limit "
                             f"{DEFAULT.max_rough_levels}; raise the stepdown", file=file, key="roughing.stepdown")
+    if "tool" in s and r.leave >= s["tool"].depth_of_cut:
+        raise SpecError(f"must be < the finishing tool's depth_of_cut ({s['tool'].depth_of_cut:g} mm): the finish "
+                        f"would cut {r.leave:g} mm or more everywhere, got {r.leave:g}", file=file, key="roughing.leave")
+    if "stock" in s:
+        deep = s["stock"].depth_limit if s["stock"].depth_limit is not None else s["stock"].thickness
+        if r.leave >= deep:
+            raise SpecError(f"must be < the stock's depth ({deep:g} mm, stock.depth_limit): nothing would be "
+                            f"roughed, got {r.leave:g}", file=file, key="roughing.leave")
     finish_no = s["tool"].number if "tool" in s else None
     rest = r.rest
     if rest is None:
@@ -809,10 +817,15 @@ def _tool_checks(s: dict, file: str) -> None:
             raise SpecError(f"tool {n} is the roughing tool; rest passes need a smaller tool", file=file, key=key)
         if n not in listed and n != finish_no:
             raise SpecError(f"tool {n} is not in `tools` (nor tool.number)", file=file, key=key)
-        if n in listed and listed[n][1].shape != "ball":
-            raise SpecError(f"tool {n} is a {listed[n][1].shape} end mill: rest passes follow the finishing "
-                            "passes and need a ball-end mill", file=file, key=key)
         out.append(n)
+    if out and out[-1] != finish_no and "tool" in s:
+        last = listed[out[-1]][1] if out[-1] in listed else None
+        if last is not None and last.diameter > s["tool"].diameter:
+            raise SpecError(f"the last rest tool (T{out[-1]}, {last.diameter:g} mm) is larger than the finishing "
+                            f"tool ({s['tool'].diameter:g} mm): the finish would meet what it cannot reach; end "
+                            f"with the finishing tool"
+                            + (f" ({finish_no})" if finish_no is not None else "") + " or a smaller one",
+                            file=file, key=f"roughing.rest[{len(out) - 1}]")
     r._values["rest"] = tuple(out) if r.rest is not None else None
 
 
@@ -907,20 +920,37 @@ def _machining_checks(s: dict[str, Section], file: str) -> None:
     per = PROGRAM_UNITS[m.units].mm_per_unit
     fdec = PROGRAM_UNITS[m.units].feed_decimals
     unit = "in/min" if inch else "mm/min"
-    for key, word, dec, u in (("feed", "F", fdec, unit), ("plunge", "F", fdec, unit), ("spindle", "S", 0, "rpm")):
-        v = getattr(m, key) / (per if u != "rpm" else 1.0)
-        r = program_rounding(v, dec)
-        if r == 0 or abs(r - v) > 0.01 * v:
-            least = 50 * 10.0 ** -dec
-            step = f"{10.0 ** -dec:g} {u}" if dec else f"whole {u}"
-            raise SpecError(f"{v:g} {u} would be written {word}{r:.{dec}f} (the program writes {step}): "
-                            f"give at least {least:g} {u}", file=file, key=f"machining.{key}")
+    # the machining section's rates and each tool's own (tools[i].feed, .plunge, .spindle)
+    owners = [("machining", m)] + [(f"tools[{i}]", t) for i, t in enumerate(s.get("tools", ()))]
+    for where, sec in owners:
+        for key, word, dec, u in (("feed", "F", fdec, unit), ("plunge", "F", fdec, unit),
+                                  ("spindle", "S", 0, "rpm")):
+            val = getattr(sec, key)
+            if val is None:
+                continue
+            v = val / (per if u != "rpm" else 1.0)
+            r = program_rounding(v, dec)
+            if r == 0 or abs(r - v) > 0.01 * v:
+                least = 50 * 10.0 ** -dec
+                step = f"{10.0 ** -dec:g} {u}" if dec else f"whole {u}"
+                raise SpecError(f"{v:g} {u} would be written {word}{r:.{dec}f} (the program writes {step}): "
+                                f"give at least {least:g} {u}", file=file, key=f"{where}.{key}")
     # coordinates get at most 6 decimals in program units; the rounding (half a unit in the
     # last place) must stay within tolerance / 20 (gcode.MachineProfile.decimals)
     finest = finest_tolerance(m.units)
     if m.tolerance < finest:
         raise SpecError(f"{m.tolerance:g} mm is finer than the program can carry (limit {finest:g} mm: "
                         f"coordinates have at most 6 decimals in {m.units})", file=file, key="machining.tolerance")
+    if "roughing" in s:
+        rg = s["roughing"]
+        for key in ("stepdown", "stepover"):
+            v = getattr(rg, key)
+            if v is not None and v < finest:
+                raise SpecError(f"{v:g} mm is finer than the program can carry (limit {finest:g} mm)",
+                                file=file, key=f"roughing.{key}")
+        if m.dialect == "linuxcnc" and "tool" in s and s["tool"].number is None:
+            raise SpecError("a linuxcnc job with roughing changes tools with M6 (T<n> M6 G43 H<n>): the "
+                            "finishing tool needs its number too", file=file, key="tool.number")
     if m.stepdown is not None:
         if m.stepdown < finest:
             raise SpecError(f"{m.stepdown:g} mm is finer than the program can carry (limit {finest:g} mm)",

@@ -197,8 +197,13 @@ def test_bull_nose_bowl_against_bisection(tmp_path):
     pts = feed_points(op.toolpath)
     excess = op.info["allowance_excess_mm"]
     assert excess <= 3.0 / 24 + spec.machining.tolerance + 1e-12
-    for z in op.info["level_z_mm"]:
-        at = pts[np.abs(pts[:, 2] - z) < 1e-9]
+    # the levels a step of 5 mm less Delta apart (the allowance's bound held strictly)
+    assert op.info["level_step_mm"] == pytest.approx(5.0 - 3.0 / 24, abs=2e-3)
+    for z in levels_of(op.toolpath):
+        at = pts[np.abs(pts[:, 2] - z) < 1e-6]
+        # over the footprint (beyond its edges the corner may stand over the stock's edge,
+        # lifted above the allowance there: the brute force below checks those)
+        at = at[(at[:, 0] >= 0) & (at[:, 0] <= 2 * HALF) & (at[:, 1] >= 0) & (at[:, 1] <= 2 * HALF)]
         r = np.hypot(at[:, 0] - HALF, at[:, 1] - HALF).max()
         exact = bull_radius(z, 0.5, 6.35, 3.0)
         # never beyond the exact radius; and the tool standing there leaves at most the
@@ -210,7 +215,7 @@ def test_bull_nose_bowl_against_bisection(tmp_path):
         assert -1e-9 <= gap <= excess + chord + 1e-3, (z, gap, excess)
     assert worst_allowance(pts, op.tool, bowl_design, 2 * HALF, 2 * HALF, 0.5) >= -1e-9
     # a bull nose leaves a cusp between loops when the stepover exceeds its flat: 6 > 2 x 3.35: none
-    assert op.info["cusp_mm"] == pytest.approx(5.0)
+    assert op.info["cusp_mm"] == pytest.approx(op.info["level_step_mm"])
 
 
 def test_open_pocket_entered_from_outside(tmp_path):
@@ -408,3 +413,227 @@ def test_spec_errors_one_line_exit_2(tmp_path, change, key, words):
     lines = err.strip().splitlines()
     assert len(lines) == 1 and f"{p}: {key}: " in lines[0], err
     assert not out_dir.exists() or not any(out_dir.iterdir())
+
+
+# ----------------------------------------------------------------------------
+# every input bounded (issue 37, item 4): refused up front, naming the key
+# ----------------------------------------------------------------------------
+HOSTILE = [
+    ({"tools": [{"number": 1, "shape": "flat", "diameter": 12.7, "spindle": 0.4}]}, "tools[0].spindle", "S0"),
+    ({"tools": [{"number": 1, "shape": "flat", "diameter": 12.7, "feed": 1e-6}]}, "tools[0].feed", "F0"),
+    ({"tools": [{"number": 1, "shape": "flat", "diameter": 12.7, "plunge": 1e-6}]}, "tools[0].plunge", "F0"),
+    ({"roughing": {"tool": 1, "stepdown": 5, "leave": 7}}, "roughing.leave", "depth_of_cut"),
+    ({"roughing": {"tool": 1, "stepdown": 5, "stepover": 1e-6}}, "roughing.stepover", "finer than"),
+    ({"tool": {"shape": "ball", "diameter": 6.35}}, "tool.number", "M6"),   # no number, LinuxCNC
+]
+
+
+@pytest.mark.parametrize("change,key,words", HOSTILE, ids=[h[1] for h in HOSTILE])
+def test_tool_and_roughing_keys_refused_up_front(tmp_path, change, key, words):
+    raw = bowl_raw()
+    for sec, body in change.items():
+        raw[sec] = body if sec == "tool" else {**raw[sec], **body} if isinstance(body, dict) else body
+    with pytest.raises(SpecError) as e:
+        load(tmp_path, raw)
+    assert e.value.key == key and words in e.value.detail, e.value
+
+
+def _refusal(tmp_path, raw):
+    from fabkit.toolpath.raster import plan_estimate
+
+    spec, surface = load(tmp_path, raw)
+    with pytest.raises(SpecError) as e:
+        plan_estimate(spec, surface)
+    return e.value
+
+
+def test_loops_beyond_the_guards_refused_before_planning(tmp_path):
+    # stepover 0.001 mm on a 100 x 100 mm bowl 30 mm deep: ~1e8 mm of loops (the planner's
+    # offset tree once overflowed Python's recursion on it)
+    e = _refusal(tmp_path, bowl_raw(roughing={"tool": 1, "stepdown": 5, "stepover": 0.001, "leave": 0.5}))
+    assert e.key == "roughing.stepover" and "mm of loops" in e.detail
+    # a 0.05 mm end mill at stepover 0.02: the loops' vertices on a fine design grid (memory)
+    e = _refusal(tmp_path, bowl_raw(tools=[{"number": 1, "shape": "flat", "diameter": 0.05, "depth_of_cut": 5}],
+                                    roughing={"tool": 1, "stepdown": 5, "stepover": 0.02, "leave": 0.5}))
+    assert e.key == "roughing.stepover", e
+
+
+def test_tool_too_large_for_the_reach_search_and_too_short(tmp_path):
+    e = _refusal(tmp_path, bowl_raw(tools=[{"number": 1, "shape": "flat", "diameter": 190, "depth_of_cut": 20}],
+                                    roughing={"tool": 1, "stepdown": 5, "stepover": 80, "leave": 0.5}))
+    assert e.key == "tools[0].diameter" and "centre-offset pairs" in e.detail
+    # the bowl is 30 mm deep: a 20 mm reach cannot come within one 5 mm stepdown of 29.5 mm
+    e = _refusal(tmp_path, bowl_raw(tools=[{"number": 1, "shape": "flat", "diameter": 12.7, "reach": 20}]))
+    assert e.key == "tools[0].reach" and "24.5" in e.detail
+    from fabkit.toolpath.raster import plan_estimate
+
+    spec, surface = load(tmp_path, bowl_raw(tools=[{"number": 1, "shape": "flat", "diameter": 12.7, "reach": 25}]))
+    est = plan_estimate(spec, surface)
+    # the levels' length: per level the area below it over the stepover, closed form on the
+    # paraboloid (area pi (z + D - leave) / A, plus the band beyond the edges: none here)
+    exact = sum(math.pi * (DEPTH - 0.5 - 5 * k) / A for k in range(1, 6)) / 6
+    assert est["rough_levels"] == 5 and est["rough_length_mm"] == pytest.approx(exact, rel=0.03)
+
+
+def test_offset_tree_walked_without_recursion():
+    from fabkit.toolpath.roughing import _post_order, _pre_order
+
+    class N:
+        def __init__(self, i):
+            self.i, self.children = i, []
+
+    root = N(0)
+    node = root
+    for i in range(1, 20000):        # deeper than Python's recursion limit
+        ch = N(i)
+        node.children.append(ch)
+        node.children.append(N(-i))
+        node = ch
+    post = [n.i for n in _post_order(root)]
+    pre = [n.i for n in _pre_order(root)]
+    assert len(post) == len(pre) == 39999
+    assert pre[:4] == [0, 1, 2, 3] and post[0] == 19999 and post[-1] == 0
+    assert post.index(-1) > post.index(1) and pre.index(-1) > pre.index(19999)
+
+
+def test_level_cleared_region_by_pocket_fill_equals_the_discs():
+    """_Level's region from the loops' bounded region (stepover well inside the disc) is the
+    union of every loop's disc (shapely's own buffer of all the lines)."""
+    import shapely
+    from shapely.geometry import Polygon, box
+    from fabkit.toolpath.roughing import _erosion_tree, _Level, _pre_order, _ring_region
+
+    P = Polygon([(0, 0), (40, 0), (40, 25), (22, 25), (22, 12), (16, 12), (16, 25), (0, 25)]).difference(
+        box(5, 5, 9, 9))
+    s, simp = 2.0, 0.01
+    tree = _erosion_tree(P, s, simp)
+    lines = [r for n in _pre_order(tree) for r in n.rings]
+    tool = Tool("flat", 12.7)
+    out = box(-100, -100, 200, 200).difference(box(0, 0, 40, 25))
+    fast = _Level(-1.0, [], tool, out, 0.01, 1.0, [(_ring_region(P, simp), lines)], s, simp)
+    slow = shapely.multilinestrings([shapely.linestrings(r) for r in lines]).buffer(6.35, quad_segs=32)
+    assert fast.cleared.symmetric_difference(slow).area < 1e-3 * slow.area
+
+
+def test_kernels_in_chunks_give_the_same_stock(monkeypatch):
+    from fabkit.toolpath import stock as st
+
+    s0 = st.make_stock(20.0, 12.0, 0.25)
+    X, Y = s0.grid()
+    target = -0.05 * (X - 10) ** 2 - 2.0
+    tool = Tool("bull", 6.0, 1.5)
+    pts = np.array([[1, 1, 1], [1, 1, -2], [18, 3, -2.5], [18, 9, -1], [3, 10, -3], [3, 10, 5]], float)
+    kinds = np.array([RAPID, PLUNGE, CUT, CUT, CUT, RAPID], np.int8)
+    a, b = s0.copy(), s0.copy()
+    ra = st.cut(a, tool, pts, kinds)
+    mask = target < -2.5
+    ha = st.reach_height(target, a, tool, mask)
+    monkeypatch.setattr(st, "KERNEL_CHUNK_WORK", 500.0)       # many small calls
+    rb = st.cut(b, tool, pts, kinds)
+    hb = st.reach_height(target, b, tool, mask)
+    assert np.array_equal(a.z, b.z) and np.array_equal(ra.engagement, rb.engagement)
+    assert np.array_equal(ha, hb, equal_nan=True)
+
+
+@pytest.mark.parametrize("dialect", ["linuxcnc", "grbl"])
+def test_sheet_names_each_tool_its_number_offset_and_touch_off(dialect):
+    from types import SimpleNamespace
+
+    from fabkit.toolpath.setup import _operations_keys, _tool_line
+
+    def fig(kind, n, shape, d, prog):
+        js = {"kind": kind, "tool": {"number": n, "shape": shape, "diameter": d}}
+        return SimpleNamespace(program=prog, to_json=lambda k, js=js: dict(js))
+
+    progs = ("", "", "") if dialect == "linuxcnc" else (".1-rough.nc", ".2-rest.nc", ".3-finish.nc")
+    figs = [fig("rough", 1, "flat", 12.7, progs[0]), fig("rest", 2, "ball", 6.35, progs[1]),
+            fig("finish", 2, "ball", 6.35, progs[2])]
+    keys = _operations_keys(figs, "job.ngc", dialect, 1.0, None)
+    first, second = keys["tools_loaded"]
+    assert (first["number"], first["operations"]) == (1, ["rough"])
+    assert (second["number"], second["operations"]) == (2, ["rest", "finish"])
+    if dialect == "linuxcnc":
+        assert _tool_line(first, dialect).endswith("the program calls T1 M6 G43 H1 (tool change and length offset)")
+        assert "T2 M6 G43 H2" in _tool_line(second, dialect) and "H2" in keys["steps"][1]
+    else:
+        assert first["programs"] == ["job.1-rough.nc"] and "before running job.1-rough.nc" in _tool_line(first, dialect)
+        assert second["programs"] == ["job.2-rest.nc", "job.3-finish.nc"]
+        assert "touch off Z0" in _tool_line(second, dialect) and first["tool_call"] is None
+
+
+def test_wall_meeting_the_stock_edge_is_roughed_from_beyond_it(tmp_path):
+    """A 90-degree V trench along x, 8 mm deep, under an 8 mm flat end mill (stepdown 3,
+    leave 0.4): inside the block the tool reaches only -3 (its disc touches the walls
+    + leave there); at the block's ends it stands beyond the stock, where the level -6
+    lets its centre within R of the trench's bottom: exactly where hypot(x, 1.6) >= 4
+    (K(-6) = {|y - 10| > 1.6}), so the end faces are cut to -6 within 1.59 mm of y = 10."""
+    raw = bowl_raw(height="-8 + abs(y - 10)",
+                   tools=[{"number": 1, "shape": "flat", "diameter": 8, "reach": 40, "depth_of_cut": 8}],
+                   roughing={"tool": 1, "stepdown": 3, "stepover": 3.5, "leave": 0.4})
+    raw["surface"].update(x=[0, 20], y=[0, 20])
+    spec, surf = load(tmp_path, raw)
+    op = plan_rough(spec, surf)
+    # the kink's interpolation bound takes the level step down a little (the bound held strictly)
+    z1, z2 = op.info["level_z_mm"]
+    assert z2 == pytest.approx(2 * z1, abs=1e-3) and -3.0 <= z1 <= -2.9
+    h, n = 0.5, 41
+    S = simulate([op], n, h)
+    y = np.arange(n) * h
+    D = np.minimum(-8 + np.abs(y - 10), 0.0)
+    # the allowance kept everywhere (tolerance 0.01)
+    assert (S - np.minimum(D[:, None] + 0.4, 0.0) >= -0.01 - 1e-9).all()
+    mid = np.abs(y - 10) <= 1.5
+    for j in (0, n - 1):                     # the two end faces, x = 0 and x = 20
+        assert np.allclose(S[mid, j], z2, atol=1e-4), S[mid, j]
+    assert np.allclose(S[mid, 4], z1, atol=1e-4)        # 2 mm in: the first level
+
+
+def test_finish_reach_only_as_far_beyond_the_edge_as_its_passes():
+    """A ball of R 3 mm over a 90-degree V's bottom at the block's end: standing wholly
+    beyond the end (up to R out) it reaches the bottom; up to 2.9 mm out (a grid node:
+    centres stand on nodes) its section at the end face has radius sqrt(9 - 2.9^2) =
+    0.768 mm and stays 0.768 (sqrt(2) - 1) = 0.318 mm above the bottom."""
+    from fabkit.toolpath import stock as st
+
+    s0 = st.make_stock(6.0, 6.0, 0.1)
+    X, Y = s0.grid()
+    target = -3.0 + np.abs(Y - 3.0)
+    mask = np.zeros(target.shape, bool)
+    mask[0, 30] = True                       # x = 0, y = 3: the bottom at the end face
+    ball = Tool.ball(6.0)
+    full = st.reach_height(target, s0, ball, mask)[0, 30] + 3.0
+    part = st.reach_height(target, s0, ball, mask, beyond=2.9 + 1e-9)[0, 30] + 3.0
+    assert full == pytest.approx(0.0, abs=1e-9)
+    assert part == pytest.approx(math.sqrt(9 - 2.9 ** 2) * (math.sqrt(2) - 1), abs=0.005), part
+
+
+def test_flat_rest_tool_stands_on_the_design_from_above(tmp_path):
+    """A rest flat end mill's tip on the bowl H = A rho^2 - D: exactly A (rho + r)^2 - D
+    (its disc's highest point, on its rim away from the axis); the grid bound is never
+    below it and at most the slope x a cell's diagonal + 2 e above it."""
+    from fabkit.toolpath.roughing_rest import _tool_on_design
+
+    spec, surf = load(tmp_path, bowl_raw())
+    op = plan_rough(spec, surf)
+    r = 2.0
+    rho = np.linspace(0.0, 40.0, 41)
+    X, Y = HALF + rho * math.cos(0.3), HALF + rho * math.sin(0.3)
+    got = _tool_on_design(op, X, Y, Tool("flat", 2 * r))
+    exact = np.minimum(A * (rho + r) ** 2 - DEPTH, 0.0)
+    sets = op.sets
+    diag = math.hypot(sets.hx, sets.hy)
+    slope = 2 * A * (rho + r + 2 * diag)
+    assert (got >= exact - 1e-9).all()
+    assert (got - exact <= slope * 2 * diag + 2 * sets.err + 1e-9).all(), float((got - exact).max())
+
+
+def test_last_rest_tool_larger_than_the_finish_refused(tmp_path):
+    raw = bowl_raw(tools=[{"number": 1, "shape": "flat", "diameter": 12.7, "reach": 60},
+                          {"number": 3, "shape": "bull", "diameter": 8, "corner_radius": 1}],
+                   roughing={"tool": 1, "stepdown": 5, "rest": [3]})
+    with pytest.raises(SpecError) as e:
+        load(tmp_path, raw)
+    assert e.value.key == "roughing.rest[0]" and "larger than the finishing" in e.value.detail
+    raw["roughing"]["rest"] = [3, 2]
+    spec, _ = load(tmp_path, raw)
+    assert spec.roughing.rest == (3, 2)

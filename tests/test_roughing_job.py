@@ -75,6 +75,10 @@ def lift(shape, R, rho):
     """Height of the cutting surface above the tip at radius rho (<= R)."""
     if shape == "flat":
         return np.zeros_like(rho)
+    if shape.startswith("bull"):            # "bull<r>": a corner radius r, a flat of R - r
+        r = float(shape[4:])
+        u = np.maximum(rho - (R - r), 0.0)
+        return r - np.sqrt(np.maximum(r * r - u * u, 0.0))
     return R - np.sqrt(np.maximum(R * R - rho * rho, 0.0))
 
 

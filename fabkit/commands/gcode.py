@@ -16,6 +16,7 @@ tolerance; exit 2 on bad input (nothing written).
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 
 from ..errors import DesignError
 from ..io import atomic_outputs
@@ -145,7 +146,11 @@ def _finish(args, job, out, paths, total) -> int:
     gap = toolpath.info.get("edge_pass_gap_max", 0.0)
     so += f" (edge pass gap {gap:.2f})" if gap > toolpath.stepover else ""
     shown = programs[-1][0]       # the program (grbl with roughing: the finishing one, the last)
-    head = f"gcode: {shown}, {toolpath.passes} passes, stepover {so} mm, {lines} lines; "
+    if len(programs) > 1:         # grbl with roughing: every program, the finish's passes
+        head = f"gcode: {len(programs)} programs {programs[0][0]} .. {Path(programs[-1][0]).name} ({lines} " \
+               f"lines in all), finish: {toolpath.passes} passes, stepover {so} mm; "
+    else:
+        head = f"gcode: {shown}, {toolpath.passes} passes, stepover {so} mm, {lines} lines; "
     if check:
         meas = "normal to the surface" if check.get("material_left_measure", "normal") == "normal" else "vertically"
         head += (f"largest gouge {check['max_gouge']:.4f} mm, material left {check['max_material_left']:.4f} mm {meas} "

@@ -204,8 +204,10 @@ def estimate(spec, ws, fr, R: float, target: float, tolerance: float, depth_mm: 
 
         h = grid_spacing(list(spec_tools(spec).values()), tolerance)
         nodes = (ws.L / h + 1.0) * (ws.W / h + 1.0)
-        out["roughing_seconds"] = SEC_PER_STOCK_NODE * nodes
-        out["roughing_bytes"] = BYTES_PER_STOCK_NODE * nodes
+        rough = roughing_estimate(spec, ws, H, hx, hy, hxx, hxy, hyy, depth_mm, tolerance, h)
+        out.update(rough)
+        out["roughing_seconds"] = SEC_PER_STOCK_NODE * nodes + rough["rough_seconds"]
+        out["roughing_bytes"] = BYTES_PER_STOCK_NODE * nodes + rough["rough_bytes"]
     out["plan_seconds"] += out["roughing_seconds"]
     # a first run compiles the kernels it lacks (once per installation, or per formula)
     from .kernels import cold_build_seconds
@@ -215,6 +217,132 @@ def estimate(spec, ws, fr, R: float, target: float, tolerance: float, depth_mm: 
     out["bytes"] = BYTES_BASE + MEM_SCALE * passes * (16.0 * n_fine + 80.0 * n_nodes) + \
         BYTES_PER_POINT * (points + out["roughing_points"]) + out["roughing_bytes"]
     return out
+
+
+# roughing with its own tool (toolpath/roughing.py), before planning: the levels' loops or
+# rows (their length: each level's area / stepover), the program points on them, and the
+# whole-job check's reach search (stock.reach_height: per stock-grid centre within R of a
+# node asked, the tool's offsets within R). The loops are offsets of contours on the design
+# grid of step hg (roughing.grid_step): their vertices per mm grow as 1 / hg. Measured
+# (tolerance 0.01 mm, load ~2): the paper's job (1/2 in flat, hg 0.29 mm, stepover 0.25-6
+# mm, 10 levels) planned in 3.3-4.9 us per mm of loop, 0.125 program points per mm, 270
+# bytes per mm; a 27 x 40 mm block (1 mm flat, hg 0.125 mm, stepover 0.1-0.2 mm) 25 us,
+# 0.30 points and 870 bytes per mm: seconds per mm 4.1e-7 / hg^2, points 0.036 / hg, bytes
+# 100 / hg (hg in mm). The reach kernel: 1.5-2.8 ns per centre-offset pair (flat 6.35-40 mm
+# on a 0.25 mm grid)
+SEC_ROUGH_MM_HG2 = 4.1e-7
+ROUGH_POINTS_MM_HG = 0.036
+BYTES_ROUGH_MM_HG = 100.0
+SEC_PER_REACH_PAIR = 3.0e-9
+ROUGH_GRID_MAX_NODES = 1_500_000    # as roughing.GRID_MAX_NODES
+
+
+def roughing_estimate(spec, ws, H, hx, hy, hxx, hxy, hyy, depth_mm: float, tolerance: float, h: float) -> dict:
+    """The roughing's work before planning, from the design H on the grid X, Y (work mm):
+    its levels (every ``roughing.stepdown`` down to the allowance's lowest point or the
+    tool's reach and stock.depth_limit), the length of its loops or rows (per level the
+    area where the design + leave lies below the level, with the band beyond the stock's
+    edges the tool may stand in, over the stepover), their program points, the planning
+    seconds and bytes, and the worst case of the whole-job check's reach search (every
+    stock node asked, ``stock_grid_mm`` h). Also the depth the roughing tool must reach
+    (``rough_depth_mm``) against its ``reach``."""
+    from .roughing import spec_tools
+
+    fin = lambda a: np.where(np.isfinite(a), a, 0.0)   # noqa: E731
+    rg = spec.roughing
+    tools = spec_tools(spec)
+    tool = tools[int(rg.tool)]
+    R, step, s, leave = tool.radius, float(rg.stepdown), float(rg.stepover), float(rg.leave)
+    lim = min(float(spec.stock.depth_limit), float(tool.reach))
+    Hf = np.where(np.isfinite(H), H, np.inf)
+    e = max(0.0, R - 0.5 * s)
+    area_cell = ws.L * ws.W / Hf.size
+    # the edge nodes (for the band beyond the stock): spacing along each edge
+    edge = np.r_[Hf[0, :], Hf[-1, :], Hf[:, 0], Hf[:, -1]]
+    edge_len = 2.0 * (ws.L + ws.W) / max(len(edge), 1)
+    corners = np.array([Hf[0, 0], Hf[0, -1], Hf[-1, 0], Hf[-1, -1]])
+    bottom = float(np.min(Hf)) + leave if np.isfinite(np.min(Hf)) else 0.0
+    zs, k = [], 1                      # the planner's levels (roughing.plan_rough)
+    while True:
+        z = -k * step
+        if z <= bottom - 1e-9 or z < -lim - 1e-9:
+            z = max(z, -lim)
+            if not (z <= bottom + 1e-9 or (zs and z >= zs[-1] - 1e-9)):
+                zs.append(z)
+            break
+        zs.append(z)
+        k += 1
+    length = 0.0
+    for z in zs:
+        band = e * edge_len * float(np.sum(edge + leave < z)) + math.pi * e * e * float(np.sum(corners + leave < z)) / 4
+        length += (float(np.sum(Hf + leave < z)) * area_cell + band) / s
+    levels = len(zs)
+    # the design grid's step (roughing.grid_step, from the exact curvatures here: the planner's
+    # coarse second differences see no more, so this step is at most the planner's)
+    band = np.isfinite(H) & (H >= -lim - leave - 1.0) & (H <= 0.0)
+    C = float(np.max((np.abs(fin(hxx)) + np.abs(fin(hyy)) + 2.0 * np.abs(fin(hxy)))[band])) if band.any() else 0.0
+    hg = min(1.0, R / 4.0, math.sqrt(8.0 * 0.5 * tolerance / (6.0 * C)) if C > 0 else 1.0)
+    hg = max(hg, math.sqrt(ws.L * ws.W / ROUGH_GRID_MAX_NODES))
+    # the loops' inset shrinks on steep walls (roughing.plan_rough: down to a tenth of the
+    # tolerance); the points grow as the square root of tolerance / inset (paper: 3.2x at 0.1)
+    slope = np.hypot(fin(hx), fin(hy))[band] if band.any() else np.zeros(1)
+    m = float(min(20.0, slope.max())) if slope.size else 0.0
+    chord = R * (1.0 / math.cos(math.pi / 128) - 1.0)
+    inset = tolerance if m <= 0 else min(tolerance, max(0.1 * tolerance, (0.5 * tolerance - chord * m) / (2 * m)))
+    pts = length * ROUGH_POINTS_MM_HG / hg * math.sqrt(tolerance / inset)
+    # the reach search's worst case, per tool of the job: centres (the stock grid grown by R)
+    # times the tool's offsets within R
+    reach_pairs, reach_key, worst = 0.0, None, 0.0
+    listed = {int(t.number): i for i, t in enumerate(spec.tools)}
+    for n, t in tools.items():
+        cen = (ws.L / h + 1.0 + 2.0 * t.radius / h) * (ws.W / h + 1.0 + 2.0 * t.radius / h)
+        pairs = cen * math.pi * (t.radius / h + 1.0) ** 2
+        reach_pairs += pairs
+        if pairs > worst:
+            worst, reach_key = pairs, (f"tools[{listed[n]}].diameter" if n in listed else "tool.diameter")
+    depth_need = min(depth_mm, float(spec.stock.depth_limit)) - leave
+    return {"rough_levels": levels, "rough_length_mm": length, "rough_points": pts,
+            "rough_seconds": SEC_ROUGH_MM_HG2 * length / (hg * hg) + SEC_PER_POINT * pts,
+            "rough_bytes": BYTES_ROUGH_MM_HG * length / hg + BYTES_PER_POINT * pts, "rough_grid_mm": hg,
+            "rough_reach_pairs": reach_pairs, "rough_reach_seconds": SEC_PER_REACH_PAIR * reach_pairs,
+            "rough_reach_key": reach_key, "rough_depth_mm": depth_need,
+            "rough_tool_reach_mm": float(tool.reach), "rough_stepdown_mm": step,
+            "rough_tool_key": f"tools[{listed[int(rg.tool)]}]", "stock_grid_mm": h}
+
+
+def roughing_guard(est: dict, tol, spec_path=None) -> None:
+    """Refuse (SpecError, exit 2, naming the key and the estimate) a roughing beyond the
+    guards: a tool that cannot reach within one stepdown of the allowance's bottom, loops
+    whose points, memory or time exceed the limits, a reach search beyond the time budget."""
+    if "rough_levels" not in est:
+        return
+    budget = est.get("max_time") or tol.max_plan_seconds
+    key = est["rough_tool_key"]
+    need = est["rough_depth_mm"] - est["rough_stepdown_mm"]
+    if est["rough_tool_reach_mm"] < need:
+        raise SpecError(f"{est['rough_tool_reach_mm']:g} mm: the roughing must reach {est['rough_depth_mm']:.3g} mm "
+                        f"below the top face (the design's depth less roughing.leave, within stock.depth_limit), "
+                        f"within one stepdown; give the roughing tool at least {need:.3g} mm of reach",
+                        file=spec_path, key=f"{key}.reach")
+    if est["rough_points"] > tol.max_program_points:
+        raise SpecError(f"roughing needs about {est['rough_points']:.3g} program points ({est['rough_length_mm']:.3g} "
+                        f"mm of loops over {est['rough_levels']} levels; limit {tol.max_program_points}); raise "
+                        "the stepover", file=spec_path, key="roughing.stepover")
+    if est["rough_bytes"] > MAX_BYTES:
+        raise SpecError(f"roughing would need about {est['rough_bytes'] / 1e9:.2g} GB of memory "
+                        f"({est['rough_length_mm']:.3g} mm of loops over {est['rough_levels']} levels; limit "
+                        f"{MAX_BYTES / 1e9:g} GB); raise the stepover", file=spec_path, key="roughing.stepover")
+    if est["rough_seconds"] > budget:
+        raise SpecError(f"roughing would take about {est['rough_seconds']:.0f} s of CPU time "
+                        f"({est['rough_length_mm']:.3g} mm of loops over {est['rough_levels']} levels; limit "
+                        f"{budget:g} s): raise the stepover, or the limit with --max-time SECONDS or "
+                        "machining.max_time", file=spec_path, key="roughing.stepover")
+    if est["rough_reach_seconds"] > budget:
+        raise SpecError(f"the whole job's check would search each tool's reach over up to "
+                        f"{est['rough_reach_pairs']:.3g} centre-offset pairs of the {est['stock_grid_mm']:.3g} mm "
+                        f"stock grid (about {est['rough_reach_seconds']:.0f} s of CPU time; limit {budget:g} s): the "
+                        "tool is too large for the block and the grid the finishing tool needs",
+                        file=spec_path, key=est["rough_reach_key"])
 
 
 def _dilate(mask: np.ndarray, r: int, axis: int) -> np.ndarray:
@@ -286,6 +414,7 @@ MIN_LENGTH_MM = 1e-4   # scallop and tolerance below this are below any machine'
 
 def guard(est: dict, tol, spec_path=None, scallop=None, tolerance=None) -> None:
     """Refuse (SpecError, exit 2, naming the key and the estimate) beyond the guards."""
+    roughing_guard(est, tol, spec_path)
     for key, val in (("machining.scallop", scallop), ("machining.tolerance", tolerance)):
         if val is not None and val < MIN_LENGTH_MM:
             raise SpecError(f"must be >= {MIN_LENGTH_MM:g} mm, got {val:g} mm: finer than any machine "
@@ -306,15 +435,18 @@ def guard(est: dict, tol, spec_path=None, scallop=None, tolerance=None) -> None:
                         f"(limit {tol.max_program_points} in all); raise the stepdown",
                         file=spec_path, key="machining.stepdown")
     if est.get("bytes", 0.0) > MAX_BYTES:
-        key = "machining.stepdown" if est["roughing_points"] > est["points"] else \
+        key = "roughing.stepover" if est.get("rough_bytes", 0.0) >= 0.5 * est["bytes"] else \
+            "machining.stepdown" if est["roughing_points"] > est["points"] else \
             ("machining.scallop" if est["points"] < 40.0 * est["passes"] else "machining.tolerance")
         raise SpecError(f"planning would need about {est['bytes'] / 1e9:.2g} GB of memory "
                         f"({est['passes']:.3g} passes, {est['points'] + est['roughing_points']:.3g} "
-                        f"program points; limit {MAX_BYTES / 1e9:g} GB); raise {key.split('.')[1]}",
+                        f"program points" + (f", {est['rough_length_mm']:.3g} mm of roughing loops"
+                                             if "rough_length_mm" in est else "") + f"; limit {MAX_BYTES / 1e9:g} GB); raise {key.split('.')[1]}",
                         file=spec_path, key=key)
     budget = est.get("max_time") or tol.max_plan_seconds
     if est["seconds"] > budget:
-        key = "machining.scallop" if est["place_seconds"] >= \
+        key = "roughing.stepover" if est.get("rough_seconds", 0.0) >= 0.5 * est["seconds"] else \
+            "machining.scallop" if est["place_seconds"] >= \
             SEC_PER_POINT * (est["points"] + est["roughing_points"]) else \
             ("machining.stepdown" if est["roughing_points"] > est["points"] else "machining.tolerance")
         build = est.get("build_seconds", 0.0)

@@ -42,20 +42,8 @@ material (no air above material already removed).
 Levels stop at the roughing tool's reach and stock.depth_limit: material below is
 left to the rest passes and the finish (which refuse depths beyond their own limits).
 
-Rest passes (:func:`plan_rest`): the stock after roughing is a height field on the
-grid (each level's cleared region at its Z; conservatively the highest of a cell's
-neighbours). A rest ball's passes follow the finishing passes (their exact
-drop-cutter heights; another ball's own, :func:`compensate`), at most R apart, in
-Z levels of its depth of cut less the cusp between its passes, tip at
-max(level, design contact + leave), only where its drop onto the roughed stock
-stands more than min(stepdown, finish depth_of_cut - leave) + tolerance above the
-allowance (a grid bound, then the exact drop onto the levels' polygons; one node
-either side), and, either side of a finishing pass between two rest passes, where that
-pass would engage more than the finishing depth of cut: the valleys and corners the
-roughing tool could not reach, and staircases deeper than the finish may cut. A ball's
-engagement is the stock's thickness it cuts through, max over q under it of
-S(q) - (tip + lift(|q - c|)): elsewhere the finishing ball's is at most leave + that
-threshold <= its depth of cut; where the rest passes ran, leave + their cusp.
+Rest passes: :mod:`fabkit.toolpath.roughing_rest`; the loops and moves of a level:
+:mod:`fabkit.toolpath.roughing_loops`.
 """
 
 from __future__ import annotations
@@ -65,83 +53,27 @@ import time
 
 import numpy as np
 
-from ..errors import SpecError
-from .compensate import WorkSurface, compensate
+from .compensate import WorkSurface
 from .operations import Operation
-from .passes import AIR_EPS, Frame
 from .path import CUT, PLUNGE, RAPID, Toolpath
-from .tools import Tool
+from .roughing_loops import (HELIX_FRACTION, HELIX_SEGS, LINK_CLEARANCE, QUAD_SEGS, _cut_inside_out,  # noqa: F401
+                             _cut_outside_in, _erosion_tree, _figures, _go, _Node, _parts, _Path, _polys,
+                             _post_order, _pre_order, _raster_pocket, _ring_from, _ring_region, _rings, _walk)
+from .roughing_rest import drop_on_grid, drop_on_levels, plan_rest, stock_after  # noqa: F401
+from .tools import Tool, depth_of_cut, feeds_of, finish_tool, spec_tools  # noqa: F401
 
 __all__ = ["spec_tools", "finish_tool", "depth_of_cut", "plan_operations", "plan_rough", "plan_rest",
-           "LevelSets", "allowed_region", "ENTRY_ANGLE_DEG"]
+           "LevelSets", "allowed_region", "ENTRY_ANGLE_DEG", "stock_after"]
 
 ENTRY_ANGLE_DEG = 5.0       # helix and ramp descent angle (foam and wood: 3-10 degrees)
-HELIX_FRACTION = 0.5        # helix radius: at most this x the tool radius
-QUAD_SEGS = 32              # polygon segments per quarter circle in the dilations
 LADDER_MAX = 24             # lift steps of a bull nose / ball allowance
 GRID_MAX_NODES = 1_500_000  # the design grid of the level sets
-LINK_CLEARANCE = 1.0        # mm above the level above for links and the start of entries
-HELIX_SEGS = 24             # points per helix turn
 LOOP_INSET = 1.0            # x machining.tolerance: loops eroded by it and simplified within it
 
 
 # ----------------------------------------------------------------------------
-# tools of the spec
+# level sets of the design
 # ----------------------------------------------------------------------------
-def finish_tool(spec) -> Tool:
-    """The finishing ball of the ``tool`` section."""
-    t = spec.tool
-    return Tool.ball(float(t.diameter), reach=float(t.reach), number=t.number)
-
-
-def spec_tools(spec) -> dict[int, Tool]:
-    """Every numbered tool of the spec: the ``tools`` list and the finishing ``tool``
-    (when it has a number), by tool number. Feeds None mean the machining section's."""
-    out = {}
-    if spec.has("tool") and spec.tool.number is not None:
-        out[int(spec.tool.number)] = finish_tool(spec)
-    for t in (spec.tools if spec.has("tools") else ()):
-        out[int(t.number)] = Tool(t.shape, float(t.diameter),
-                                  float(t.corner_radius or 0.0), reach=float(t.reach), number=int(t.number),
-                                  feed=t.feed, plunge=t.plunge, spindle=t.spindle)
-    return out
-
-
-def depth_of_cut(spec, number) -> float:
-    """The axial depth of cut (mm) of tool ``number`` (None: the finishing tool)."""
-    if number is None or (spec.tool.number is not None and number == spec.tool.number):
-        return float(spec.tool.depth_of_cut)
-    for t in spec.tools:
-        if t.number == number:
-            return float(t.depth_of_cut)
-    raise KeyError(number)
-
-
-def _feeds(spec, tool: Tool) -> tuple[float, float]:
-    m = spec.machining
-    return float(tool.feed or m.feed), float(tool.plunge or m.plunge)
-
-
-# ----------------------------------------------------------------------------
-# geometry helpers (shapely)
-# ----------------------------------------------------------------------------
-def _parts(g, kind: str):
-    """The non-empty parts of type ``kind`` ('Polygon', 'LineString') of a geometry
-    (single, multi-part or collection, at any depth)."""
-    if g is None or g.is_empty:
-        return []
-    if g.geom_type == kind:
-        return [g]
-    if hasattr(g, "geoms"):
-        return [p for sub in g.geoms for p in _parts(sub, kind)]
-    return []
-
-
-def _polys(g):
-    """The polygons of a geometry (Polygon, MultiPolygon, collection), non-empty."""
-    return _parts(g, "Polygon")
-
-
 def _dilate(g, r: float):
     """g dilated by r, containing the exact dilation (circumscribed arcs)."""
     if r <= 0:
@@ -255,80 +187,6 @@ def allowed_region(sets: LevelSets, tool: Tool, z: float, leave: float, outer):
 
 
 # ----------------------------------------------------------------------------
-# moves
-# ----------------------------------------------------------------------------
-class _Path:
-    """Points and move kinds being built, with the cut lines of the current level."""
-
-    def __init__(self):
-        self.pts: list = []
-        self.kinds: list = []
-        self.level_lines: list = []
-
-    @property
-    def at(self):
-        return self.pts[-1] if self.pts else None
-
-    def add(self, p, kind):
-        p = (float(p[0]), float(p[1]), float(p[2]))
-        if self.pts and max(abs(a - b) for a, b in zip(p, self.pts[-1])) < 1e-9:
-            return
-        self.pts.append(p)
-        self.kinds.append(kind)
-
-    def cut_xy(self, xy, z):
-        for q in xy:
-            self.add((q[0], q[1], z), CUT)
-        if len(xy) >= 2:
-            self.level_lines.append(np.asarray(xy, float))
-
-
-def _ring_from(ring: np.ndarray, p) -> np.ndarray:
-    """The closed ring (k, 2) rotated to start (and end) at its point nearest p."""
-    from shapely.geometry import LineString, Point
-
-    ls = LineString(ring)
-    d = ls.project(Point(p[0], p[1]))
-    q = ls.interpolate(d)
-    seg = np.cumsum(np.r_[0.0, np.hypot(*np.diff(ring, axis=0).T)])
-    i = int(np.searchsorted(seg, d, side="right"))
-    i = min(max(i, 1), len(ring) - 1)
-    start = np.array([q.x, q.y])
-    body = np.vstack([ring[i:-1], ring[:i]]) if i < len(ring) - 1 else ring[:-1]
-    out = np.vstack([start, body, start])
-    keep = np.r_[True, np.hypot(*np.diff(out, axis=0).T) > 1e-9]
-    return out[keep]
-
-
-def _walk(path: np.ndarray, length: float, closed: bool) -> np.ndarray:
-    """Points along ``path`` (k, 2) over ``length`` mm from its start (cyclically if
-    closed, back and forth if open), with their arc lengths: (m, 3) [x, y, s]."""
-    seg = np.hypot(*np.diff(path, axis=0).T)
-    per = float(seg.sum())
-    if per <= 1e-9:
-        return np.array([[path[0, 0], path[0, 1], 0.0], [path[0, 0], path[0, 1], length]])
-    out, s = [(path[0, 0], path[0, 1], 0.0)], 0.0
-    fwd = True
-    while s < length - 1e-12:
-        idx = range(1, len(path)) if (closed or fwd) else range(len(path) - 2, -1, -1)
-        prev = path[0] if (closed or fwd) else path[-1]
-        for i in idx:
-            q = path[i]
-            d = float(math.hypot(q[0] - prev[0], q[1] - prev[1]))
-            if s + d >= length:
-                t = (length - s) / d if d > 0 else 1.0
-                out.append((prev[0] + t * (q[0] - prev[0]), prev[1] + t * (q[1] - prev[1]), length))
-                s = length
-                break
-            s += d
-            out.append((q[0], q[1], s))
-            prev = q
-        if not closed:
-            fwd = not fwd
-    return np.array(out)
-
-
-# ----------------------------------------------------------------------------
 # roughing
 # ----------------------------------------------------------------------------
 def _cleared_radius(tool: Tool, height: float) -> float:
@@ -347,27 +205,45 @@ class _Level:
     ``cleared``: the material there is at most the level + ``tolerance`` (a bull nose's
     or ball's discs shrink to where the corner stands within it; between loops further
     apart the cusps count as uncut: rest passes are then conservative); ``free`` (links
-    1 mm above the level): within half the link clearance."""
+    1 mm above the level): within half the link clearance.
 
-    def __init__(self, z, lines, tool, outside, tolerance, clr):
-        from shapely.geometry import MultiLineString, Point
+    ``pockets``: [(Q, lines)] per pocket cleared by loops or rows at most ``s`` apart
+    (:func:`_ring_region`: Q the region its outermost loops bound); where s + 4 simp <=
+    the disc's radius rho every point of Q lies within rho of a cut line (consecutive
+    loops are at most s + 2 simp apart, the innermost encloses no disc of radius s), so
+    the discs' union is Q dilated by rho with the discs of the lines leaving Q: the same
+    region as every line's disc, in time linear in the lines (their discs overlap about
+    rho / s deep otherwise)."""
+
+    def __init__(self, z, lines, tool, outside, tolerance, clr, pockets=(), s=math.inf, simp=0.0):
+        from shapely.geometry import Point
         from shapely.ops import unary_union
         import shapely
 
         self.z = z
-        geoms = []
-        for ln in lines:
-            if len(ln) >= 2:
-                geoms.append(ln)
         empty = Point(0, 0).buffer(0)
-        if geoms:
-            ml = MultiLineString([g.tolist() for g in geoms])
-            # inscribed polygons: contained in the true swept discs
-            self.cleared = ml.buffer(_cleared_radius(tool, tolerance), quad_segs=QUAD_SEGS)
-            low = self.cleared if tool.corner_radius <= 0 else \
-                ml.buffer(_cleared_radius(tool, 0.5 * clr), quad_segs=QUAD_SEGS)
-        else:
-            self.cleared = low = empty
+
+        def swept(rho):
+            parts = []
+            loose = [ln for ln in lines if len(ln) >= 2]
+            for Q, plines in pockets:
+                if Q is not None and s + 4.0 * simp <= rho:
+                    shapely.prepare(Q)
+                    out = [ln for ln in plines if len(ln) >= 2
+                           and not Q.covers(shapely.linestrings(ln))]
+                    parts.append(Q.buffer(rho, quad_segs=QUAD_SEGS))
+                    loose += out
+                else:
+                    loose += [ln for ln in plines if len(ln) >= 2]
+            if loose:
+                # inscribed polygons: contained in the true swept discs
+                parts.append(shapely.multilinestrings([shapely.linestrings(ln) for ln in loose])
+                             .buffer(rho, quad_segs=QUAD_SEGS))
+            return unary_union(parts) if parts else empty
+
+        rho = _cleared_radius(tool, tolerance)
+        self.cleared = swept(rho)
+        low = self.cleared if tool.corner_radius <= 0 else swept(_cleared_radius(tool, 0.5 * clr))
         self.free = unary_union([low, outside])
         shapely.prepare(self.free)
 
@@ -392,10 +268,25 @@ def plan_rough(spec, surface, tool: Tool | None = None, *, ws=None, sets=None, t
     if sets is None:
         sets = design_sets(ws, R, tolerance, leave, lim)
     bottom = float(sets.H.min()) + leave          # the lowest allowance on the grid
+    # the allowance bound held strictly: the tool stands at most 2 e + Delta (vertical)
+    # and the dilations' chord + twice the loops' inset (horizontal, x the slope m) higher
+    # than it could; the inset shrinks (down to a tenth of the tolerance) until that stays
+    # within the tolerance on the steepest wall the levels cut, and what it cannot bring
+    # within comes off the level step (leave + step + that error <= leave + stepdown + tol)
+    m_max = _band_slope(sets, -lim - leave - 1.0)
+    chord = R * (1.0 / math.cos(math.pi / (4 * QUAD_SEGS)) - 1.0)
+    delta0 = _ladder(tool)[1]
+    room = tolerance - 2 * sets.err - delta0 - chord * m_max
+    simp = LOOP_INSET * tolerance if m_max <= 0 else \
+        min(LOOP_INSET * tolerance, max(0.1 * tolerance, room / (2.0 * m_max)))
+    excess = 2 * sets.err + delta0 + (chord + 2 * simp) * m_max
+    step_eff = step - max(0.0, excess - tolerance - 1e-12)
+    if step_eff < 0.5 * step:
+        step_eff = 0.5 * step     # (a wall steeper than the guards' slope cap: the check states the rest)
     levels = []
     k = 1
     while True:
-        z = -k * step
+        z = -k * step_eff
         if z <= bottom - 1e-9 or z < -lim - 1e-9:
             z = max(z, -lim)
             if z <= bottom + 1e-9 or (levels and z >= levels[-1] - 1e-9):
@@ -405,9 +296,12 @@ def plan_rough(spec, surface, tool: Tool | None = None, *, ws=None, sets=None, t
         levels.append(z)
         k += 1
     e_out = max(0.0, R - 0.5 * s)
-    simp = LOOP_INSET * tolerance     # loops eroded by it and simplified within it (_rings)
     F = box(0.0, 0.0, L, W)
-    outer = box(-e_out, -e_out, L + e_out, W + e_out)
+    # centres whose disc meets the stock: up to R beyond its edges a tool still cuts them
+    # (the whole job's check takes its reach so; within R - s/2 a wall meeting the edge was
+    # left up to a stepdown and more above its bound there); beyond its corners only as far
+    e_reach = max(0.0, R - simp)
+    outer = box(0.0, 0.0, L, W).buffer(e_reach, quad_segs=QUAD_SEGS) if e_reach > 0 else box(0.0, 0.0, L, W)
     big = box(-10 * R - L, -10 * R - W, 2 * L + 10 * R, 2 * W + 10 * R)
     outside = big.difference(F)
     path = _Path()
@@ -498,20 +392,24 @@ def plan_rough(spec, surface, tool: Tool | None = None, *, ws=None, sets=None, t
         path.level_lines = []
         # pockets in order of their lowest x, y (a stable, short tour)
         pockets.sort(key=lambda p: (round(p.bounds[0], 3), round(p.bounds[1], 3)))
+        done = []                 # per pocket: (the region its loops bound, its cut lines)
         for P in pockets:
             shapely.prepare(P)
             fig["pockets"] += 1
+            n0 = len(path.level_lines)
             open_ = not P.difference(F.buffer(0.25 * e_out, join_style=2)).is_empty if e_out > 0 else False
             if rg.strategy == "raster":
                 _raster_pocket(P, z, z_above, s, R, spec, path, enter, link_to, fig, F, open_, simp)
-                continue
-            tree = _erosion_tree(P, s, simp)
-            if open_:
-                _cut_outside_in(tree, P, z, z_above, path, enter, link_to, fig, F, R, e_out)
             else:
-                _cut_inside_out(tree, P, z, z_above, path, enter, link_to, fig, R, rg.entry, polylabel, s)
+                tree = _erosion_tree(P, s, simp)
+                if open_:
+                    _cut_outside_in(tree, P, z, z_above, path, enter, link_to, fig, F, R, e_out)
+                else:
+                    _cut_inside_out(tree, P, z, z_above, path, enter, link_to, fig, R, rg.entry, polylabel, s)
+            done.append((_ring_region(P, simp), path.level_lines[n0:]))
+            del path.level_lines[n0:]
         tg = time.process_time()
-        above = _Level(z, path.level_lines, tool, outside, tolerance, clr)
+        above = _Level(z, path.level_lines, tool, outside, tolerance, clr, done, s, simp)
         cleared_levels.append(above)
         t_geom += time.process_time() - tg
     if path.pts:
@@ -520,9 +418,9 @@ def plan_rough(spec, surface, tool: Tool | None = None, *, ws=None, sets=None, t
     pts = np.array(path.pts, float).reshape(-1, 3)
     kinds = np.array(path.kinds, np.int8)
     tp = Toolpath(pts, kinds, tool_radius=R, safe_z=safe_z)
-    feed, plunge = _feeds(spec, tool)
+    feed, plunge = feeds_of(spec, tool)
     info = _figures(pts, kinds, feed, plunge)
-    cusp = step + _stepover_cusp(tool, s)
+    cusp = step_eff + _stepover_cusp(tool, s)
     info.update({
         "tool": tool.describe(), "levels": len(levels), "level_z_mm": [round(v, 4) for v in levels],
         "loops": fig["loops"], "pockets": fig["pockets"], "stepdown_mm": step, "stepover_mm": s,
@@ -534,7 +432,8 @@ def plan_rough(spec, surface, tool: Tool | None = None, *, ws=None, sets=None, t
         # horizontal: the dilations' circumscribed polygons and the loops' inset keep the
         # tool up to this much farther from the level set than it could stand; on a wall of
         # slope m the material left grows by m times it (the stock check adds it)
-        "allowance_offset_mm": R * (1.0 / math.cos(math.pi / (4 * QUAD_SEGS)) - 1.0) + 2 * simp, "depth_limit_mm": lim,
+        "allowance_offset_mm": chord + 2 * simp, "depth_limit_mm": lim,
+        "level_step_mm": step_eff, "steepest_slope": m_max,
         "stopped_at_limit": bool(levels and levels[-1] <= -lim + 1e-9 and bottom < -lim),
         "plan_seconds": time.process_time() - t0,
     })
@@ -547,9 +446,22 @@ def plan_rough(spec, surface, tool: Tool | None = None, *, ws=None, sets=None, t
     return op
 
 
+def _band_slope(sets, low: float) -> float:
+    """The steepest slope of the design (grid differences) where it lies between ``low``
+    and the top face: the walls the levels cut. At most 20 (beyond, a wall is cut by its rim)."""
+    H = sets.H
+    gy, gx = np.gradient(H, sets.hy, sets.hx)
+    band = (H >= low) & (H <= 0.0) & np.isfinite(gx) & np.isfinite(gy)
+    if not band.any():
+        return 0.0
+    return float(min(20.0, np.hypot(gx, gy)[band].max()))
+
+
 def design_sets(ws, R, tolerance, leave, lim):
     band = (-lim - leave - 1.0, 0.0)
-    h, coarse = grid_step(ws, R, tolerance, band)
+    # 2 e within half the tolerance: the other half for the dilations' chords and the loops'
+    # inset on the walls (plan_rough), so that the levels keep their step where they can
+    h, coarse = grid_step(ws, R, 0.5 * tolerance, band)
     if abs(h - min(1.0, R / 4)) < 1e-12:
         return coarse
     return LevelSets(ws, h, band)
@@ -563,536 +475,6 @@ def _stepover_cusp(tool: Tool, s: float) -> float:
         return 0.0
     half = min(half, r)
     return r - math.sqrt(r * r - half * half)
-
-
-def _figures(pts, kinds, feed, plunge) -> dict:
-    seg = np.linalg.norm(np.diff(pts, axis=0), axis=1) if len(pts) > 1 else np.zeros(0)
-    k = kinds[1:] if len(kinds) > 1 else np.zeros(0, np.int8)
-    cut, plg, rap = float(seg[k == CUT].sum()), float(seg[k == PLUNGE].sum()), float(seg[k == RAPID].sum())
-    return {"points": int(len(pts)), "cutting_length_mm": cut + plg, "plunge_length_mm": plg,
-            "rapid_length_mm": rap,
-            "time_by_length_feed_s": 60.0 * (cut / feed + plg / plunge),
-            "time_model": "cutting length / feed + plunge length / plunge feed (rapids not counted)"}
-
-
-class _Node:
-    __slots__ = ("poly", "depth", "children", "rings")
-
-    def __init__(self, poly, depth, simp=0.0):
-        self.poly, self.depth, self.children = poly, depth, []
-        self.rings = _rings(poly, simp)
-
-
-def _erosion_tree(P, s, simp=0.0):
-    """P's components eroded by i x s, as a tree (children inside their parent)."""
-    root = _Node(P, 0, simp)
-    stack = [root]
-    while stack:
-        node = stack.pop()
-        E = node.poly.buffer(-s, quad_segs=QUAD_SEGS)
-        for q in _polys(E):
-            if q.area <= 1e-6:
-                continue
-            ch = _Node(q, node.depth + 1, simp)
-            node.children.append(ch)
-            stack.append(ch)
-    return root
-
-
-def _rings(poly, simp=0.0):
-    """The loops of a polygon (exterior first). ``simp`` > 0: of the polygon eroded by
-    ``simp`` and simplified within it (Douglas-Peucker, 0.99 simp): inside the polygon,
-    at most 2 simp inside its boundary, with far fewer points than the contour's grid."""
-    if simp > 0:
-        out = []
-        for q in _polys(poly.buffer(-simp, quad_segs=QUAD_SEGS)):
-            q = q.simplify(0.99 * simp, preserve_topology=True)
-            out += [np.asarray(q.exterior.coords)] + [np.asarray(r.coords) for r in q.interiors]
-        out = [r for r in out if len(r) >= 4]
-        if out:
-            return out
-    out = [np.asarray(poly.exterior.coords)]
-    out += [np.asarray(r.coords) for r in poly.interiors]
-    return [r for r in out if len(r) >= 3]
-
-
-def _go(path, P, b_xy, z, z_above, link_to, enter, fig):
-    """From the current point to b at level z: a straight feed inside P, else a lift."""
-    from shapely.geometry import LineString
-
-    a = path.at
-    if a is not None and abs(a[2] - z) < 1e-9:
-        if math.hypot(a[0] - b_xy[0], a[1] - b_xy[1]) < 1e-9:
-            return
-        seg = LineString([(a[0], a[1]), (b_xy[0], b_xy[1])])
-        if P.buffer(1e-7).covers(seg):
-            path.cut_xy(np.array([[a[0], a[1]], [b_xy[0], b_xy[1]]]), z)
-            return
-    # lift and come down over ground this level cleared (the tool's centre within R of its cuts)
-    link_to(b_xy, z, z_above)
-    fig["from_cleared"] += 1
-    path.add((b_xy[0], b_xy[1], z), PLUNGE)
-
-
-def _cut_inside_out(tree, P, z, z_above, path, enter, link_to, fig, R, how, polylabel, s):
-    def visit(node):
-        for ch in node.children:
-            visit(ch)
-        for j, ring in enumerate(node.rings):
-            if not node.children and j == 0:
-                # an innermost loop: material all round it at this level
-                pole = polylabel(node.poly, tolerance=max(1e-3, 0.01 * R))
-                d = node.poly.exterior.distance(pole) if node.poly.interiors == [] else node.poly.boundary.distance(pole)
-                r_h = min(HELIX_FRACTION * R, d + node.depth * s - 1e-6)
-                ring = _ring_from(ring, _nearest_on(node.poly.exterior, pole))
-                use = how
-                if how == "helix" and r_h < 0.1 * R:
-                    use = "ramp"
-                enter(ring, True, z, z_above, use, (pole.x, pole.y), max(r_h, 0.0))
-                ring = _ring_from(ring, path.at[:2])
-                fig["loops"] += 1
-                path.cut_xy(ring, z)
-                continue
-            a = path.at
-            ring = _ring_from(ring, a[:2])
-            _go(path, P, ring[0], z, z_above, link_to, enter, fig)
-            fig["loops"] += 1
-            path.cut_xy(ring, z)
-
-    visit(tree)
-
-
-def _nearest_on(line, pt):
-    q = line.interpolate(line.project(pt))
-    return (q.x, q.y)
-
-
-def _cut_outside_in(tree, P, z, z_above, path, enter, link_to, fig, F, R, e_out):
-    """A pocket reaching beyond the stock: enter from outside it (the tool's centre
-    over air), loops from the outermost in."""
-    first = True
-
-    def visit(node):
-        nonlocal first
-        for j, ring in enumerate(node.rings):
-            if first:
-                # the ring point farthest outside the footprint
-                dx = np.maximum(np.maximum(-ring[:, 0], ring[:, 0] - F.bounds[2]), 0.0)
-                dy = np.maximum(np.maximum(-ring[:, 1], ring[:, 1] - F.bounds[3]), 0.0)
-                i = int(np.argmax(np.hypot(dx, dy)))
-                ring = _ring_from(ring, ring[i])
-                link_to(ring[0], z, z_above)
-                path.add((ring[0][0], ring[0][1], z), PLUNGE)
-                fig["from_outside"] += 1
-                first = False
-            else:
-                ring = _ring_from(ring, path.at[:2])
-                _go(path, P, ring[0], z, z_above, link_to, enter, fig)
-            fig["loops"] += 1
-            path.cut_xy(ring, z)
-        for ch in node.children:
-            visit(ch)
-
-    visit(tree)
-
-
-def _raster_pocket(P, z, z_above, s, R, spec, path, enter, link_to, fig, F, open_, simp=0.0):
-    """Rows along machining.direction, s apart, then the pocket's boundary loops. A
-    row whose start is not within 0.95 R of this level's cuts is entered as asked (a
-    helix has no room at a row's end: a ramp along the row)."""
-    from shapely.geometry import LineString, MultiLineString, Point
-
-    x0, y0, x1, y1 = P.bounds
-    along_x = spec.machining.direction == "x"
-    lo, hi = (y0, y1) if along_x else (x0, x1)
-    n = max(1, int(math.ceil((hi - lo) / s)))
-    vs = lo + (np.arange(n + 1) if n > 0 else np.array([0.5])) * (hi - lo) / n
-    rows = []
-    for i, v in enumerate(vs):
-        ln = LineString([(x0 - 1, v), (x1 + 1, v)] if along_x else [(v, y0 - 1), (v, y1 + 1)])
-        segs = [np.asarray(g.coords) for g in _parts(ln.intersection(P), "LineString")]
-        segs.sort(key=lambda a: a[:, 0 if along_x else 1].min())
-        if i % 2:
-            segs = [a[::-1] for a in segs[::-1]]
-        rows.extend(segs)
-    cut_lines = []
-    how = spec.roughing.entry
-    for seg in rows:
-        if len(seg) < 2:
-            continue
-        a = path.at
-        # the centre over ground this level cleared (the disc of an earlier row covers it
-        # with 5 % of R to spare: an end mill does not cut at its very centre)
-        near = cut_lines and MultiLineString([c.tolist() for c in cut_lines]).distance(Point(seg[0])) <= 0.95 * R
-        if a is not None and abs(a[2] - z) < 1e-9 and near:
-            _go(path, P, seg[0], z, z_above, link_to, enter, fig)
-        elif open_ and (seg[0][0] < 0 or seg[0][1] < 0 or seg[0][0] > F.bounds[2] or seg[0][1] > F.bounds[3]):
-            link_to(seg[0], z, z_above)
-            path.add((seg[0][0], seg[0][1], z), PLUNGE)
-            fig["from_outside"] += 1
-        else:
-            enter(seg, False, z, z_above, "plunge" if how == "plunge" else "ramp")
-        fig["loops"] += 1
-        path.cut_xy(seg, z)
-        cut_lines.append(seg)
-    for ring in _rings(P, simp):
-        ring = _ring_from(ring, path.at[:2])
-        _go(path, P, ring[0], z, z_above, link_to, enter, fig)
-        fig["loops"] += 1
-        path.cut_xy(ring, z)
-
-
-# ----------------------------------------------------------------------------
-# the stock after roughing, and rest passes
-# ----------------------------------------------------------------------------
-def stock_after(rough: Operation) -> np.ndarray:
-    """The stock's top (work mm, <= 0) after roughing on the design grid
-    (``rough.sets.x``, ``.y``): each level's cleared region at its Z (cv2 fills
-    the polygons' pixels), then the highest of each node's neighbours: an upper
-    bound of the material a cell holds."""
-    import cv2
-    from scipy.ndimage import maximum_filter
-
-    sets = rough.sets
-    ny, nx = len(sets.y), len(sets.x)
-    S = np.zeros((ny, nx))
-    shift = 4
-    scale = np.array([1.0 / sets.hx, 1.0 / sets.hy]) * (1 << shift)
-    for lev in rough.cleared:
-        mask = np.zeros((ny, nx), np.uint8)
-        for poly in _polys(lev.cleared):
-            rings = [np.round(np.asarray(r.coords)[:, :2] * scale).astype(np.int32)
-                     for r in [poly.exterior, *poly.interiors]]
-            cv2.fillPoly(mask, rings[:1], 1, lineType=cv2.LINE_8, shift=shift)
-            if len(rings) > 1:
-                cv2.fillPoly(mask, rings[1:], 0, lineType=cv2.LINE_8, shift=shift)
-        S = np.where(mask.astype(bool), np.minimum(S, lev.z), S)
-    return maximum_filter(S, size=3, mode="nearest")
-
-
-def drop_on_grid(S, x, y, X, Y, tool: Tool, slack: float = 0.0) -> np.ndarray:
-    """The tip height at which ``tool`` standing at (X, Y) first touches the stock
-    height field S (grid x, y; no material beyond it): max over grid nodes q within
-    the tool's radius + one cell diagonal of S(q) - lift(|q - c| - diagonal), an
-    upper bound of the exact drop (the node stands for its cell). -inf: no material.
-    ``slack`` (mm): the bound holds for every centre within it of (X, Y) too."""
-    hx, hy = x[1] - x[0], y[1] - y[0]
-    diag = math.hypot(hx, hy) + slack
-    R = tool.radius
-    ni, nj = int(math.ceil((R + diag) / hy)), int(math.ceil((R + diag) / hx))
-    di, dj = np.meshgrid(np.arange(-ni, ni + 1), np.arange(-nj, nj + 1), indexing="ij")
-    rho = np.hypot(di * hy, dj * hx)
-    ok = rho - diag <= R
-    di, dj = di[ok], dj[ok]
-    lift = tool.lift(np.clip(rho[ok] - diag, 0.0, R))
-    X, Y = np.asarray(X, float), np.asarray(Y, float)
-    i0 = np.rint(Y / hy).astype(np.int64)
-    j0 = np.rint(X / hx).astype(np.int64)
-    out = np.full(X.shape, -np.inf)
-    ny, nx = S.shape
-    for a in range(0, X.size, 4096):
-        ii = i0.ravel()[a:a + 4096, None] + di[None, :]
-        jj = j0.ravel()[a:a + 4096, None] + dj[None, :]
-        inside = (ii >= 0) & (ii < ny) & (jj >= 0) & (jj < nx)
-        v = np.where(inside, S[np.clip(ii, 0, ny - 1), np.clip(jj, 0, nx - 1)] - lift[None, :], -np.inf)
-        out.ravel()[a:a + 4096] = v.max(axis=1)
-    return out
-
-
-def drop_on_levels(rough: Operation, ws, X, Y, tool: Tool, need=None) -> np.ndarray:
-    """The tip height at which ``tool`` at (X, Y) first touches the stock the roughing
-    left: the levels' cleared regions C_k are nested, material stands at or above
-    z_{k-1} on F minus C_k, so the drop is max over k of z_{k-1} - lift(distance to
-    F minus C_k), and z_n - lift(distance to F) (the last level's floor). Exact for
-    the polygons (C_k inscribed in the swept discs: an upper bound). ``need``: a
-    level is skipped where its term cannot exceed it (only whether the drop exceeds
-    ``need`` is asked)."""
-    import shapely
-    from shapely.geometry import box
-
-    F = box(0.0, 0.0, ws.L, ws.W)
-    pts = shapely.points(X, Y)
-    out = tool.lift(np.asarray(shapely.distance(pts, F), float))
-    out = np.where(np.isfinite(out), (rough.cleared[-1].z if rough.cleared else 0.0) - out, -np.inf)
-    z_prev = 0.0
-    for lev in rough.cleared:
-        sel = np.ones(len(pts), bool) if need is None else (z_prev > need)
-        if sel.any():
-            U = F.difference(lev.cleared)
-            if U.is_empty:
-                z_prev = lev.z
-                continue
-            shapely.prepare(U)
-            d = np.full(len(pts), np.inf)
-            d[sel] = shapely.distance(pts[sel], U)
-            with np.errstate(invalid="ignore"):
-                term = z_prev - tool.lift(np.minimum(d, 1e9))
-            out = np.maximum(out, np.where(np.isfinite(term), term, -np.inf))
-        z_prev = lev.z
-    return out
-
-
-def plan_rest(spec, surface, rough: Operation, finish: Toolpath, *, ws=None) -> list[Operation]:
-    """Rest operations, one per rest tool (``roughing.rest``, default the finishing
-    ball), module docstring. Operations with nothing to cut are left out."""
-    m, rg = spec.machining, spec.roughing
-    ws = ws or WorkSurface(surface)
-    plan = finish.plan
-    if plan is None:
-        raise ValueError("the finishing toolpath carries no pass plan")
-    fr = Frame(m.direction, ws.L, ws.W)
-    tools = spec_tools(spec)
-    fin = finish_tool(spec)
-    numbers = rg.rest if rg.rest else (fin.number,)
-    leave = float(rg.leave)
-    tolerance = float(m.tolerance)
-    step_rough = float(rg.stepdown)
-    doc_f = float(spec.tool.depth_of_cut)
-    threshold = min(step_rough, doc_f - leave) + tolerance
-    S = stock_after(rough)
-    x, y = rough.sets.x, rough.sets.y
-    safe_z = float(m.safe_height)
-    clr = min(LINK_CLEARANCE, safe_z)
-    ops = []
-    for n in numbers:
-        t0 = time.process_time()
-        tool = fin if (n is None or n == fin.number) else tools[int(n)]
-        is_fin = tool is fin
-        Rr = tool.radius
-        doc = depth_of_cut(spec, n)
-        lim = min(float(spec.stock.depth_limit), float(tool.reach))
-        # passes at most Rr apart
-        V = np.array([p.v for p in plan.passes])
-        sel = [0]
-        while sel[-1] < len(V) - 1:
-            i = sel[-1]
-            j = int(np.searchsorted(V, V[i] + Rr, side="right")) - 1
-            sel.append(max(j, i + 1))
-        spacing = float(np.diff(V[sel]).max()) if len(sel) > 1 else 0.0
-        cusp = Rr - math.sqrt(max(Rr * Rr - 0.25 * spacing * spacing, 0.0))
-        step_r = doc - cusp
-        if step_r <= 0:
-            raise SpecError(f"rest passes {spacing:.3g} mm apart leave {cusp:.3g} mm cusps, more than the tool's "
-                            "depth_of_cut", file=spec.path, key="roughing.rest")
-        ug = plan.ug
-        U = np.broadcast_to(ug, (len(sel), len(ug)))
-        Vv = np.broadcast_to(V[sel][:, None], U.shape)
-        X, Y = fr.xy(U, Vv)
-        X, Y = np.ascontiguousarray(X, float), np.ascontiguousarray(Y, float)
-        if is_fin:
-            Z = np.vstack([plan.passes[i].Z for i in sel])
-        else:
-            Z = compensate(ws, X, Y, Rr)
-        keep = np.vstack([plan.passes[i].keep for i in sel]) if is_fin else np.isfinite(Z)
-        Sb = drop_on_grid(S, x, y, X, Y, tool)
-        floor = np.maximum(Z + leave, -lim)
-        with np.errstate(invalid="ignore"):
-            zone = keep & np.isfinite(Z) & np.isfinite(Sb) & (Sb - (Z + leave) > threshold)
-        # the grid's bound is loose beside the levels' walls: where it asks for rest
-        # passes, the drop onto the levels' polygons instead (exact to their chords)
-        # (the drop onto the levels skips the levels that cannot lift it above the zone's
-        # threshold: below the threshold it is no bound; there the grid's bound stays, as
-        # the links and the descent to a run's start need an upper bound of the stock)
-        if zone.any():
-            d = drop_on_levels(rough, ws, X[zone], Y[zone], tool, (Z + leave + threshold)[zone])
-            with np.errstate(invalid="ignore"):
-                hit = d - (Z + leave)[zone] > threshold
-            Sb[zone] = np.where(hit, d, Sb[zone])
-            zone[zone] = hit
-        if is_fin and len(sel) < len(V):
-            # the passes between: where the finishing ball would engage more than its depth of cut
-            zone |= keep & np.isfinite(Z) & np.isfinite(Sb) & _between_zone(
-                plan, fr, sel, V, ug, S, x, y, tool, rough, ws, leave, doc_f - leave)
-        # one node more on either side: the finish's own points lie between the nodes
-        # (1 mm apart), and across a groove the material it meets changes within one
-        ok = keep & np.isfinite(Z) & np.isfinite(Sb)
-        zone = ok & (zone | np.c_[zone[:, 1:], np.zeros((len(zone), 1), bool)]
-                     | np.c_[np.zeros((len(zone), 1), bool), zone[:, :-1]])
-        runs = []
-        levels_cut = set()
-        if zone.any():
-            low = float(floor[zone].min())
-            nlev = int(math.ceil(-low / step_r)) if low < 0 else 0
-            for j in range(1, nlev + 1):
-                zj, zp = -j * step_r, (-(j - 1) * step_r if j > 1 else math.inf)
-                tip = np.maximum(zj, floor)
-                prev = np.maximum(zp, floor)
-                act = zone & (tip < np.minimum(Sb, prev) - AIR_EPS)
-                for r in range(len(sel)):
-                    a = act[r]
-                    if not a.any():
-                        continue
-                    near = a | np.r_[a[1:], False] | np.r_[False, a[:-1]]
-                    near &= zone[r]
-                    edges = np.diff(np.r_[0, near.astype(np.int8), 0])
-                    pieces = []
-                    spans = []
-                    for i0, i1 in zip(np.nonzero(edges == 1)[0], np.nonzero(edges == -1)[0]):
-                        if i1 - i0 < 2:
-                            continue
-                        # runs of a pass at most 4 R apart are joined along the nodes between at
-                        # their tips: there the ball touches nothing (air above the roughed stock,
-                        # or ground the level above took lower) and never the allowance
-                        if spans and ug[i0] - ug[spans[-1][1] - 1] <= 4 * Rr \
-                                and np.isfinite(tip[r, spans[-1][1]:i0]).all() and keep[r, spans[-1][1]:i0].all():
-                            spans[-1] = (spans[-1][0], i1)
-                        else:
-                            spans.append((i0, i1))
-                    for i0, i1 in spans:
-                        pieces.append((np.column_stack([X[r, i0:i1], Y[r, i0:i1], tip[r, i0:i1]]),
-                                       Sb[r, i0:i1]))
-                    if r % 2:
-                        pieces = [(q[::-1], sb[::-1]) for q, sb in pieces[::-1]]
-                    runs.extend(pieces)
-                    if pieces:
-                        levels_cut.add(j)
-        if not runs:
-            continue
-        runs = _refine_runs(ws, runs, Rr, leave, lim, 0.5 * tolerance)
-        fig_low = 0
-        zlink = _link_heights(S, x, y, runs, tool, clr)
-        path = _Path()
-        for n, (q, sb) in enumerate(runs):
-            start = q[0]
-            above = min(max(float(sb[0]), float(start[2])) + clr, safe_z)
-            zl = zlink[n]
-            if path.at is not None and zl is not None and zl < safe_z:
-                fig_low += 1
-                path.add((path.at[0], path.at[1], max(zl, path.at[2])), RAPID)
-                path.add((start[0], start[1], max(zl, path.at[2])), RAPID)
-            else:
-                if path.at is not None:
-                    path.add((path.at[0], path.at[1], safe_z), RAPID)
-                path.add((start[0], start[1], safe_z), RAPID)
-            path.add((start[0], start[1], above), RAPID)
-            path.add(tuple(start), PLUNGE)
-            for p in q[1:]:
-                path.add(tuple(p), CUT)
-        path.add((path.at[0], path.at[1], safe_z), RAPID)
-        pts = np.array(path.pts, float)
-        kinds = np.array(path.kinds, np.int8)
-        tp = Toolpath(pts, kinds, tool_radius=Rr, safe_z=safe_z)
-        feed, plunge = _feeds(spec, tool)
-        info = _figures(pts, kinds, feed, plunge)
-        levels_cut = len(levels_cut)
-        info.update({
-            "tool": tool.describe(), "levels": levels_cut, "stepdown_mm": step_r, "stepover_mm": spacing,
-            "leave_mm": leave, "cusp_mm": cusp, "runs": len(runs),
-            "passes": len({(round(float(q[0, 0]), 6), round(float(q[0, 1]), 6)) for q, _ in runs}),
-            "entry": "plunge (into ground the rest ball's drop shows clear above the cut)",
-            "links": {"low": fig_low, "safe_height": len(runs) - 1 - fig_low},
-            "zone_threshold_mm": threshold, "zone_positions": int(zone.sum()),
-            "depth_of_cut_mm": doc, "finish_depth_of_cut_mm": doc_f, "stock_grid_step_mm": float(max(x[1] - x[0], y[1] - y[0])),
-            "plan_seconds": time.process_time() - t0,
-        })
-        tp.info = info
-        ops.append(Operation("rest", tool, tp, leave=leave, levels=levels_cut, passes=len(runs), info=info))
-    return ops
-
-
-def _between_zone(plan, fr, sel, V, ug, S, x, y, tool, rough, ws, leave, threshold):
-    """The zone asked by the finishing passes between the selected ones (sel): the
-    finishing ball's drop at a position is not continuous across a steep wall, so a pass
-    between two rest passes can meet more than the threshold where neither of them does
-    (``threshold``: finish depth_of_cut - leave, the ball's engagement past its depth of
-    cut; with roughing.stepdown 12.7 mm on the paper, 7.0 mm without this).
-    Such a node marks the rest passes either side of its pass (at the same node of the
-    common pass grid ``ug``). Returns a (len(sel), len(ug)) mask."""
-    others = np.setdiff1d(np.arange(len(V)), np.asarray(sel))
-    out = np.zeros((len(sel), len(ug)), bool)
-    if not len(others):
-        return out
-    U = np.broadcast_to(ug, (len(others), len(ug)))
-    X, Y = fr.xy(U, np.broadcast_to(V[others][:, None], U.shape))
-    X, Y = np.ascontiguousarray(X, float), np.ascontiguousarray(Y, float)
-    Z = np.vstack([plan.passes[i].Z for i in others])
-    keep = np.vstack([plan.passes[i].keep for i in others])
-    Sb = drop_on_grid(S, x, y, X, Y, tool)
-    with np.errstate(invalid="ignore"):
-        z = keep & np.isfinite(Z) & np.isfinite(Sb) & (Sb - (Z + leave) > threshold)
-    if z.any():
-        d = drop_on_levels(rough, ws, X[z], Y[z], tool, (Z + leave + threshold)[z])
-        with np.errstate(invalid="ignore"):
-            z[z] = d - (Z + leave)[z] > threshold
-    hi = np.searchsorted(np.asarray(sel), others)           # the selected pass after each
-    for row in np.nonzero(z.any(axis=1))[0]:
-        h = int(hi[row])
-        for r in (h - 1, h):
-            if 0 <= r < len(sel):
-                out[r] |= z[row]
-    return out
-
-
-def _refine_runs(ws, runs, Rr, leave, lim, tolerance, rounds=8):
-    """Midpoints inserted where a run's chord passes more than ``tolerance`` below
-    the tip the exact drop cutter asks there (max(level, Z + leave)): the nodes are
-    up to 1 mm apart and a valley narrower than the ball bends the path sharply."""
-    for _ in range(rounds):
-        mids = []
-        for q, _ in runs:
-            if len(q) < 2:
-                continue
-            mids.append(0.5 * (q[1:] + q[:-1]))
-        if not mids:
-            break
-        M = np.vstack(mids)
-        # the level a segment is cut at: its two tips' lower value bounds it from below
-        lev = np.concatenate([np.minimum(q[1:, 2], q[:-1, 2]) for q, _ in runs if len(q) >= 2])
-        Zm = compensate(ws, M[:, 0].copy(), M[:, 1].copy(), Rr)
-        need = np.maximum(np.maximum(lev, Zm + leave), -lim)
-        bad = need > M[:, 2] + tolerance
-        if not bad.any():
-            break
-        new_runs = []
-        k = 0
-        for n, (q, sb) in enumerate(runs):
-            if len(q) < 2:
-                new_runs.append((q, sb))
-                continue
-            b = bad[k:k + len(q) - 1]
-            mz = need[k:k + len(q) - 1]
-            if b.any():
-                rows, srows = [q[0]], [sb[0]]
-                for i in range(len(q) - 1):
-                    if b[i]:
-                        m = M[k + i].copy()
-                        m[2] = mz[i]
-                        rows.append(m)
-                        srows.append(max(sb[i], sb[i + 1]))
-                    rows.append(q[i + 1])
-                    srows.append(sb[i + 1])
-                new_runs.append((np.array(rows), np.array(srows)))
-            else:
-                new_runs.append((q, sb))
-            k += len(q) - 1
-        runs = new_runs
-    return runs
-
-
-def _link_heights(S, x, y, runs, tool, clr, step=1.0):
-    """Per run, the height of the straight link from the run before: ``clr`` above the
-    highest of the two ends and the tool's drop onto the roughed stock along the link
-    (grid bound, every ``step`` mm; the rest only lowers the stock). None for the first."""
-    out = [None] * len(runs)
-    XS, YS, own = [], [], []
-    for n in range(1, len(runs)):
-        a, b = runs[n - 1][0][-1], runs[n][0][0]
-        d = math.hypot(b[0] - a[0], b[1] - a[1])
-        k = max(2, int(math.ceil(d / step)) + 1)
-        t = np.linspace(0.0, 1.0, k)
-        XS.append(a[0] + t * (b[0] - a[0]))
-        YS.append(a[1] + t * (b[1] - a[1]))
-        own.append(np.full(k, n))
-    if not XS:
-        return out
-    # samples at most ``step`` apart: every centre of the link within step/2 of one
-    drop = drop_on_grid(S, x, y, np.concatenate(XS), np.concatenate(YS), tool, slack=0.5 * step)
-    high = np.full(len(runs), -np.inf)
-    np.maximum.at(high, np.concatenate(own), drop)
-    for n in range(1, len(runs)):
-        a, b = runs[n - 1][0][-1], runs[n][0][0]
-        out[n] = max(float(high[n]), float(a[2]), float(b[2]), float(runs[n][1][0])) + clr
-    return out
 
 
 def plan_operations(spec, surface, finish: Toolpath) -> list[Operation]:

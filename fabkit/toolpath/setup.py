@@ -114,6 +114,26 @@ def _operations_keys(figures, program_path, dialect: str, k: float, job_check) -
     files = list(dict.fromkeys(o["program"] for o in ops))
     steps = []
     loaded = None
+    # per tool, in the order the job loads it: its number, the operations and programs it
+    # cuts, how its length is known (LinuxCNC: the tool table's offset H<n> applied by G43
+    # after T<n> M6; grbl, no tool table: touched off Z0 on the top face by hand)
+    tools: dict = {}
+    for o in ops:
+        t = o["tool"]
+        key = t["number"] if t["number"] is not None else (t["shape"], t["diameter"])
+        if key not in tools:
+            n = t["number"]
+            tools[key] = {"number": n, "shape": t["shape"], "diameter": t["diameter"],
+                          "operations": [], "programs": [],
+                          "tool_call": (f"T{n} M6 G43 H{n}" if dialect == "linuxcnc" and n is not None else None),
+                          "length_offset": (f"H{n}" if dialect == "linuxcnc" and n is not None else None),
+                          "touch_off": ("measure its length into the tool table (tool "
+                                        f"{n}, offset H{n}) from the same top face (Z0)" if dialect == "linuxcnc"
+                                        else "touch off Z0 on the same top face after loading it by hand "
+                                             "(grbl has no tool table: the touch-off is its length)")}
+        tools[key]["operations"].append(o["kind"])
+        if o["program"] not in tools[key]["programs"]:
+            tools[key]["programs"].append(o["program"])
     for i, o in enumerate(ops, start=1):
         t = o["tool"]
         tool = (f"T{t['number']} " if t["number"] is not None else "") + _TOOL_NAMES[t["shape"]] + \
@@ -123,13 +143,16 @@ def _operations_keys(figures, program_path, dialect: str, k: float, job_check) -
             steps.append(f"{o['kind']}: keep {tool} (no change)"
                          + (f", run {o['program']}" if len(files) > 1 else ""))
         elif len(files) == 1:
-            steps.append(f"{o['kind']}: load {tool} and touch it off (Z0) on the same top face into the tool "
-                         "table: the program changes to it with M6 and applies its length with G43")
+            n = t["number"]
+            steps.append(f"{o['kind']}: {tool}: measure its length into the tool table as tool {n} (offset "
+                         f"H{n}) from the same top face (Z0); the program loads it with T{n} M6 and applies "
+                         f"its length with G43 H{n}")
         else:
-            steps.append(f"{o['kind']}: load {tool}, touch off Z0 on the same top face, run {o['program']}")
+            steps.append(f"{o['kind']}: load {tool} by hand, touch off Z0 on the same top face, run "
+                         f"{o['program']}")
     if len(files) == 1:
         steps.append(f"run {files[0]}: it stops for each tool change (M6)")
-    out = {"operations": ops, "programs": files, "steps": steps}
+    out = {"operations": ops, "programs": files, "steps": steps, "tools_loaded": list(tools.values())}
     if job_check is not None:
         to_json = getattr(job_check, "to_json", None)
         jv = to_json() if callable(to_json) else None
@@ -360,9 +383,12 @@ def _needs_markdown(sheet: dict) -> list[str]:
              f"grbl 1.1's defaults for comparison: max rates $110-$112 {g['max_rate_mm_min']:g} mm/min, "
              f"max spindle $30 {g['spindle_max_rpm']:g} rpm, max travel $130-$132 {g['max_travel_mm']:g} mm.",
              ""]
-    if sheet.get("tool_number") is not None:
-        lines.insert(4, f"- Tool T{sheet['tool_number']}"
-                     + (": the program calls T M6 G43 H (tool change and length offset)"
+    if sheet.get("tools_loaded"):
+        lines[4:4] = [_tool_line(t, sheet["dialect"]) for t in sheet["tools_loaded"]]
+    elif sheet.get("tool_number") is not None:
+        n = sheet["tool_number"]
+        lines.insert(4, f"- Tool T{n}"
+                     + (f": the program calls T{n} M6 G43 H{n} (tool change and length offset)"
                         if sheet["dialect"] == "linuxcnc" else ": load it by hand before the start (grbl has no M6)"))
     return lines
 
@@ -423,11 +449,23 @@ def _needs_vs_machine(sheet: dict, need: dict, mach: dict, u: str, k: float) -> 
     lines += ["", f"- Largest plunge F " + (f"{need['plunge_max']:g} {u}/min" if need["plunge_max"] is not None
                                              else "none"),
               f"- Program ends parked at X{sheet['park'][0]:g} Y{sheet['park'][1]:g} at the safe height", ""]
-    if sheet.get("tool_number") is not None:
-        lines.insert(4, f"- Tool T{sheet['tool_number']}"
-                     + (": the program calls T M6 G43 H (tool change and length offset)"
+    if sheet.get("tools_loaded"):
+        lines[4:4] = [_tool_line(t, sheet["dialect"]) for t in sheet["tools_loaded"]]
+    elif sheet.get("tool_number") is not None:
+        n = sheet["tool_number"]
+        lines.insert(4, f"- Tool T{n}"
+                     + (f": the program calls T{n} M6 G43 H{n} (tool change and length offset)"
                         if sheet["dialect"] == "linuxcnc" else ": load it by hand before the start (grbl has no M6)"))
     return lines
+
+
+def _tool_line(t: dict, dialect: str) -> str:
+    """One tool of a job with several: which programs it cuts and how it is loaded."""
+    name = (f"T{t['number']} " if t["number"] is not None else "") + f"{_TOOL_NAMES[t['shape']]} {t['diameter']:g}"
+    what = f"{', '.join(t['operations'])} ({', '.join(t['programs'])})"
+    if t.get("tool_call"):
+        return f"- Tool {name}, {what}: the program calls {t['tool_call']} (tool change and length offset)"
+    return f"- Tool {name}, {what}: {t['touch_off']}, before running {t['programs'][0]}"
 
 
 def _duration(seconds: float) -> str:
@@ -473,8 +511,11 @@ def sheet_markdown(sheet: dict, png_name: str | None, stock_pngs: dict | None = 
     the shaded stock pictures beside it (a job with roughing)."""
     u = sheet["units"]
     st = sheet["stock"]
+    files = sheet.get("programs") or []
+    title = sheet["program"] if len(files) <= 1 else \
+        f"{sheet['name']} job, {len(files)} programs ({', '.join(files)})"
     lines = [
-        f"# Setup sheet: {sheet['program']}",
+        f"# Setup sheet: {title}",
         "",
         f"Generated by fabkit {sheet['fabkit_version']} from `{sheet['spec']}` ({sheet['dialect']} dialect). "
         f"All lengths in **{u}**.",

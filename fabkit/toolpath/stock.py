@@ -65,6 +65,9 @@ RAPID_TOL = 1e-6
 MAX_NODES = 20_000_000
 #: nodes above their bound whose reach is computed one by one (beyond: sampled, see reach_height)
 MAX_REACH_NODES = 200_000
+#: node visits (or node-offset pairs) per call of a compiled kernel: between calls Python
+#: sees Ctrl-C (about 0.1-0.3 s of work on the reference machine)
+KERNEL_CHUNK_WORK = 5e7
 #: grid spacing bounds, mm
 SPACING_MIN, SPACING_MAX = 0.05, 0.25
 
@@ -202,7 +205,16 @@ def cut(stock: Stock, tool: Tool, points, kinds, start=None) -> CutResult:
     rnode = np.full((m, 2), -1, dtype=np.int64)
     R, r, f = _tool_shape(tool)
     if m:
-        cut_moves(stock.z, stock.hx, stock.hy, A, B, feed, R, r, f, RAPID_TOL, engage, rdepth, rnode)
+        # in chunks of about KERNEL_CHUNK_WORK node visits (a move visits the nodes within R
+        # of it): the kernel returns between them, so Ctrl-C is honoured within a chunk
+        seg = np.hypot(B[:, 0] - A[:, 0], B[:, 1] - A[:, 1])
+        work = np.cumsum((seg + 2.0 * R + 2.0 * stock.hx) * (2.0 * R + 2.0 * stock.hy)
+                         / (stock.hx * stock.hy) + 1.0)
+        cuts = np.searchsorted(work, np.arange(KERNEL_CHUNK_WORK, work[-1], KERNEL_CHUNK_WORK))
+        bounds = np.unique(np.r_[0, cuts + 1, m].clip(0, m))
+        for a, b in zip(bounds[:-1], bounds[1:]):
+            cut_moves(stock.z, stock.hx, stock.hy, A[a:b], B[a:b], feed[a:b], R, r, f, RAPID_TOL,
+                      engage[a:b], rdepth[a:b], rnode[a:b])
     idx = np.nonzero(located)[0]
     eng = np.zeros(n)
     eng[idx] = engage
@@ -226,12 +238,13 @@ def cut(stock: Stock, tool: Tool, points, kinds, start=None) -> CutResult:
 
 
 def reach_height(target: np.ndarray, stock: Stock, tool: Tool, mask: np.ndarray,
-                 max_nodes: int = MAX_REACH_NODES) -> np.ndarray:
+                 max_nodes: int = MAX_REACH_NODES, beyond: float | None = None) -> np.ndarray:
     """Lowest height ``tool`` can cut at the nodes where ``mask`` holds without cutting
     below ``target`` (nx, ny) anywhere (nan elsewhere); see the module's accuracy note.
     Over ``max_nodes`` masked nodes (a job that left much of the block), the reach is
     computed on every k-th node of the mask in each direction and the others take the
-    value of the nearest computed node."""
+    value of the nearest computed node. ``beyond`` (mm, default R): how far outside the
+    block the tool's centre may stand."""
     from .stock_kernels import reach_at
 
     out = np.full(target.shape, np.nan)
@@ -248,8 +261,21 @@ def reach_height(target: np.ndarray, stock: Stock, tool: Tool, mask: np.ndarray,
         if not sub.any():
             sub = mask
     pi, pj = np.nonzero(sub)
-    out[pi, pj] = reach_at(np.ascontiguousarray(target, dtype=float), stock.hx, stock.hy, R, r, f,
-                           pi.astype(np.int64), pj.astype(np.int64))
+    pi, pj = pi.astype(np.int64), pj.astype(np.int64)
+    T = np.ascontiguousarray(target, dtype=float)
+    nx, ny = T.shape
+    ci, cj = int(math.ceil(R / stock.hx)), int(math.ceil(R / stock.hy))
+    D = np.full((nx + 2 * ci, ny + 2 * cj), np.nan)       # the drops, shared by the chunks
+    # chunks of about KERNEL_CHUNK_WORK node-offset pairs (a drop not yet known costs as
+    # many again): the kernel returns between them, so Ctrl-C is honoured within a chunk
+    # (in the nodes' row order a node adds about 2 R / h + 2 centres to the drops known)
+    n_off = max(1.0, math.pi * (R / stock.hx + 1.0) * (R / stock.hy + 1.0))
+    step = max(1, int(KERNEL_CHUNK_WORK / (n_off * (2.0 * R / min(stock.hx, stock.hy) + 2.0))))
+    vals = np.empty(len(pi))
+    for a in range(0, len(pi), step):
+        vals[a:a + step] = reach_at(T, stock.hx, stock.hy, R, r, f, pi[a:a + step], pj[a:a + step], D,
+                                    float(R if beyond is None else min(beyond, R)))
+    out[pi, pj] = vals
     if sub is not mask:
         from scipy.ndimage import distance_transform_edt
 
@@ -492,7 +518,14 @@ def verify_job(surface, operations, tolerance: float, *, spacing: float | None =
         # material above the bound is excused where the tool cannot reach the target:
         # the allowance then holds above the tool's reach (z - max(T, reach) <= slack)
         high = above * (normal_scale if op.kind == "finish" else 1.0) > hi_n
-        reach = reach_height(target, stock, op.tool, high)
+        # the finishing passes end EDGE_NODES[-1] x R beyond the stock (passes.u_grid): the
+        # finish is judged where its ball can stand (as its own verification judges it)
+        if op.kind == "finish":
+            from .scallop import EDGE_NODES
+
+            reach = reach_height(target, stock, op.tool, high, beyond=float(EDGE_NODES[-1]) * op.tool.radius)
+        else:
+            reach = reach_height(target, stock, op.tool, high)
         scale = normal_scale if op.kind == "finish" else 1.0
         excess = np.where(high, (z - np.fmax(target, reach + reach_err)) * scale - slack, -np.inf)
         over = high & (excess > 0)

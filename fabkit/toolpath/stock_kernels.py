@@ -210,12 +210,14 @@ def cut_moves(Z, hx, hy, A, B, feed, R, r, f, rapid_tol, engage, rapid_depth, ra
 
 
 @jit
-def reach_at(S, hx, hy, R, r, f, pi, pj):
+def reach_at(S, hx, hy, R, r, f, pi, pj, D, beyond):
     """Lowest height the tool can cut at the nodes (pi[k], pj[k]) without cutting below
     S anywhere on the grid: the grey-scale opening of S by the tool, min over tool
     positions c on the grid nodes (and up to R beyond the edges, where there is no
     material) within R of p of drop(c) + lift(|p - c|), drop(c) = max over nodes q
-    within R of c of S(q) - lift(|q - c|). The drops are computed once per centre."""
+    within R of c of S(q) - lift(|q - c|). The drops are computed once per centre and
+    kept in ``D`` ((nx + 2 ceil(R / hx), ny + 2 ceil(R / hy)), nan: not yet), so that the
+    nodes can be given in chunks (the caller stays interruptible between them)."""
     nx, ny = S.shape
     pi_ = int(math.ceil(R / hx))
     pj_ = int(math.ceil(R / hy))
@@ -236,12 +238,17 @@ def reach_at(S, hx, hy, R, r, f, pi, pj):
                 oi[n], oj[n] = di, dj
                 ol[n] = lift(math.sqrt(rho2), R, r, f)
                 n += 1
-    D = np.full((nx + 2 * pi_, ny + 2 * pj_), np.nan)
     out = np.empty(pi.size)
     for k in range(pi.size):
         best = np.inf
         for a in range(n_off):
             ci, cj = pi[k] + oi[a], pj[k] + oj[a]
+            # centres at most ``beyond`` outside the grid (a tool standing farther out
+            # than its passes go is no position it takes)
+            ex = max(0.0, -ci * hx, (ci - (nx - 1)) * hx)
+            ey = max(0.0, -cj * hy, (cj - (ny - 1)) * hy)
+            if ex * ex + ey * ey > beyond * beyond:
+                continue
             dd = D[ci + pi_, cj + pj_]
             if dd != dd:
                 dd = -np.inf
@@ -257,3 +264,23 @@ def reach_at(S, hx, hy, R, r, f, pi, pj):
                 best = v
         out[k] = best
     return out
+
+
+@jit
+def drop_grid(S, hx, hy, X, Y, di, dj, lift, out):
+    """roughing_rest.drop_on_grid's maximum: per position k, max over the offsets a of
+    S[i0 + di[a], j0 + dj[a]] - lift[a] over the nodes inside the grid (S is (ny, nx):
+    rows along y), i0, j0 the node nearest (X[k], Y[k]); -inf where none."""
+    ny, nx = S.shape
+    for k in range(X.size):
+        i0 = int(np.rint(Y[k] / hy))
+        j0 = int(np.rint(X[k] / hx))
+        best = -np.inf
+        for a in range(di.size):
+            i = i0 + di[a]
+            j = j0 + dj[a]
+            if 0 <= i < ny and 0 <= j < nx:
+                v = S[i, j] - lift[a]
+                if v > best:
+                    best = v
+        out[k] = best

@@ -4,7 +4,8 @@ A tool is a solid of revolution about its axis. Its cutting surface is described
 :meth:`Tool.lift`: the height of the surface above the tip at a radial distance rho
 from the axis (0 on a flat bottom, a quarter circle on a corner). Every cut
 simulation and every compensation takes the tool's shape from here, so the three
-shapes are written once. Lengths are millimetres.
+shapes are written once. Lengths are millimetres. Also the spec's tools as Tools
+(:func:`spec_tools`, :func:`finish_tool`), their depths of cut and feeds.
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["SHAPES", "Tool"]
+__all__ = ["SHAPES", "Tool", "spec_tools", "finish_tool", "depth_of_cut", "feeds_of"]
 
 SHAPES = ("flat", "bull", "ball")
 
@@ -79,3 +80,37 @@ class Tool:
         name = {"flat": "flat end mill", "ball": "ball-end mill",
                 "bull": f"bull nose (corner {self.corner_radius:g} mm)"}[self.shape]
         return f"{d} {name}" + (f", T{self.number}" if self.number is not None else "")
+
+
+def finish_tool(spec) -> Tool:
+    """The finishing ball of the ``tool`` section."""
+    t = spec.tool
+    return Tool.ball(float(t.diameter), reach=float(t.reach), number=t.number)
+
+
+def spec_tools(spec) -> dict[int, Tool]:
+    """Every numbered tool of the spec: the ``tools`` list and the finishing ``tool``
+    (when it has a number), by tool number. Feeds None mean the machining section's."""
+    out = {}
+    if spec.has("tool") and spec.tool.number is not None:
+        out[int(spec.tool.number)] = finish_tool(spec)
+    for t in (spec.tools if spec.has("tools") else ()):
+        out[int(t.number)] = Tool(t.shape, float(t.diameter),
+                                  float(t.corner_radius or 0.0), reach=float(t.reach), number=int(t.number),
+                                  feed=t.feed, plunge=t.plunge, spindle=t.spindle)
+    return out
+
+
+def depth_of_cut(spec, number) -> float:
+    """The axial depth of cut (mm) of tool ``number`` (None: the finishing tool)."""
+    if number is None or (spec.tool.number is not None and number == spec.tool.number):
+        return float(spec.tool.depth_of_cut)
+    for t in spec.tools:
+        if t.number == number:
+            return float(t.depth_of_cut)
+    raise KeyError(number)
+
+
+def feeds_of(spec, tool: Tool) -> tuple[float, float]:
+    m = spec.machining
+    return float(tool.feed or m.feed), float(tool.plunge or m.plunge)

@@ -1,0 +1,433 @@
+"""Rest passes after roughing with its own tool (the ``roughing`` section,
+:mod:`fabkit.toolpath.roughing`): the stock the roughing left, and the rest tools' passes.
+
+Rest passes (:func:`plan_rest`): the stock after roughing is a height field on the
+grid (each level's cleared region at its Z; conservatively the highest of a cell's
+neighbours). A rest ball's passes follow the finishing passes (their exact
+drop-cutter heights; another ball's own, :func:`compensate`), at most R apart, in
+Z levels of its depth of cut less the cusp between its passes, tip at
+max(level, design contact + leave), only where its drop onto the roughed stock
+stands more than min(stepdown, finish depth_of_cut - leave) + tolerance above the
+allowance (a grid bound, then the exact drop onto the levels' polygons; one node
+either side), and, either side of a finishing pass between two rest passes, where that
+pass would engage more than the finishing depth of cut: the valleys and corners the
+roughing tool could not reach, and staircases deeper than the finish may cut. A ball's
+engagement is the stock's thickness it cuts through, max over q under it of
+S(q) - (tip + lift(|q - c|)): elsewhere the finishing ball's is at most leave + that
+threshold <= its depth of cut; where the rest passes ran, leave + their cusp.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+from ..errors import SpecError
+from .compensate import WorkSurface, compensate
+from .operations import Operation
+from .passes import AIR_EPS, Frame
+from .path import CUT, PLUNGE, RAPID, Toolpath
+from .roughing_loops import LINK_CLEARANCE, _figures, _Path, _polys
+from .tools import Tool, depth_of_cut, feeds_of, finish_tool, spec_tools
+
+__all__ = ["stock_after", "drop_on_grid", "drop_on_levels", "plan_rest"]
+
+
+def stock_after(rough: Operation) -> np.ndarray:
+    """The stock's top (work mm, <= 0) after roughing on the design grid
+    (``rough.sets.x``, ``.y``): each level's cleared region at its Z (cv2 fills
+    the polygons' pixels), then the highest of each node's neighbours: an upper
+    bound of the material a cell holds."""
+    import cv2
+    from scipy.ndimage import maximum_filter
+
+    sets = rough.sets
+    ny, nx = len(sets.y), len(sets.x)
+    S = np.zeros((ny, nx))
+    shift = 4
+    scale = np.array([1.0 / sets.hx, 1.0 / sets.hy]) * (1 << shift)
+    for lev in rough.cleared:
+        mask = np.zeros((ny, nx), np.uint8)
+        for poly in _polys(lev.cleared):
+            rings = [np.round(np.asarray(r.coords)[:, :2] * scale).astype(np.int32)
+                     for r in [poly.exterior, *poly.interiors]]
+            cv2.fillPoly(mask, rings[:1], 1, lineType=cv2.LINE_8, shift=shift)
+            if len(rings) > 1:
+                cv2.fillPoly(mask, rings[1:], 0, lineType=cv2.LINE_8, shift=shift)
+        S = np.where(mask.astype(bool), np.minimum(S, lev.z), S)
+    return maximum_filter(S, size=3, mode="nearest")
+
+
+def drop_on_grid(S, x, y, X, Y, tool: Tool, slack: float = 0.0) -> np.ndarray:
+    """The tip height at which ``tool`` standing at (X, Y) first touches the stock
+    height field S (grid x, y; no material beyond it): max over grid nodes q within
+    the tool's radius + one cell diagonal of S(q) - lift(|q - c| - diagonal), an
+    upper bound of the exact drop (the node stands for its cell). -inf: no material.
+    ``slack`` (mm): the bound holds for every centre within it of (X, Y) too.
+
+    On a grid finer than R / DROP_CELLS_PER_R (a design grid refined for a steep wall),
+    S is first pooled by k x k: each k-th node takes the highest of the nodes within k of
+    it, and stands for them (the diagonal grows by one original cell): the offsets within
+    R stay about pi DROP_CELLS_PER_R^2 per position, in chunks of bounded memory."""
+    hx, hy = x[1] - x[0], y[1] - y[0]
+    R = tool.radius
+    k = int(R / DROP_CELLS_PER_R / max(hx, hy))
+    if k >= 2:
+        from scipy.ndimage import maximum_filter
+
+        Sp = maximum_filter(S, size=2 * k + 1, mode="constant", cval=-np.inf)[::k, ::k]
+        return drop_on_grid(Sp, x[::k], y[::k], X, Y, tool, slack + math.hypot(hx, hy))
+    diag = math.hypot(hx, hy) + slack
+    ni, nj = int(math.ceil((R + diag) / hy)), int(math.ceil((R + diag) / hx))
+    di, dj = np.meshgrid(np.arange(-ni, ni + 1), np.arange(-nj, nj + 1), indexing="ij")
+    rho = np.hypot(di * hy, dj * hx)
+    ok = rho - diag <= R
+    di, dj = di[ok], dj[ok]
+    lift = tool.lift(np.clip(rho[ok] - diag, 0.0, R))
+    from .stock_kernels import drop_grid
+
+    X, Y = np.asarray(X, float), np.asarray(Y, float)
+    Xf, Yf = np.ascontiguousarray(X.ravel()), np.ascontiguousarray(Y.ravel())
+    out = np.full(Xf.size, -np.inf)
+    Sc = np.ascontiguousarray(S, dtype=float)
+    di, dj = np.ascontiguousarray(di, np.int64), np.ascontiguousarray(dj, np.int64)
+    lift = np.ascontiguousarray(lift, float)
+    # compiled, in chunks of about DROP_CHUNK_PAIRS position-offset pairs (Ctrl-C between them)
+    c = max(1, int(DROP_CHUNK_PAIRS / max(len(di), 1)))
+    for a in range(0, Xf.size, c):
+        drop_grid(Sc, hx, hy, Xf[a:a + c], Yf[a:a + c], di, dj, lift, out[a:a + c])
+    return out.reshape(X.shape)
+
+
+#: drop_on_grid: grid cells per tool radius at most (finer grids are pooled), and
+#: position-offset pairs per call of its compiled kernel
+DROP_CELLS_PER_R = 12
+DROP_CHUNK_PAIRS = 50_000_000
+
+
+def drop_on_levels(rough: Operation, ws, X, Y, tool: Tool, need=None) -> np.ndarray:
+    """The tip height at which ``tool`` at (X, Y) first touches the stock the roughing
+    left: the levels' cleared regions C_k are nested, material stands at or above
+    z_{k-1} on F minus C_k, so the drop is max over k of z_{k-1} - lift(distance to
+    F minus C_k), and z_n - lift(distance to F) (the last level's floor). Exact for
+    the polygons (C_k inscribed in the swept discs: an upper bound). ``need``: a
+    level is skipped where its term cannot exceed it (only whether the drop exceeds
+    ``need`` is asked)."""
+    import shapely
+    from shapely.geometry import box
+
+    F = box(0.0, 0.0, ws.L, ws.W)
+    pts = shapely.points(X, Y)
+    out = tool.lift(np.asarray(shapely.distance(pts, F), float))
+    out = np.where(np.isfinite(out), (rough.cleared[-1].z if rough.cleared else 0.0) - out, -np.inf)
+    z_prev = 0.0
+    for lev in rough.cleared:
+        sel = np.ones(len(pts), bool) if need is None else (z_prev > need)
+        if sel.any():
+            U = F.difference(lev.cleared)
+            if U.is_empty:
+                z_prev = lev.z
+                continue
+            shapely.prepare(U)
+            d = np.full(len(pts), np.inf)
+            d[sel] = shapely.distance(pts[sel], U)
+            with np.errstate(invalid="ignore"):
+                term = z_prev - tool.lift(np.minimum(d, 1e9))
+            out = np.maximum(out, np.where(np.isfinite(term), term, -np.inf))
+        z_prev = lev.z
+    return out
+
+
+def plan_rest(spec, surface, rough: Operation, finish: Toolpath, *, ws=None) -> list[Operation]:
+    """Rest operations, one per rest tool (``roughing.rest``, default the finishing
+    ball), module docstring. Operations with nothing to cut are left out."""
+    m, rg = spec.machining, spec.roughing
+    ws = ws or WorkSurface(surface)
+    plan = finish.plan
+    if plan is None:
+        raise ValueError("the finishing toolpath carries no pass plan")
+    fr = Frame(m.direction, ws.L, ws.W)
+    tools = spec_tools(spec)
+    fin = finish_tool(spec)
+    numbers = rg.rest if rg.rest else (fin.number,)
+    leave = float(rg.leave)
+    tolerance = float(m.tolerance)
+    step_rough = float(rg.stepdown)
+    doc_f = float(spec.tool.depth_of_cut)
+    threshold = min(step_rough, doc_f - leave) + tolerance
+    S = stock_after(rough)
+    x, y = rough.sets.x, rough.sets.y
+    safe_z = float(m.safe_height)
+    clr = min(LINK_CLEARANCE, safe_z)
+    ops = []
+    for n in numbers:
+        t0 = time.process_time()
+        tool = fin if (n is None or n == fin.number) else tools[int(n)]
+        is_fin = tool is fin
+        Rr = tool.radius
+        doc = depth_of_cut(spec, n)
+        lim = min(float(spec.stock.depth_limit), float(tool.reach))
+        # passes at most Rr apart
+        V = np.array([p.v for p in plan.passes])
+        sel = [0]
+        while sel[-1] < len(V) - 1:
+            i = sel[-1]
+            j = int(np.searchsorted(V, V[i] + Rr, side="right")) - 1
+            sel.append(max(j, i + 1))
+        spacing = float(np.diff(V[sel]).max()) if len(sel) > 1 else 0.0
+        ball = tool.corner_radius >= Rr - 1e-12
+        if ball:
+            cusp = Rr - math.sqrt(max(Rr * Rr - 0.25 * spacing * spacing, 0.0))
+        else:
+            # a flat bottom or a bull nose: the cusp of its corners (none within twice its flat)
+            half = min(max(0.5 * spacing - tool.flat_radius, 0.0), tool.corner_radius)
+            r_c = tool.corner_radius
+            cusp = r_c - math.sqrt(max(r_c * r_c - half * half, 0.0)) if r_c > 0 else 0.0
+        step_r = doc - cusp
+        if step_r <= 0:
+            raise SpecError(f"rest passes {spacing:.3g} mm apart leave {cusp:.3g} mm cusps, more than the tool's "
+                            "depth_of_cut", file=spec.path, key="roughing.rest")
+        ug = plan.ug
+        U = np.broadcast_to(ug, (len(sel), len(ug)))
+        Vv = np.broadcast_to(V[sel][:, None], U.shape)
+        X, Y = fr.xy(U, Vv)
+        X, Y = np.ascontiguousarray(X, float), np.ascontiguousarray(Y, float)
+        if is_fin:
+            Z = np.vstack([plan.passes[i].Z for i in sel])
+        else:
+            Z = _tool_on_design(rough, X, Y, tool) if not ball else compensate(ws, X, Y, Rr)
+        keep = np.vstack([plan.passes[i].keep for i in sel]) if is_fin else np.isfinite(Z)
+        Sb = drop_on_grid(S, x, y, X, Y, tool)
+        floor = np.maximum(Z + leave, -lim)
+        with np.errstate(invalid="ignore"):
+            zone = keep & np.isfinite(Z) & np.isfinite(Sb) & (Sb - (Z + leave) > threshold)
+        # the grid's bound is loose beside the levels' walls: where it asks for rest
+        # passes, the drop onto the levels' polygons instead (exact to their chords)
+        # (the drop onto the levels skips the levels that cannot lift it above the zone's
+        # threshold: below the threshold it is no bound; there the grid's bound stays, as
+        # the links and the descent to a run's start need an upper bound of the stock)
+        if zone.any():
+            d = drop_on_levels(rough, ws, X[zone], Y[zone], tool, (Z + leave + threshold)[zone])
+            with np.errstate(invalid="ignore"):
+                hit = d - (Z + leave)[zone] > threshold
+            Sb[zone] = np.where(hit, d, Sb[zone])
+            zone[zone] = hit
+        if is_fin and len(sel) < len(V):
+            # the passes between: where the finishing ball would engage more than its depth of cut
+            zone |= keep & np.isfinite(Z) & np.isfinite(Sb) & _between_zone(
+                plan, fr, sel, V, ug, S, x, y, tool, rough, ws, leave, doc_f - leave)
+        # one node more on either side: the finish's own points lie between the nodes
+        # (1 mm apart), and across a groove the material it meets changes within one
+        ok = keep & np.isfinite(Z) & np.isfinite(Sb)
+        zone = ok & (zone | np.c_[zone[:, 1:], np.zeros((len(zone), 1), bool)]
+                     | np.c_[np.zeros((len(zone), 1), bool), zone[:, :-1]])
+        runs = []
+        levels_cut = set()
+        if zone.any():
+            low = float(floor[zone].min())
+            nlev = int(math.ceil(-low / step_r)) if low < 0 else 0
+            for j in range(1, nlev + 1):
+                zj, zp = -j * step_r, (-(j - 1) * step_r if j > 1 else math.inf)
+                tip = np.maximum(zj, floor)
+                prev = np.maximum(zp, floor)
+                act = zone & (tip < np.minimum(Sb, prev) - AIR_EPS)
+                for r in range(len(sel)):
+                    a = act[r]
+                    if not a.any():
+                        continue
+                    near = a | np.r_[a[1:], False] | np.r_[False, a[:-1]]
+                    near &= zone[r]
+                    edges = np.diff(np.r_[0, near.astype(np.int8), 0])
+                    pieces = []
+                    spans = []
+                    for i0, i1 in zip(np.nonzero(edges == 1)[0], np.nonzero(edges == -1)[0]):
+                        if i1 - i0 < 2:
+                            continue
+                        # runs of a pass at most 4 R apart are joined along the nodes between at
+                        # their tips: there the ball touches nothing (air above the roughed stock,
+                        # or ground the level above took lower) and never the allowance
+                        if spans and ug[i0] - ug[spans[-1][1] - 1] <= 4 * Rr \
+                                and np.isfinite(tip[r, spans[-1][1]:i0]).all() and keep[r, spans[-1][1]:i0].all():
+                            spans[-1] = (spans[-1][0], i1)
+                        else:
+                            spans.append((i0, i1))
+                    for i0, i1 in spans:
+                        pieces.append((np.column_stack([X[r, i0:i1], Y[r, i0:i1], tip[r, i0:i1]]),
+                                       Sb[r, i0:i1]))
+                    if r % 2:
+                        pieces = [(q[::-1], sb[::-1]) for q, sb in pieces[::-1]]
+                    runs.extend(pieces)
+                    if pieces:
+                        levels_cut.add(j)
+        if not runs:
+            continue
+        runs = _refine_runs(ws, runs, Rr, leave, lim, 0.5 * tolerance,
+                            drop=None if ball else (lambda px, py, t=tool: _tool_on_design(rough, px, py, t)))
+        fig_low = 0
+        zlink = _link_heights(S, x, y, runs, tool, clr)
+        path = _Path()
+        for n, (q, sb) in enumerate(runs):
+            start = q[0]
+            above = min(max(float(sb[0]), float(start[2])) + clr, safe_z)
+            zl = zlink[n]
+            if path.at is not None and zl is not None and zl < safe_z:
+                fig_low += 1
+                path.add((path.at[0], path.at[1], max(zl, path.at[2])), RAPID)
+                path.add((start[0], start[1], max(zl, path.at[2])), RAPID)
+            else:
+                if path.at is not None:
+                    path.add((path.at[0], path.at[1], safe_z), RAPID)
+                path.add((start[0], start[1], safe_z), RAPID)
+            path.add((start[0], start[1], above), RAPID)
+            path.add(tuple(start), PLUNGE)
+            for p in q[1:]:
+                path.add(tuple(p), CUT)
+        path.add((path.at[0], path.at[1], safe_z), RAPID)
+        pts = np.array(path.pts, float)
+        kinds = np.array(path.kinds, np.int8)
+        tp = Toolpath(pts, kinds, tool_radius=Rr, safe_z=safe_z)
+        feed, plunge = feeds_of(spec, tool)
+        info = _figures(pts, kinds, feed, plunge)
+        levels_cut = len(levels_cut)
+        info.update({
+            "tool": tool.describe(), "levels": levels_cut, "stepdown_mm": step_r, "stepover_mm": spacing,
+            "leave_mm": leave, "cusp_mm": cusp, "runs": len(runs),
+            "passes": len({(round(float(q[0, 0]), 6), round(float(q[0, 1]), 6)) for q, _ in runs}),
+            "entry": "plunge (into ground the rest ball's drop shows clear above the cut)",
+            "links": {"low": fig_low, "safe_height": len(runs) - 1 - fig_low},
+            "zone_threshold_mm": threshold, "zone_positions": int(zone.sum()),
+            "depth_of_cut_mm": doc, "finish_depth_of_cut_mm": doc_f, "stock_grid_step_mm": float(max(x[1] - x[0], y[1] - y[0])),
+            "plan_seconds": time.process_time() - t0,
+        })
+        tp.info = info
+        ops.append(Operation("rest", tool, tp, leave=leave, levels=levels_cut, passes=len(runs), info=info))
+    return ops
+
+
+def _between_zone(plan, fr, sel, V, ug, S, x, y, tool, rough, ws, leave, threshold):
+    """The zone asked by the finishing passes between the selected ones (sel): the
+    finishing ball's drop at a position is not continuous across a steep wall, so a pass
+    between two rest passes can meet more than the threshold where neither of them does
+    (``threshold``: finish depth_of_cut - leave, the ball's engagement past its depth of
+    cut; with roughing.stepdown 12.7 mm on the paper, 7.0 mm without this).
+    Such a node marks the rest passes either side of its pass (at the same node of the
+    common pass grid ``ug``). Returns a (len(sel), len(ug)) mask."""
+    others = np.setdiff1d(np.arange(len(V)), np.asarray(sel))
+    out = np.zeros((len(sel), len(ug)), bool)
+    if not len(others):
+        return out
+    U = np.broadcast_to(ug, (len(others), len(ug)))
+    X, Y = fr.xy(U, np.broadcast_to(V[others][:, None], U.shape))
+    X, Y = np.ascontiguousarray(X, float), np.ascontiguousarray(Y, float)
+    Z = np.vstack([plan.passes[i].Z for i in others])
+    keep = np.vstack([plan.passes[i].keep for i in others])
+    Sb = drop_on_grid(S, x, y, X, Y, tool)
+    with np.errstate(invalid="ignore"):
+        z = keep & np.isfinite(Z) & np.isfinite(Sb) & (Sb - (Z + leave) > threshold)
+    if z.any():
+        d = drop_on_levels(rough, ws, X[z], Y[z], tool, (Z + leave + threshold)[z])
+        with np.errstate(invalid="ignore"):
+            z[z] = d - (Z + leave)[z] > threshold
+    hi = np.searchsorted(np.asarray(sel), others)           # the selected pass after each
+    for row in np.nonzero(z.any(axis=1))[0]:
+        h = int(hi[row])
+        for r in (h - 1, h):
+            if 0 <= r < len(sel):
+                out[r] |= z[row]
+    return out
+
+
+def _tool_on_design(rough: Operation, X, Y, tool: Tool) -> np.ndarray:
+    """The tip height at which a flat end mill or bull nose at (X, Y) first touches the
+    design clipped at the top face: :func:`drop_on_grid` onto the level sets' design grid,
+    each node raised to the highest of its neighbours plus the grid's interpolation bound
+    (an upper bound of the design over its cell), so an upper bound of the exact drop: the
+    tool never enters the allowance; it stands at most the slope x a cell's diagonal + 2 e
+    higher than it could."""
+    from scipy.ndimage import maximum_filter
+
+    sets = rough.sets
+    key = "_design_upper"
+    S = getattr(sets, key, None)
+    if S is None:
+        S = maximum_filter(np.minimum(sets.H, 0.0), size=3, mode="nearest") + sets.err
+        setattr(sets, key, S)
+    return drop_on_grid(S, sets.x, sets.y, X, Y, tool)
+
+
+def _refine_runs(ws, runs, Rr, leave, lim, tolerance, rounds=10, drop=None):
+    """Midpoints inserted where a run's chord passes more than ``tolerance`` below
+    the tip the exact drop cutter asks there (max(level, Z + leave)), asked at a
+    quarter, half and three quarters of each chord: the nodes are up to 1 mm apart, a
+    valley narrower than the ball bends the path sharply, and over a steep wall's
+    convex rim the chord dips between its midpoint and its ends."""
+    fr = np.array([0.25, 0.5, 0.75])
+    for _ in range(rounds):
+        segs = [(q[:-1], q[1:]) for q, _ in runs if len(q) >= 2]
+        if not segs:
+            break
+        A = np.vstack([a for a, _ in segs])
+        B = np.vstack([b for _, b in segs])
+        P = A[None, :, :] + fr[:, None, None] * (B - A)[None, :, :]        # (3, n, 3)
+        # the level a segment is cut at: its two tips' lower value bounds it from below
+        lev = np.minimum(A[:, 2], B[:, 2])
+        px, py = np.ascontiguousarray(P[..., 0].ravel()), np.ascontiguousarray(P[..., 1].ravel())
+        Zp = (compensate(ws, px, py, Rr) if drop is None else drop(px, py)).reshape(P.shape[:2])
+        needs = np.maximum(np.maximum(lev[None, :], Zp + leave), -lim)
+        bad = (needs > P[..., 2] + tolerance).any(axis=0)
+        M = P[1]
+        need = needs[1]
+        if not bad.any():
+            break
+        new_runs = []
+        k = 0
+        for n, (q, sb) in enumerate(runs):
+            if len(q) < 2:
+                new_runs.append((q, sb))
+                continue
+            b = bad[k:k + len(q) - 1]
+            mz = need[k:k + len(q) - 1]
+            if b.any():
+                rows, srows = [q[0]], [sb[0]]
+                for i in range(len(q) - 1):
+                    if b[i]:
+                        m = M[k + i].copy()
+                        m[2] = mz[i]
+                        rows.append(m)
+                        srows.append(max(sb[i], sb[i + 1]))
+                    rows.append(q[i + 1])
+                    srows.append(sb[i + 1])
+                new_runs.append((np.array(rows), np.array(srows)))
+            else:
+                new_runs.append((q, sb))
+            k += len(q) - 1
+        runs = new_runs
+    return runs
+
+
+def _link_heights(S, x, y, runs, tool, clr, step=1.0):
+    """Per run, the height of the straight link from the run before: ``clr`` above the
+    highest of the two ends and the tool's drop onto the roughed stock along the link
+    (grid bound, every ``step`` mm; the rest only lowers the stock). None for the first."""
+    out = [None] * len(runs)
+    XS, YS, own = [], [], []
+    for n in range(1, len(runs)):
+        a, b = runs[n - 1][0][-1], runs[n][0][0]
+        d = math.hypot(b[0] - a[0], b[1] - a[1])
+        k = max(2, int(math.ceil(d / step)) + 1)
+        t = np.linspace(0.0, 1.0, k)
+        XS.append(a[0] + t * (b[0] - a[0]))
+        YS.append(a[1] + t * (b[1] - a[1]))
+        own.append(np.full(k, n))
+    if not XS:
+        return out
+    # samples at most ``step`` apart: every centre of the link within step/2 of one
+    drop = drop_on_grid(S, x, y, np.concatenate(XS), np.concatenate(YS), tool, slack=0.5 * step)
+    high = np.full(len(runs), -np.inf)
+    np.maximum.at(high, np.concatenate(own), drop)
+    for n in range(1, len(runs)):
+        a, b = runs[n - 1][0][-1], runs[n][0][0]
+        out[n] = max(float(high[n]), float(a[2]), float(b[2]), float(runs[n][1][0])) + clr
+    return out
