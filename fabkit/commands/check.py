@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from ..errors import DesignError
 from ._common import Timer, emit, prepare_simulator
+from .sweep import completeness_line
 
 #: reachable windows listed in the summary (--json lists every one)
 SHOW = 24
@@ -49,6 +50,9 @@ def run(args) -> int:
     for w in wins[:SHOW]:
         lines.append(f"  release height {w['height_lo']:.4f}..{w['height_hi']:.4f} {u} "
                      f"(v_in {w['lo']:.6f}..{w['hi']:.6f} {u}/s)")
+    c = completeness_line("check", r.window_completeness, u)
+    if c:
+        lines.append(c)
     b = r.ball
     if b is not None:
         cnt = b["unsafe_counts"]
