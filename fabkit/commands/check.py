@@ -8,6 +8,7 @@ why) otherwise, 2 on bad input.
 from __future__ import annotations
 
 from ..errors import DesignError
+from ..numba_start import prepare
 from ._common import Timer, emit, prepare_simulator
 from .sweep import completeness_line
 
@@ -28,7 +29,9 @@ def run(args) -> int:
     stage, launches, close = launch_stages(5, quiet(args), "check")
     try:
         stage("compiling or loading the simulator")
-        prepare_simulator(spec, say=None if quiet(args) else (lambda m: stage(m, advance=False)))
+        say = None if quiet(args) else (lambda m: stage(m, advance=False))
+        prepare(spec, need=("simulator",), say=say, quiet=quiet(args))   # a first run: gcode and report too
+        prepare_simulator(spec, say=say)
         n = len(ramp_heights(spec))
         r = check(spec, progress=launches(f"launching the ramp's {n} heights", n), stage=stage)
     finally:

@@ -140,6 +140,10 @@ def run(args) -> int:
 
     machine = machine_from_spec(spec, getattr(args, "machine", None))    # a bad profile: exit 2 now
 
+    from ..numba_start import prepare
+
+    # a first run compiles every kernel the page needs (the simulator, the toolpath's) at once, and says so
+    prepare(spec, quiet=getattr(args, "no_progress", False))
     step, close = stage_bar(5, getattr(args, "no_progress", False), "report")
     try:
         step("calibrating the ramp")

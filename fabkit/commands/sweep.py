@@ -61,7 +61,12 @@ def run(args) -> int:
     stage, launches, close = launch_stages(4 + bool(args.plot), quiet(args), "sweep")
     try:
         stage("compiling or loading the simulator")
-        prepare_simulator(problem, say=None if quiet(args) else (lambda m: stage(m, advance=False)))
+        say = None if quiet(args) else (lambda m: stage(m, advance=False))
+        if args.v_in is None:       # the ramp's spec: a first run compiles what gcode, check, report need
+            from ..numba_start import prepare
+
+            prepare(spec, need=("simulator",), say=say, quiet=quiet(args))
+        prepare_simulator(problem, say=say)
         res = sweep(problem, v, progress=launches(f"launching {len(v)} speeds", len(v)), stage=stage)
         rep = SweepReport.of(res, problem, spec.units, seconds=timer.seconds)
         if args.plot:
