@@ -341,7 +341,8 @@ def test_windows_wider_than_the_stated_width_are_found_and_the_fit_names_the_mis
     assert fit["missing_n"] == [k for k in range(min(found), max(found) + 1) if k not in found]
     assert fit["T"] == pytest.approx(0.6, rel=1e-9) and fit["delta"] == pytest.approx(0.4, rel=1e-9)
     text = "\n".join(summary(SweepReport.of(res, p, "cm")))
-    assert "every window wider than 0.4 cm/s is found" in text
+    assert (f"every window wider than 0.4 cm/s (the samples' largest spacing, from v_in "
+            f"{c['certain_width_at']:.4g}) is found") in text
     if fit["missing_n"]:
         assert "none found for n = " in text
 
