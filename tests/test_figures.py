@@ -130,7 +130,7 @@ def test_stock_picture_says_where_its_scale_is_clipped_and_shows_the_top_faces_g
     clipped, whole = pixels(left_max=0.1), pixels(left_max=0.4)
     h, w = clipped.shape[:2]
     pw = w - 90                         # the picture's margins: left 60, right 30, top 34, bottom 86
-    bw = min(pw, 520)
+    bw = max(60, min(pw - 152, 520))
     bar_end, by0 = 60 + (pw - bw) // 2 + bw, h - 52
     tip = clipped[by0 + 7, bar_end + 4]
     assert np.abs(tip - _LEFT).max() <= 1                     # the arrow, in the end's colour

@@ -642,7 +642,7 @@ def stock_png(stock: Stock, design: np.ndarray, *, title: str = "", tolerance: f
     img = np.full((top + ph + bottom, left + pw + right, 3), 255, np.uint8)
     img[top:top + ph, left:left + pw] = plot
     # the scale: gouge_max ... 0 ... left_max
-    bw = min(pw, 520)
+    bw = max(60, min(pw - 152, 520))     # room beside the bar for its end labels (and arrows)
     bx0, by0 = left + (pw - bw) // 2, top + ph + 34
     half = bw // 2
     tb = np.concatenate([-np.linspace(1, 0, half) * gmax, np.linspace(0, 1, bw - half) * lmax])
