@@ -210,8 +210,9 @@ def _windows_table(check: dict, units: str, scale: float | None = None, min_widt
         n_obs = sum(bool(o) for o in obs)
         mm = f" ({_n(min_width * scale, 'g')} mm)" if scale is not None else ""
         count = (f"<p id=observable>{n_obs} of {len(ws)} windows are observable: at least "
-                 f"{_n(min_width, '.4g')} {units}{mm} wide in release height, as <code>fabkit design</code> counts "
-                 f"them; the others (greyed) are narrower than a release can be set by hand.</p>")
+                 f"{_n(min_width, '.4g')} {units}{mm} wide in release height, the width <code>fabkit design</code> "
+                 f"requires of an observable window; the others (greyed) are narrower than a release can be set "
+                 f"by hand.</p>")
     return (f"<p>Two-bounce windows the ramp can reach (edges to {_tolerances(check)['edge_rel_tol']:.0e} "
             f"relative in v_in):</p>"
             f"<table id=windows><tr><th>window</th><th>v_in lo ({units}/s)</th><th>v_in hi ({units}/s)</th>"
