@@ -15,7 +15,6 @@ tolerance; exit 2 on bad input (nothing written).
 
 from __future__ import annotations
 
-
 from ..errors import DesignError
 from ..io import atomic_outputs
 from ..spec import load_spec

@@ -140,10 +140,16 @@ def run(args) -> int:
 
     machine = machine_from_spec(spec, getattr(args, "machine", None))    # a bad profile: exit 2 now
 
-    from ..numba_start import prepare
+    from ..numba_start import cold_kernels, prepare
 
-    # a first run compiles every kernel the page needs (the simulator, the toolpath's) at once, and says so
-    prepare(spec, quiet=getattr(args, "no_progress", False))
+    # a first run compiles every kernel the page needs (the simulator, the toolpath's) at once, and
+    # says so; a job the time guard refuses is refused before that (the guard runs again in the job)
+    cold = cold_kernels(spec)
+    if cold["simulator"] > 0 or cold["toolpath"] > 0:
+        from ..toolpath.raster import plan_estimate
+
+        plan_estimate(spec, surface)
+        prepare(spec, quiet=getattr(args, "no_progress", False))
     step, close = stage_bar(5, getattr(args, "no_progress", False), "report")
     try:
         step("calibrating the ramp")
