@@ -16,6 +16,8 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
+
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
@@ -30,7 +32,7 @@ def main(argv=None):
     ap.add_argument("--models", default="full,simplified,ball")
     args = ap.parse_args(argv)
     base = load_spec(args.spec)
-    rows = {}
+    rows, heights = {}, {}
     for model in args.models.split(","):
         spec = base.with_overrides({"simulation.model": model})
         t0 = time.perf_counter()
@@ -40,6 +42,7 @@ def main(argv=None):
                        "reachable_windows": r["reachable_windows"], "safe": r["safe"],
                        "first_failure": r["first_failure"], "highest_safe_height": r["highest_safe_height"],
                        "ball": r.get("ball"), "seconds": dt}
+        heights[model] = r["heights"]
         print(f"{model}: v_critical {r['v_critical']}, {len(r['reachable_windows'])} windows, safe {r['safe']}, "
               f"{dt:.1f} s", flush=True)
     u = base.units
@@ -54,6 +57,16 @@ def main(argv=None):
     if b:
         print(f"\nball: largest |F_t|/N {b['max_slip']:.4f} at release height {b['max_slip_height']:.4f} {u}; "
               f"unsafe counts {b['unsafe_counts']}")
+        # the slip ratio along the ramp (the ramp's heights nearest to a few round ones) and
+        # the lowest heights from which it exceeds 0.3 and 0.5 (docs/ball.md, README)
+        H = np.asarray(heights["ball"], dtype=float)
+        s = np.asarray([np.nan if x is None else x for x in b["max_slip_per_height"]], dtype=float)
+        at = [int(np.argmin(np.abs(H - h))) for h in (0.2, 1, 2, 3, 4, 4.5)]
+        print("ball: |F_t|/N along the ramp: " + ", ".join(f"{s[i]:.3f} at {H[i]:.4f} {u}" for i in at))
+        for t in (0.3, 0.5):
+            over = np.flatnonzero(s > t)
+            print(f"ball: |F_t|/N exceeds {t:g} from release height "
+                  + (f"{H[over[0]]:.4f} {u}" if len(over) else "- (never)"))
     if args.out:
         Path(args.out).write_text(json.dumps(rows, indent=1, default=float))
 

@@ -8,7 +8,13 @@ Each job runs one documented ``fabkit`` command from the repository root, exactl
 types it, writes the figure the doc shows (under docs/), and records the command, its
 summary (stdout), its wall time and the load average before and after it in
 ``docs/outputs/<job>.txt``. A doc quotes those files; when a figure or a figure's number in
-a doc disagrees with its output file, the doc is stale.
+a doc disagrees with its output file, the doc is stale. (One job runs a benchmark script,
+``benchmarks/ball_compare.py``: the three models' checks side by side.)
+
+A passage of README.md or docs/*.md that quotes an output is marked
+``<!-- numbers: JOB[, JOB] -->`` ... ``<!-- /numbers -->``; tests/test_doc_numbers.py checks
+every decimal number inside it against those outputs (to the digits quoted), so a number
+that drifts from what the command prints fails the suite.
 """
 
 from __future__ import annotations
@@ -31,11 +37,18 @@ class Job:
     name: str
     doc: str
     argv: tuple[str, ...]
+    script: str | None = None     # a benchmark script run with these arguments, in place of fabkit
+
+    @property
+    def shown(self) -> str:
+        """The command as the output file's first line gives it."""
+        return ((f"python {self.script} " if self.script else "fabkit ") + shlex.join(self.argv)).rstrip()
 
 
 JOBS = (
     Job("check", "README.md", ("check", "specs/surface.yaml")),
     Job("check-as-built", "README.md", ("check", "specs/surface_as_built.yaml")),
+    Job("ball-compare", "README.md, docs/ball.md", (), script="benchmarks/ball_compare.py"),
     Job("calibrate", "docs/simulator.md", ("calibrate", "specs/surface.yaml", "--height", "1", "4.5",
                                            "--v-in", "50")),
     Job("sweep", "docs/sweep_check.md", ("sweep", "specs/surface.yaml", "--plot", "docs/sweep.png")),
@@ -64,14 +77,27 @@ def _fabkit() -> list[str]:
     return [sys.executable, "-m", "fabkit"]
 
 
+def command(job: Job) -> list[str]:
+    """The argv that runs ``job`` from the repository root."""
+    return ([sys.executable, job.script] if job.script else _fabkit()) + list(job.argv)
+
+
+def body(job: Job, stdout: str) -> str:
+    """What the output file holds before its last line (the exit, wall time and load)."""
+    return f"$ {job.shown}\n{stdout}"
+
+
+JOBS_BY_NAME = {j.name: j for j in JOBS}
+
+
 def run(job: Job) -> int:
     load0 = os.getloadavg()[0]
     t0 = time.perf_counter()
-    proc = subprocess.run(_fabkit() + list(job.argv), cwd=ROOT, capture_output=True, text=True)
+    proc = subprocess.run(command(job), cwd=ROOT, capture_output=True, text=True)
     seconds = time.perf_counter() - t0
     load1 = os.getloadavg()[0]
     OUT.mkdir(parents=True, exist_ok=True)
-    text = (f"$ fabkit {shlex.join(job.argv)}\n{proc.stdout}"
+    text = (body(job, proc.stdout)
             + (f"[stderr]\n{proc.stderr}" if proc.returncode else "")
             + f"[exit {proc.returncode}; {seconds:.1f} s wall; load average {load0:.2f} before, {load1:.2f} after; "
               f"quoted by {job.doc}]\n")
@@ -89,7 +115,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     if args.list:
         for j in JOBS:
-            print(f"{j.name:16s} {j.doc:22s} fabkit {shlex.join(j.argv)}")
+            print(f"{j.name:16s} {j.doc:22s} {j.shown}")
         return 0
     names = {j.name for j in JOBS}
     unknown = [n for n in args.jobs if n not in names]

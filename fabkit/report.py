@@ -11,7 +11,9 @@ scripts inlined). It takes results and computes nothing; ``fabkit report`` compu
     toolpath     {"png": bytes, "sheet": setup-sheet dict, "seconds": {...}, "verify": {...} or None,
                   "stock_png": {"rough"|"finish": bytes} (a job with roughing simulated on the stock; optional)}
     calibration  {"heights", "v_in", "g", "k", "units", "seconds"}
-    ramp_marks   optional list of {height, v_in, label}
+    ramp_marks   optional list of {height, v_in, label, observable (optional: False sets it apart)}
+    scale        optional: mm per design unit (the windows' width in release height, in mm)
+    min_width    optional: the observable windows' least width in release height (design units)
 
 The 3-D view is a small hand-written canvas renderer (painter's algorithm, Lambert
 shading): drag to turn it, wheel to zoom; when it has drawn it sets
@@ -65,6 +67,7 @@ th{background:#f0f3f6}td.l,th.l{text-align:left}
 .meta{color:#5b6875;font-size:12.5px}img{max-width:100%;border:1px solid #e3e7eb}
 canvas{border:1px solid #d0d6dc;background:linear-gradient(#fbfcfd,#e9eef2);cursor:grab;max-width:100%}
 .grid2{display:grid;grid-template-columns:1fr 1fr;gap:12px}
+tr.narrow td,table.narrow td{color:#8a949e;font-style:italic}h4{margin:14px 0 4px;font-size:14px}
 """
 
 VIEWER_JS = r"""
@@ -157,19 +160,67 @@ def _tolerances(check: dict) -> dict:
     return {**TOLERANCES, **(check.get("tolerances") or {})}
 
 
-def _windows_table(check: dict, units: str) -> str:
+def _observable(w: dict, min_width: float | None) -> bool | None:
+    """A window is observable when at least ``min_width`` wide in release height (design
+    units; ``fabkit design``'s default, 1 mm); None when the page was given no minimum."""
+    if min_width is None:
+        return None
+    return bool(w["height_hi"] - w["height_lo"] >= min_width * (1 - 1e-12))
+
+
+def _completeness_note(check: dict, units: str) -> str:
+    """Which windows the check is certain to have found (the ramp's sampling)."""
+    c = check.get("window_completeness") or {}
+    if c.get("certain_width") is None:
+        return ""
+    dh = c.get("certain_height_width")
+    wide = (f"{_n(dh, '.4g')} {units} in release height" if dh is not None
+            else f"{_n(c['certain_width'], '.4g')} {units}/s in v_in")
+    near = c.get("spacing_near_critical")
+    return (f"<p class=meta>Every window wider than {wide} (the sampling's largest spacing) is listed; a narrower "
+            f"one only where a launch of the ramp's sampling fell in it"
+            + (f" (launches {_n(near, '.4g')} {units}/s apart at v_critical, where the windows narrow)"
+               if near is not None else "") + ".</p>")
+
+
+def _windows_table(check: dict, units: str, scale: float | None = None, min_width: float | None = None) -> str:
+    """The reachable two-bounce windows, each column with its unit; with ``min_width``
+    (design units of release height) and ``scale`` (mm per design unit) the observable
+    ones are marked and the narrower ones set apart (class ``narrow``)."""
     ws = check.get("reachable_windows") or []
     vmax = any(w.get("v_out_max") is not None for w in ws)
-    rows = "".join(f"<tr><td>{i}</td><td>{_n(w['lo'], '.6g')}</td><td>{_n(w['hi'], '.6g')}</td>"
-                   f"<td>{_n(w['height_lo'], '.5g')}</td><td>{_n(w['height_hi'], '.5g')}</td>"
-                   + (f"<td>{_n(w.get('v_out_max'), '.5g')}</td>" if vmax else "") + "</tr>"
-                   for i, w in enumerate(ws, start=1))
+    obs = [_observable(w, min_width) for w in ws]
+    width_col = scale is not None
+
+    def row(i, w, o):
+        width = (w["height_hi"] - w["height_lo"]) * scale if width_col else None
+        cls = "" if o is not False else " class=narrow"
+        return (f"<tr{cls}><td>{i}</td><td>{_n(w['lo'], '.6g')}</td><td>{_n(w['hi'], '.6g')}</td>"
+                f"<td>{_n(w['height_lo'], '.5g')}</td><td>{_n(w['height_hi'], '.5g')}</td>"
+                + (f"<td>{_n(width, '.3g')}</td>" if width_col else "")
+                + (f"<td>{_n(w.get('v_out_max'), '.5g')}</td>" if vmax else "")
+                + ("" if o is None else f"<td class=l>{'<b>yes</b>' if o else 'no: too narrow to hit'}</td>")
+                + "</tr>")
+
+    rows = "".join(row(i, w, o) for i, (w, o) in enumerate(zip(ws, obs), start=1))
     if not rows:
-        return "<p>No two-bounce window lies inside the ramp's range.</p>"
+        return "<p>No two-bounce window lies inside the ramp's range.</p>" + _completeness_note(check, units)
+    count = ""
+    if min_width is not None:
+        n_obs = sum(bool(o) for o in obs)
+        mm = f" ({_n(min_width * scale, 'g')} mm)" if scale is not None else ""
+        count = (f"<p id=observable>{n_obs} of {len(ws)} windows are observable: at least "
+                 f"{_n(min_width, '.4g')} {units}{mm} wide in release height, the width <code>fabkit design</code> "
+                 f"requires of an observable window; the others (greyed) are narrower than a release can be set "
+                 f"by hand.</p>")
     return (f"<p>Two-bounce windows the ramp can reach (edges to {_tolerances(check)['edge_rel_tol']:.0e} "
             f"relative in v_in):</p>"
-            f"<table><tr><th>window</th><th>v_in lo ({units}/s)</th><th>v_in hi</th><th>H lo ({units})</th>"
-            f"<th>H hi</th>" + ("<th>v_out max</th>" if vmax else "") + f"</tr>{rows}</table>")
+            f"<table id=windows><tr><th>window</th><th>v_in lo ({units}/s)</th><th>v_in hi ({units}/s)</th>"
+            f"<th>H lo ({units})</th><th>H hi ({units})</th>"
+            + ("<th>width in H (mm)</th>" if width_col else "")
+            + (f"<th>v_out max ({units}/s)</th>" if vmax else "")
+            + ("" if min_width is None else "<th class=l>observable</th>")
+            + f"</tr>{rows}</table>{count}{_completeness_note(check, units)}")
 
 
 def _calibration_table(cal: dict, marks: list | None, units: str, every: int) -> str:
@@ -178,9 +229,19 @@ def _calibration_table(cal: dict, marks: list | None, units: str, every: int) ->
     rows = "".join(f"<tr><td>{_n(H[i], '.5g')}</td><td>{_n(V[i], '.8g')}</td></tr>" for i in idx)
     mk = ""
     if marks:
-        mk = "<h3>Release marks</h3><table><tr><th class=l>mark</th><th>H</th><th>v_in</th></tr>" + "".join(
-            f"<tr><td class=l>{_e(m['label'])}</td><td>{_n(m['height'], '.6g')}</td><td>{_n(m['v_in'], '.7g')}</td></tr>"
-            for m in marks) + "</table>"
+        head = f"<tr><th class=l>mark</th><th>H ({units})</th><th>v_in ({units}/s)</th></tr>"
+
+        def mark_rows(ms):
+            return "".join(f"<tr><td class=l>{_e(m['label'])}</td><td>{_n(m['height'], '.6g')}</td>"
+                           f"<td>{_n(m['v_in'], '.7g')}</td></tr>" for m in ms)
+
+        hit = [m for m in marks if m.get("observable", True)]
+        narrow = [m for m in marks if not m.get("observable", True)]
+        mk = "<h3>Release marks</h3><table id=marks>" + head + mark_rows(hit) + "</table>"
+        if narrow:
+            mk += ("<h4>Windows too narrow to hit</h4><p class=meta>Their centres, for reference: each window is "
+                   "narrower in release height than a release can be set (not observable).</p>"
+                   "<table id=marks-narrow class=narrow>" + head + mark_rows(narrow) + "</table>")
     e = cal.get("entry")
     if e is None or getattr(e, "closed_form", True):
         how = (f"v_in = sqrt(2 g H / (1 + k)), g = {_n(cal['g'], '.7g')} {units}/s², k = {_n(cal['k'], '.4g')}; "
@@ -217,11 +278,13 @@ def _table_html(rows: list[str]) -> str:
             + "".join("<tr>" + "".join(f"<td>{_inline(c)}</td>" for c in r) + "</tr>" for r in body) + "</table>")
 
 
-def markdown_html(md: str) -> str:
+def markdown_html(md: str, top: int = 3, after_title: str = "") -> str:
     """The operator's setup sheet (``setup.md``, :func:`fabkit.toolpath.setup.sheet_markdown`)
     as HTML: the same lines, each with its unit, so the page and the file beside the
     program say the same thing. Handles what the sheet uses: headings, bullet lists,
-    paragraphs, inline code and bold; its preview image is shown elsewhere on the page."""
+    paragraphs, inline code and bold; its preview image is shown elsewhere on the page.
+    ``top``: the HTML level of the sheet's first-level heading; ``after_title``: HTML put
+    right after the first heading."""
     import re
 
     out: list[str] = []
@@ -255,24 +318,29 @@ def markdown_html(md: str) -> str:
             continue
         if line.startswith("#"):
             level = len(line) - len(line.lstrip("#"))
-            out.append(f"<h{min(level + 2, 6)}>{_inline(line[level:].strip())}</h{min(level + 2, 6)}>")
+            h = min(level + top - 1, 6)
+            out.append(f"<h{h}>{_inline(line[level:].strip())}</h{h}>")
+            if after_title:
+                out.append(after_title)
+                after_title = ""
         else:
             out.append(f"<p>{_inline(line)}</p>")
     if in_list:
         out.append("</ul>")
-    return "".join(out)
+    return after_title + "".join(out)
 
 
 def _sheet_section(sheet: dict) -> str:
     """The setup sheet as the operator reads it (setup.md's text), or a note without one."""
     if not sheet:
-        return "<p class=missing>(setup sheet: not available)</p>"
+        return "<h2>Setup sheet</h2><p class=missing>(setup sheet: not available)</p>"
     from .toolpath.setup import sheet_markdown
 
     refusals = (sheet.get("machine_check") or {}).get("refusals") or []
     refused = ("".join(f"<p class=unsafe><b>The machine cannot run this program:</b> {_e(r)} "
                        f"(<code>fabkit gcode</code> refuses it, exit 2)</p>" for r in refusals))
-    return f'<div id="setup-sheet">{refused}{markdown_html(sheet_markdown(sheet, None))}</div>'
+    # the sheet's own title ("Setup sheet: PROGRAM") heads the section: one heading
+    return f'<div id="setup-sheet">{markdown_html(sheet_markdown(sheet, None), top=2, after_title=refused)}</div>'
 
 
 def _stock_section(pictures: dict) -> list[str]:
@@ -313,7 +381,8 @@ def render(results: dict) -> str:
         + (f"v_critical {_n(vc, '.7g')} {u}/s (release height {_n(chk.get('critical_height'), '.5g')} {u}, "
            f"to {_tolerances(chk)['v_rel_tol']:.0e} relative)" if vc is not None
            else f"no v_critical over the ramp's speeds ({_e(chk.get('v_critical_reason') or 'not found')})")
-        + f"; {_n(chk.get('seconds'), '.3g')} s.</p>{_windows_table(chk, u)}</section>",
+        + f"; {_n(chk.get('seconds'), '.3g')} s.</p>"
+        f"{_windows_table(chk, u, results.get('scale'), results.get('min_width'))}</section>",
         f"<section><h2>The surface</h2><p class=meta>z = h(x, y) clipped at the top face ({_n(surf['top'])} {u}); "
         f"{len(data['x'])} × {len(data['y'])} exact samples (the view interpolates between them). Drag to turn, "
         f"wheel to zoom; red: the launch line from x = {_n(surf['start'])}.</p>"
@@ -333,7 +402,7 @@ def render(results: dict) -> str:
         + ", ".join(f"{k} {_n(v, '.3g')} s" for k, v in tps.items()) + ".</p></section>",
         *_stock_section(tp.get("stock_png") or {}),
         f"<section><h2>Ramp calibration</h2>{_calibration_table(cal, results.get('ramp_marks'), u, max(1, len(cal['heights']) // 20))}</section>",
-        f"<section><h2>Setup sheet</h2>{_sheet_section(tp.get('sheet') or {})}</section>",
+        f"<section>{_sheet_section(tp.get('sheet') or {})}</section>",
     ]
     title = f"fabkit report: {results['name']}"
     return ("<!DOCTYPE html>\n<html lang=en><head><meta charset=utf-8>"

@@ -24,6 +24,19 @@ def test_paper_design_passes(cli, tmp_path):
     assert set(r["outcomes"]) <= {"escaped", "captured"}
     assert r["machining"]["depth_ok"] and r["machining"]["radius_ok"]
     assert 40 < r["v_critical"] < 60
+    # sweep and check on the same spec report the same windows, and the same width from which
+    # every window is found: the ramp's largest spacing (60 heights 0.2..4.5 cm, so 4.3 / 59 cm
+    # in release height; in v_in the lowest spacing, v = sqrt(2 g H / (1 + k)) less the ramp's losses)
+    code, out2, err = cli("sweep", write_spec(tmp_path, mutated({"ramp.samples": 60})), "--json", "--no-progress")
+    assert code == 0, err
+    s = json.loads(out2)
+    two = [(w["lo"], w["hi"]) for w in s["windows"] if w["bounces"] == 2
+           and r["v_in"][0] < w["lo"] and w["hi"] < r["v_in"][-1]]
+    assert two and two == [(w["lo"], w["hi"]) for w in r["reachable_windows"]]
+    c, cs = r["window_completeness"], s["window_completeness"]
+    assert c["certain_height_width"] == pytest.approx(4.3 / 59, rel=1e-9)
+    assert c["certain_width"] == cs["certain_width"] == pytest.approx(r["v_in"][1] - r["v_in"][0], rel=1e-12)
+    assert c["spacing_near_critical"] == cs["spacing_near_critical"] < c["certain_width"]
 
 
 def test_wall_clipped_at_2cm_fails_naming_the_first_height(cli, tmp_path):

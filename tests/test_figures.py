@@ -105,3 +105,36 @@ def test_precision_figure_has_units_on_both_axes(svg_text):
     svg = svg_text(plots.precision_png(rows, title="t", fmt="svg"))
     assert "wall time for the launch set (s)" in svg and "relative, dimensionless" in svg
     assert re.search(r"rtol 1e-0[468]", svg)
+
+
+def test_stock_picture_says_where_its_scale_is_clipped_and_shows_the_top_faces_grey():
+    """The stock picture (fabkit.toolpath.stock.stock_png): a scale clipped at its material
+    end draws an arrow past the bar in the end's colour and marks the bound '>='; the flat
+    top face on the design is the grey of the legend's swatch (pixels read back)."""
+    from io import BytesIO
+
+    import numpy as np
+    from PIL import Image
+
+    from fabkit.toolpath.stock import _LEFT, make_stock, stock_png
+
+    s = make_stock(40.0, 20.0, 0.25)
+    design = np.zeros(s.z.shape)
+    s.z[:] = 0.0
+    s.z[40:120, 20:60] = 0.05          # material left, within the scale
+    s.z[60:70, 30:40] = 0.4            # more than the scale shows: clipped
+
+    def pixels(**kw):
+        return np.asarray(Image.open(BytesIO(stock_png(s, design, envelope=0.0, **kw))).convert("RGB")).astype(int)
+
+    clipped, whole = pixels(left_max=0.1), pixels(left_max=0.4)
+    h, w = clipped.shape[:2]
+    pw = w - 90                         # the picture's margins: left 60, right 30, top 34, bottom 86
+    bw = max(60, min(pw - 152, 520))
+    bar_end, by0 = 60 + (pw - bw) // 2 + bw, h - 52
+    tip = clipped[by0 + 7, bar_end + 4]
+    assert np.abs(tip - _LEFT).max() <= 1                     # the arrow, in the end's colour
+    assert np.abs(whole[by0 + 7, bar_end + 4] - 255).max() == 0   # none when nothing is clipped
+    swatch = clipped[h - 14, 66]
+    top_face = clipped[34 + 5, 60 + 5]                          # a corner of the stock: flat, on the design
+    assert np.abs(top_face - swatch).max() <= 1 and swatch.max() < 247   # grey, not the scale's white

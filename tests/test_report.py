@@ -48,7 +48,11 @@ def _results(safe: bool):
                             "x": -7.653, "y": 4.49, "t": 1.16}
     chk = {"safe": safe, "highest_safe_height": 4.5 if safe else 2.1625, "first_failure": ff, "v_critical": 51.742707,
            "critical_height": 1.911, "reachable_windows": [{"lo": 33.58, "hi": 43.55, "height_lo": 0.8048,
-                                                             "height_hi": 1.3537, "v_out_max": None}],
+                                                             "height_hi": 1.3537, "v_out_max": None},
+                                                            {"lo": 51.5011, "hi": 51.5063, "height_lo": 1.89141,
+                                                             "height_hi": 1.89145, "v_out_max": None}],
+           "window_completeness": {"certain_width": 0.4366, "certain_width_at": 16.28,
+                                   "spacing_near_critical": 0.1227, "certain_height_width": 0.01078},
            "machining": {"depth_mm": 53.3, "depth_ok": True, "radius_ok": True}, "heights": np.linspace(0.2, 4.5, 5),
            "model": "full", "damping": 0.127, "seconds": 6.1}
     return {"name": "surface", "units": "cm", "spec_path": "specs/surface.yaml", "version": "t", "generated_at": "now",
@@ -61,7 +65,12 @@ def _results(safe: bool):
                          "verify": {"max_gouge": 0.0052, "max_material_left": 0.0504, "checked_points": 40000}},
             "calibration": {"heights": np.linspace(0.2, 4.5, 50), "v_in": np.sqrt(np.linspace(0.2, 4.5, 50)) * 37.43,
                             "g": 980.665, "k": 0.4, "units": "cm", "seconds": 1e-4},
-            "ramp_marks": [{"height": 1.911, "v_in": 51.742707, "label": "v_critical"}]}
+            "ramp_marks": [{"height": 1.911, "v_in": 51.742707, "label": "v_critical"},
+                           {"height": 1.0569, "v_in": 38.565, "label": "2-bounce window 1 centre (33.58..43.55)",
+                            "observable": True},
+                           {"height": 1.89143, "v_in": 51.5037, "label": "2-bounce window 2 centre (51.50..51.51)",
+                            "observable": False}],
+            "scale": 10.0, "min_width": 0.1}
 
 
 def test_setup_sheet_is_the_operators_sheet_with_units():
@@ -119,6 +128,13 @@ def test_renders_in_headless_chromium(tmp_path, safe):
     assert re.search(rf'id="verdict" class="verdict {word.lower()}">{word}<', dom)
     if not safe:
         assert "release height 2.1722 cm" in dom and "z reaches top - margin" in dom
+    _units_on_every_numeric_column(dom)
+    _one_heading_per_section(dom)
+    # the observable window is marked, the one 0.0004 cm (0.004 mm) wide set apart, its mark too
+    assert "1 of 2 windows are observable" in dom
+    assert re.search(r'<tr class="narrow"><td>2</td>', dom) and 'id="marks-narrow"' in dom
+    assert "window 2 centre" in dom.split('id="marks-narrow"')[1] and "window 2 centre" not in \
+        dom.split('id="marks-narrow"')[0].split('id="marks"')[1]
     m = re.search(r'id="surface3d"[^>]*data-rendered="(\d+)"', dom)
     assert m and int(m.group(1)) == 29 * 15          # every quad of the grid drawn by the script
     shot = tmp_path / "shot.png"
@@ -133,6 +149,84 @@ def test_renders_in_headless_chromium(tmp_path, safe):
     # the 3-D view painted the surface (sand and blue shades, not the empty background)
     sand = np.all(np.abs(img - [225, 196, 140]) <= 40, axis=-1) & (img[..., 0] > img[..., 2] + 40)
     assert sand.sum() > 2000
+
+
+class _Tables:
+    """The tables of an HTML page (the browser's DOM): per table, its rows as [(tag, text)]."""
+
+    def __init__(self, page: str):
+        from html.parser import HTMLParser
+
+        tables, stack = [], []
+
+        class P(HTMLParser):
+            def handle_starttag(self, tag, attrs):
+                if tag == "table":
+                    stack.append([])
+                elif tag == "tr" and stack:
+                    stack[-1].append([])
+                elif tag in ("td", "th") and stack and stack[-1]:
+                    stack[-1][-1].append([tag, ""])
+
+            def handle_endtag(self, tag):
+                if tag == "table" and stack:
+                    tables.append(stack.pop())
+
+            def handle_data(self, data):
+                if stack and stack[-1] and stack[-1][-1]:
+                    stack[-1][-1][-1][1] += data
+
+        P().feed(page)
+        self.tables = tables
+
+
+NUMBER = re.compile(r"^[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$")
+UNIT = re.compile(r"\(([^)]*[A-Za-zµ°%/²][^)]*)\)")
+
+
+def _units_on_every_numeric_column(page: str) -> None:
+    """Every column of every table whose cells are all numbers, not all whole (a measured
+    quantity, not a count or an ordinal), names its unit in its header: 'H (cm)'."""
+    tables = _Tables(page).tables
+    assert tables
+    seen = 0
+    for rows in tables:
+        head = next((r for r in rows if r and all(t == "th" for t, _ in r)), None)
+        body = [r for r in rows if r and all(t == "td" for t, _ in r)]
+        if head is None or not body:
+            continue
+        for j, (_, name) in enumerate(head):
+            cells = [r[j][1].strip() for r in body if j < len(r) and r[j][1].strip() not in ("", "—", "-")]
+            if not cells or not all(NUMBER.match(c) for c in cells):
+                continue
+            if all(float(c) == int(float(c)) and "." not in c and "e" not in c.lower() for c in cells):
+                continue                              # counts and ordinals
+            seen += 1
+            assert UNIT.search(name), f"column '{name.strip()}' ({cells[:3]}...) has no unit"
+    assert seen >= 6                                  # windows, calibration and marks tables
+
+
+def _one_heading_per_section(page: str) -> None:
+    for sec in re.findall(r"<section>(.*?)</section>", page, flags=re.S):
+        assert len(re.findall(r"<h2[ >]", sec)) == 1, sec[:200]
+    heads = re.findall(r"<h[23][^>]*>(.*?)</h[23]>", page)
+    assert len(heads) == len(set(heads)), heads
+
+
+def test_windows_table_and_marks_carry_units_and_the_observable_ones():
+    """Without a browser: the rendered page's tables (windows, calibration, marks) put a
+    unit on every numeric column, each section has one heading, the setup sheet's title
+    is its section's heading; the window narrower than min_width (0.1 cm = 1 mm) is set apart."""
+    page = render(_results(True))
+    _units_on_every_numeric_column(page)
+    _one_heading_per_section(page)
+    assert page.count("Setup sheet") == 1 and "<h2>Setup sheet: " in page
+    assert "1 of 2 windows are observable: at least 0.1 cm (1 mm) wide in release height" in page
+    assert "Every window wider than 0.01078 cm in release height" in page
+    # a page given no minimum width says nothing about observability (an older caller)
+    res = _results(True)
+    del res["min_width"], res["scale"]
+    assert "observable" not in render(res).split("Ramp calibration")[0]
 
 
 def test_bad_spec_exit_2_nothing_written(cli, tmp_path):

@@ -289,5 +289,71 @@ def test_sweep_report_carries_its_verdict_and_the_json_keys():
     # the JSON keys of earlier versions, in their order
     assert list(two.to_json()) == ["v_in", "v_out", "bounces", "outcome", "v_critical", "windows", "tn_fit",
                                    "seconds", "error_estimate", "v_critical_error", "v_critical_reason",
-                                   "launches", "resolution", "unresolved_windows", "model", "units"]
+                                   "launches", "resolution", "unresolved_windows", "model", "units",
+                                   "window_completeness"]
     assert tuple(two.to_json()) == SWEEP_JSON_KEYS and two.outcome_counts == {"escaped": 2}
+
+
+# ----------------------------------------------------------------------------
+# which windows the samples can miss (issue 39)
+# ----------------------------------------------------------------------------
+#: the n-bounce ... windows of a resonance crowding toward v_critical = 60: window n
+#: (n = 3..12) from 60 - 20 * 0.72^n, 2.4 * 0.62^n wide (0.55 .. 0.0079), T_n = 0.6 n + 0.4 s
+ACC = [(n, 60.0 - 20.0 * 0.72 ** n, 60.0 - 20.0 * 0.72 ** n + 2.4 * 0.62 ** n) for n in range(3, 13)]
+
+
+def _accumulating(v):
+    v = np.asarray(v, dtype=float)
+    n = np.full(len(v), 5)
+    out = np.full(len(v), models.CAPTURED)
+    bt = np.full((len(v), 8), np.nan)
+    for k, lo, hi in ACC:
+        m = (v >= lo) & (v < hi)
+        n[m], out[m] = 2, models.ESCAPED
+        bt[m, 0], bt[m, 1] = 1.0, 1.0 + 0.6 * k + 0.4
+    one = v >= 60.0
+    n[one], out[one] = 1, models.ESCAPED
+    vout = np.where(out == models.ESCAPED, 1.0, np.nan)
+    return Launches(v, out.astype(np.int8), n, vout, bt)
+
+
+@pytest.mark.parametrize("offset", [0.0, 0.11, 0.23, 0.31])
+def test_windows_wider_than_the_stated_width_are_found_and_the_fit_names_the_missed(offset):
+    from fabkit.commands.sweep import summary
+    from fabkit.physics.sweep import SweepReport
+
+    p = _paper("full")
+    v = np.linspace(40.0, 64.0, 61) + offset          # 0.4 apart: windows n >= 6 are narrower
+    res = sweep(p, v, launcher=_accumulating, error_samples=0)
+    c = res["window_completeness"]
+    assert c["certain_width"] == pytest.approx(0.4, rel=1e-9) and c["spacing_near_critical"] == pytest.approx(0.4)
+    found = {k for k, lo, hi in ACC
+             if any(w["lo"] == pytest.approx(lo, rel=1e-6) and w["hi"] == pytest.approx(hi, rel=1e-6)
+                    for w in res["windows"])}
+    assert len(found) == len(res["windows"])              # no window that is not one of ACC
+    for k, lo, hi in ACC:
+        if hi - lo > c["certain_width"]:
+            assert k in found                             # the statement holds
+        held = bool(np.any((v >= lo) & (v < hi)))
+        assert (k in found) == held                       # found exactly when a sample falls in it
+    fit = res["tn_fit"]
+    assert fit["n"] == sorted(found)                      # numbered by T_n (0.6 s apart), gaps kept
+    assert fit["missing_n"] == [k for k in range(min(found), max(found) + 1) if k not in found]
+    assert fit["T"] == pytest.approx(0.6, rel=1e-9) and fit["delta"] == pytest.approx(0.4, rel=1e-9)
+    text = "\n".join(summary(SweepReport.of(res, p, "cm")))
+    assert (f"every window wider than 0.4 cm/s (the samples' largest spacing, from v_in "
+            f"{c['certain_width_at']:.4g}) is found") in text
+    if fit["missing_n"]:
+        assert "none found for n = " in text
+
+
+def test_completeness_of_the_ramps_speeds():
+    # the ramp's heights are evenly spaced; v = sqrt(2 g~ H) spreads them widest at the bottom
+    from fabkit.physics.sweep import completeness
+
+    H = np.linspace(0.2, 4.5, 400)
+    v = np.sqrt(2 * 981.0 * H / 1.4)
+    c = completeness(v[::-1], v_critical=float(v[250]) + 1e-9)
+    assert c["certain_width"] == pytest.approx(v[1] - v[0], rel=1e-12) and c["certain_width_at"] == v[0]
+    assert c["spacing_near_critical"] == pytest.approx(v[251] - v[250], rel=1e-12)
+    assert completeness([3.0])["certain_width"] is None

@@ -8,7 +8,9 @@ why) otherwise, 2 on bad input.
 from __future__ import annotations
 
 from ..errors import DesignError
+from ..numba_start import prepare
 from ._common import Timer, emit, prepare_simulator
+from .sweep import completeness_line
 
 #: reachable windows listed in the summary (--json lists every one)
 SHOW = 24
@@ -27,7 +29,9 @@ def run(args) -> int:
     stage, launches, close = launch_stages(5, quiet(args), "check")
     try:
         stage("compiling or loading the simulator")
-        prepare_simulator(spec, say=None if quiet(args) else (lambda m: stage(m, advance=False)))
+        say = None if quiet(args) else (lambda m: stage(m, advance=False))
+        prepare(spec, need=("simulator",), say=say, quiet=quiet(args))   # a first run: gcode and report too
+        prepare_simulator(spec, say=say)
         n = len(ramp_heights(spec))
         r = check(spec, progress=launches(f"launching the ramp's {n} heights", n), stage=stage)
     finally:
@@ -49,6 +53,9 @@ def run(args) -> int:
     for w in wins[:SHOW]:
         lines.append(f"  release height {w['height_lo']:.4f}..{w['height_hi']:.4f} {u} "
                      f"(v_in {w['lo']:.6f}..{w['hi']:.6f} {u}/s)")
+    c = completeness_line("check", r.window_completeness, u)
+    if c:
+        lines.append(c)
     b = r.ball
     if b is not None:
         cnt = b["unsafe_counts"]

@@ -15,7 +15,6 @@ tolerance; exit 2 on bad input (nothing written).
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 from ..errors import DesignError
@@ -52,11 +51,11 @@ def run(args) -> int:
                        **_job_paths(spec, out)})
     surface = Surface.from_spec(spec)
     _machine_precheck(spec, surface, machine)  # the machine's travel, spindle, tool changer: before planning
-    est = plan_estimate(spec, surface)  # the guards first: a refusal costs about a second
-    if est.get("build_seconds", 0.0) > 0 and not getattr(args, "no_progress", False) and sys.stderr.isatty():
-        sys.stderr.write(f"compiling the toolpath's kernels (once, about {max(1, round(est['build_seconds']))} s "
-                         "of CPU)\n")
-        sys.stderr.flush()
+    plan_estimate(spec, surface)  # the guards first: a refusal costs about a second
+    # a first run compiles every kernel gcode, check and report need for this surface, and says so
+    from ..numba_start import prepare
+
+    prepare(spec, need=("toolpath",), quiet=getattr(args, "no_progress", False))
     check_depth(spec, surface)
     R = spec.tool.diameter / 2.0
     # verified, the sheet reports what is left; unverified, the smallest concave radius

@@ -17,6 +17,21 @@ from ._common import Timer, check_paths, default_output, emit, prepare_simulator
 NEEDS = ("surface", "stock", "tool", "machining", "ball", "ramp", "simulation")
 SURFACE_SAMPLES = (90, 46)   # the 3-D view's grid (x, y)
 ERROR_SAMPLES = 24           # escaped launches re-run tighter for the sweep's v_out error
+OBSERVABLE_MM = 1.0          # an observable window's least width in release height (fabkit design's default)
+
+
+def _mark_observable(marks: list, windows: list, min_width: float) -> list:
+    """Each window's mark (at its centre in v_in, :func:`fabkit.lab.ramp.mark_targets`)
+    with ``observable``: the window at least ``min_width`` wide in release height (design
+    units); v_critical's mark is a boundary, always shown."""
+    centre = {0.5 * (w["lo"] + w["hi"]): w for w in windows}
+    out = []
+    for m in marks:
+        w = centre.get(m["v_in"])
+        out.append(dict(m, observable=True) if w is None else
+                   dict(m, observable=bool(w["height_hi"] - w["height_lo"] >= min_width * (1 - 1e-12)),
+                        width=w["height_hi"] - w["height_lo"]))
+    return out
 
 
 def _toolpath(spec, surface, machine=None):
@@ -126,6 +141,16 @@ def run(args) -> int:
     machine = machine_from_spec(spec, getattr(args, "machine", None))    # a bad profile: exit 2 now
     spec = dialect_for_machine(spec, machine)        # the toolpath in the machine's dialect
 
+    from ..numba_start import cold_kernels, prepare
+
+    # a first run compiles every kernel the page needs (the simulator, the toolpath's) at once, and
+    # says so; a job the time guard refuses is refused before that (the guard runs again in the job)
+    cold = cold_kernels(spec)
+    if cold["simulator"] > 0 or cold["toolpath"] > 0:
+        from ..toolpath.raster import plan_estimate
+
+        plan_estimate(spec, surface)
+        prepare(spec, quiet=getattr(args, "no_progress", False))
     step, close = stage_bar(5, getattr(args, "no_progress", False), "report")
     try:
         step("calibrating the ramp")
@@ -157,10 +182,13 @@ def run(args) -> int:
     surf = {"x": xs, "y": ys, "z": surface.clipped(GX, GY), "top": surface.top,
             "start": float(spec.simulation.start), "y0": float(spec.simulation.y0)}
 
-    marks = mark_targets(chk, cal["g"], cal["k"], spec=spec)
+    min_width = OBSERVABLE_MM / float(spec.scale)
+    marks = _mark_observable(mark_targets(chk, cal["g"], cal["k"], spec=spec), chk.get("reachable_windows") or [],
+                             min_width)
     results = {"name": spec.name, "units": spec.units, "spec_path": str(args.spec), "version": __version__,
                "generated_at": _generated_at(), "check": chk, "surface": surf, "sweep": sweep_res,
-               "toolpath": tool, "calibration": cal, "ramp_marks": marks}
+               "toolpath": tool, "calibration": cal, "ramp_marks": marks, "scale": float(spec.scale),
+               "min_width": min_width}
     results["seconds"] = total.seconds
     page = render(results)
     write_atomic(path, page)

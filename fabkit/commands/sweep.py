@@ -61,7 +61,12 @@ def run(args) -> int:
     stage, launches, close = launch_stages(4 + bool(args.plot), quiet(args), "sweep")
     try:
         stage("compiling or loading the simulator")
-        prepare_simulator(problem, say=None if quiet(args) else (lambda m: stage(m, advance=False)))
+        say = None if quiet(args) else (lambda m: stage(m, advance=False))
+        if args.v_in is None:       # the ramp's spec: a first run compiles what gcode, check, report need
+            from ..numba_start import prepare
+
+            prepare(spec, need=("simulator",), say=say, quiet=quiet(args))
+        prepare_simulator(problem, say=say)
         res = sweep(problem, v, progress=launches(f"launching {len(v)} speeds", len(v)), stage=stage)
         rep = SweepReport.of(res, problem, spec.units, seconds=timer.seconds)
         if args.plot:
@@ -99,5 +104,40 @@ def summary(rep) -> list[str]:
     if fit.get("T") is not None:
         lines.append(f"sweep: T_n = {fit['T']:.4f} n + {fit['delta']:.4f} s (eq. tn, {len(fit['n'])} windows); "
                      f"2 pi/omega_y = {fit['T_shape']:.4f} s")
+        if fit.get("missing_n"):
+            lines.append(f"sweep: the fit numbers the windows n = {fit['n'][0]}..{fit['n'][-1]}: none found for "
+                         f"n = {_ranges(fit['missing_n'])} (windows narrower than the samples' spacing, missed; "
+                         f"fitted on the {len(fit['n'])} found)")
+    c = completeness_line("sweep", rep.window_completeness, u)
+    if c:
+        lines.append(c)
     lines.append(f"sweep: {err_txt}, {vc_txt}, {rep.seconds:.1f} s")
     return lines
+
+
+def _ranges(ns) -> str:
+    """Whole numbers as runs: [10, 11, 12, 14] -> '10-12, 14'."""
+    out, ns = [], sorted(int(n) for n in ns)
+    i = 0
+    while i < len(ns):
+        j = i
+        while j + 1 < len(ns) and ns[j + 1] == ns[j] + 1:
+            j += 1
+        out.append(str(ns[i]) if j == i else f"{ns[i]}-{ns[j]}")
+        i = j + 1
+    return ", ".join(out)
+
+
+def completeness_line(who: str, c: dict | None, units: str) -> str:
+    """The summary's statement of which windows are certain to be found
+    (:func:`fabkit.physics.sweep.completeness`), one line ('' without samples)."""
+    if not c or c.get("certain_width") is None:
+        return ""
+    near, dh = c.get("spacing_near_critical"), c.get("certain_height_width")
+    wide = (f"{dh:.4g} {units} in release height (the ramp's spacing; {c['certain_width']:.4g} {units}/s in v_in "
+            f"at most, from v_in {c['certain_width_at']:.4g})" if dh is not None else
+            f"{c['certain_width']:.4g} {units}/s (the samples' largest spacing, from v_in "
+            f"{c['certain_width_at']:.4g})")
+    return (f"{who}: every window wider than {wide} is found; a narrower one only if a sample falls in it"
+            + (f" (samples {near:.4g} {units}/s apart at v_critical, where the windows narrow)"
+               if near is not None else ""))

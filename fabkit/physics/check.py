@@ -26,7 +26,9 @@ ball) bridges or slips. It reports:
   edge of its connected two-bounce run (``sweep.py``: gaps between windows narrower than
   1e-4 relative are not seen; near v_critical the windows crowd together, separated by
   gaps far narrower than the ramp's sampling, and a bisection of the sampled bracket
-  alone ends on any of their edges);
+  alone ends on any of their edges); ``window_completeness`` (:func:`sweep.completeness`):
+  a window wider than the swept speeds' largest spacing is certain to be found, a narrower
+  one only if a sample falls in it;
 * machining feasibility when the spec has stock and tool: the depth of the cut
   against ``stock.depth_limit``, ``stock.thickness`` and ``tool.reach``, and the
   tool radius against the surface's smallest concave radius.
@@ -157,6 +159,7 @@ class CheckReport:
     refined: bool = True
     launches: int = 0
     seconds: float = 0.0
+    window_completeness: dict | None = None
 
     @property
     def ramp_safe(self) -> bool:
@@ -207,7 +210,9 @@ class CheckReport:
                    ramp_safe=self.ramp_safe, reason=self.reason, bounces=self.bounces, v_out=self.v_out,
                    tolerances=self.tolerances,
                    # the reported windows hold no launch of another outcome down to this (relative)
-                   resolution=self.tolerances.get("gap_rel_tol") if self.refined else None)
+                   resolution=self.tolerances.get("gap_rel_tol") if self.refined else None,
+                   # windows wider than the swept speeds' largest spacing are certain to be found
+                   window_completeness=self.window_completeness)
         return out
 
 
@@ -351,7 +356,17 @@ def check(spec, *, launcher=None, heights=None, sweep_v=None, progress=None, pro
         reachable_windows=reach, machining=m, ball=ball, grid=grid,
         tolerances={"rel_tol": rel_tol, "v_rel_tol": v_rel_tol, "edge_rel_tol": edge_rel_tol,
                     "gap_rel_tol": gap_rel_tol},
-        refined=refine, launches=counted["n"], seconds=time.perf_counter() - t0)
+        refined=refine, launches=counted["n"], seconds=time.perf_counter() - t0,
+        window_completeness=_completeness(sw["window_completeness"], H if sweep_v is None else None))
+
+
+def _completeness(c: dict | None, H) -> dict | None:
+    """The sweep's :func:`sweep.completeness` of the swept speeds, with, when those are
+    the ramp's own, ``certain_height_width``: the largest spacing of the release heights
+    (a window wider than that in release height holds a sample and is found)."""
+    if c is None or H is None or len(H) < 2:
+        return c
+    return dict(c, certain_height_width=float(np.max(np.diff(np.sort(np.asarray(H, dtype=float))))))
 
 
 def _midpoint_windows(v: np.ndarray, res) -> list[dict]:

@@ -45,10 +45,14 @@ What :func:`sweep` computes, and how accurately
   the first window (in the order of increasing v_in) and n_i = n_{i-1} +
   max(1, round((T_i - T_{i-1}) / d)) for the others, d = T_shape first and then
   the fitted T (iterated), so consecutive windows differ by one and a window
-  missed by the sampling leaves a gap; T_shape = 2 pi /
+  missed by the sampling leaves a gap, named in ``missing_n``; T_shape = 2 pi /
   omega_y, omega_y = sqrt(g~ h_yy) (= sqrt(2 g~ c) for c y^2) at the bottom of
   the channel's well on y = 0. T and delta come from least squares of
   T_n = T n + delta.
+* ``window_completeness`` (:func:`completeness`): windows wider than the samples'
+  largest spacing are certain to be found; a narrower one is found only if a sample
+  falls in it (the probes and walks refine what the samples found, they do not search
+  between them).
 * ``error_estimate``: a subset of escaped launches away from window edges is
   re-run at ten times tighter rtol and atol; the largest change of v_out
   (absolute and relative, where bounce counts agree) estimates the v_out error.
@@ -568,7 +572,7 @@ def transverse_period(problem) -> tuple[float, float]:
 def fit_tn(T_n: list[float], v_in: list[float], T_shape: float) -> dict:
     """Eq. (tn): T_n = T n + delta by least squares (see the module docstring for n)."""
     out = {"T": None, "delta": None, "n": [], "T_n": list(T_n), "v_in": list(v_in), "T_shape": T_shape,
-           "omega": 2 * math.pi / T_shape if T_shape and math.isfinite(T_shape) else None}
+           "omega": 2 * math.pi / T_shape if T_shape and math.isfinite(T_shape) else None, "missing_n": []}
     if not T_n or not math.isfinite(T_shape):
         return out
     n0 = max(int(math.floor(T_n[0] / T_shape)), 0)
@@ -586,6 +590,9 @@ def fit_tn(T_n: list[float], v_in: list[float], T_shape: float) -> dict:
             break
         d = float(T)
     out["n"] = n
+    # the n between the first and the last window that no window was found for (each a
+    # window narrower than the samples' spacing, missed: see :func:`completeness`)
+    out["missing_n"] = sorted(set(range(n[0], n[-1] + 1)) - set(n)) if n else []
     if len(set(n)) >= 2:
         A = np.column_stack([n, np.ones(len(n))])
         (T, delta), *_ = np.linalg.lstsq(A, np.asarray(T_n), rcond=None)
@@ -593,6 +600,31 @@ def fit_tn(T_n: list[float], v_in: list[float], T_shape: float) -> dict:
         out["T_over_T_shape"] = float(T / T_shape)
         out["residual_max"] = float(np.max(np.abs(A @ np.array([T, delta]) - np.asarray(T_n))))
     return out
+
+
+def completeness(v, v_critical: float | None = None) -> dict:
+    """How complete the windows found from the sorted samples ``v`` (design units/s) are.
+
+    A window is found from the samples that fall in it (:func:`find_runs`): one wider
+    than the largest spacing between consecutive samples holds at least one sample and
+    is certain to be found; a narrower one is found only where a sample happens to fall
+    in it, and is missed otherwise (near v_critical the windows narrow toward zero width
+    and crowd together, so some are always missed there). Returns ``certain_width``
+    (the largest spacing: every window wider than it is found), ``certain_width_at``
+    (the lower sample of that spacing), ``spacing_near_critical`` (the spacing of the
+    two samples that bracket ``v_critical``, None without it) and ``samples``."""
+    v = np.sort(np.asarray(v, dtype=float).ravel())
+    if v.size < 2:
+        return {"certain_width": None, "certain_width_at": None, "spacing_near_critical": None,
+                "samples": int(v.size)}
+    d = np.diff(v)
+    i = int(np.argmax(d))
+    near = None
+    if v_critical is not None and v[0] <= v_critical <= v[-1]:
+        j = min(max(int(np.searchsorted(v, v_critical)) - 1, 0), d.size - 1)
+        near = float(d[j])
+    return {"certain_width": float(d[i]), "certain_width_at": float(v[i]), "spacing_near_critical": near,
+            "samples": int(v.size)}
 
 
 # ----------------------------------------------------------------------------
@@ -611,7 +643,8 @@ def sweep(problem, v_in, *, launcher=None, method: str = "fabkit", rtol: float |
     samples, edge_error}] (two-bounce ones also v_in_max, v_out_max, T_n),
     ``resolution`` (the windows' resolution, relative; None without ``refine``),
     ``unresolved_windows`` [{bounces, lo, hi}] (parts narrower than the resolution),
-    ``tn_fit`` {T, delta, n, T_n, v_in, T_shape, omega},
+    ``tn_fit`` {T, delta, n, T_n, v_in, T_shape, omega, missing_n},
+    ``window_completeness`` (:func:`completeness`),
     ``error_estimate`` {v_out_abs, v_out_rel, launches, rtol_ref}, ``launches``
     (total run), ``seconds``. Accuracy: see the module docstring.
     ``initial``: results already computed for the sorted ``v_in`` (not re-run).
@@ -691,6 +724,7 @@ def sweep(problem, v_in, *, launcher=None, method: str = "fabkit", rtol: float |
             windows.append(w)
     out["windows"] = windows
     out["resolution"] = gap_rel_tol if refine else None
+    out["window_completeness"] = completeness(v, out["v_critical"])
     out["unresolved_windows"] = [u for part in done[1:] for u in part[1]] if refine else []
 
     # eq. (tn) fit
@@ -712,7 +746,7 @@ def sweep(problem, v_in, *, launcher=None, method: str = "fabkit", rtol: float |
 #: the keys of ``fabkit sweep --json``, in order (a contract: every key stays)
 SWEEP_JSON_KEYS = ("v_in", "v_out", "bounces", "outcome", "v_critical", "windows", "tn_fit", "seconds",
                    "error_estimate", "v_critical_error", "v_critical_reason", "launches", "resolution",
-                   "unresolved_windows", "model", "units")
+                   "unresolved_windows", "model", "units", "window_completeness")
 
 
 @dataclass
@@ -745,6 +779,7 @@ class SweepReport:
     model: str
     damping: float
     units: str
+    window_completeness: dict | None = None
 
     @classmethod
     def of(cls, result: dict, problem, units: str, seconds: float | None = None) -> "SweepReport":
@@ -757,7 +792,8 @@ class SweepReport:
                    unresolved_windows=result["unresolved_windows"], tn_fit=result["tn_fit"],
                    error_estimate=result["error_estimate"], launches=result["launches"],
                    seconds=result["seconds"] if seconds is None else seconds, model=problem.model,
-                   damping=float(problem.damping), units=units)
+                   damping=float(problem.damping), units=units,
+                   window_completeness=result.get("window_completeness"))
 
     @property
     def two_bounce_windows(self) -> list:

@@ -623,7 +623,10 @@ def stock_png(stock: Stock, design: np.ndarray, *, title: str = "", tolerance: f
     (default: the largest gouge, at least 2 x tolerance; the 99.5th percentile of the
     material left); a pixel shows the deviation of largest magnitude within ``envelope``
     mm of it (the height of the scallops there rather than stripes aliased from them; an
-    isolated gouge stays visible). PNG bytes (numpy, scipy.ndimage and Pillow)."""
+    isolated gouge stays visible). A scale clipped at either end says so (an arrow in the
+    end's colour, the bound marked >= or <=, and the largest value and share beyond it);
+    the legend shows the grey of a flat face on the design (the uncut top face), the scale's
+    white as the hill shade lights it. PNG bytes (numpy, scipy.ndimage and Pillow)."""
     from PIL import Image, ImageDraw, ImageFont
 
     from scipy.ndimage import maximum_filter, minimum_filter, uniform_filter
@@ -672,7 +675,7 @@ def stock_png(stock: Stock, design: np.ndarray, *, title: str = "", tolerance: f
     img = np.full((top + ph + bottom, left + pw + right, 3), 255, np.uint8)
     img[top:top + ph, left:left + pw] = plot
     # the scale: gouge_max ... 0 ... left_max
-    bw = min(pw, 520)
+    bw = max(60, min(pw - 152, 520))     # room beside the bar for its end labels (and arrows)
     bx0, by0 = left + (pw - bw) // 2, top + ph + 34
     half = bw // 2
     tb = np.concatenate([-np.linspace(1, 0, half) * gmax, np.linspace(0, 1, bw - half) * lmax])
@@ -687,13 +690,38 @@ def stock_png(stock: Stock, design: np.ndarray, *, title: str = "", tolerance: f
     dr.text((left, top + ph + 4), f"X 0 .. {stock.L:g} mm, Y 0 .. {stock.W:g} mm; grid {nx} x {ny} at "
             f"{stock.hx:.3g} mm; largest gouge {max(-dev.min(), 0.0) + 0.0:.4f} mm, most material left "
             f"{max(dev.max(), 0.0) + 0.0:.4f} mm (vertical)", fill=(0, 0, 0), font=font)
+    # a scale clipped at either end says so: an arrow in the end's colour beyond the bar (the
+    # deviations past it are drawn in that colour) and the largest value it stands for
+    gouge_all, left_all = max(-float(dev.min()), 0.0), max(float(dev.max()), 0.0)
+    over_lo, over_hi = gouge_all > gmax * (1 + 1e-9), left_all > lmax * (1 + 1e-9)
+    for clipped, x_end, d, val in ((over_lo, bx0 - 1, -1, -gmax), (over_hi, bx0 + bw, 1, lmax)):
+        if clipped:
+            tip = x_end + d * 12
+            dr.polygon([(x_end, by0 - 1), (tip, by0 + 7), (x_end, by0 + 15)],
+                       fill=tuple(int(c) for c in np.clip(np.rint(colour(val)), 0, 255)), outline=(0, 0, 0))
     for val, u in ((-gmax, bx0), (0.0, bx0 + half), (lmax, bx0 + bw)):
         dr.line([(u, by0 + 14), (u, by0 + 18)], fill=(0, 0, 0))
         label = f"{val:+.3g}" if val else "0"
+        if (val < 0 and over_lo) or (val > 0 and over_hi):
+            label = ("<= " if val < 0 else ">= ") + label
         dr.text((u - 3 * len(label), by0 + 20), label, fill=(0, 0, 0), font=font)
-    dr.text((bx0 - 2 - 6 * 20, by0 + 2), "below design (gouge)", fill=(0, 0, 0), font=font)
-    dr.text((bx0 + bw + 6, by0 + 2), "material left", fill=(0, 0, 0), font=font)
+    dr.text((bx0 - 2 - 6 * 20 - (14 if over_lo else 0), by0 + 2), "below design (gouge)", fill=(0, 0, 0), font=font)
+    dr.text((bx0 + bw + 6 + (14 if over_hi else 0), by0 + 2), "material left", fill=(0, 0, 0), font=font)
     dr.text((bx0 + half - 60, by0 + 32), "stock - design (mm)", fill=(0, 0, 0), font=font)
+    # every colour the picture uses: the scale's, hill-shaded; the flat faces (the uncut top
+    # face above all) show the scale's colour as lit flat, the on-design white as this grey
+    flat = 0.5 + 0.5 * lz
+    grey = tuple(int(c) for c in np.clip(np.rint(_ZERO * flat), 0, 255))
+    dr.rectangle([left, by0 + 32, left + 12, by0 + 44], fill=grey, outline=(0, 0, 0))
+    dr.text((left + 16, by0 + 32), "flat, on the design (top face)", fill=(0, 0, 0), font=font)
+    notes = []
+    if over_lo:
+        notes.append(f"{100.0 * float(np.mean(dev < -gmax)):.2g} % below, to {-gouge_all:+.4g}")
+    if over_hi:
+        notes.append(f"{100.0 * float(np.mean(dev > lmax)):.2g} % above, to {left_all:+.4g}")
+    if notes:
+        note = "clipped: " + "; ".join(notes) + " mm"
+        dr.text((img.shape[1] - 4 - dr.textlength(note, font=font), by0 + 32), note, fill=(0, 0, 0), font=font)
     buf = io.BytesIO()
     im.save(buf, format="PNG", optimize=False)
     return buf.getvalue()

@@ -1,0 +1,115 @@
+"""The numbers the README and docs/ quote from a command are the command's own.
+
+docs/regenerate.py runs every documented command and keeps its summary in
+docs/outputs/<job>.txt. A passage that quotes one is marked in the Markdown source:
+
+    <!-- numbers: check, ball-compare -->
+    ... | `ball` | 59.2241 | 2.6063 | 34.346..50.886; ...
+    <!-- /numbers -->
+
+and every decimal number inside it (59.2241, 2.6063, 34.346, ...) must be one that those
+outputs print, to the digits quoted (59.2241 matches a printed 59.224142). So a number that
+drifts from what the command prints fails here, without re-running the heavy commands:
+regenerating an output (``python docs/regenerate.py JOB``) and not the docs, or the docs and
+not the output, is caught. One cheap job is re-run to show the outputs are the commands'.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import re
+import subprocess
+import sys
+from decimal import Decimal
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+OUT = ROOT / "docs" / "outputs"
+DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+BLOCK = re.compile(r"<!-- numbers: ([\w\-, ]+) -->(.*?)<!-- /numbers -->", re.S)
+# a decimal number (not part of a word, a version like 3.11.7 or a file name like 0.ngc);
+# "a..b" is a range of two numbers
+_DECIMAL = re.compile(r"(?<![\w.])[-+]?\d+\.\d+(?:[eE][-+]?\d+)?(?![\w.]*\d)")
+
+
+def decimals(text: str) -> list[str]:
+    return _DECIMAL.findall(text.replace("..", " .. "))
+#: passages that must stay marked: (doc, an output it quotes)
+REQUIRED = [("README.md", "check"), ("README.md", "ball-compare"), ("docs/ball.md", "ball-compare"),
+            ("docs/ball.md", "check"), ("docs/sweep_check.md", "sweep")]
+
+
+def _regenerate():
+    spec = importlib.util.spec_from_file_location("regenerate", ROOT / "docs" / "regenerate.py")
+    if "regenerate" not in sys.modules:
+        mod = importlib.util.module_from_spec(spec)
+        sys.modules["regenerate"] = mod          # its dataclasses look their module up
+        spec.loader.exec_module(mod)
+    return sys.modules["regenerate"]
+
+
+def _printed(job: str) -> list[Decimal]:
+    text = (OUT / f"{job}.txt").read_text()
+    text = text[:text.rindex("\n[exit ")]             # not the wall time and load of the run
+    return [Decimal(m) for m in re.findall(r"[-+]?\d+\.\d+(?:[eE][-+]?\d+)?|[-+]?\d+", text)]
+
+
+def _blocks():
+    for doc in DOCS:
+        for m in BLOCK.finditer(doc.read_text()):
+            yield doc.relative_to(ROOT).as_posix(), [j.strip() for j in m.group(1).split(",")], m.group(2)
+
+
+def _matches(quoted: str, printed: list[Decimal]) -> bool:
+    q = Decimal(quoted)
+    half = Decimal(1).scaleb(q.as_tuple().exponent) / 2     # half a unit of the last digit quoted
+    return any(abs(p - q) <= half for p in printed) or any(abs(-p - q) <= half for p in printed if q < 0)
+
+
+def test_every_quoted_number_is_printed_by_its_command():
+    blocks = list(_blocks())
+    have = {(doc, j) for doc, jobs, _ in blocks for j in jobs}
+    assert not [r for r in REQUIRED if r not in have], "a quoting passage lost its marks"
+    jobs = _regenerate().JOBS_BY_NAME
+    bad, checked = [], 0
+    for doc, names, text in blocks:
+        assert all(n in jobs for n in names), f"{doc}: unknown output {names} (docs/regenerate.py --list)"
+        printed = [p for n in names for p in _printed(n)]
+        for q in decimals(text):
+            checked += 1
+            if not _matches(q, printed):
+                bad.append(f"{doc}: {q} is not printed by {', '.join(names)}")
+    assert checked >= 60 and not bad, "\n".join(bad)
+
+
+def test_the_check_rejects_a_drifted_number():
+    # the comparison itself: 0.7232 is printed (check), 0.745 is not; 59.2241 matches a
+    # printed 59.224142, 59.2242 does not
+    printed = _printed("check")
+    assert _matches("0.7232", printed) and not _matches("0.745", printed)
+    assert _matches("59.2241", printed) and not _matches("59.2242", printed)
+    assert decimals("v 34.346..50.886; python 3.11.7, file 0.ngc, -1.5 cm, < 1.2e-07") == \
+        ["34.346", "50.886", "-1.5", "1.2e-07"]
+    assert _matches("1.2e-07", [Decimal("1.2e-07")]) and not _matches("1.3e-07", [Decimal("1.2e-07")])
+
+
+def test_regenerating_a_small_output_reproduces_its_file():
+    """The cheapest job (calibrate: two heights, about 1 s of CPU) run again gives its file,
+    but for the run's own time."""
+    reg = _regenerate()
+    job = reg.JOBS_BY_NAME["calibrate"]
+    proc = subprocess.run(reg.command(job), cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    want = (OUT / "calibrate.txt").read_text()
+    want = want[:want.rindex("[exit ")]
+
+    def timeless(t):
+        return re.sub(r"\d+(\.\d+)? s$", "N s", t, flags=re.M)
+
+    assert timeless(reg.body(job, proc.stdout)) == timeless(want)
+
+
+if __name__ == "__main__":
+    sys.exit(pytest.main([__file__, "-q"]))
