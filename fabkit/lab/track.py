@@ -25,6 +25,7 @@ The stages, each a function or a small class a test can call:
 from __future__ import annotations
 
 import math
+from pathlib import Path
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -488,6 +489,15 @@ class BallFinder:
             return None
         best, miss = None, None
         balls, covered = [], []
+        if self.predicted is not None:      # the track so far: first the peak it predicts
+            pu, pv = self.predicted[0] - cx0, self.predicted[1] - cy0
+            j = int(np.argmin([math.hypot(p_[0] - pu, p_[1] - pv) for p_ in peaks]))
+            if math.hypot(peaks[j][0] - pu, peaks[j][1] - pv) <= max(PREDICT_TOL * R, 3.0):
+                got = self._fit_at(grey, np.array([peaks[j][0] + cx0, peaks[j][1] + cy0]))
+                if not isinstance(got, Miss) and not got.dark and got.low_share <= MAX_LOW_SHARE and \
+                        math.hypot(got.fit["centre"][0] - self.predicted[0],
+                                   got.fit["centre"][1] - self.predicted[1]) <= max(PREDICT_TOL * R, 3.0):
+                    return got
         for hu, hv, _ in peaks:
             got = self._fit_at(grey, np.array([hu + cx0, hv + cy0]))
             if not isinstance(got, Miss):
@@ -997,3 +1007,85 @@ def _track(spec, surface, path, info, progress, review=False) -> VideoTrack:
                       snapshot=snapshot[1], corners_px=corners,
                       gap_reason=[(w or "not found") if not k else "" for w, k in zip(why, np.all(np.isfinite(xy), axis=1))],
                       review=crops)
+
+
+# ----------------------------------------------------------------------------
+# the review sheet
+# ----------------------------------------------------------------------------
+REVIEW_TILE = 200           # px, a crop's side on the sheet
+REVIEW_COLUMNS = 6
+
+
+def review_sheet(result: VideoTrack) -> np.ndarray:
+    """A contact sheet (h, w, 3) uint8 BGR of ``result.review``'s crops (see
+    :func:`track_video` with ``review=True``): each crop enlarged, the pixels darker than
+    the background outside the ball (its shadow, rejected) tinted blue, the fitted
+    silhouette drawn green with its centre, the edge's points coloured by their use
+    (green: fitted; blue: next to the shadow; red: covered; yellow: no contrast), and a
+    gap framed red with its reason."""
+    import cv2
+
+    crops = sorted(result.review, key=lambda c: c.index)
+    n = max(1, len(crops))
+    cols = min(REVIEW_COLUMNS, n)
+    rows = (n + cols - 1) // cols
+    T = REVIEW_TILE
+    head = 34
+    sheet = np.full((head + rows * (T + 22), cols * T, 3), 255, np.uint8)
+    j = result.to_json()
+    gaps = ", ".join(f"{k} {v}" for k, v in j["gaps"].items() if v)
+    title = f"{Path(result.path).name}: {j['tracked']}/{j['frames']} frames tracked" + (f"; gaps: {gaps}" if gaps else "")
+    cv2.putText(sheet, title[:150], (6, 22), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 1, cv2.LINE_AA)
+    for k, c in enumerate(crops):
+        r_, c_ = divmod(k, cols)
+        y0, x0 = head + r_ * (T + 22), c_ * T
+        img = c.image.astype(np.float32)
+        bgc = c.background.astype(np.float32)
+        h, w = img.shape
+        s = T / max(h, w)
+        big = cv2.resize(c.image, (int(round(w * s)), int(round(h * s))), interpolation=cv2.INTER_NEAREST)
+        tile = cv2.cvtColor(big, cv2.COLOR_GRAY2BGR)
+        ox, oy = c.origin
+        fit = c.fit
+        # the shadow: darker than the background by a ratio, outside the fitted silhouette
+        dark = img < bgc * (1.0 - SHADOW_RATIO) - 3.0
+        if fit is not None and "centre" in fit:
+            yy, xx = np.mgrid[0:h, 0:w]
+            cu, cv_ = fit["centre"][0] - ox, fit["centre"][1] - oy
+            a, b, phi = fit["a"] * fit["scale"], fit["b"] * fit["scale"], fit["phi"]
+            ca, sa = math.cos(phi), math.sin(phi)
+            xr, yr = (xx - cu) * ca + (yy - cv_) * sa, -(xx - cu) * sa + (yy - cv_) * ca
+            dark &= (xr / (a + 1.0)) ** 2 + (yr / (b + 1.0)) ** 2 > 1.0
+        m = cv2.resize(dark.astype(np.uint8), (tile.shape[1], tile.shape[0]), interpolation=cv2.INTER_NEAREST) > 0
+        tile[m] = (0.55 * tile[m] + 0.45 * np.array([255, 120, 0])).astype(np.uint8)
+        if fit is not None:
+            pts = fit["points"]
+            colours = ((fit["hidden"], (0, 0, 230)), (fit["low"], (0, 200, 230)), (fit["shadow"], (255, 80, 0)),
+                       (fit.get("used", fit["clean"]), (0, 170, 0)))
+            for mask, col in colours:
+                for (pu, pv) in pts[np.asarray(mask, bool)]:
+                    cv2.circle(tile, (int(round((pu - ox + 0.5) * s)), int(round((pv - oy + 0.5) * s))), 2, col, -1,
+                               cv2.LINE_AA)
+            if "centre" in fit:
+                col = (0, 200, 0) if not c.reason else (0, 0, 230)
+                cen = (int(round((fit["centre"][0] - ox + 0.5) * s * 16)), int(round((fit["centre"][1] - oy + 0.5) * s * 16)))
+                axes = (int(round(fit["a"] * fit["scale"] * s * 16)), int(round(fit["b"] * fit["scale"] * s * 16)))
+                cv2.ellipse(tile, cen, axes, math.degrees(fit["phi"]), 0, 360, col, 1, cv2.LINE_AA, shift=4)
+                cv2.drawMarker(tile, (cen[0] >> 4, cen[1] >> 4), col, cv2.MARKER_CROSS, 9, 1)
+        sheet[y0 + 20:y0 + 20 + tile.shape[0], x0:x0 + tile.shape[1]] = tile
+        label = f"#{c.index} t {c.t:.3f} s" + (f"  GAP: {c.reason}" if c.reason else "")
+        cv2.putText(sheet, label, (x0 + 3, y0 + 15), cv2.FONT_HERSHEY_SIMPLEX, 0.38,
+                    (0, 0, 200) if c.reason else (0, 0, 0), 1, cv2.LINE_AA)
+        if c.reason:
+            cv2.rectangle(sheet, (x0 + 1, y0 + 20), (x0 + tile.shape[1] - 2, y0 + 19 + tile.shape[0]), (0, 0, 230), 2)
+    return sheet
+
+
+def review_png(result: VideoTrack) -> bytes:
+    """:func:`review_sheet` encoded as PNG."""
+    import cv2
+
+    ok, buf = cv2.imencode(".png", review_sheet(result))
+    if not ok:  # pragma: no cover
+        raise SpecError("the review sheet could not be encoded as PNG")
+    return buf.tobytes()
