@@ -52,12 +52,13 @@ HIDDEN_RAYS = 0.08          # more than this share of the edge's rays covered: t
 MIN_RAYS = 0.35             # fewer usable rays than this share: no fit
 MAX_ARC_GAP = math.radians(150)   # the used rays leave no wider gap around the centre
 MIN_INLIERS = 0.6           # the fit's inliers among the used rays
-MAX_RESIDUAL_PX = 0.6       # the inliers' rms distance from the fitted silhouette
+MAX_RESIDUAL_PX = 0.4       # the inliers' rms distance from the fitted silhouette
 _DEBUG = False
 _USE_ALL = True
 SHADOW_EVEN = 0.12          # a shadow's inside: the ratio to the background varies less than this (relative)
 SHADOW_RATIO_MIN = 0.15     # ... and is at least this (the ambient light's share: a dark ball is darker)
 MAX_LOW_SHARE = 0.2         # a silhouette with more of its edge than this without contrast: unseparable
+MIN_FACING = 0.6            # overlapping silhouettes: the ball's edge toward the others is this intact
 PREDICT_TOL = 0.5           # a centre further than this (times the radius) from the track's prediction: doubtful
 HYPOTHESES = 3              # the edge's strongest circles tried (the ball, its shadow, ...)
 GAP_REASONS = ("not found", "partly hidden", "merges with the surface", "in its shadow", "fits badly")
@@ -551,7 +552,7 @@ class BallFinder:
                 if math.hypot(m_.u - best.fit["centre"][0], m_.v - best.fit["centre"][1]) < 2.3 * R:
                     self.miss = Miss("partly hidden", m_.u, m_.v, m_.fit)
                     return None
-            if len(ok) > 1 and ok[1].facing > 0.6 and best.facing - ok[1].facing < 0.3:
+            if best.facing < MIN_FACING or (len(ok) > 1 and ok[1].facing > 0.6 and best.facing - ok[1].facing < 0.3):
                 self.miss = Miss("in its shadow", best.fit["centre"][0], best.fit["centre"][1], best.fit)
                 return None
         elif balls and miss is None:
