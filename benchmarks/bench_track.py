@@ -1,6 +1,6 @@
 """Frames per second of ``fabkit track`` on a 1280x1024 video at 125 frames/s.
 
-    python benchmarks/bench_track.py [SECONDS]      # default 4 s of video (500 frames)
+    python benchmarks/bench_track.py [SECONDS]      # default 2 s of video (250 frames)
 
 Two encodings of the same frames: H.264 with a key frame every 25 frames (as phones and
 cameras write them: the sample is read from the key frames, each frame decoded once), and
@@ -89,7 +89,7 @@ def import_seconds() -> float:
 
 
 def main() -> None:
-    seconds = float(sys.argv[1]) if len(sys.argv) > 1 else 4.0
+    seconds = float(sys.argv[1]) if len(sys.argv) > 1 else 2.0
     from fabkit.lab import video as vid
     from fabkit.lab.track import track_video
     from fabkit.spec import load_spec

@@ -8,14 +8,38 @@ The stages, each a function or a small class a test can call:
    over the frames it was found in (the camera stands still);
 3. the camera: :func:`fabkit.lab.camera.calibrate`;
 4. :class:`BallFinder` - the background (the sample's median: the ball moves) and,
-   per frame, the ball: the difference from the background, its peak at the ball's
-   scale on a 4x smaller image, then the disc at full resolution: pixels weighted by
-   their share of the contrast (clip(|d| / c, 0, 1): a pixel the ball's edge half
-   covers counts half), holes (a specular highlight) filled; the weighted centroid is
-   the centre, to a fraction of a pixel. Motion blur smears the disc along the path
-   symmetrically, so the centroid is the centre at mid-exposure. Its standard
-   deviation follows from the background's noise. A frame where no disc of the
-   ball's size stands out is a gap;
+   per frame, the ball's SILHOUETTE, never the changed pixels (a lamp's cast shadow
+   changes pixels too):
+
+   * :class:`Shape` - the ball's image anywhere in the frame from the calibrated camera,
+     the offset surface and the diameter: the cone tangent to the sphere projected (with
+     the distortion), an ellipse (semi-axes, angle) and its centre's offset from the
+     projected sphere centre, on a grid, interpolated;
+   * the coarse peak of |frame - background| at the ball's scale on a 4x smaller image
+     (near the track's prediction first), then a Hough vote of the edges of
+     frame - background for circles of the expected radius there: the strongest
+     (HYPOTHESES) are the ball, its shadow, a hand...;
+   * for each, rays across the expected edge: the edge on a ray is where the profile's
+     share of the ball (the area between the inside's grey and the outside's, the
+     outside taken as the background times the ray's own ratio, so a shadow's darkening
+     and the surface's shading do not move it) puts it, blur-symmetric; a ray is
+     "covered" when inside and outside both differ from the ball and the background,
+     "low" when it has no contrast, "shadow" when the outside is darker than the
+     background;
+   * the expected ellipse fitted to the rays' edge points (:func:`fit_silhouette`:
+     Gauss-Newton, Huber weights, the size with a 3 % prior), its inliers, residual and
+     size checked;
+   * among the hypotheses: a silhouette darker than the surface all over, no darker than
+     a shadow can be, with something lighter beside it (a light ball, a highlight), is
+     that ball's shadow; a shadow's inside keeps an even ratio to the background; of two
+     overlapping silhouettes the ball is in front, so its edge toward the other is whole;
+     one far from the track's prediction is doubtful;
+   * the centre's sigma: the fit's covariance scaled by its residual, plus a floor, a
+     share of the residual and a term for the share of the edge left out (calibrated
+     against rendered truth: benchmarks/lab_accuracy.py track).
+
+   A frame where no silhouette is accepted is a gap with its reason (GAP_REASONS): not
+   found, partly hidden, merges with the surface, in its shadow, fits badly;
 5. :func:`fabkit.lab.camera.ball_centres` - each centre's ray met with the
    ball-centre offset surface;
 6. :class:`VideoTrack` - the result: times from the presentation timestamps, the
@@ -53,13 +77,12 @@ MIN_RAYS = 0.35             # fewer usable rays than this share: no fit
 MAX_ARC_GAP = math.radians(150)   # the used rays leave no wider gap around the centre
 MIN_INLIERS = 0.6           # the fit's inliers among the used rays
 MAX_RESIDUAL_PX = 0.4       # the inliers' rms distance from the fitted silhouette
-_DEBUG = False
-_USE_ALL = True
 SHADOW_EVEN = 0.12          # a shadow's inside: the ratio to the background varies less than this (relative)
 SHADOW_RATIO_MIN = 0.15     # ... and is at least this (the ambient light's share: a dark ball is darker)
 MAX_LOW_SHARE = 0.2         # a silhouette with more of its edge than this without contrast: unseparable
 MIN_FACING = 0.6            # overlapping silhouettes: the ball's edge toward the others is this intact
 PREDICT_TOL = 0.5           # a centre further than this (times the radius) from the track's prediction: doubtful
+SHAPE_STEP = 4              # px between the entries of the ball's shape table
 HYPOTHESES = 3              # the edge's strongest circles tried (the ball, its shadow, ...)
 GAP_REASONS = ("not found", "partly hidden", "merges with the surface", "in its shadow", "fits badly")
 
@@ -280,9 +303,29 @@ class Shape:
         self.grid = out.reshape(n, n, 5)
         self.us, self.vs = us, vs
         self.n = n
+        # a dense table every SHAPE_STEP px (bilinear from the grid), read by the nearest entry
+        g = self.grid
+        planes = np.stack([g[..., 0], g[..., 1], np.cos(2 * g[..., 2]), np.sin(2 * g[..., 2]), g[..., 3], g[..., 4]],
+                          axis=-1).astype(np.float32)
+        tw, th = w // SHAPE_STEP + 2, h // SHAPE_STEP + 2
+        xs = np.arange(tw) * SHAPE_STEP / us[-1] * (n - 1)
+        ys = np.arange(th) * SHAPE_STEP / vs[-1] * (n - 1)
+        X, Y = np.meshgrid(xs.astype(np.float32), ys.astype(np.float32))
+        tab = np.stack([cv2.remap(planes[..., k], X, Y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+                        for k in range(6)], axis=-1).astype(float)
+        self.table = np.stack([tab[..., 0], tab[..., 1], 0.5 * np.arctan2(tab[..., 3], tab[..., 2]),
+                               tab[..., 4], tab[..., 5]], axis=-1)
+        self.tw, self.th = tw, th
 
     def at(self, u: float, v: float):
-        """(a, b, angle, du, dv) at image point (u, v), bilinear."""
+        """(a, b, angle, du, dv) at image point (u, v) (the table's nearest entry, SHAPE_STEP
+        px apart: the ellipse changes by well under a thousandth of a pixel between them)."""
+        i = min(max(int(v / SHAPE_STEP + 0.5), 0), self.th - 1)
+        j = min(max(int(u / SHAPE_STEP + 0.5), 0), self.tw - 1)
+        return self.table[i, j]
+
+    def at_exact(self, u: float, v: float):
+        """(a, b, angle, du, dv) at image point (u, v), bilinear on the grid."""
         n = self.n
         fu = min(max(u / self.us[-1] * (n - 1), 0.0), n - 1 - 1e-9)
         fv = min(max(v / self.vs[-1] * (n - 1), 0.0), n - 1 - 1e-9)
@@ -310,7 +353,7 @@ def _ellipse_radius(theta, a, b, phi):
     return a * b / np.sqrt((b * c) ** 2 + (a * s) ** 2)
 
 
-def fit_silhouette(pts, wts, start, a, b, phi, scale_sigma=SCALE_SIGMA, iters=8):
+def fit_silhouette(pts, wts, start, a, b, phi, scale_sigma=SCALE_SIGMA, iters=12):
     """The centre (2,) and scale of the ellipse (a s, b s, angle phi) through the edge
     points ``pts`` (n, 2) px with weights ``wts`` (n,), robustly (Huber's weights on the
     residuals' own scale, a prior N(1, scale_sigma) on s), by Gauss-Newton with the exact
@@ -336,7 +379,9 @@ def fit_silhouette(pts, wts, start, a, b, phi, scale_sigma=SCALE_SIGMA, iters=8)
         dth_du, dth_dv = dy / rr ** 2, -dx / rr ** 2
         J = np.stack([-dx / rr - s * drho * dth_du, -dy / rr - s * drho * dth_dv, -rho], axis=1)
         if it >= 1:
-            scale_r = max(1.4826 * float(np.median(np.abs(r[wts > 0]))) if (wts > 0).any() else 1.0, 0.05)
+            if it in (1, 3):            # the residuals' own scale (their median absolute value)
+                ar = np.abs(r[wts > 0]) if (wts > 0).any() else np.ones(1)
+                scale_r = max(1.4826 * float(np.partition(ar, ar.size // 2)[ar.size // 2]), 0.05)
             k = 1.5 * scale_r
             w_rob = np.where(np.abs(r) <= k, 1.0, k / np.maximum(np.abs(r), 1e-12))
         W = wts * w_rob
@@ -350,7 +395,7 @@ def fit_silhouette(pts, wts, start, a, b, phi, scale_sigma=SCALE_SIGMA, iters=8)
             return None
         c += step[:2]
         s += step[2]
-        if np.max(np.abs(step[:2])) < 1e-4 and it >= 2:
+        if abs(step[0]) + abs(step[1]) + 10.0 * abs(step[2]) < 1e-5 and it >= 4:
             break
     try:
         cov = np.linalg.inv(A)
@@ -460,7 +505,9 @@ class BallFinder:
             cy = np.rint(ys + sgn * R * uy).astype(np.int64)
             ok = (cx >= 0) & (cx < ww) & (cy >= 0) & (cy < hh)
             acc += np.bincount(cy[ok] * ww + cx[ok], weights=wt[ok], minlength=hh * ww).astype(np.float32)
-        acc = cv2.GaussianBlur(acc.reshape(hh, ww), (0, 0), max(1.0, 0.08 * R))
+        sb = max(1.0, 0.08 * R)
+        kb = 2 * int(math.ceil(2.0 * sb)) + 1
+        acc = cv2.GaussianBlur(acc.reshape(hh, ww), (kb, kb), sb)
         out = []
         for _ in range(HYPOTHESES):         # the strongest peaks, each at least 0.7 R from the others
             _, val, _, loc = cv2.minMaxLoc(acc)
@@ -495,7 +542,7 @@ class BallFinder:
             j = int(np.argmin([math.hypot(p_[0] - pu, p_[1] - pv) for p_ in peaks]))
             if math.hypot(peaks[j][0] - pu, peaks[j][1] - pv) <= max(PREDICT_TOL * R, 3.0):
                 got = self._fit_at(grey, np.array([peaks[j][0] + cx0, peaks[j][1] + cy0]))
-                if not isinstance(got, Miss) and not got.dark and got.low_share <= MAX_LOW_SHARE and \
+                if not isinstance(got, Miss) and not got.shadowlike and got.low_share <= MAX_LOW_SHARE and \
                         math.hypot(got.fit["centre"][0] - self.predicted[0],
                                    got.fit["centre"][1] - self.predicted[1]) <= max(PREDICT_TOL * R, 3.0):
                     return got
@@ -506,8 +553,6 @@ class BallFinder:
             else:
                 if got.reason == "partly hidden":
                     covered.append(got)
-                if _DEBUG:
-                    print("  miss", got.reason, round(got.u, 2), round(got.v, 2))
                 miss = miss or got
         # two silhouettes overlapping (the ball and its shadow): the ball is in front, so its
         # edge facing the other is whole, while the shadow's edge there is behind the ball
@@ -533,10 +578,6 @@ class BallFinder:
                     if np.count_nonzero((rr2 > (1.1 * R) ** 2) & (rr2 < (2.3 * R) ** 2)) >= 3:
                         b_.shadowlike = True
         ok = [b_ for b_ in balls if not b_.shadowlike and b_.low_share <= MAX_LOW_SHARE]
-        if _DEBUG:
-            for got in balls:
-                print("  cand", round(got.u, 2), round(got.v, 2), "score", round(got.score, 1), "facing",
-                      round(got.facing, 2), "shadowlike", got.shadowlike, "low", round(got.low_share, 2))
         if self.predicted is not None:          # the track so far: a ball moves smoothly
             pu, pv = self.predicted
             near = [b_ for b_ in ok if math.hypot(b_.fit["centre"][0] - pu, b_.fit["centre"][1] - pv)
@@ -627,7 +668,7 @@ class BallFinder:
                    "low": low & ~hidden, "a": a, "b": b, "phi": phi}
         if nh > HIDDEN_RAYS * n:
             return Miss("partly hidden", c0[0], c0[1], fitinfo)
-        use = usable if _USE_ALL else (clean if clean.sum() >= MIN_RAYS * n and _arc_ok(self.theta[clean]) else usable)
+        use = usable
         if use.sum() < MIN_RAYS * n or not _arc_ok(self.theta[use]):
             why = "merges with the surface" if reasons["low"] >= reasons["shadow"] else "in its shadow"
             return Miss(why, c0[0], c0[1], fitinfo)
@@ -643,9 +684,6 @@ class BallFinder:
         fitinfo.update(centre=c, scale=s, used=use, residual=sr, inlier=inlier)
         bad = (abs(s - 1.0) > SCALE_RANGE) or inl.mean() < MIN_INLIERS or sr > MAX_RESIDUAL_PX
         if bad:
-            if _DEBUG:
-                print("   bad fit", np.round(c, 2), "s", round(float(s), 3), "inl", round(float(inl.mean()), 2), "sr",
-                      round(sr, 3), "used", int(use.sum()), reasons)
             return Miss("fits badly", c[0], c[1], fitinfo)
         k = int(inl.sum())
         s2 = max(sr * sr * k / max(k - 3, 1), (0.5 * sig / max(float(np.median(np.abs(contrast[use]))), 1.0)) ** 2)
@@ -670,7 +708,8 @@ class BallFinder:
         k1 = min(w, int(c[0] + rr) + 2), min(h, int(c[1] + rr) + 2)
         gin = grey[k0[1]:k1[1], k0[0]:k1[0]].astype(np.float32)
         bin_ = self.bgf[k0[1]:k1[1], k0[0]:k1[0]]
-        yy, xx = np.mgrid[k0[1]:k1[1], k0[0]:k1[0]]
+        yy = np.arange(k0[1], k1[1], dtype=np.float32)[:, None]
+        xx = np.arange(k0[0], k1[0], dtype=np.float32)[None, :]
         disc = (xx - c[0]) ** 2 + (yy - c[1]) ** 2 <= rr * rr
         if disc.sum() >= 5:
             gi, bi = gin[disc], bin_[disc]
@@ -679,13 +718,7 @@ class BallFinder:
             even = float(np.std(q)) / max(float(np.mean(q)), 1e-3)
             ball.shadowlike = brighter < 0.02 and even < SHADOW_EVEN and float(np.mean(q)) > SHADOW_RATIO_MIN
             ball.dark = not np.any(gi > bi + np.maximum(6.0 * sig, 0.08 * bi)) and float(np.mean(q)) > SHADOW_RATIO_MIN
-            if _DEBUG:
-                print("   shadowtest", round(brighter, 3), round(even, 3), round(float(np.mean(q)), 3))
         fitinfo["shadowlike"] = ball.shadowlike
-        if _DEBUG:
-            print("hyp", np.round(c, 2), "inl", int(inl.sum()), "used", int(use.sum()), "clean", int(clean.sum()),
-                  "usable", int(usable.sum()), "s", round(float(s), 3), "sr", round(sr, 3), reasons,
-                  "I", round(I_med, 1), "B", round(B_med, 1), "shadowlike", ball.shadowlike)
         return ball
 
 
