@@ -73,6 +73,8 @@ SCALE_SIGMA = 0.03          # the prior on the silhouette's size against the cam
 SCALE_RANGE = 0.12          # a fitted size further than this from the prediction: the fit is bad
 SHADOW_RATIO = 0.04         # outside the edge, darker than the background by this share: a shadow
 HIDDEN_RAYS = 0.08          # more than this share of the edge's rays covered: the ball is partly hidden
+HIDDEN_DIFF = 0.15          # ... its inside unlike the ball's by this share of the background's grey at least
+MAX_RAMP = 0.08             # the outside's change past the edge against the edge's contrast: more, no edge
 MIN_RAYS = 0.35             # fewer usable rays than this share: no fit
 MAX_ARC_GAP = math.radians(150)   # the used rays leave no wider gap around the centre
 MIN_INLIERS = 0.6           # the fit's inliers among the used rays
@@ -83,6 +85,7 @@ MAX_LOW_SHARE = 0.2         # a silhouette with more of its edge than this witho
 MIN_FACING = 0.6            # overlapping silhouettes: the ball's edge toward the others is this intact
 PREDICT_TOL = 0.5           # a centre further than this (times the radius) from the track's prediction: doubtful
 SHAPE_STEP = 4              # px between the entries of the ball's shape table
+MIN_RUN = 3                 # fewer tracked frames in a row than this, beside doubtful gaps: gaps too
 HYPOTHESES = 3              # the edge's strongest circles tried (the ball, its shadow, ...)
 GAP_REASONS = ("not found", "partly hidden", "merges with the surface", "in its shadow", "fits badly")
 
@@ -633,6 +636,7 @@ class BallFinder:
         B = np.median(gb[:, -q:], axis=1)               # the background there
         sig = self.noise
         contrast = I - O
+        ratio = O / np.maximum(B, 1.0)
         I_med = float(np.median(I[inside_img])) if inside_img.any() else float(np.median(I))
         B_med = float(np.median(B))
         ball_vs_bg = I_med - B_med
@@ -642,13 +646,13 @@ class BallFinder:
         shadow = changed & (O < B)                      # darker than the background: a shadow ...
         other = changed & (O >= B)                      # lighter: something else
         # covered: inside unlike the ball, outside unlike the background, and the two alike
-        hidden = (np.abs(I - I_med) > np.maximum(8.0 * sig, 0.5 * abs(ball_vs_bg))) & \
-            (np.sign(I - I_med) != np.sign(ball_vs_bg)) & (np.abs(I - O) < 0.5 * abs(ball_vs_bg)) & changed
+        hidden = (np.abs(I - I_med) > max(8.0 * sig, 0.5 * abs(ball_vs_bg), HIDDEN_DIFF * B_med)) & \
+            (np.sign(I - I_med) != np.sign(ball_vs_bg)) & (np.abs(I - O) < 0.5 * abs(ball_vs_bg)) & \
+            (np.abs(O - B) > HIDDEN_DIFF * B)
         hidden |= ~inside_img
         # the edge on each ray: the area of the profile's share of the ball (blur-symmetric)
         # the outside as the background times the ray's own ratio (a shadow scales the
         # background), so the surface's shading across the edge does not move it
-        ratio = O / np.maximum(B, 1.0)
         Os = ratio[:, None] * gb
         den = I[:, None] - Os
         with np.errstate(all="ignore"):
@@ -657,6 +661,12 @@ class BallFinder:
         # monotone: the profile crosses halfway once
         half = (f - 0.5 * (I + O)[:, None]) * np.sign(contrast)[:, None]
         crossings = np.sum((half[:, :-1] > 0) & (half[:, 1:] <= 0), axis=1)
+        # the outside must be flat past the edge (a penumbra's ramp beside a faint edge moves it)
+        h2 = max(1, q // 2)
+        q1 = f[:, -q:-h2].mean(axis=1) / np.maximum(gb[:, -q:-h2].mean(axis=1), 1.0)
+        q2 = f[:, -h2:].mean(axis=1) / np.maximum(gb[:, -h2:].mean(axis=1), 1.0)
+        ramp = np.abs(q1 - q2) * B / np.maximum(np.abs(contrast), 1.0)      # over m / 4 px
+        low |= ramp > MAX_RAMP
         clean = ~low & ~changed & ~hidden & (crossings == 1)
         usable = ~low & ~hidden & (crossings == 1)
         n = self.nrays
@@ -926,6 +936,30 @@ def track_video(spec, surface, path, progress=None, review: bool = False) -> Vid
         raise
 
 
+def _drop_short_runs(uvs, sig, why) -> None:
+    """Runs of fewer than MIN_RUN tracked frames between doubtful gaps (a ball seen but
+    not separated on both sides) become gaps themselves ("fits badly"): a ball that is
+    separable in one frame and not in its neighbours is more likely a chance fit."""
+    n = len(why)
+    i = 0
+    while i < n:
+        if why[i]:
+            i += 1
+            continue
+        j = i
+        while j < n and not why[j]:
+            j += 1
+        before = why[i - 1] if i > 0 else "not found"
+        after = why[j] if j < n else "not found"
+        doubtful = (before not in ("", "not found")) or (after not in ("", "not found"))
+        if j - i < MIN_RUN and doubtful and (i > 0 or j < n):
+            for k in range(i, j):
+                uvs[k] = (math.nan, math.nan)
+                sig[k] = (math.nan, math.nan)
+                why[k] = "fits badly"
+        i = j
+
+
 def _review_crop(i, t, g, bg, at, half, ball, miss) -> "ReviewCrop":
     u, v = at
     h, w = g.shape
@@ -1005,6 +1039,7 @@ def _track(spec, surface, path, info, progress, review=False) -> VideoTrack:
             progress(i)
     if not ts:
         raise SpecError("no frames could be decoded", file=str(path))
+    _drop_short_runs(uvs, sig, why)
     t = np.asarray(ts)
     uv = np.asarray(uvs, dtype=float)
     su = np.asarray(sig, dtype=float)
