@@ -104,6 +104,11 @@ def _lines(results, outs, units, seconds):
             why = ", ".join(f"{k} {v}" for k, v in j["gaps"].items() if v)
             lines.append(f"  left out: {j['left_out']} frames as gaps ({why}); {j['doubtful']} doubtful "
                          f"({100 * j['doubtful_fraction']:.1f} %, warned above {100 * DOUBTFUL_SHARE:.0f} %)")
+        if not j["tracked"]:
+            lines.append("  no position reported: the ball was never separated (see the reasons above)")
+            for n in j["notes"]:
+                lines.append(f"  note: {n}")
+            continue
         lines.append(f"  ball centre ± {j['position_sigma_median']:.2g} {units} (median 1 sigma; the image noise's "
                      f"share {j['position_sigma_image_median']:.2g}, the calibration's "
                      f"{j['position_sigma_calibration_median']:.2g}; max {j['position_sigma_max']:.2g})")

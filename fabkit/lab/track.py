@@ -1044,17 +1044,19 @@ def _track(spec, surface, path, info, progress, review=False) -> VideoTrack:
     uv = np.asarray(uvs, dtype=float)
     su = np.asarray(sig, dtype=float)
     ok = np.all(np.isfinite(uv), axis=1)
-    if not ok.any():
-        seen = {r: why.count(r) for r in GAP_REASONS[1:] if why.count(r)}
-        if seen:
-            raise SpecError(f"the ball was not tracked in any of {len(t)} frames: seen but not separable ("
-                            + ", ".join(f"{k} {v}" for k, v in seen.items()) + f"; a disc of about {radius_px:.0f} "
-                            "px radius): light it from above, or paint it to stand out", file=str(path))
+    if not ok.any() and not any(w and w != "not found" for w in why):
         raise SpecError(f"the ball was not found in any of {len(t)} frames (a disc of about {radius_px:.0f} px "
                         "radius, darker or lighter than the surface)", file=str(path))
     xy = np.full((len(t), 2), np.nan)
     sxy = np.full((len(t), 2), np.nan)
     idx = np.flatnonzero(ok)
+    if idx.size == 0:       # seen in places, never separated: every frame a gap, said so
+        notes = list(layout.notes) + ["the ball was seen but never separated from the surface, its shadow or what "
+                                      "covered it: no position is reported (see the gaps' reasons, --review)"]
+        return VideoTrack(path=str(path), t=t, uv=uv, xy=xy, sigma=sxy, calibration=calib, radius_px=radius_px,
+                          units=spec.units, notes=notes, sigma_image=xy.copy(), sigma_calibration=xy.copy(),
+                          snapshot=(snapshot or (0, g))[1], corners_px=corners,
+                          gap_reason=[w or "not found" for w in why], review=crops)
     # the centre, and its standard deviation in design units through the Jacobian px -> centre
     C, Ju, Jv = cam_mod.ball_centres(cam, surface, radius, uv[idx], jacobian=True)
     xy[idx] = C[:, :2]
