@@ -398,7 +398,7 @@ def fit_silhouette(pts, wts, start, a, b, phi, scale_sigma=SCALE_SIGMA, iters=12
             return None
         c += step[:2]
         s += step[2]
-        if abs(step[0]) + abs(step[1]) + 10.0 * abs(step[2]) < 1e-5 and it >= 4:
+        if abs(step[0]) + abs(step[1]) + 10.0 * abs(step[2]) < 1e-5 and it >= 2:
             break
     try:
         cov = np.linalg.inv(A)
@@ -449,6 +449,14 @@ class BallFinder:
             (u1, v1), (u2, v2) = self.last
             du, dv = u2 - u1, v2 - v1
             self.predicted = (u2 + du, v2 + dv)
+            # the silhouette straight at the prediction: no search when it fits there
+            pu, pv = self.predicted
+            h, w = grey.shape
+            if 0 <= pu < w and 0 <= pv < h:
+                got = self._fit_at(grey, np.array([pu, pv]))
+                if not isinstance(got, Miss) and self._early_ok(got):
+                    self.last = (self.last + [(got.u, got.v)])[-2:]
+                    return got
             half = int(3 * self.r + 2 * math.hypot(du, dv)) + 8
             b = self._search(grey, (u2 + du, v2 + dv, half))
         if b is None and (self.miss is None or self.miss.reason == "not found"):
@@ -458,6 +466,13 @@ class BallFinder:
             self.miss = Miss("not found")
         self.last = (self.last + [(b.u, b.v)])[-2:] if b is not None else []
         return b
+
+    def _early_ok(self, got) -> bool:
+        """A silhouette found where the track predicts it, whole enough and not a shadow."""
+        R = 0.5 * (got.fit["a"] + got.fit["b"])
+        return (not got.shadowlike and got.low_share <= MAX_LOW_SHARE
+                and math.hypot(got.fit["centre"][0] - self.predicted[0], got.fit["centre"][1] - self.predicted[1])
+                <= max(PREDICT_TOL * R, 3.0))
 
     def _search(self, grey: np.ndarray, window) -> Ball | None:
         cv2 = self.cv2
@@ -545,9 +560,7 @@ class BallFinder:
             j = int(np.argmin([math.hypot(p_[0] - pu, p_[1] - pv) for p_ in peaks]))
             if math.hypot(peaks[j][0] - pu, peaks[j][1] - pv) <= max(PREDICT_TOL * R, 3.0):
                 got = self._fit_at(grey, np.array([peaks[j][0] + cx0, peaks[j][1] + cy0]))
-                if not isinstance(got, Miss) and not got.shadowlike and got.low_share <= MAX_LOW_SHARE and \
-                        math.hypot(got.fit["centre"][0] - self.predicted[0],
-                                   got.fit["centre"][1] - self.predicted[1]) <= max(PREDICT_TOL * R, 3.0):
+                if not isinstance(got, Miss) and self._early_ok(got):
                     return got
         for hu, hv, _ in peaks:
             got = self._fit_at(grey, np.array([hu + cx0, hv + cy0]))
@@ -631,14 +644,13 @@ class BallFinder:
         gb = cv2.remap(self.bgf[py0:py1, px0:px1], Xc, Yc, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
         n_st = len(st)
         q = max(2, n_st // 4)
-        I = np.median(f[:, :q], axis=1)                 # inside the ball, near the edge
-        O = np.median(f[:, -q:], axis=1)                # outside
-        B = np.median(gb[:, -q:], axis=1)               # the background there
+        # inside the ball near the edge, outside, and the background there (medians)
+        I, O, B = np.median(np.stack([f[:, :q], f[:, -q:], gb[:, -q:]]), axis=2)
         sig = self.noise
         contrast = I - O
         ratio = O / np.maximum(B, 1.0)
-        I_med = float(np.median(I[inside_img])) if inside_img.any() else float(np.median(I))
-        B_med = float(np.median(B))
+        I_med = _med(I[inside_img]) if inside_img.any() else _med(I)
+        B_med = _med(B)
         ball_vs_bg = I_med - B_med
         # the rays' verdicts
         low = np.abs(contrast) < max(6.0 * sig, MIN_CONTRAST)
@@ -687,7 +699,7 @@ class BallFinder:
             return Miss("fits badly", c0[0], c0[1], fitinfo)
         c, s, r, w_rob, cov = res
         # refit once at the ellipse's shape where the centre is
-        inl = np.abs(r) <= max(3.0 * 1.4826 * float(np.median(np.abs(r))), 0.3)
+        inl = np.abs(r) <= max(3.0 * 1.4826 * _med(np.abs(r)), 0.3)
         sr = float(np.sqrt(np.mean(r[inl] ** 2))) if inl.sum() > 3 else float("inf")
         inlier = np.zeros(n, bool)
         inlier[np.flatnonzero(use)[inl]] = True
@@ -696,7 +708,7 @@ class BallFinder:
         if bad:
             return Miss("fits badly", c[0], c[1], fitinfo)
         k = int(inl.sum())
-        s2 = max(sr * sr * k / max(k - 3, 1), (0.5 * sig / max(float(np.median(np.abs(contrast[use]))), 1.0)) ** 2)
+        s2 = max(sr * sr * k / max(k - 3, 1), (0.5 * sig / max(_med(np.abs(contrast[use])), 1.0)) ** 2)
         cov_px = cov[:2, :2] * s2
         _, _, _, du, dv = self.shape.at(*c)
         su = math.sqrt(SIGMA_GAIN ** 2 * max(cov_px[0, 0], 0.0) + SIGMA_FLOOR_PX ** 2)
@@ -708,7 +720,7 @@ class BallFinder:
         extra = math.hypot(SIGMA_PARTIAL_PX * frac, SIGMA_RESIDUAL * sr)
         su, sv = math.hypot(su, extra), math.hypot(sv, extra)
         ball = Ball(float(c[0] - du), float(c[1] - dv), su, sv, math.pi * a * b * s * s,
-                    float(np.median(np.abs(contrast[use]))), float(s), sr, int(use.sum()), n, fitinfo)
+                    _med(np.abs(contrast[use])), float(s), sr, int(use.sum()), n, fitinfo)
         ball.low_share = float((low & ~hidden).mean())
         ball.score = float(usable.sum()) + 0.5 * float(inl.sum()) / max(1.0, 4.0 * sr)
         # a shadow only darkens the surface it falls on, by a smooth ratio: the disc's inside
@@ -730,6 +742,15 @@ class BallFinder:
             ball.dark = not np.any(gi > bi + np.maximum(6.0 * sig, 0.08 * bi)) and float(np.mean(q)) > SHADOW_RATIO_MIN
         fitinfo["shadowlike"] = ball.shadowlike
         return ball
+
+
+def _med(x) -> float:
+    """The median of a 1-d array (the upper one of an even count: a robust level, not an average)."""
+    x = np.asarray(x).ravel()
+    if x.size == 0:
+        return float("nan")
+    k = x.size // 2
+    return float(np.partition(x, k)[k])
 
 
 def _arc_ok(theta) -> bool:
