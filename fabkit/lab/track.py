@@ -75,8 +75,10 @@ SHADOW_RATIO = 0.04         # outside the edge, darker than the background by th
 HIDDEN_RAYS = 0.08          # more than this share of the edge's rays covered: the ball is partly hidden
 HIDDEN_DIFF = 0.15          # ... its inside unlike the ball's by this share of the background's grey at least
 MAX_RAMP = 0.08             # the outside's change past the edge against the edge's contrast: more, no edge
+MAX_SOFT_SHARE = 0.3        # more of the edge than this beside such a ramp: the ball is not told from its shadow
+MIN_BALL_CONTRAST = 0.25    # the ball's edge (inside) against the surface, a share of the surface's grey
 MIN_RAYS = 0.35             # fewer usable rays than this share: no fit
-MAX_ARC_GAP = math.radians(150)   # the used rays leave no wider gap around the centre
+MAX_ARC_GAP = math.radians(90)    # the used rays leave no wider gap around the centre
 MIN_INLIERS = 0.6           # the fit's inliers among the used rays
 MAX_RESIDUAL_PX = 0.4       # the inliers' rms distance from the fitted silhouette
 SHADOW_EVEN = 0.12          # a shadow's inside: the ratio to the background varies less than this (relative)
@@ -678,19 +680,23 @@ class BallFinder:
         q1 = f[:, -q:-h2].mean(axis=1) / np.maximum(gb[:, -q:-h2].mean(axis=1), 1.0)
         q2 = f[:, -h2:].mean(axis=1) / np.maximum(gb[:, -h2:].mean(axis=1), 1.0)
         ramp = np.abs(q1 - q2) * B / np.maximum(np.abs(contrast), 1.0)      # over m / 4 px
-        low |= ramp > MAX_RAMP
-        clean = ~low & ~changed & ~hidden & (crossings == 1)
-        usable = ~low & ~hidden & (crossings == 1)
+        soft = ramp > MAX_RAMP
+        clean = ~low & ~soft & ~changed & ~hidden & (crossings == 1)
+        usable = ~low & ~soft & ~hidden & (crossings == 1)
         n = self.nrays
         nh = int(hidden.sum())
         reasons = {"hidden": nh, "low": int((low & ~hidden).sum()), "shadow": int((shadow & ~hidden).sum()),
                    "other": int((other & ~hidden).sum())}
         pts = np.c_[c0[0] + (rho0 + e) * np.cos(self.theta), c0[1] + (rho0 + e) * np.sin(self.theta)]
-        fitinfo = {"centre0": c0, "points": pts, "clean": clean, "shadow": shadow & ~hidden, "hidden": hidden,
+        fitinfo = {"centre0": c0, "points": pts, "clean": clean, "shadow": (shadow | soft) & ~hidden, "hidden": hidden,
                    "low": low & ~hidden, "a": a, "b": b, "phi": phi}
         if nh > HIDDEN_RAYS * n:
             return Miss("partly hidden", c0[0], c0[1], fitinfo)
         use = usable
+        if abs(ball_vs_bg) < MIN_BALL_CONTRAST * B_med:    # the ball's edge about as light as the surface
+            return Miss("merges with the surface", c0[0], c0[1], fitinfo)
+        if soft.mean() > MAX_SOFT_SHARE:     # most of the edge beside a shadow's ramp: not separable
+            return Miss("in its shadow", c0[0], c0[1], fitinfo)
         if use.sum() < MIN_RAYS * n or not _arc_ok(self.theta[use]):
             why = "merges with the surface" if reasons["low"] >= reasons["shadow"] else "in its shadow"
             return Miss(why, c0[0], c0[1], fitinfo)
