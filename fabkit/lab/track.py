@@ -1067,6 +1067,9 @@ def _track(spec, surface, path, info, progress, review=False) -> VideoTrack:
     if not ts:
         raise SpecError("no frames could be decoded", file=str(path))
     _drop_short_runs(uvs, sig, why)
+    for c in crops:                 # the sheet says what the track says
+        if why[c.index] and not c.reason:
+            c.reason = why[c.index]
     t = np.asarray(ts)
     uv = np.asarray(uvs, dtype=float)
     su = np.asarray(sig, dtype=float)
