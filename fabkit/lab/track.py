@@ -70,7 +70,7 @@ SIGMA_GAIN = 1.0            # the fit's covariance scaled by this (calibrated ag
 SIGMA_PARTIAL_PX = 1.0      # added (times the share of rays left out) when a side of the edge is not used
 SIGMA_RESIDUAL = 0.3        # the share of the edge's rms residual added to the centre's sigma
 SCALE_SIGMA = 0.03          # the prior on the silhouette's size against the camera's prediction
-SCALE_RANGE = 0.12          # a fitted size further than this from the prediction: the fit is bad
+SCALE_RANGE = 0.035         # a fitted size further than this from the prediction: the fit is bad (good fits: 2 %)
 SHADOW_RATIO = 0.04         # outside the edge, darker than the background by this share: a shadow
 HIDDEN_RAYS = 0.08          # more than this share of the edge's rays covered: the ball is partly hidden
 HIDDEN_DIFF = 0.15          # ... its inside unlike the ball's by this share of the background's grey at least
@@ -79,6 +79,9 @@ MAX_SOFT_SHARE = 0.3        # more of the edge than this beside such a ramp: the
 MIN_BALL_CONTRAST = 0.25    # the ball's edge (inside) against the surface, a share of the surface's grey
 MIN_RAYS = 0.35             # fewer usable rays than this share: no fit
 MAX_ARC_GAP = math.radians(90)    # the used rays leave no wider gap around the centre
+CHECK_RAYS = 0.25           # the edge beside the plain background, fitted alone when this share of rays ...
+CHECK_ARC_GAP = math.radians(200)   # ... leaves no wider gap: the two fits' distance is added to the sigma
+MAX_SHIFT_PX = 0.6          # ... and more than this is a gap ("in its shadow")
 MIN_INLIERS = 0.6           # the fit's inliers among the used rays
 MAX_RESIDUAL_PX = 0.4       # the inliers' rms distance from the fitted silhouette
 SHADOW_EVEN = 0.12          # a shadow's inside: the ratio to the background varies less than this (relative)
@@ -713,6 +716,16 @@ class BallFinder:
         bad = (abs(s - 1.0) > SCALE_RANGE) or inl.mean() < MIN_INLIERS or sr > MAX_RESIDUAL_PX
         if bad:
             return Miss("fits badly", c[0], c[1], fitinfo)
+        # the edge beside the background alone (no shadow, nothing changed outside) fitted on
+        # its own: where it says otherwise, the shadow's side moved the fit
+        shift = 0.0
+        sub = clean & use
+        if 0 < int((use & ~sub).sum()) and sub.sum() >= CHECK_RAYS * n and _arc_ok(self.theta[sub], CHECK_ARC_GAP):
+            res2 = fit_silhouette(pts[sub], np.ones(int(sub.sum())), c, a, b, phi)
+            if res2 is not None:
+                shift = float(np.hypot(*(res2[0] - c)))
+                if shift > MAX_SHIFT_PX:
+                    return Miss("in its shadow", c[0], c[1], fitinfo)
         k = int(inl.sum())
         s2 = max(sr * sr * k / max(k - 3, 1), (0.5 * sig / max(_med(np.abs(contrast[use])), 1.0)) ** 2)
         cov_px = cov[:2, :2] * s2
@@ -723,7 +736,7 @@ class BallFinder:
         # edge's residual, and more when a side of the edge is left out (the blur and the
         # shading are then not averaged out)
         frac = 1.0 - float(use.mean())
-        extra = math.hypot(SIGMA_PARTIAL_PX * frac, SIGMA_RESIDUAL * sr)
+        extra = math.hypot(math.hypot(SIGMA_PARTIAL_PX * frac, SIGMA_RESIDUAL * sr), shift)
         su, sv = math.hypot(su, extra), math.hypot(sv, extra)
         ball = Ball(float(c[0] - du), float(c[1] - dv), su, sv, math.pi * a * b * s * s,
                     _med(np.abs(contrast[use])), float(s), sr, int(use.sum()), n, fitinfo)
@@ -759,13 +772,14 @@ def _med(x) -> float:
     return float(np.partition(x, k)[k])
 
 
-def _arc_ok(theta) -> bool:
-    """The used rays surround the centre: no gap between neighbours wider than MAX_ARC_GAP."""
+def _arc_ok(theta, widest=None) -> bool:
+    """The used rays surround the centre: no gap between neighbours wider than ``widest``
+    (MAX_ARC_GAP)."""
     if theta.size < 3:
         return False
     t = np.sort(theta)
     gaps = np.diff(np.r_[t, t[0] + 2 * math.pi])
-    return float(gaps.max()) <= MAX_ARC_GAP
+    return float(gaps.max()) <= (MAX_ARC_GAP if widest is None else widest)
 
 
 class _FixedShape:
