@@ -70,7 +70,9 @@ SIGMA_GAIN = 1.0            # the fit's covariance scaled by this (calibrated ag
 SIGMA_PARTIAL_PX = 1.0      # added (times the share of rays left out) when a side of the edge is not used
 SIGMA_RESIDUAL = 0.3        # the share of the edge's rms residual added to the centre's sigma
 SCALE_SIGMA = 0.03          # the prior on the silhouette's size against the camera's prediction
-SCALE_RANGE = 0.035         # a fitted size further than this from the prediction: the fit is bad (good fits: 2 %)
+SCALE_RANGE = (0.93, 1.035)  # the fitted size against the prediction outside this: the fit is bad (a dark
+                            # ball's fits: within 2 %; a light ball's limb, darker than its middle, reads
+                            # 2-4 % small; a shadow beside the edge reads large)
 SHADOW_RATIO = 0.04         # outside the edge, darker than the background by this share: a shadow
 HIDDEN_RAYS = 0.08          # more than this share of the edge's rays covered: the ball is partly hidden
 HIDDEN_DIFF = 0.15          # ... its inside unlike the ball's by this share of the background's grey at least
@@ -713,7 +715,7 @@ class BallFinder:
         inlier = np.zeros(n, bool)
         inlier[np.flatnonzero(use)[inl]] = True
         fitinfo.update(centre=c, scale=s, used=use, residual=sr, inlier=inlier)
-        bad = (abs(s - 1.0) > SCALE_RANGE) or inl.mean() < MIN_INLIERS or sr > MAX_RESIDUAL_PX
+        bad = not (SCALE_RANGE[0] <= s <= SCALE_RANGE[1]) or inl.mean() < MIN_INLIERS or sr > MAX_RESIDUAL_PX
         if bad:
             return Miss("fits badly", c[0], c[1], fitinfo)
         # the edge beside the background alone (no shadow, nothing changed outside) fitted on
