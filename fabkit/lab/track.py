@@ -405,7 +405,7 @@ def fit_silhouette(pts, wts, start, a, b, phi, scale_sigma=SCALE_SIGMA, iters=12
             return None
         c += step[:2]
         s += step[2]
-        if abs(step[0]) + abs(step[1]) + 10.0 * abs(step[2]) < 1e-5 and it >= 2:
+        if abs(step[0]) + abs(step[1]) + 10.0 * abs(step[2]) < 2e-4 and it >= 2:
             break
     try:
         cov = np.linalg.inv(A)
@@ -723,7 +723,7 @@ class BallFinder:
         shift = 0.0
         sub = clean & use
         if 0 < int((use & ~sub).sum()) and sub.sum() >= CHECK_RAYS * n and _arc_ok(self.theta[sub], CHECK_ARC_GAP):
-            res2 = fit_silhouette(pts[sub], np.ones(int(sub.sum())), c, a, b, phi)
+            res2 = fit_silhouette(pts[sub], np.ones(int(sub.sum())), c, a, b, phi, iters=5)
             if res2 is not None:
                 shift = float(np.hypot(*(res2[0] - c)))
                 if shift > MAX_SHIFT_PX:
