@@ -95,6 +95,9 @@ def track_cases():
                             lamps=[soft(50, 200, 1700, 0, 0.75)]),
         "hand": dict(w=640, h=512, H=1000, tilt=8, az=200, k1=-0.04, fps=125, hand=True,
                      lamps=[soft(45, 300, 1600, 50, 0.7)]),
+        "grey_ball_two_hard": dict(w=640, h=512, H=1150, tilt=14, az=300, k1=-0.09, fps=60, exposure=0.48, v=75.0,
+                                   ambient=0.3, ball_grey=0.3, lamps=[soft(36, 200, 1400, 0, 0.45),
+                                                                      soft(42, 340, 1400, 0, 0.4)]),
         "white_on_white": dict(w=640, h=512, H=1000, tilt=6, az=300, k1=0.0, fps=125, dark=False, albedo=1.0,
                                lamps=[soft(50, 60, 1600, 40, 0.65)]),
         "white_soft_top": dict(w=640, h=512, H=1000, tilt=4, az=10, k1=-0.02, fps=125, dark=False, albedo=1.0,
@@ -116,7 +119,7 @@ def render_case(name, c):
         f = 0.85 * w * c["H"] / (vr.L + 60)
         cam = vr.Cam.looking_down(c["H"], c["tilt"], c["az"], f, c["k1"], w, h)
         rend = vr.Renderer(cam, vr.MARKERS, ball_dark=c.get("dark", True), albedo=c.get("albedo", 1.0),
-                           lamps=c["lamps"], ambient=c.get("ambient", 0.25))
+                           lamps=c["lamps"], ambient=c.get("ambient", 0.25), ball_grey=c.get("ball_grey"))
         launch = vr.Launch(v_in=c.get("v", 60.0))
         times = np.arange(c.get("n", 60)) / c["fps"]
         hand = None

@@ -676,7 +676,8 @@ class BallFinder:
         den = I[:, None] - Os
         with np.errstate(all="ignore"):
             alpha = np.clip((f - Os) / np.where(np.abs(den) < 1e-3, 1e-3, den), 0.0, 1.0)
-        e = -m + (alpha.sum(axis=1) - 0.5 * (alpha[:, 0] + alpha[:, -1])) * 0.25   # trapezoid: the edge's offset from rho0
+        # the edge's offset from rho0: the share's integral (trapezoid, 0.25 px steps)
+        e = -m + (alpha.sum(axis=1) - 0.5 * (alpha[:, 0] + alpha[:, -1])) * 0.25
         # monotone: the profile crosses halfway once
         half = (f - 0.5 * (I + O)[:, None]) * np.sign(contrast)[:, None]
         crossings = np.sum((half[:, :-1] > 0) & (half[:, 1:] <= 0), axis=1)
@@ -709,7 +710,7 @@ class BallFinder:
         if res is None:
             return Miss("fits badly", c0[0], c0[1], fitinfo)
         c, s, r, w_rob, cov = res
-        # refit once at the ellipse's shape where the centre is
+        # the inliers: within 3 robust sigma of the silhouette (0.3 px at least)
         inl = np.abs(r) <= max(3.0 * 1.4826 * _med(np.abs(r)), 0.3)
         sr = float(np.sqrt(np.mean(r[inl] ** 2))) if inl.sum() > 3 else float("inf")
         inlier = np.zeros(n, bool)
