@@ -1167,10 +1167,11 @@ def review_sheet(result: VideoTrack) -> np.ndarray:
         fit = c.fit
         # the shadow: darker than the background by a ratio, outside the fitted silhouette
         dark = img < bgc * (1.0 - SHADOW_RATIO) - 3.0
-        if fit is not None and "centre" in fit:
+        if fit is not None:         # not the ball itself (where it was fitted, or first looked for)
             yy, xx = np.mgrid[0:h, 0:w]
-            cu, cv_ = fit["centre"][0] - ox, fit["centre"][1] - oy
-            a, b, phi = fit["a"] * fit["scale"], fit["b"] * fit["scale"], fit["phi"]
+            cen, sc = (fit["centre"], fit["scale"]) if "centre" in fit else (fit["centre0"], 1.0)
+            cu, cv_ = cen[0] - ox, cen[1] - oy
+            a, b, phi = fit["a"] * sc, fit["b"] * sc, fit["phi"]
             ca, sa = math.cos(phi), math.sin(phi)
             xr, yr = (xx - cu) * ca + (yy - cv_) * sa, -(xx - cu) * sa + (yy - cv_) * ca
             dark &= (xr / (a + 1.0)) ** 2 + (yr / (b + 1.0)) ** 2 > 1.0
