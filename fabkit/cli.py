@@ -192,6 +192,8 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--json", action="store_true", help="print JSON")
     c.add_argument("--plot", metavar="FILE", help="the first video's frame with the track and the markers "
                    "overlaid: " + PLOT)
+    c.add_argument("--review", metavar="PNG", help="a contact sheet of the first video: crops around the ball "
+                   "for a spread of frames, the fitted silhouette, the rejected shadow and the gaps with their reason")
     c.add_argument("--no-progress", action="store_true", help="no progress bar")
 
     c = cmd("ramp", "the launch ramp as a watertight solid, with release marks at calibrated heights")

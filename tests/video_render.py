@@ -15,6 +15,14 @@ centred on the frame's time). Each pixel is the mean of 2 x 2 rays; sensor noise
 (Gaussian, 1.5 grey levels) is added and the frames are encoded lossily (H.264,
 crf 18, or MPEG-4 part 2) with PyAV at the given presentation times (a variable frame
 rate when those are uneven).
+
+Lamps (``Renderer(..., lamps=[Lamp(...)])``): point or disc lamps at given places
+(work mm) with an ambient share; each surface point's light from a lamp falls off as
+1/distance^2 (uneven light) times the cosine, and is multiplied by the share of the
+lamp's disc the ball leaves visible from that point (the angular overlap of the lamp's
+disc and the ball's disc seen from the point: a penumbra for a wide lamp, a hard edge
+for a point lamp). The ball is shaded and has a highlight from each lamp. A hand
+(``render_video(..., hand=...)``) is a skin-grey disc over the image in given frames.
 """
 
 from __future__ import annotations
@@ -32,6 +40,59 @@ X_RANGE, Y_RANGE, TOP = (-44.0, 6.0), (-12.5, 12.5), 5.0
 L, W = (X_RANGE[1] - X_RANGE[0]) * SCALE, (Y_RANGE[1] - Y_RANGE[0]) * SCALE
 RADIUS = 1.25                      # cm, the ball (diameter 2.5)
 LIGHT = np.array([0.35, 0.25, 1.0]) / np.linalg.norm([0.35, 0.25, 1.0])
+
+
+@dataclass
+class Lamp:
+    """A lamp: its centre (work mm), the radius of its disc (mm; 0: a point, a hard
+    shadow) and its power (the irradiance, relative, it gives at the block's centre
+    facing it)."""
+
+    position: tuple
+    radius: float = 0.0
+    power: float = 0.75
+
+    @classmethod
+    def at(cls, elevation_deg, azimuth_deg, distance, radius=0.0, power=0.75):
+        """A lamp ``distance`` mm from the block's centre, ``elevation_deg`` above the top
+        face's plane, toward ``azimuth_deg`` (from +X toward +Y)."""
+        e, a = math.radians(elevation_deg), math.radians(azimuth_deg)
+        c = np.array([L / 2, W / 2, 0.0])
+        return cls(tuple(c + distance * np.array([math.cos(e) * math.cos(a), math.cos(e) * math.sin(a),
+                                                   math.sin(e)])), radius, power)
+
+
+def disc_overlap(a, b, d):
+    """The area of the overlap of two discs of radii a, b with centres d apart (arrays)."""
+    a, b, d = np.broadcast_arrays(np.asarray(a, float), np.asarray(b, float), np.asarray(d, float))
+    out = np.zeros(a.shape)
+    inside = d <= np.abs(a - b)
+    out[inside] = np.pi * np.minimum(a, b)[inside] ** 2
+    part = ~inside & (d < a + b)
+    A, B, D = a[part], b[part], d[part]
+    with np.errstate(all="ignore"):
+        t1 = A * A * np.arccos(np.clip((D * D + A * A - B * B) / (2 * D * A), -1, 1))
+        t2 = B * B * np.arccos(np.clip((D * D + B * B - A * A) / (2 * D * B), -1, 1))
+        t3 = 0.5 * np.sqrt(np.maximum((-D + A + B) * (D + A - B) * (D - A + B) * (D + A + B), 0))
+    out[part] = t1 + t2 - t3
+    return out
+
+
+def lamp_visible(P, C, lamp: Lamp, r):
+    """The share (n,) of ``lamp``'s disc seen from surface points P (n, 3) past a ball of
+    radius r centred at C (3,), all work mm (angles on the unit sphere, small-angle discs)."""
+    Lp = np.asarray(lamp.position, float)
+    v = Lp - P
+    dl = np.linalg.norm(v, axis=1)
+    w = C - P
+    dc = np.linalg.norm(w, axis=1)
+    aB = np.arcsin(np.clip(r / np.maximum(dc, 1e-9), 0, 1))
+    cosang = np.sum(v * w, axis=1) / np.maximum(dl * dc, 1e-12)
+    th = np.arccos(np.clip(cosang, -1, 1))
+    if lamp.radius <= 0:
+        return np.where(th < aB, 0.0, 1.0)
+    aL = np.arcsin(np.clip(lamp.radius / dl, 0, 1))
+    return 1.0 - disc_overlap(aL, aB, th) / (np.pi * aL * aL)
 
 SPEC_TEXT = """\
 name: paper
@@ -162,11 +223,18 @@ class Renderer:
 
     SS = 2   # rays per pixel along each axis
 
-    def __init__(self, cam: Cam, markers=None, marker_size=30.0, ball_dark=True, albedo=1.0):
+    def __init__(self, cam: Cam, markers=None, marker_size=30.0, ball_dark=True, albedo=1.0, lamps=None,
+                 ambient=0.25, ball_grey=None):
         """``ball_dark``: a dark ball (else a white one); ``albedo``: the block's
-        reflectance (1: white foam; a white ball wants a darker block, e.g. 0.5)."""
+        reflectance (1: white foam; a white ball wants a darker block, e.g. 0.5);
+        ``lamps``: a list of :class:`Lamp` (cast shadows; None: the fixed distant light
+        LIGHT, no shadow) with ``ambient`` the light that reaches everywhere;
+        ``ball_grey``: the ball's reflectance (default 0.12 dark, 0.85 white)."""
         self.cam = cam
         self.albedo = albedo
+        self.lamps = list(lamps) if lamps else []
+        self.ambient = ambient
+        self.ball_grey = ball_grey
         self.markers = default_markers(marker_size) if markers is None else np.asarray(markers, float)
         self.marker_size = marker_size
         self.ball_dark = ball_dark
@@ -178,6 +246,8 @@ class Renderer:
         U, V = np.broadcast_arrays(U, V)
         self.U, self.V = U.reshape(-1), V.reshape(-1)
         self.depth, self.radiance = self._static(self.U, self.V)
+        if self.lamps:
+            self._lamp_light()
         self.static_img = self.radiance.reshape(cam.h, cam.w, ss * ss).mean(axis=2)
 
     def _static(self, U, V):
@@ -187,6 +257,9 @@ class Renderer:
         s0 = -O[2] / d[:, 2]
         X, Y = O[0] + s0 * d[:, 0], O[1] + s0 * d[:, 1]
         rad = np.full(len(U), 0.35)                    # the floor (and the block's sides)
+        self.rho = np.zeros(len(U), np.float32)        # the block's reflectance (0: the floor)
+        self.nrm = np.zeros((len(U), 3), np.float32)
+        self.nrm[:, 2] = 1.0
         depth = np.full(len(U), np.inf)
         inside = (X >= 0) & (X <= L) & (Y >= 0) & (Y <= W)
         Z, n = surface_work(np.clip(X, 0, L), np.clip(Y, 0, W))
@@ -197,6 +270,9 @@ class Renderer:
         r_top = rad[top]
         r_top[~np.isnan(tex)] = (0.25 + 0.75 * LIGHT[2]) * tex[~np.isnan(tex)] / 0.92
         rad[top] = r_top
+        rho_top = np.full(int(top.sum()), float(self.albedo))
+        rho_top[~np.isnan(tex)] = tex[~np.isnan(tex)] / 0.92
+        self.rho[top] = rho_top
         # rays into the cavity: march down in 1.5 mm steps of height, then bisect
         idx = np.flatnonzero(inside & (Z < 0))
         s_lo = s0[idx].copy()
@@ -233,7 +309,28 @@ class Renderer:
         _, n = surface_work(Xs, Ys)
         rad[ii] = self.albedo * (0.25 + 0.75 * np.clip(n.T @ LIGHT, 0, 1))
         depth[ii] = m
+        self.rho[ii] = self.albedo
+        self.nrm[ii] = n.T
         return depth, rad
+
+    def _lamp_light(self):
+        """With lamps: each ray's point (work mm), its light from each lamp unshadowed
+        (E, n x lamps) and the static image lit so."""
+        d = self.cam.rays(self.U, self.V)
+        block = np.isfinite(self.depth)
+        self.P = np.zeros((len(self.U), 3), np.float32)
+        self.P[block] = (self.cam.C + self.depth[block, None] * d[block]).astype(np.float32)
+        centre = np.array([L / 2, W / 2, 0.0])
+        self.E = np.zeros((len(self.U), len(self.lamps)), np.float32)
+        for i, lp in enumerate(self.lamps):
+            Lp = np.asarray(lp.position, float)
+            v = Lp - self.P[block]
+            dl = np.linalg.norm(v, axis=1)
+            cosn = np.clip(np.sum(self.nrm[block] * v, axis=1) / dl, 0, 1)
+            self.E[block, i] = lp.power * cosn * (np.linalg.norm(Lp - centre) / dl) ** 2
+        lit = self.rho * (self.ambient + self.E.sum(axis=1))
+        self.radiance = np.where(block, lit, self.radiance)
+        self.static_img = self.radiance.reshape(self.cam.h, self.cam.w, self.SS * self.SS).mean(axis=2)
 
     def frame(self, centres):
         """One grey frame (h, w) float in [0, 1]: the ball at each of ``centres`` (k, 3)
@@ -246,6 +343,17 @@ class Renderer:
         P = np.array(pts)
         uv = cam.project(P)
         rpx = cam.f * RADIUS * SCALE / np.linalg.norm(P - cam.C, axis=1).min() * 1.3 + 4
+        r = RADIUS * SCALE
+        for lp in self.lamps:                # the shadows' reach: along the lamp's rays past the ball
+            Lp = np.asarray(lp.position, float)
+            for c in P:
+                e = (c - Lp) / np.linalg.norm(c - Lp)
+                reach = (r + 60.0) / max(-e[2], 0.05)
+                pen = lp.radius * reach / np.linalg.norm(c - Lp)
+                S = c[None, :] + np.linspace(0, reach, 8)[:, None] * e[None, :]
+                uvs = cam.project(S)
+                grow = (r + pen) * cam.f / np.linalg.norm(c - cam.C) * 1.3 + 4
+                uv = np.vstack([uv, uvs - grow, uvs + grow])
         u0 = int(max(0, math.floor(uv[:, 0].min() - rpx)))
         u1 = int(min(cam.w, math.ceil(uv[:, 0].max() + rpx) + 1))
         v0 = int(max(0, math.floor(uv[:, 1].min() - rpx)))
@@ -260,6 +368,13 @@ class Renderer:
         r = RADIUS * SCALE
         for c in centres:
             rad = self.radiance[sub].copy()
+            if c is not None and self.lamps:       # the ball's shadow on the surface
+                Ps = self.P[sub].astype(float)
+                irr = np.full(len(sub), self.ambient)
+                for i, lp in enumerate(self.lamps):
+                    irr += self.E[sub, i] * lamp_visible(Ps, c, lp, r)
+                block = np.isfinite(self.depth[sub])
+                rad = np.where(block, self.rho[sub] * irr, rad)
             if c is not None:
                 oc = cam.C - c
                 b = d @ oc
@@ -272,8 +387,25 @@ class Renderer:
                 hv = LIGHT - d[hit]
                 hv /= np.linalg.norm(hv, axis=1, keepdims=True)
                 spec = np.clip(np.sum(n * hv, axis=1), 0, 1) ** 60
-                base = (0.05 + 0.12 * lam) if self.ball_dark else (0.7 + 0.3 * lam)
-                rad[hit] = np.minimum(1.0, base + 0.9 * spec)
+                if self.lamps:
+                    grey = self.ball_grey if self.ball_grey is not None else (0.12 if self.ball_dark else 0.85)
+                    irr = np.full(int(hit.sum()), self.ambient)
+                    spec = np.zeros(int(hit.sum()))
+                    centre = np.array([L / 2, W / 2, 0.0])
+                    for lp in self.lamps:
+                        Lp = np.asarray(lp.position, float)
+                        lv = Lp - p
+                        dl = np.linalg.norm(lv, axis=1)
+                        lv /= dl[:, None]
+                        fall = (np.linalg.norm(Lp - centre) / dl) ** 2
+                        irr += lp.power * fall * np.clip(np.sum(n * lv, axis=1), 0, 1)
+                        hv = lv - d[hit]
+                        hv /= np.linalg.norm(hv, axis=1, keepdims=True)
+                        spec += lp.power * fall * np.clip(np.sum(n * hv, axis=1), 0, 1) ** 60
+                    rad[hit] = np.minimum(1.0, grey * irr + 0.9 * spec)
+                else:
+                    base = (0.05 + 0.12 * lam) if self.ball_dark else (0.7 + 0.3 * lam)
+                    rad[hit] = np.minimum(1.0, base + 0.9 * spec)
             acc += rad
         acc /= len(centres)
         img[v0:v1, u0:u1] = acc.reshape(v1 - v0, u1 - u0, ss2).mean(axis=2)
@@ -305,12 +437,17 @@ class Launch:
 
 
 def render_video(path, rend: Renderer, launch: Launch, times, *, codec="libx264", crf=18, noise=1.5, seed=0,
-                 exposure=0.5, hide=(), t_offset=0.0, gop=None):
+                 exposure=0.5, hide=(), t_offset=0.0, gop=None, hand=None, report=None):
     """Render and encode a video with ``rend`` (its camera and scene): frames at
     presentation ``times`` (s, increasing), the ball at launch time t + ``t_offset``;
     ``hide``: frame indices without the ball (taken away: a gap). Returns the frames'
     times (s, as encoded: on the time base's grid) and the true centres (n, 3) work mm
-    at those times (nan: no ball)."""
+    at those times (nan: no ball).
+
+    ``hand``: {frame index: (u, v, radius px)}, a skin-grey disc (0.55, a little
+    texture) drawn over the image in those frames; ``report``: a dict filled with
+    ``covered`` (n,), the share of the ball's disc (its true centre's projection and
+    radius) the hand covers in each frame."""
     import av
 
     cam = rend.cam
@@ -332,6 +469,7 @@ def render_video(path, rend: Renderer, launch: Launch, times, *, codec="libx264"
     st.time_base = tb
     st.codec_context.time_base = tb
     truth = np.full((len(times), 3), np.nan)
+    covered = np.zeros(len(times))
     for i, t in enumerate(times):
         tl = t + t_offset
         if i in hide:
@@ -342,6 +480,17 @@ def render_video(path, rend: Renderer, launch: Launch, times, *, codec="libx264"
             centres = [None if np.isnan(c).any() else c for c in C]
             truth[i] = launch.centre(tl)[0]
         img = rend.frame(centres)
+        if hand is not None and i in hand:
+            hu, hv, hr = hand[i]
+            yy, xx = np.mgrid[0:cam.h, 0:cam.w]
+            inside = np.hypot(xx - hu, yy - hv) <= hr
+            img[inside] = 0.55 + 0.04 * np.sin(0.7 * xx[inside]) * np.cos(0.5 * yy[inside])
+            if np.isfinite(truth[i]).all():
+                cu, cv_ = cam.project(truth[i])
+                rb = cam.f * RADIUS * SCALE / np.linalg.norm(truth[i] - cam.C)
+                pts = np.mgrid[-1:1:41j, -1:1:41j].reshape(2, -1)
+                pts = pts[:, np.hypot(*pts) <= 1]
+                covered[i] = np.mean(np.hypot(cu + rb * pts[0] - hu, cv_ + rb * pts[1] - hv) <= hr)
         img = np.clip(img * 255 + rng.normal(0, noise, img.shape), 0, 255).astype(np.uint8)
         yuv = np.concatenate([img, np.full((cam.h // 2, cam.w), 128, np.uint8)], axis=0)
         fr = av.VideoFrame.from_ndarray(yuv, format="yuv420p")
@@ -352,4 +501,6 @@ def render_video(path, rend: Renderer, launch: Launch, times, *, codec="libx264"
     for pkt in st.encode():
         out.mux(pkt)
     out.close()
+    if report is not None:
+        report["covered"] = covered
     return times, truth

@@ -43,6 +43,8 @@ MODULES = 6                  # a 4x4 ArUco marker: 4 data modules and a black bo
 EDGE_GAP_MM = 5.0            # default: the black square this far from the two nearest block edges
 HEIGHT_SIGMA_MM = 10.0       # lab.camera_height: a tape measure, good to about 1 cm
 CORNER_SIGMA_PX = 0.2        # the weight of a corner in the fit (px); reported errors are measured
+K1_PRIOR = 0.3              # without lab.camera_height: k1 ~ N(0, 0.3) ...
+LOG_F_PRIOR = 1.0           # ... and log f ~ N(log width, 1): weak, only a degenerate fit leans on them
 FLAT_MM = 0.05               # a marker's paper may lie over a cut this shallow (mm)
 SMALLER_SIZES_MM = (25.0, 20.0, 15.0, 12.0, 10.0)   # tried in turn when the default size finds no room
 
@@ -474,6 +476,9 @@ def calibrate(corners_px: np.ndarray, layout: MarkerLayout, size: tuple[int, int
         extra = []
         if camera_height is not None:
             extra.append((cam.centre[2] - camera_height) / HEIGHT_SIGMA_MM)
+        else:   # weak priors, so that a camera looking straight down stays a camera
+            extra.append(p[1] / K1_PRIOR)
+            extra.append((p[0] - math.log(w)) / LOG_F_PRIOR)
         return np.concatenate([r, extra])
 
     best = None

@@ -8,14 +8,38 @@ The stages, each a function or a small class a test can call:
    over the frames it was found in (the camera stands still);
 3. the camera: :func:`fabkit.lab.camera.calibrate`;
 4. :class:`BallFinder` - the background (the sample's median: the ball moves) and,
-   per frame, the ball: the difference from the background, its peak at the ball's
-   scale on a 4x smaller image, then the disc at full resolution: pixels weighted by
-   their share of the contrast (clip(|d| / c, 0, 1): a pixel the ball's edge half
-   covers counts half), holes (a specular highlight) filled; the weighted centroid is
-   the centre, to a fraction of a pixel. Motion blur smears the disc along the path
-   symmetrically, so the centroid is the centre at mid-exposure. Its standard
-   deviation follows from the background's noise. A frame where no disc of the
-   ball's size stands out is a gap;
+   per frame, the ball's SILHOUETTE, never the changed pixels (a lamp's cast shadow
+   changes pixels too):
+
+   * :class:`Shape` - the ball's image anywhere in the frame from the calibrated camera,
+     the offset surface and the diameter: the cone tangent to the sphere projected (with
+     the distortion), an ellipse (semi-axes, angle) and its centre's offset from the
+     projected sphere centre, on a grid, interpolated;
+   * the coarse peak of |frame - background| at the ball's scale on a 4x smaller image
+     (near the track's prediction first), then a Hough vote of the edges of
+     frame - background for circles of the expected radius there: the strongest
+     (HYPOTHESES) are the ball, its shadow, a hand...;
+   * for each, rays across the expected edge: the edge on a ray is where the profile's
+     share of the ball (the area between the inside's grey and the outside's, the
+     outside taken as the background times the ray's own ratio, so a shadow's darkening
+     and the surface's shading do not move it) puts it, blur-symmetric; a ray is
+     "covered" when inside and outside both differ from the ball and the background,
+     "low" when it has no contrast, "shadow" when the outside is darker than the
+     background;
+   * the expected ellipse fitted to the rays' edge points (:func:`fit_silhouette`:
+     Gauss-Newton, Huber weights, the size with a 3 % prior), its inliers, residual and
+     size checked;
+   * among the hypotheses: a silhouette darker than the surface all over, no darker than
+     a shadow can be, with something lighter beside it (a light ball, a highlight), is
+     that ball's shadow; a shadow's inside keeps an even ratio to the background; of two
+     overlapping silhouettes the ball is in front, so its edge toward the other is whole;
+     one far from the track's prediction is doubtful;
+   * the centre's sigma: the fit's covariance scaled by its residual, plus a floor, a
+     share of the residual and a term for the share of the edge left out (calibrated
+     against rendered truth: benchmarks/lab_accuracy.py track).
+
+   A frame where no silhouette is accepted is a gap with its reason (GAP_REASONS): not
+   found, partly hidden, merges with the surface, in its shadow, fits badly;
 5. :func:`fabkit.lab.camera.ball_centres` - each centre's ray met with the
    ball-centre offset surface;
 6. :class:`VideoTrack` - the result: times from the presentation timestamps, the
@@ -25,6 +49,7 @@ The stages, each a function or a small class a test can call:
 from __future__ import annotations
 
 import math
+from pathlib import Path
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -33,12 +58,43 @@ from ..errors import SpecError
 from . import camera as cam_mod
 from . import video
 
+DOUBTFUL_SHARE = 0.05      # more than this share of the frames doubtful (seen, not reported): a warning
+REVIEW_CROPS = 24           # crops kept for a review sheet
 SAMPLE_FRAMES = 24          # frames of the sample (background, markers)
 MIN_KEYFRAMES = 9           # fewer key frames than this: sample a full decode instead
 DOWN = 4                    # the coarse search's reduction
 MIN_CONTRAST = 12.0         # grey levels: a ball that differs less from the surface is not found
 AREA_RANGE = (0.35, 4.0)    # the disc's area against pi r^2 (blur lengthens it)
 SIGMA_FLOOR_PX = 0.03       # the centre's standard deviation is at least this (the model's own limit)
+SIGMA_GAIN = 1.0            # the fit's covariance scaled by this (calibrated against rendered truth)
+SIGMA_PARTIAL_PX = 1.0      # added (times the share of rays left out) when a side of the edge is not used
+SIGMA_RESIDUAL = 0.3        # the share of the edge's rms residual added to the centre's sigma
+SCALE_SIGMA = 0.03          # the prior on the silhouette's size against the camera's prediction
+SCALE_RANGE = (0.93, 1.035)  # the fitted size against the prediction outside this: the fit is bad (a dark
+                            # ball's fits: within 2 %; a light ball's limb, darker than its middle, reads
+                            # 2-4 % small; a shadow beside the edge reads large)
+SHADOW_RATIO = 0.04         # outside the edge, darker than the background by this share: a shadow
+HIDDEN_RAYS = 0.08          # more than this share of the edge's rays covered: the ball is partly hidden
+HIDDEN_DIFF = 0.15          # ... its inside unlike the ball's by this share of the background's grey at least
+MAX_RAMP = 0.08             # the outside's change past the edge against the edge's contrast: more, no edge
+MAX_SOFT_SHARE = 0.3        # more of the edge than this beside such a ramp: the ball is not told from its shadow
+MIN_BALL_CONTRAST = 0.25    # the ball's edge (inside) against the surface, a share of the surface's grey
+MIN_RAYS = 0.35             # fewer usable rays than this share: no fit
+MAX_ARC_GAP = math.radians(90)    # the used rays leave no wider gap around the centre
+CHECK_RAYS = 0.25           # the edge beside the plain background, fitted alone when this share of rays ...
+CHECK_ARC_GAP = math.radians(200)   # ... leaves no wider gap: the two fits' distance is added to the sigma
+MAX_SHIFT_PX = 0.6          # ... and more than this is a gap ("in its shadow")
+MIN_INLIERS = 0.6           # the fit's inliers among the used rays
+MAX_RESIDUAL_PX = 0.4       # the inliers' rms distance from the fitted silhouette
+SHADOW_EVEN = 0.12          # a shadow's inside: the ratio to the background varies less than this (relative)
+SHADOW_RATIO_MIN = 0.15     # ... and is at least this (the ambient light's share: a dark ball is darker)
+MAX_LOW_SHARE = 0.2         # a silhouette with more of its edge than this without contrast: unseparable
+MIN_FACING = 0.6            # overlapping silhouettes: the ball's edge toward the others is this intact
+PREDICT_TOL = 0.5           # a centre further than this (times the radius) from the track's prediction: doubtful
+SHAPE_STEP = 4              # px between the entries of the ball's shape table
+MIN_RUN = 3                 # fewer tracked frames in a row than this, beside doubtful gaps: gaps too
+HYPOTHESES = 3              # the edge's strongest circles tried (the ball, its shadow, ...)
+GAP_REASONS = ("not found", "partly hidden", "merges with the surface", "in its shadow", "fits badly")
 
 
 @dataclass
@@ -172,8 +228,9 @@ def find_markers(frames: np.ndarray, path: str = "<video>", image: np.ndarray | 
 
 @dataclass
 class Ball:
-    """One frame's ball: its centre (u, v) px and standard deviations, the disc's area
-    px^2 and its contrast (grey levels)."""
+    """One frame's ball: its centre (u, v) px (the projection of the sphere's centre) and
+    standard deviations, the silhouette's fitted scale against the expected one, the
+    median contrast (grey levels) of its edge, and how the edge's rays were used."""
 
     u: float
     v: float
@@ -181,20 +238,198 @@ class Ball:
     sv: float
     area: float
     contrast: float
+    scale: float = 1.0
+    residual_px: float = 0.0
+    rays_used: int = 0
+    rays: int = 0
+    fit: dict | None = field(default=None, repr=False)    # the silhouette for a review sheet
+    score: float = 0.0                                     # the hypothesis's support (rays that fit)
+    shadowlike: bool = False                               # its inside looks like a shadow (a lower rank)
+    facing: float = 1.0                                    # its edge's share intact toward an overlapping one
+    low_share: float = 0.0                                 # the share of its edge's rays without contrast
+    dark: bool = False                                     # nothing inside is lighter than the surface
+
+
+@dataclass
+class Miss:
+    """A frame without a reported ball: the reason (one of GAP_REASONS) and, when a ball
+    was seen, where (px) and its silhouette."""
+
+    reason: str
+    u: float = math.nan
+    v: float = math.nan
+    fit: dict | None = field(default=None, repr=False)
+
+
+class Shape:
+    """The ball's silhouette anywhere in the image: on a grid of image points q (each
+    taken as the projection of the sphere's centre, its ray met with the ball-centre
+    offset surface), the cone of rays tangent to the sphere projected through the camera
+    (with its distortion) and fitted by an ellipse: semi-axes a >= b px, the major axis's
+    angle, and the ellipse's centre's offset from q (the perspective shift of a sphere's
+    image, up to a tenth of a pixel). Interpolated bilinearly between grid points."""
+
+    def __init__(self, camera, surface, radius, size, n=13):
+        import cv2
+
+        w, h = size
+        us, vs = np.linspace(0, w - 1, n), np.linspace(0, h - 1, n)
+        U, V = np.meshgrid(us, vs)
+        q = np.c_[U.ravel(), V.ravel()]
+        C = cam_mod.ball_centres(camera, surface, radius, q)
+        Cw = np.stack(surface.to_work(C[:, 0], C[:, 1], C[:, 2]), axis=1)
+        r_mm = radius * surface.scale
+        O = camera.centre
+        out = np.full((len(q), 5), np.nan)
+        t = np.linspace(0, 2 * math.pi, 48, endpoint=False)
+        for i, c in enumerate(Cw):
+            if not np.all(np.isfinite(c)):
+                continue
+            z = c - O
+            d = float(np.linalg.norm(z))
+            if d <= r_mm:
+                continue
+            z /= d
+            e1 = np.cross(z, [0.0, 0.0, 1.0] if abs(z[2]) < 0.9 else [1.0, 0.0, 0.0])
+            e1 /= np.linalg.norm(e1)
+            e2 = np.cross(z, e1)
+            rho = r_mm * math.sqrt(1 - (r_mm / d) ** 2)      # the tangent circle's radius
+            ring = c - (r_mm * r_mm / d) * z + rho * (np.cos(t)[:, None] * e1 + np.sin(t)[:, None] * e2)
+            p = camera.project(ring)
+            (eu, ev), (A, B), ang = cv2.fitEllipse(p.astype(np.float32))
+            qc = camera.project(c[None, :])[0]
+            a2, b2, th = A / 2, B / 2, math.radians(ang)
+            if a2 < b2:                                      # the major axis first
+                a2, b2, th = b2, a2, th + math.pi / 2
+            out[i] = (a2, b2, th, eu - qc[0], ev - qc[1])
+        bad = ~np.all(np.isfinite(out), axis=1)
+        if bad.all():
+            raise SpecError("the ball's image could not be computed: the camera does not see the block")
+        if bad.any():                                       # rays past the block: the nearest grid point
+            good = np.flatnonzero(~bad)
+            for i in np.flatnonzero(bad):
+                j = good[np.argmin(np.hypot(*(q[good] - q[i]).T))]
+                out[i] = out[j]
+        self.grid = out.reshape(n, n, 5)
+        self.us, self.vs = us, vs
+        self.n = n
+        # a dense table every SHAPE_STEP px (bilinear from the grid), read by the nearest entry
+        g = self.grid
+        planes = np.stack([g[..., 0], g[..., 1], np.cos(2 * g[..., 2]), np.sin(2 * g[..., 2]), g[..., 3], g[..., 4]],
+                          axis=-1).astype(np.float32)
+        tw, th = w // SHAPE_STEP + 2, h // SHAPE_STEP + 2
+        xs = np.arange(tw) * SHAPE_STEP / us[-1] * (n - 1)
+        ys = np.arange(th) * SHAPE_STEP / vs[-1] * (n - 1)
+        X, Y = np.meshgrid(xs.astype(np.float32), ys.astype(np.float32))
+        tab = np.stack([cv2.remap(planes[..., k], X, Y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+                        for k in range(6)], axis=-1).astype(float)
+        self.table = np.stack([tab[..., 0], tab[..., 1], 0.5 * np.arctan2(tab[..., 3], tab[..., 2]),
+                               tab[..., 4], tab[..., 5]], axis=-1)
+        self.tw, self.th = tw, th
+
+    def at(self, u: float, v: float):
+        """(a, b, angle, du, dv) at image point (u, v) (the table's nearest entry, SHAPE_STEP
+        px apart: the ellipse changes by well under a thousandth of a pixel between them)."""
+        i = min(max(int(v / SHAPE_STEP + 0.5), 0), self.th - 1)
+        j = min(max(int(u / SHAPE_STEP + 0.5), 0), self.tw - 1)
+        return self.table[i, j]
+
+    def at_exact(self, u: float, v: float):
+        """(a, b, angle, du, dv) at image point (u, v), bilinear on the grid."""
+        n = self.n
+        fu = min(max(u / self.us[-1] * (n - 1), 0.0), n - 1 - 1e-9)
+        fv = min(max(v / self.vs[-1] * (n - 1), 0.0), n - 1 - 1e-9)
+        i, j = int(fv), int(fu)
+        s, t = fv - i, fu - j
+        g = self.grid
+        a, b, c, d = g[i, j], g[i, j + 1], g[i + 1, j], g[i + 1, j + 1]
+        out = (1 - s) * ((1 - t) * a + t * b) + s * ((1 - t) * c + t * d)
+        # the angle: averaged as a direction of period pi
+        ang = [a[2], b[2], c[2], d[2]]
+        wts = [(1 - s) * (1 - t), (1 - s) * t, s * (1 - t), s * t]
+        cx = sum(wt * math.cos(2 * x) for wt, x in zip(wts, ang))
+        sx = sum(wt * math.sin(2 * x) for wt, x in zip(wts, ang))
+        out[2] = 0.5 * math.atan2(sx, cx)
+        return out
+
+    @property
+    def median_radius(self) -> float:
+        return float(np.median(0.5 * (self.grid[..., 0] + self.grid[..., 1])))
+
+
+def _ellipse_radius(theta, a, b, phi):
+    """The radius of an ellipse (semi-axes a, b, major axis at angle phi) toward theta."""
+    c, s = np.cos(theta - phi), np.sin(theta - phi)
+    return a * b / np.sqrt((b * c) ** 2 + (a * s) ** 2)
+
+
+def fit_silhouette(pts, wts, start, a, b, phi, scale_sigma=SCALE_SIGMA, iters=12):
+    """The centre (2,) and scale of the ellipse (a s, b s, angle phi) through the edge
+    points ``pts`` (n, 2) px with weights ``wts`` (n,), robustly (Huber's weights on the
+    residuals' own scale, a prior N(1, scale_sigma) on s), by Gauss-Newton with the exact
+    derivatives of the radial residual |p - c| - s rho(theta). Returns (centre, scale,
+    residuals (n,), robust weights (n,), covariance (3, 3) of (u, v, s) per unit residual
+    variance)."""
+    c = np.asarray(start, dtype=float).copy()
+    s = 1.0
+    w_rob = np.ones(len(pts))
+    cov = np.full((3, 3), np.nan)
+    r = np.zeros(len(pts))
+    for it in range(iters):
+        dx, dy = pts[:, 0] - c[0], pts[:, 1] - c[1]
+        rr = np.hypot(dx, dy)
+        rr = np.maximum(rr, 1e-9)
+        th = np.arctan2(dy, dx)
+        cs, sn = np.cos(th - phi), np.sin(th - phi)
+        q = np.sqrt((b * cs) ** 2 + (a * sn) ** 2)
+        rho = a * b / q
+        r = rr - s * rho
+        # d rho / d theta, and d theta / d c
+        drho = -a * b * (a * a - b * b) * sn * cs / q ** 3
+        dth_du, dth_dv = dy / rr ** 2, -dx / rr ** 2
+        J = np.stack([-dx / rr - s * drho * dth_du, -dy / rr - s * drho * dth_dv, -rho], axis=1)
+        if it >= 1:
+            if it in (1, 3):            # the residuals' own scale (their median absolute value)
+                ar = np.abs(r[wts > 0]) if (wts > 0).any() else np.ones(1)
+                scale_r = max(1.4826 * float(np.partition(ar, ar.size // 2)[ar.size // 2]), 0.05)
+            k = 1.5 * scale_r
+            w_rob = np.where(np.abs(r) <= k, 1.0, k / np.maximum(np.abs(r), 1e-12))
+        W = wts * w_rob
+        A = J.T @ (W[:, None] * J)
+        g = J.T @ (W * r)
+        A[2, 2] += 1.0 / scale_sigma ** 2
+        g[2] += (s - 1.0) / scale_sigma ** 2
+        try:
+            step = -np.linalg.solve(A, g)
+        except np.linalg.LinAlgError:
+            return None
+        c += step[:2]
+        s += step[2]
+        if abs(step[0]) + abs(step[1]) + 10.0 * abs(step[2]) < 2e-4 and it >= 2:
+            break
+    try:
+        cov = np.linalg.inv(A)
+    except np.linalg.LinAlgError:
+        return None
+    return c, s, r, w_rob, cov
 
 
 class BallFinder:
     """Finds the ball frame by frame against a background (see the module doc).
 
-    ``background`` (h, w) uint8; ``radius_px`` the ball's expected radius in px;
-    ``noise`` the background's noise, grey levels (1 sigma)."""
+    ``background`` (h, w) uint8; ``shape`` a :class:`Shape` (or a number: one radius in
+    px everywhere, a circle); ``noise`` the background's noise, grey levels (1 sigma)."""
 
-    def __init__(self, background: np.ndarray, radius_px: float, noise: float, exclude=None):
+    def __init__(self, background: np.ndarray, shape, noise: float, exclude=None):
         import cv2
 
         self.cv2 = cv2
         self.bg = np.ascontiguousarray(background)
-        self.r = float(radius_px)
+        self.bgf = self.bg.astype(np.float32)
+        if not isinstance(shape, Shape):
+            shape = _FixedShape(float(shape))
+        self.shape = shape
+        self.r = shape.median_radius
         self.noise = max(float(noise), 0.5)
         k = max(1, int(round(self.r * 1.2 / DOWN)))
         self.k = k | 1
@@ -203,24 +438,48 @@ class BallFinder:
         if exclude is not None:       # (h, w) bool: pixels never searched (the markers' paper)
             self.exclude = np.asarray(exclude, dtype=bool)
             self.exclude_small = np.ascontiguousarray(self.exclude[::DOWN, ::DOWN])
-        self.half = int(math.ceil(1.4 * self.r)) + 6
         self.last: list = []          # the last two frames' centres, when both had the ball
         self.threshold = max(MIN_CONTRAST, 6.0 * self.noise)
+        self.nrays = int(min(128, max(48, 4 * round(1.5 * self.r))))
+        self.theta = np.linspace(0, 2 * math.pi, self.nrays, endpoint=False)
+        self.miss: Miss | None = None
+        self.predicted = None
 
     def find(self, grey: np.ndarray) -> Ball | None:
-        """The ball in this frame, or None. Frames are expected in order: where the last
-        two frames had the ball, the search starts in a window around the position they
-        predict (the whole frame when it is not there)."""
+        """The ball in this frame, or None (then ``self.miss`` says why). Frames are
+        expected in order: where the last two frames had the ball, the search starts in a
+        window around the position they predict (the whole frame when it is not there)."""
         b = None
+        self.miss = None
+        self.predicted = None
         if len(self.last) == 2:
             (u1, v1), (u2, v2) = self.last
             du, dv = u2 - u1, v2 - v1
+            self.predicted = (u2 + du, v2 + dv)
+            # the silhouette straight at the prediction: no search when it fits there
+            pu, pv = self.predicted
+            h, w = grey.shape
+            if 0 <= pu < w and 0 <= pv < h:
+                got = self._fit_at(grey, np.array([pu, pv]))
+                if not isinstance(got, Miss) and self._early_ok(got):
+                    self.last = (self.last + [(got.u, got.v)])[-2:]
+                    return got
             half = int(3 * self.r + 2 * math.hypot(du, dv)) + 8
             b = self._search(grey, (u2 + du, v2 + dv, half))
-        if b is None:
+        if b is None and (self.miss is None or self.miss.reason == "not found"):
+            self.predicted = None
             b = self._search(grey, None)
+        if b is None and self.miss is None:
+            self.miss = Miss("not found")
         self.last = (self.last + [(b.u, b.v)])[-2:] if b is not None else []
         return b
+
+    def _early_ok(self, got) -> bool:
+        """A silhouette found where the track predicts it, whole enough and not a shadow."""
+        R = 0.5 * (got.fit["a"] + got.fit["b"])
+        return (not got.shadowlike and got.low_share <= MAX_LOW_SHARE
+                and math.hypot(got.fit["centre"][0] - self.predicted[0], got.fit["centre"][1] - self.predicted[1])
+                <= max(PREDICT_TOL * R, 3.0))
 
     def _search(self, grey: np.ndarray, window) -> Ball | None:
         cv2 = self.cv2
@@ -246,108 +505,295 @@ class BallFinder:
         if peak < 0.5 * self.threshold:
             return None
         u0, v0 = x0 + loc[0] * DOWN, y0 + loc[1] * DOWN
-        # the fine step on a full-resolution crop (room for a long blur's second look)
-        reach = 3 * self.half + 4
-        cx0, cy0 = max(0, u0 - reach), max(0, v0 - reach)
-        cx1, cy1 = min(w, u0 + reach + 1), min(h, v0 + reach + 1)
-        g = grey[cy0:cy1, cx0:cx1]
-        bg = self.bg[cy0:cy1, cx0:cx1]
-        d = cv2.absdiff(g, bg)
-        b = self._refine(d, g, bg, u0 - cx0, v0 - cy0, blur_extra=0)
-        if b is None:
-            return None
-        b.u += cx0
-        b.v += cy0
-        return b
+        return self._silhouette(grey, u0, v0)
 
-    def _refine(self, d: np.ndarray, grey: np.ndarray, bg: np.ndarray, u0: float, v0: float,
-                blur_extra: int) -> Ball | None:
-        """The disc around (u0, v0) in the crop ``d`` = |grey - bg| (see the module doc);
-        coordinates relative to the crop."""
+    def _hough(self, d: np.ndarray, R: float):
+        """The centre (crop px) of the circle of radius R best supported by the edges of
+        ``d`` (frame - background, float32): each edge pixel votes R along its gradient,
+        both ways (the ball may be darker on one side and lighter on the other), weighted
+        by the gradient's size."""
         cv2 = self.cv2
-        h, w = d.shape
-        half = self.half + blur_extra
-        a0, a1 = max(0, int(u0) - half), min(w, int(u0) + half + 1)
-        b0, b1 = max(0, int(v0) - half), min(h, int(v0) + half + 1)
-        roi = d[b0:b1, a0:a1]
-        if roi.size == 0:
+        gx = cv2.Sobel(d, cv2.CV_32F, 1, 0, ksize=3)
+        gy = cv2.Sobel(d, cv2.CV_32F, 0, 1, ksize=3)
+        mag = cv2.magnitude(gx, gy)
+        thr = max(8.0 * self.noise, 0.08 * float(mag.max()))
+        ys, xs = np.nonzero(mag > thr)
+        if xs.size < 8:
             return None
-        _, mask = cv2.threshold(roi, self.threshold, 1, cv2.THRESH_BINARY)
-        n, lab, stats, cent = cv2.connectedComponentsWithStats(mask, connectivity=8)
-        if n < 2:
-            return None
-        # the component nearest the peak, among the large ones
-        du = cent[1:, 0] + a0 - u0
-        dv = cent[1:, 1] + b0 - v0
-        score = stats[1:, cv2.CC_STAT_AREA] / (1.0 + (du * du + dv * dv) / (self.r * self.r))
-        j = 1 + int(np.argmax(score))
-        comp = (lab == j).astype(np.uint8)
-        # fill holes (a highlight inside the disc): the background reachable from the border
-        inv = 1 - comp
-        ff = np.zeros((comp.shape[0] + 2, comp.shape[1] + 2), np.uint8)
-        filled = comp.copy()
-        outside = inv.copy()
-        for y, x in ((0, 0), (0, comp.shape[1] - 1), (comp.shape[0] - 1, 0), (comp.shape[0] - 1, comp.shape[1] - 1)):
-            if outside[y, x] == 1:
-                cv2.floodFill(outside, ff, (x, y), 2)
-        filled[outside == 1] = 1              # holes: not reached from the border
-        area = float(filled.sum())
-        ra = math.pi * self.r * self.r
-        if not AREA_RANGE[0] * ra <= area <= AREA_RANGE[1] * ra:
-            return None
-        if filled[0, :].any() or filled[-1, :].any() or filled[:, 0].any() or filled[:, -1].any():
-            if blur_extra == 0 and (a0 > 0 and b0 > 0 and a1 < w and b1 < h):
-                ys, xs = np.nonzero(filled)      # a long blur: look again with a larger window
-                return self._refine(d, grey, bg, xs.mean() + a0, ys.mean() + b0, blur_extra=self.half)
-            return None
-        # from here on, the disc's bounding box and a margin of 4 px (the rim band's reach)
-        ys_, xs_ = np.nonzero(filled)
-        y0c, y1c = max(0, int(ys_.min()) - 4), min(filled.shape[0], int(ys_.max()) + 5)
-        x0c, x1c = max(0, int(xs_.min()) - 4), min(filled.shape[1], int(xs_.max()) + 5)
-        filled, comp = filled[y0c:y1c, x0c:x1c].copy(), comp[y0c:y1c, x0c:x1c]
-        roi = roi[y0c:y1c, x0c:x1c].astype(np.float32)
-        a0, b0 = a0 + x0c, b0 + y0c
-        a1, b1 = a0 + (x1c - x0c), b0 + (y1c - y0c)
-        core = cv2.erode(filled, np.ones((3, 3), np.uint8))
-        c = float(np.median(roi[core == 1])) if core.any() else float(np.median(roi[filled == 1]))
-        if c < self.threshold:
-            return None
-        band = cv2.dilate(filled, np.ones((5, 5), np.uint8))
-        inner = cv2.erode(filled, np.ones((5, 5), np.uint8))
-        # each rim pixel's share of the ball: g = a b + (1 - a) bg, with b the ball's own grey
-        # nearby (the inner disc's grey spread outward: the ball is shaded too)
-        g = grey[b0:b1, a0:a1].astype(np.float32)
-        gb = bg[b0:b1, a0:a1].astype(np.float32)
-        src = inner if inner.sum() >= 6 else core
-        k = max(3, int(round(0.6 * self.r)) | 1)
-        num = cv2.blur(g * src, (k, k))
-        den = cv2.blur(src.astype(np.float32), (k, k))
-        for _ in range(3):                       # spread the ball's grey outward to the rim
-            grow = den > 1e-6
-            bmap = np.where(grow, num / np.maximum(den, 1e-6), 0.0).astype(np.float32)
-            if grow[band == 1].all():
+        m = mag[ys, xs]
+        ux, uy = gx[ys, xs] / m, gy[ys, xs] / m
+        hh, ww = d.shape
+        acc = np.zeros(hh * ww, np.float32)
+        wt = np.sqrt(m)
+        for sgn in (1.0, -1.0):
+            cx = np.rint(xs + sgn * R * ux).astype(np.int64)
+            cy = np.rint(ys + sgn * R * uy).astype(np.int64)
+            ok = (cx >= 0) & (cx < ww) & (cy >= 0) & (cy < hh)
+            acc += np.bincount(cy[ok] * ww + cx[ok], weights=wt[ok], minlength=hh * ww).astype(np.float32)
+        sb = max(1.0, 0.08 * R)
+        kb = 2 * int(math.ceil(2.0 * sb)) + 1
+        acc = cv2.GaussianBlur(acc.reshape(hh, ww), (kb, kb), sb)
+        out = []
+        for _ in range(HYPOTHESES):         # the strongest peaks, each at least 0.7 R from the others
+            _, val, _, loc = cv2.minMaxLoc(acc)
+            if val <= 0 or (out and val < 0.15 * out[0][2]):
                 break
-            num = cv2.blur(bmap * grow, (k, k))
-            den = cv2.blur(grow.astype(np.float32), (k, k))
-        contrast = bmap - gb
-        sure = np.abs(contrast) > 4.0 * self.noise
+            out.append((float(loc[0]), float(loc[1]), float(val)))
+            cv2.circle(acc, loc, int(math.ceil(0.7 * R)), 0.0, -1)
+        return out
+
+    def _silhouette(self, grey: np.ndarray, u0: float, v0: float) -> Ball | None:
+        """The silhouette fit around the coarse peak (u0, v0) (see the module doc)."""
+        cv2 = self.cv2
+        h, w = grey.shape
+        a, b, phi, _, _ = self.shape.at(u0, v0)
+        R = 0.5 * (a + b)
+        reach = int(math.ceil(3.2 * R)) + 6
+        cx0, cy0 = max(0, int(u0) - reach), max(0, int(v0) - reach)
+        cx1, cy1 = min(w, int(u0) + reach + 1), min(h, int(v0) + reach + 1)
+        g = grey[cy0:cy1, cx0:cx1].astype(np.float32)
+        bg = self.bgf[cy0:cy1, cx0:cx1]
+        d = g - bg
+        if self.exclude is not None:
+            d[self.exclude[cy0:cy1, cx0:cx1]] = 0.0
+        peaks = self._hough(d, R)
+        if not peaks:
+            self.miss = Miss("not found")
+            return None
+        best, miss = None, None
+        balls, covered = [], []
+        if self.predicted is not None:      # the track so far: first the peak it predicts
+            pu, pv = self.predicted[0] - cx0, self.predicted[1] - cy0
+            j = int(np.argmin([math.hypot(p_[0] - pu, p_[1] - pv) for p_ in peaks]))
+            if math.hypot(peaks[j][0] - pu, peaks[j][1] - pv) <= max(PREDICT_TOL * R, 3.0):
+                got = self._fit_at(grey, np.array([peaks[j][0] + cx0, peaks[j][1] + cy0]))
+                if not isinstance(got, Miss) and self._early_ok(got):
+                    return got
+        for hu, hv, _ in peaks:
+            got = self._fit_at(grey, np.array([hu + cx0, hv + cy0]))
+            if not isinstance(got, Miss):
+                balls.append(got)
+            else:
+                if got.reason == "partly hidden":
+                    covered.append(got)
+                miss = miss or got
+        # two silhouettes overlapping (the ball and its shadow): the ball is in front, so its
+        # edge facing the other is whole, while the shadow's edge there is behind the ball
+        for A in balls:
+            for B in balls:
+                if A is B:
+                    continue
+                dv = np.array([B.fit["centre"][0] - A.fit["centre"][0], B.fit["centre"][1] - A.fit["centre"][1]])
+                dist = float(np.hypot(*dv))
+                if dist < 0.3 * R or dist > 2.3 * R:
+                    continue
+                face = np.cos(self.theta - math.atan2(dv[1], dv[0])) > math.cos(math.radians(50))
+                A.facing = min(A.facing, float(np.mean(A.fit["inlier"][face])))
+        # a silhouette darker than the surface all over, no darker than a shadow can be, next to
+        # something lighter than the surface (a light ball, a highlight): the light ball's shadow
+        lit = (d > np.maximum(6.0 * self.noise, 0.08 * bg)) & (bg > 0)
+        if lit.any():
+            ly, lx = np.nonzero(lit)
+            for b_ in balls:
+                if b_.dark and not b_.shadowlike:
+                    cu, cv_ = b_.fit["centre"][0] - cx0, b_.fit["centre"][1] - cy0
+                    rr2 = (lx - cu) ** 2 + (ly - cv_) ** 2
+                    if np.count_nonzero((rr2 > (1.1 * R) ** 2) & (rr2 < (2.3 * R) ** 2)) >= 3:
+                        b_.shadowlike = True
+        ok = [b_ for b_ in balls if not b_.shadowlike and b_.low_share <= MAX_LOW_SHARE]
+        if self.predicted is not None:          # the track so far: a ball moves smoothly
+            pu, pv = self.predicted
+            near = [b_ for b_ in ok if math.hypot(b_.fit["centre"][0] - pu, b_.fit["centre"][1] - pv)
+                    <= max(PREDICT_TOL * R, 3.0)]
+            if ok and not near:
+                self.miss = Miss("fits badly", ok[0].fit["centre"][0], ok[0].fit["centre"][1], ok[0].fit)
+                return None
+            ok = near
+        if ok:
+            ok.sort(key=lambda b_: (-round(b_.facing, 1), -b_.score))
+            best = ok[0]
+            for m_ in covered:          # something covers a disc next to it: which is the ball is unsure
+                if math.hypot(m_.u - best.fit["centre"][0], m_.v - best.fit["centre"][1]) < 2.3 * R:
+                    self.miss = Miss("partly hidden", m_.u, m_.v, m_.fit)
+                    return None
+            if best.facing < MIN_FACING or (len(ok) > 1 and ok[1].facing > 0.6 and best.facing - ok[1].facing < 0.3):
+                self.miss = Miss("in its shadow", best.fit["centre"][0], best.fit["centre"][1], best.fit)
+                return None
+        elif balls and miss is None:
+            why = "in its shadow" if any(b_.shadowlike for b_ in balls) else "merges with the surface"
+            miss = Miss(why, balls[0].fit["centre"][0], balls[0].fit["centre"][1], balls[0].fit)
+        if best is None:
+            self.miss = miss
+        return best
+
+    def _fit_at(self, grey, c0):
+        """The ball's silhouette fitted from rays around ``c0`` (px): a Ball, or a Miss."""
+        cv2 = self.cv2
+        h, w = grey.shape
+        a, b, phi, _, _ = self.shape.at(*c0)
+        R = 0.5 * (a + b)
+        # the rays: profiles across the expected edge, from m inside to m outside
+        m = max(3.0, 0.3 * R)
+        st = np.arange(-m, m + 1e-9, 0.25)
+        rho0 = _ellipse_radius(self.theta, a, b, phi)
+        dist = rho0[:, None] + st[None, :]
+        cth, sth = np.cos(self.theta)[:, None], np.sin(self.theta)[:, None]
+        X = (c0[0] + dist * cth).astype(np.float32)
+        Y = (c0[1] + dist * sth).astype(np.float32)
+        inside_img = (X.min(axis=1) >= 0) & (X.max(axis=1) <= w - 1) & (Y.min(axis=1) >= 0) & \
+            (Y.max(axis=1) <= h - 1)
+        # the profiles, sampled (bilinear) on a float crop around the rays
+        px0, py0 = max(0, int(X.min()) - 1), max(0, int(Y.min()) - 1)
+        px1, py1 = min(w, int(X.max()) + 3), min(h, int(Y.max()) + 3)
+        Xc, Yc = X - px0, Y - py0
+        f = cv2.remap(grey[py0:py1, px0:px1].astype(np.float32), Xc, Yc, cv2.INTER_LINEAR,
+                      borderMode=cv2.BORDER_REPLICATE)
+        gb = cv2.remap(self.bgf[py0:py1, px0:px1], Xc, Yc, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        n_st = len(st)
+        q = max(2, n_st // 4)
+        # inside the ball near the edge, outside, and the background there (medians)
+        I, O, B = np.median(np.stack([f[:, :q], f[:, -q:], gb[:, -q:]]), axis=2)
+        sig = self.noise
+        contrast = I - O
+        ratio = O / np.maximum(B, 1.0)
+        I_med = _med(I[inside_img]) if inside_img.any() else _med(I)
+        B_med = _med(B)
+        ball_vs_bg = I_med - B_med
+        # the rays' verdicts
+        low = np.abs(contrast) < max(6.0 * sig, MIN_CONTRAST)
+        changed = np.abs(O - B) > np.maximum(4.0 * sig, SHADOW_RATIO * B)
+        shadow = changed & (O < B)                      # darker than the background: a shadow ...
+        other = changed & (O >= B)                      # lighter: something else
+        # covered: inside unlike the ball, outside unlike the background, and the two alike
+        hidden = (np.abs(I - I_med) > max(8.0 * sig, 0.5 * abs(ball_vs_bg), HIDDEN_DIFF * B_med)) & \
+            (np.sign(I - I_med) != np.sign(ball_vs_bg)) & (np.abs(I - O) < 0.5 * abs(ball_vs_bg)) & \
+            (np.abs(O - B) > HIDDEN_DIFF * B)
+        hidden |= ~inside_img
+        # the edge on each ray: the area of the profile's share of the ball (blur-symmetric)
+        # the outside as the background times the ray's own ratio (a shadow scales the
+        # background), so the surface's shading across the edge does not move it
+        Os = ratio[:, None] * gb
+        den = I[:, None] - Os
         with np.errstate(all="ignore"):
-            alpha = np.clip((g - gb) / np.where(sure, contrast, 1.0), 0.0, 1.0)
-        wgt = np.where(sure, alpha, np.clip(roi / c, 0.0, 1.0)).astype(np.float32)
-        wgt[inner == 1] = 1.0                     # inside: all ball (a highlight too)
-        wgt[(filled == 1) & (comp == 0)] = 1.0
-        wgt[band == 0] = 0.0
-        wgt[(filled == 0) & (roi <= 2.0 * self.noise)] = 0.0
-        s = float(wgt.sum())
-        xs = np.arange(a0, a1, dtype=np.float64)[None, :]
-        ys = np.arange(b0, b1, dtype=np.float64)[:, None]
-        u = float((wgt * xs).sum() / s)
-        v = float((wgt * ys).sum() / s)
-        edge = ((band == 1) & (core == 0)).astype(np.float64)
-        sw = self.noise / c
-        su = math.sqrt(float((edge * (xs - u) ** 2).sum())) * sw / s
-        sv = math.sqrt(float((edge * (ys - v) ** 2).sum())) * sw / s
-        return Ball(u, v, max(su, SIGMA_FLOOR_PX), max(sv, SIGMA_FLOOR_PX), area, c)
+            alpha = np.clip((f - Os) / np.where(np.abs(den) < 1e-3, 1e-3, den), 0.0, 1.0)
+        # the edge's offset from rho0: the share's integral (trapezoid, 0.25 px steps)
+        e = -m + (alpha.sum(axis=1) - 0.5 * (alpha[:, 0] + alpha[:, -1])) * 0.25
+        # monotone: the profile crosses halfway once
+        half = (f - 0.5 * (I + O)[:, None]) * np.sign(contrast)[:, None]
+        crossings = np.sum((half[:, :-1] > 0) & (half[:, 1:] <= 0), axis=1)
+        # the outside must be flat past the edge (a penumbra's ramp beside a faint edge moves it)
+        h2 = max(1, q // 2)
+        q1 = f[:, -q:-h2].mean(axis=1) / np.maximum(gb[:, -q:-h2].mean(axis=1), 1.0)
+        q2 = f[:, -h2:].mean(axis=1) / np.maximum(gb[:, -h2:].mean(axis=1), 1.0)
+        ramp = np.abs(q1 - q2) * B / np.maximum(np.abs(contrast), 1.0)      # over m / 4 px
+        soft = ramp > MAX_RAMP
+        clean = ~low & ~soft & ~changed & ~hidden & (crossings == 1)
+        usable = ~low & ~soft & ~hidden & (crossings == 1)
+        n = self.nrays
+        nh = int(hidden.sum())
+        reasons = {"hidden": nh, "low": int((low & ~hidden).sum()), "shadow": int((shadow & ~hidden).sum()),
+                   "other": int((other & ~hidden).sum())}
+        pts = np.c_[c0[0] + (rho0 + e) * np.cos(self.theta), c0[1] + (rho0 + e) * np.sin(self.theta)]
+        fitinfo = {"centre0": c0, "points": pts, "clean": clean, "shadow": (shadow | soft) & ~hidden, "hidden": hidden,
+                   "low": low & ~hidden, "a": a, "b": b, "phi": phi}
+        if nh > HIDDEN_RAYS * n:
+            return Miss("partly hidden", c0[0], c0[1], fitinfo)
+        use = usable
+        if abs(ball_vs_bg) < MIN_BALL_CONTRAST * B_med:    # the ball's edge about as light as the surface
+            return Miss("merges with the surface", c0[0], c0[1], fitinfo)
+        if soft.mean() > MAX_SOFT_SHARE:     # most of the edge beside a shadow's ramp: not separable
+            return Miss("in its shadow", c0[0], c0[1], fitinfo)
+        if use.sum() < MIN_RAYS * n or not _arc_ok(self.theta[use]):
+            why = "merges with the surface" if reasons["low"] >= reasons["shadow"] else "in its shadow"
+            return Miss(why, c0[0], c0[1], fitinfo)
+        res = fit_silhouette(pts[use], np.ones(int(use.sum())), c0, a, b, phi)
+        if res is None:
+            return Miss("fits badly", c0[0], c0[1], fitinfo)
+        c, s, r, w_rob, cov = res
+        # the inliers: within 3 robust sigma of the silhouette (0.3 px at least)
+        inl = np.abs(r) <= max(3.0 * 1.4826 * _med(np.abs(r)), 0.3)
+        sr = float(np.sqrt(np.mean(r[inl] ** 2))) if inl.sum() > 3 else float("inf")
+        inlier = np.zeros(n, bool)
+        inlier[np.flatnonzero(use)[inl]] = True
+        fitinfo.update(centre=c, scale=s, used=use, residual=sr, inlier=inlier)
+        bad = not (SCALE_RANGE[0] <= s <= SCALE_RANGE[1]) or inl.mean() < MIN_INLIERS or sr > MAX_RESIDUAL_PX
+        if bad:
+            return Miss("fits badly", c[0], c[1], fitinfo)
+        # the edge beside the background alone (no shadow, nothing changed outside) fitted on
+        # its own: where it says otherwise, the shadow's side moved the fit
+        shift = 0.0
+        sub = clean & use
+        if 0 < int((use & ~sub).sum()) and sub.sum() >= CHECK_RAYS * n and _arc_ok(self.theta[sub], CHECK_ARC_GAP):
+            res2 = fit_silhouette(pts[sub], np.ones(int(sub.sum())), c, a, b, phi, iters=5)
+            if res2 is not None:
+                shift = float(np.hypot(*(res2[0] - c)))
+                if shift > MAX_SHIFT_PX:
+                    return Miss("in its shadow", c[0], c[1], fitinfo)
+        k = int(inl.sum())
+        s2 = max(sr * sr * k / max(k - 3, 1), (0.5 * sig / max(_med(np.abs(contrast[use])), 1.0)) ** 2)
+        cov_px = cov[:2, :2] * s2
+        _, _, _, du, dv = self.shape.at(*c)
+        su = math.sqrt(SIGMA_GAIN ** 2 * max(cov_px[0, 0], 0.0) + SIGMA_FLOOR_PX ** 2)
+        sv = math.sqrt(SIGMA_GAIN ** 2 * max(cov_px[1, 1], 0.0) + SIGMA_FLOOR_PX ** 2)
+        # the model's own error, which does not average down over the rays: a share of the
+        # edge's residual, and more when a side of the edge is left out (the blur and the
+        # shading are then not averaged out)
+        frac = 1.0 - float(use.mean())
+        extra = math.hypot(math.hypot(SIGMA_PARTIAL_PX * frac, SIGMA_RESIDUAL * sr), shift)
+        su, sv = math.hypot(su, extra), math.hypot(sv, extra)
+        ball = Ball(float(c[0] - du), float(c[1] - dv), su, sv, math.pi * a * b * s * s,
+                    _med(np.abs(contrast[use])), float(s), sr, int(use.sum()), n, fitinfo)
+        ball.low_share = float((low & ~hidden).mean())
+        ball.score = float(usable.sum()) + 0.5 * float(inl.sum()) / max(1.0, 4.0 * sr)
+        # a shadow only darkens the surface it falls on, by a smooth ratio: the disc's inside
+        # that never rises above the background and keeps its ratio even is no ball
+        rr = 0.75 * min(a, b) * s
+        k0 = max(0, int(c[0] - rr)), max(0, int(c[1] - rr))
+        k1 = min(w, int(c[0] + rr) + 2), min(h, int(c[1] + rr) + 2)
+        gin = grey[k0[1]:k1[1], k0[0]:k1[0]].astype(np.float32)
+        bin_ = self.bgf[k0[1]:k1[1], k0[0]:k1[0]]
+        yy = np.arange(k0[1], k1[1], dtype=np.float32)[:, None]
+        xx = np.arange(k0[0], k1[0], dtype=np.float32)[None, :]
+        disc = (xx - c[0]) ** 2 + (yy - c[1]) ** 2 <= rr * rr
+        if disc.sum() >= 5:
+            gi, bi = gin[disc], bin_[disc]
+            brighter = float(np.mean(gi > bi + np.maximum(4.0 * sig, 0.05 * bi)))
+            q = gi / np.maximum(bi, 1.0)
+            even = float(np.std(q)) / max(float(np.mean(q)), 1e-3)
+            ball.shadowlike = brighter < 0.02 and even < SHADOW_EVEN and float(np.mean(q)) > SHADOW_RATIO_MIN
+            ball.dark = not np.any(gi > bi + np.maximum(6.0 * sig, 0.08 * bi)) and float(np.mean(q)) > SHADOW_RATIO_MIN
+        fitinfo["shadowlike"] = ball.shadowlike
+        return ball
+
+
+def _med(x) -> float:
+    """The median of a 1-d array (the upper one of an even count: a robust level, not an average)."""
+    x = np.asarray(x).ravel()
+    if x.size == 0:
+        return float("nan")
+    k = x.size // 2
+    return float(np.partition(x, k)[k])
+
+
+def _arc_ok(theta, widest=None) -> bool:
+    """The used rays surround the centre: no gap between neighbours wider than ``widest``
+    (MAX_ARC_GAP)."""
+    if theta.size < 3:
+        return False
+    t = np.sort(theta)
+    gaps = np.diff(np.r_[t, t[0] + 2 * math.pi])
+    return float(gaps.max()) <= (MAX_ARC_GAP if widest is None else widest)
+
+
+class _FixedShape:
+    """One circle of radius r px everywhere (no camera known)."""
+
+    def __init__(self, r):
+        self.r = r
+        self.median_radius = r
+
+    def at(self, u, v):
+        return np.array([self.r, self.r, 0.0, 0.0, 0.0])
 
 
 _MED9 = ((1, 2), (4, 5), (7, 8), (0, 1), (3, 4), (6, 7), (1, 2), (4, 5), (7, 8), (0, 3), (5, 8), (4, 7),
@@ -413,6 +859,8 @@ class VideoTrack:
     sigma_calibration: np.ndarray | None = field(default=None, repr=False)  # (n, 2) the camera's share
     snapshot: np.ndarray | None = field(default=None, repr=False)    # a grey frame with the ball, for figures
     corners_px: dict = field(default_factory=dict, repr=False)      # id -> (4, 2) px as found
+    gap_reason: list = field(default_factory=list, repr=False)      # per frame: "" (tracked) or why not
+    review: list = field(default_factory=list, repr=False)          # ReviewCrop's for a contact sheet
 
     @property
     def frames(self) -> int:
@@ -430,10 +878,36 @@ class VideoTrack:
     def ok(self) -> bool:
         return bool(self.tracked.any())
 
+    def gaps(self) -> dict:
+        """reason -> the number of frames left out for it (reasons in GAP_REASONS order)."""
+        out = {r: 0 for r in GAP_REASONS}
+        for r in self.gap_reason:
+            if r:
+                out[r] = out.get(r, 0) + 1
+        if not self.gap_reason:
+            out["not found"] = int((~self.tracked).sum())
+        return out
+
+    @property
+    def doubtful(self) -> int:
+        """Frames where a ball was seen but not reported (every gap but "not found")."""
+        g = self.gaps()
+        return int(sum(v for k, v in g.items() if k != "not found"))
+
     def to_json(self) -> dict:
         k = self.tracked
         sig = np.hypot(self.sigma[k, 0], self.sigma[k, 1]) if k.any() else np.array([np.nan])
         dt = np.diff(self.t)
+        gaps = self.gaps()
+        n = max(1, self.frames)
+        return {"gaps": gaps, "left_out": int((~k).sum()), "doubtful": self.doubtful,
+                "doubtful_fraction": self.doubtful / n, "doubtful_warning": self.doubtful / n > DOUBTFUL_SHARE,
+                "doubtful_share_limit": DOUBTFUL_SHARE, "timestamps": "monotone",
+                "camera_height_constrained": self.calibration.height_prior is not None
+                or _height_constrained(self.calibration),
+                **self._json_base(k, sig, dt)}
+
+    def _json_base(self, k, sig, dt) -> dict:
         return {"file": self.path, "frames": self.frames, "tracked": int(k.sum()), "fraction_tracked": self.fraction,
                 "duration_s": float(self.t[-1] - self.t[0]) if len(self.t) > 1 else 0.0,
                 "frame_rate": float(1.0 / np.median(dt)) if dt.size else None,
@@ -456,6 +930,12 @@ class VideoTrack:
             else:
                 out.append(f"{t:.7f},,,,")
         return "\n".join(out) + "\n"
+
+
+def _height_constrained(cal) -> bool:
+    """The markers alone fix the camera's height (to 5 %)."""
+    h = float(cal.camera.centre[2])
+    return bool(np.isfinite(cal.height_sigma_mm) and cal.height_sigma_mm < 0.05 * abs(h))
 
 
 def _med_norm(a, keep) -> float | None:
@@ -487,20 +967,72 @@ def _contact_points(surface, radius, C) -> np.ndarray:
     return np.c_[C[:, 0] + radius * hx / w, C[:, 1] + radius * hy / w]
 
 
-def track_video(spec, surface, path, progress=None) -> VideoTrack:
+def track_video(spec, surface, path, progress=None, review: bool = False) -> VideoTrack:
     """Track the ball in one video (see the module doc). ``progress(done)`` is called
     every few frames. SpecError (exit 2) naming the file: not a video, markers not
     found, or the ball never found."""
     info = video.info(path)
     try:
-        return _track(spec, surface, path, info, progress)
+        return _track(spec, surface, path, info, progress, review)
     except SpecError as exc:
         if exc.file is None or exc.file == str(path):
             raise exc.with_location(file=str(path)) from None
         raise
 
 
-def _track(spec, surface, path, info, progress) -> VideoTrack:
+def _drop_short_runs(uvs, sig, why) -> None:
+    """Runs of fewer than MIN_RUN tracked frames between doubtful gaps (a ball seen but
+    not separated on both sides) become gaps themselves ("fits badly"): a ball that is
+    separable in one frame and not in its neighbours is more likely a chance fit."""
+    n = len(why)
+    i = 0
+    while i < n:
+        if why[i]:
+            i += 1
+            continue
+        j = i
+        while j < n and not why[j]:
+            j += 1
+        before = why[i - 1] if i > 0 else "not found"
+        after = why[j] if j < n else "not found"
+        doubtful = (before not in ("", "not found")) or (after not in ("", "not found"))
+        if j - i < MIN_RUN and doubtful and (i > 0 or j < n):
+            for k in range(i, j):
+                uvs[k] = (math.nan, math.nan)
+                sig[k] = (math.nan, math.nan)
+                why[k] = "fits badly"
+        i = j
+
+
+def _review_crop(i, t, g, bg, at, half, ball, miss) -> "ReviewCrop":
+    u, v = at
+    h, w = g.shape
+    x0, y0 = max(0, int(round(u)) - half), max(0, int(round(v)) - half)
+    x1, y1 = min(w, int(round(u)) + half + 1), min(h, int(round(v)) + half + 1)
+    fit = ball.fit if ball is not None else (miss.fit if miss is not None else None)
+    return ReviewCrop(index=i, t=float(t), origin=(x0, y0), image=g[y0:y1, x0:x1].copy(),
+                      background=bg[y0:y1, x0:x1].copy(), fit=fit,
+                      reason="" if ball is not None else (miss.reason if miss is not None else "not found"),
+                      centre=(ball.u, ball.v) if ball is not None else None)
+
+
+@dataclass
+class ReviewCrop:
+    """A frame's crop around the ball for a review sheet: the frame's index and time, the
+    crop's top-left (px), the grey crop and the background's, the silhouette fit (points,
+    the rays' verdicts, the ellipse) and the gap's reason ("" when tracked)."""
+
+    index: int
+    t: float
+    origin: tuple
+    image: np.ndarray
+    background: np.ndarray
+    fit: dict | None
+    reason: str
+    centre: tuple | None
+
+
+def _track(spec, surface, path, info, progress, review=False) -> VideoTrack:
     smp = sample(path)
     if len(smp.frames) < 2:
         raise SpecError("a single frame (a still image), not a video", file=str(path))
@@ -512,14 +1044,17 @@ def _track(spec, surface, path, info, progress) -> VideoTrack:
     calib = cam_mod.calibrate(matched, layout, (smp.width, smp.height), height)
     cam = calib.camera
     radius = float(spec.ball.diameter) / 2.0                      # design units
-    r_mm = radius * surface.scale
-    # the ball's radius in px where it is seen: about the footprint's middle, half the depth down
-    mid = np.array([[surface.length * surface.scale / 2, surface.width * surface.scale / 2, r_mm]])
-    dist = float(np.linalg.norm(mid[0] - cam.centre))
-    radius_px = cam.f * r_mm / dist
-    finder = BallFinder(bg, radius_px, noise, exclude=marker_mask(cam, layout, bg.shape))
-    ts, uvs, sig = [], [], []
+    shape = Shape(cam, surface, radius, (smp.width, smp.height))
+    radius_px = shape.median_radius
+    finder = BallFinder(bg, shape, noise, exclude=marker_mask(cam, layout, bg.shape))
+    ts, uvs, sig, why = [], [], [], []
     snapshot, want = None, max(0, info.frames // 2)
+    n_est = max(info.frames, 1)
+    targets = set(np.linspace(0, n_est - 1, REVIEW_CROPS).round().astype(int).tolist()) if review else set()
+    kept_misses: dict = {}
+    crops = []
+    half = int(math.ceil(3.0 * radius_px)) + 4
+    last_seen = None
     for i, (t, g) in enumerate(video.frames_ahead(path)):
         b = finder.find(g)
         ts.append(t)
@@ -528,23 +1063,47 @@ def _track(spec, surface, path, info, progress) -> VideoTrack:
         if b is None:
             uvs.append((math.nan, math.nan))
             sig.append((math.nan, math.nan))
+            why.append(finder.miss.reason if finder.miss is not None else "not found")
         else:
             uvs.append((b.u, b.v))
             sig.append((b.su, b.sv))
+            why.append("")
+        if review:
+            m = finder.miss
+            at = (b.u, b.v) if b is not None else ((m.u, m.v) if m is not None and math.isfinite(m.u) else last_seen)
+            keep = i in targets
+            if b is None and m is not None and m.reason != "not found" and kept_misses.get(m.reason, 0) < 3:
+                kept_misses[m.reason] = kept_misses.get(m.reason, 0) + 1
+                keep = True
+            if keep and at is not None:
+                crops.append(_review_crop(i, t, g, bg, at, half, b, m))
+            if b is not None:
+                last_seen = (b.u, b.v)
         if progress is not None and i % 16 == 0:
             progress(i)
     if not ts:
         raise SpecError("no frames could be decoded", file=str(path))
+    _drop_short_runs(uvs, sig, why)
+    for c in crops:                 # the sheet says what the track says
+        if why[c.index] and not c.reason:
+            c.reason = why[c.index]
     t = np.asarray(ts)
     uv = np.asarray(uvs, dtype=float)
     su = np.asarray(sig, dtype=float)
     ok = np.all(np.isfinite(uv), axis=1)
-    if not ok.any():
+    if not ok.any() and not any(w and w != "not found" for w in why):
         raise SpecError(f"the ball was not found in any of {len(t)} frames (a disc of about {radius_px:.0f} px "
                         "radius, darker or lighter than the surface)", file=str(path))
     xy = np.full((len(t), 2), np.nan)
     sxy = np.full((len(t), 2), np.nan)
     idx = np.flatnonzero(ok)
+    if idx.size == 0:       # seen in places, never separated: every frame a gap, said so
+        notes = list(layout.notes) + ["the ball was seen but never separated from the surface, its shadow or what "
+                                      "covered it: no position is reported (see the gaps' reasons, --review)"]
+        return VideoTrack(path=str(path), t=t, uv=uv, xy=xy, sigma=sxy, calibration=calib, radius_px=radius_px,
+                          units=spec.units, notes=notes, sigma_image=xy.copy(), sigma_calibration=xy.copy(),
+                          snapshot=(snapshot or (0, g))[1], corners_px=corners,
+                          gap_reason=[w or "not found" for w in why], review=crops)
     # the centre, and its standard deviation in design units through the Jacobian px -> centre
     C, Ju, Jv = cam_mod.ball_centres(cam, surface, radius, uv[idx], jacobian=True)
     xy[idx] = C[:, :2]
@@ -563,4 +1122,89 @@ def _track(spec, surface, path, info, progress) -> VideoTrack:
         notes.append(f"the container says {info.width}x{info.height}, the frames are {smp.width}x{smp.height}")
     return VideoTrack(path=str(path), t=t, uv=uv, xy=xy, sigma=sxy, calibration=calib, radius_px=radius_px,
                       units=spec.units, notes=notes, sigma_image=sig_img, sigma_calibration=sig_cal,
-                      snapshot=snapshot[1], corners_px=corners)
+                      snapshot=snapshot[1], corners_px=corners,
+                      gap_reason=[(w or "not found") if not k else "" for w, k in zip(why, np.all(np.isfinite(xy), axis=1))],
+                      review=crops)
+
+
+# ----------------------------------------------------------------------------
+# the review sheet
+# ----------------------------------------------------------------------------
+REVIEW_TILE = 200           # px, a crop's side on the sheet
+REVIEW_COLUMNS = 6
+
+
+def review_sheet(result: VideoTrack) -> np.ndarray:
+    """A contact sheet (h, w, 3) uint8 BGR of ``result.review``'s crops (see
+    :func:`track_video` with ``review=True``): each crop enlarged, the pixels darker than
+    the background outside the ball (its shadow, rejected) tinted blue, the fitted
+    silhouette drawn green with its centre, the edge's points coloured by their use
+    (green: fitted; blue: next to the shadow; red: covered; yellow: no contrast), and a
+    gap framed red with its reason."""
+    import cv2
+
+    crops = sorted(result.review, key=lambda c: c.index)
+    n = max(1, len(crops))
+    cols = min(REVIEW_COLUMNS, n)
+    rows = (n + cols - 1) // cols
+    T = REVIEW_TILE
+    head = 34
+    sheet = np.full((head + rows * (T + 22), cols * T, 3), 255, np.uint8)
+    j = result.to_json()
+    gaps = ", ".join(f"{k} {v}" for k, v in j["gaps"].items() if v)
+    title = f"{Path(result.path).name}: {j['tracked']}/{j['frames']} frames tracked" + (f"; gaps: {gaps}" if gaps else "")
+    cv2.putText(sheet, title[:150], (6, 22), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 1, cv2.LINE_AA)
+    for k, c in enumerate(crops):
+        r_, c_ = divmod(k, cols)
+        y0, x0 = head + r_ * (T + 22), c_ * T
+        img = c.image.astype(np.float32)
+        bgc = c.background.astype(np.float32)
+        h, w = img.shape
+        s = T / max(h, w)
+        big = cv2.resize(c.image, (int(round(w * s)), int(round(h * s))), interpolation=cv2.INTER_NEAREST)
+        tile = cv2.cvtColor(big, cv2.COLOR_GRAY2BGR)
+        ox, oy = c.origin
+        fit = c.fit
+        # the shadow: darker than the background by a ratio, outside the fitted silhouette
+        dark = img < bgc * (1.0 - SHADOW_RATIO) - 3.0
+        if fit is not None:         # not the ball itself (where it was fitted, or first looked for)
+            yy, xx = np.mgrid[0:h, 0:w]
+            cen, sc = (fit["centre"], fit["scale"]) if "centre" in fit else (fit["centre0"], 1.0)
+            cu, cv_ = cen[0] - ox, cen[1] - oy
+            a, b, phi = fit["a"] * sc, fit["b"] * sc, fit["phi"]
+            ca, sa = math.cos(phi), math.sin(phi)
+            xr, yr = (xx - cu) * ca + (yy - cv_) * sa, -(xx - cu) * sa + (yy - cv_) * ca
+            dark &= (xr / (a + 1.0)) ** 2 + (yr / (b + 1.0)) ** 2 > 1.0
+        m = cv2.resize(dark.astype(np.uint8), (tile.shape[1], tile.shape[0]), interpolation=cv2.INTER_NEAREST) > 0
+        tile[m] = (0.55 * tile[m] + 0.45 * np.array([255, 120, 0])).astype(np.uint8)
+        if fit is not None:
+            pts = fit["points"]
+            colours = ((fit["hidden"], (0, 0, 230)), (fit["low"], (0, 200, 230)), (fit["shadow"], (255, 80, 0)),
+                       (fit.get("used", fit["clean"]), (0, 170, 0)))
+            for mask, col in colours:
+                for (pu, pv) in pts[np.asarray(mask, bool)]:
+                    cv2.circle(tile, (int(round((pu - ox + 0.5) * s)), int(round((pv - oy + 0.5) * s))), 2, col, -1,
+                               cv2.LINE_AA)
+            if "centre" in fit:
+                col = (0, 200, 0) if not c.reason else (0, 0, 230)
+                cen = (int(round((fit["centre"][0] - ox + 0.5) * s * 16)), int(round((fit["centre"][1] - oy + 0.5) * s * 16)))
+                axes = (int(round(fit["a"] * fit["scale"] * s * 16)), int(round(fit["b"] * fit["scale"] * s * 16)))
+                cv2.ellipse(tile, cen, axes, math.degrees(fit["phi"]), 0, 360, col, 1, cv2.LINE_AA, shift=4)
+                cv2.drawMarker(tile, (cen[0] >> 4, cen[1] >> 4), col, cv2.MARKER_CROSS, 9, 1)
+        sheet[y0 + 20:y0 + 20 + tile.shape[0], x0:x0 + tile.shape[1]] = tile
+        label = f"#{c.index} t {c.t:.3f} s" + (f"  GAP: {c.reason}" if c.reason else "")
+        cv2.putText(sheet, label, (x0 + 3, y0 + 15), cv2.FONT_HERSHEY_SIMPLEX, 0.38,
+                    (0, 0, 200) if c.reason else (0, 0, 0), 1, cv2.LINE_AA)
+        if c.reason:
+            cv2.rectangle(sheet, (x0 + 1, y0 + 20), (x0 + tile.shape[1] - 2, y0 + 19 + tile.shape[0]), (0, 0, 230), 2)
+    return sheet
+
+
+def review_png(result: VideoTrack) -> bytes:
+    """:func:`review_sheet` encoded as PNG."""
+    import cv2
+
+    ok, buf = cv2.imencode(".png", review_sheet(result))
+    if not ok:  # pragma: no cover
+        raise SpecError("the review sheet could not be encoded as PNG")
+    return buf.tobytes()

@@ -7,7 +7,10 @@ Fraction) before the one rounding to a float. Grey is the decoder's luma plane (
 read in place without a colour conversion); other pixel formats are converted.
 
 A file PyAV cannot open, or one without a video stream, is a :class:`SpecError`
-naming the file (exit 2).
+naming the file (exit 2). So is a video whose timestamps jump back (two recordings
+joined: the time restarts), refused with the frame where it happens rather than
+tracked in part: each recording is to be tracked on its own. A repeated timestamp is
+one frame shown twice, kept once.
 """
 
 from __future__ import annotations
@@ -18,6 +21,7 @@ import numpy as np
 
 from ..errors import SpecError
 
+JUMP_BACK_S = 1e-6          # a timestamp this far before the last one: the time restarts (refused)
 LUMA_FORMATS = ("yuv420p", "yuvj420p", "yuv422p", "yuvj422p", "yuv444p", "yuvj444p", "nv12", "nv21", "gray")
 
 
@@ -83,14 +87,21 @@ def frames(path, keyframes_only: bool = False):
             s.codec_context.skip_frame = "NONKEY"
         first = True
         last = None
+        index = -1
         try:
             for frame in c.decode(s):
+                index += 1
                 pts = frame.pts
                 if pts is None or frame.time_base is None:
                     raise SpecError(f"a frame without a presentation timestamp (after t = {last} s)",
                                     file=str(path))
                 first = False
                 t = float(pts * frame.time_base)     # exact: a Fraction until here
+                if last is not None and t < last - JUMP_BACK_S:
+                    where = "" if keyframes_only else f" at frame {index}"
+                    raise SpecError(f"the timestamps jump back{where} (t = {t:.4f} s after {last:.4f} s): "
+                                    "two recordings joined? Split it where the time restarts and track each part",
+                                    file=str(path))
                 if last is not None and t <= last:
                     continue      # a repeated or out-of-order timestamp: the frame is shown once
                 last = t
