@@ -383,8 +383,10 @@ def analyze_figure(rows: list[dict], *, title: str = "", units: str = "", fmt: s
             ax2.set_xlabel("t (s)")
         name = str(r.get("file", "")).rsplit("/", 1)[-1]
         if r.get("kind") == "release":
-            head = (f"{name}: release, damping {r.get('damping', float('nan')):.4g} 1/s (fit), "
-                    f"log-dec {r.get('damping_logdec') or float('nan'):.4g}, omega {r.get('omega', float('nan')):.4g}")
+            nan = float("nan")
+            head = (f"{name}: release, damping {nan if r.get('damping') is None else r['damping']:.4g} 1/s (fit), "
+                    f"log-dec {r.get('damping_logdec') or nan:.4g}, omega "
+                    f"{nan if r.get('omega') is None else r['omega']:.4g}")
         else:
             sim = r.get("simulation") or {}
             vo = r.get("v_out")

@@ -207,9 +207,11 @@ def test_a_ball_that_never_moves_is_a_result_not_a_search(cli, tmp_path):
     f.write_text(L.csv_text(t, -20.0 + rng.normal(0, NOISE, t.size), rng.normal(0, NOISE, t.size)))
     code, out, err = _quiet_cli(cli, "analyze", PAPER, f, "--json")
     assert code == 0 and json.loads(out)["tracks"][0]["kind"] == "still"
-    # no release or launch: no losses to write, and nothing written
+    # no release or launch: no losses to write: the analysis printed first, then one line,
+    # exit 1, no spec written
     code, out, err = _quiet_cli(cli, "analyze", PAPER, f, "-o", "fitted.yaml", "--plot", "fig.png")
-    _refused(code, out, err, tmp_path, "--output: no release or launch to fit the losses to")
+    assert code == 1 and "never moves" in out and err.count("\n") == 1, (code, err)
+    assert "--output fitted.yaml: no release or launch to fit the losses to" in err
     assert not (tmp_path / "fitted.yaml").exists()
     # the output may not be the spec or a track
     for target in (PAPER, f):
@@ -298,9 +300,9 @@ def test_the_fits_budget_running_out_is_reported(cli, tmp_path, monkeypatch):
     _refused(code, out, err, tmp_path, str(f), "cannot follow this track", "budget of 0 model runs")
     # one runaway integration stops at MAX_RHS_CALLS evaluations
     monkeypatch.setattr(A, "MAX_MODEL_RUNS", 500)
-    monkeypatch.setattr(A, "MAX_RHS_CALLS", 50)
+    monkeypatch.setattr(A, "MAX_STEPS", 5)
     code, out, err = _quiet_cli(cli, "analyze", PAPER, f, "--plot", "fig.png")
-    _refused(code, out, err, tmp_path, str(f), "more than 50 evaluations")
+    _refused(code, out, err, tmp_path, str(f), "more than 5 steps")
 
 
 # ----------------------------------------------------------------------------

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
-from ..lab.summary import fitted_spec_text, summary_lines
+import sys
+
+from ..lab.summary import NotWritten, fitted_spec_text, summary_lines
 from ..spec import load_spec
 from ._common import Timer, check_paths, emit, plot_format, prepare_simulator, quiet, stage_bar
 
@@ -45,7 +47,7 @@ def run(args) -> int:
         tracks = [read_track(p, fps=args.fps, video=vm, units=spec.units) for p in args.tracks]
         problem = problem_from_spec(spec)
         screens = screen_tracks(problem, tracks)     # refusals before the simulator loads
-        if any(sc["kind"] == "launch" for sc in screens):
+        if any(sc["kind"] in ("launch", "release") for sc in screens):   # the fits run on the engine too
             stage("compiling or loading the simulator")
             prepare_simulator(problem, say=None if quiet(args) else (lambda m: stage(m, advance=False)))
         stage("simulating the tracks and fitting the losses")
@@ -55,7 +57,13 @@ def run(args) -> int:
         res["seconds"] = timer.seconds
         payload = _public(res)
         lines = summary_lines(res, spec.units)
-        fitted_text = fitted_spec_text(spec, res, tracks) if args.output else None   # refused before any write
+        refused = None
+        fitted_text = None
+        if args.output:
+            try:
+                fitted_text = fitted_spec_text(spec, res, tracks)    # refused before any write
+            except NotWritten as exc:
+                refused = str(exc)
         if args.plot:
             from ..io import write_atomic
             from ..plots import analyze_figure
@@ -66,7 +74,7 @@ def run(args) -> int:
             write_atomic(args.plot, png)
             payload["plot"] = str(args.plot)
             lines.append(f"wrote {args.plot}")
-        if args.output:
+        if args.output and refused is None:
             from ..io import write_atomic
 
             stage("writing the fitted spec")
@@ -75,5 +83,12 @@ def run(args) -> int:
             lines.append(f"wrote {args.output} (the spec with the {res['losses']['chosen']} law's losses)")
     finally:
         close()
+    if refused is not None:
+        payload["output"] = None
+        payload["output_refused"] = refused
     emit(lines, payload, args.json)
+    if refused is not None:
+        # the analysis is printed first; then the refusal, nothing written, exit 1
+        sys.stderr.write(f"fabkit analyze: --output {args.output}: {refused}\n")
+        return 1
     return 0

@@ -74,8 +74,8 @@ def analyze_track(problem, track, mu_launch: float | None = None, screen: dict |
     if budget.stopped:
         reasons = list(dict.fromkeys(budget.stopped))
         out["fit_status"] = "; ".join(reasons)
-        out["notes"].append(f"fit stopped: {out['fit_status']}; the values are the best point reached, their "
-                            "error bars are not computed")
+        out["notes"].append(f"fit stopped: {out['fit_status']}; what did not converge is not fitted (no "
+                            "values, no error bars)")
     else:
         out.setdefault("fit_status", "converged")
     out["model_runs"] = budget.runs
@@ -113,10 +113,11 @@ def _analyze_moving(problem, track, mu_launch, sigma, sx, sy, budget) -> dict:
                 f"the maxima decay slower than exp(-mu t/2): on the fitted model itself the log-decrement reads "
                 f"{out['logdec_ratio']:.3f} x mu. The model fit has no such bias.")
         out["paper_form"] = (f"y'' + {fit['damping'] / fit['omega']:.4f} y' + y = 0 in a "
-                             f"{1.0 / fit['omega']:.4f} s time unit") if fit["omega"] > 0 else None
+                             f"{1.0 / fit['omega']:.4f} s time unit") \
+            if fit["omega"] is not None and fit["omega"] > 0 else None
         if fit["fit_status"] == "converged":
             out.pop("fit_status")
-        out["outcome"] = outcome_of(problem, track, bt, None)[0]
+        out["outcome"] = outcome_of(problem, track, bt)
         out["v_in"] = None
         out["v_out"] = None
     else:

@@ -2,7 +2,21 @@
 carry along the model to x = start (``v_in``, ``v_out``), and what the track shows it
 did (escaped, captured or flew_off); and the same launch through the simulator.
 
-DOC_PLACEHOLDER
+Pure functions on a track, its events (:mod:`.events`) and its legs' fits
+(:mod:`.track_fits`); no printing, no files.
+
+The outcome is the track's, never a fit's: a launch with a point beyond top - margin or
+outside the footprint shrunk by the margin ``flew_off``; one whose track ends, after a
+bounce, left of the well moving toward -x, with the model carrying the track's own last
+state (a quadratic over its last 0.16 s) back through x = start, ``escaped``; else
+``captured``. Whether a fit converged changes no outcome.
+
+``v_in``: the entry leg's fitted state carried along the model to x = start, |xd| there
+(and y, yd there start the side-by-side simulation). ``v_out``: likewise the exit leg's,
+for an escaped launch. Errors: one sigma of the fitted xd (the carry is exact to the
+model). A leg whose fit did not converge is not fitted: its speed is None. The carries
+integrate the model (scipy DOP853, rtol 1e-10, an event at x = start), bounded by
+MAX_CARRY_CALLS evaluations.
 """
 
 from __future__ import annotations
@@ -12,10 +26,13 @@ import math
 import numpy as np
 
 from ..physics.outcomes import Outcome
-from . import fitting
 from .events import edge_state
 from .fitting import Budget, FitStopped, centre_of
 from .track_fits import fit_leg, start_state
+
+
+#: evaluations of the model carrying one state to x = start (a bound on the work, not on time)
+MAX_CARRY_CALLS = 200_000
 
 
 def model_to_start(problem, t0: float, state, mu: float, t_limit: float = 30.0, budget: Budget | None = None):
@@ -36,10 +53,8 @@ def model_to_start(problem, t0: float, state, mu: float, t_limit: float = 30.0, 
 
     def f(t, Y):
         calls[0] += 1
-        if calls[0] > fitting.MAX_RHS_CALLS:
-            raise FitStopped(f"carrying the state to x = start took more than {fitting.MAX_RHS_CALLS} evaluations")
-        if budget is not None and calls[0] % 64 == 0:
-            budget.check()
+        if calls[0] > MAX_CARRY_CALLS:
+            raise FitStopped(f"carrying the state to x = start took more than {MAX_CARRY_CALLS} evaluations")
         return rhs(p, np.asarray(Y))
 
     def hit(t, Y):
@@ -69,40 +84,64 @@ def well_bottom(problem) -> float:
     return float(xs[int(np.argmin(problem.fns.h(xs, np.zeros_like(xs))))])
 
 
-
-
-def outcome_of(problem, track, bounces_t, exit_state):
-    """What the track shows: flew_off (a point beyond top - margin or outside the
-    footprint shrunk by the margin); escaped (after its last bounce it leaves toward -x,
-    left of the well, and the model carries it back through x = start: ``exit_state``
-    is that crossing), else captured (still on the surface when the track ends)."""
+def outcome_of(problem, track, bounces_t, mu: float | None = None):
+    """What the track shows, whatever any fit did: flew_off (a point beyond top - margin
+    or outside the footprint shrunk by the margin); escaped (after a bounce the track
+    ends left of the well moving toward -x, and the model with damping ``mu`` carries the
+    track's own last state (:func:`.events.edge_state`, no fit) back through x =
+    start); else captured (still on the surface when the track ends)."""
     m = problem.margin
     with np.errstate(all="ignore"):
         z = problem.fns.h(track.x, track.y)
     if np.any(z > problem.top - m) or np.any(track.x < problem.x_range[0] + m) or \
             np.any(track.x > problem.x_range[1] - m) or np.any(track.y < problem.y_range[0] + m) or \
             np.any(track.y > problem.y_range[1] - m):
-        return Outcome.FLEW_OFF.value, None
-    if exit_state is not None and len(bounces_t) and track.x[-1] < well_bottom(problem):
-        return Outcome.ESCAPED.value, abs(exit_state[3])
-    return Outcome.CAPTURED.value, None
+        return Outcome.FLEW_OFF.value
+    if mu is None or not len(bounces_t) or not track.x[-1] < well_bottom(problem):
+        return Outcome.CAPTURED.value
+    st = edge_state(track, end=True)
+    if not st[3] < 0:
+        return Outcome.CAPTURED.value
+    if track.x[-1] <= problem.start:
+        return Outcome.ESCAPED.value
+    try:
+        s0 = start_state(problem, st)
+    except FitStopped:
+        return Outcome.CAPTURED.value
+    return Outcome.ESCAPED.value if model_to_start(problem, st[0], s0, mu) is not None else Outcome.CAPTURED.value
+
+
+def _leg_json(leg) -> dict:
+    return {"t": leg["t"], "state": leg["state"].tolist(), "error": leg["error"].tolist(),
+            "damping": leg["damping"], "damping_error": leg["damping_error"], "rms": leg["rms"],
+            "fit_status": leg["status"]}
+
+
+def _fitted(leg) -> bool:
+    """A leg's fit converged with finite error bars."""
+    return leg is not None and leg["status"] == "converged" and bool(np.all(np.isfinite(leg["error"]))) \
+        and math.isfinite(leg["damping_error"])
 
 
 def _launch_speeds(problem, track, bt, mu, budget: Budget | None = None) -> dict:
-    """v_in, v_out and the outcome of a launch by model fits of its two legs (module doc)."""
+    """v_in, v_out and the outcome of a launch (module doc). The outcome is the track's
+    (:func:`outcome_of`); v_in and v_out are the fitted legs' crossings of x = start, None
+    where a leg's fit did not converge (not fitted)."""
     t = track.t
     t_in_end = (bt[0] if bt.size else t[0] + 1.0)
     sel = np.flatnonzero(t <= t_in_end)
     leg = fit_leg(problem, track, sel, False, mu, budget)
-    entry = model_to_start(problem, leg["t"], leg["state"], leg["damping"], budget=budget)
-    out = {"entry_fit": {"t": leg["t"], "state": leg["state"].tolist(), "error": leg["error"].tolist(),
-                         "damping": leg["damping"], "damping_error": leg["damping_error"], "rms": leg["rms"]}}
+    out = {"entry_fit": _leg_json(leg)}
+    entry = None
+    if _fitted(leg):
+        entry = model_to_start(problem, leg["t"], leg["state"], leg["damping"], budget=budget)
     v_in = abs(entry[3]) if entry is not None else None
     # v_in's error: the fitted vx's error (the carry to x = start is exact to the model)
-    out["v_in"], out["v_in_error"] = v_in, float(leg["error"][2])
+    out["v_in"], out["v_in_error"] = v_in, (float(leg["error"][2]) if v_in is not None else None)
     out["_entry"] = entry
     out["t_entry"] = entry[0] if entry is not None else None
-    exit_state = None
+    outcome = outcome_of(problem, track, bt, mu)
+    leg2 = None
     if bt.size and t[-1] - bt[-1] > 0.1:
         sel = np.flatnonzero(t >= bt[-1])
         try:
@@ -110,22 +149,16 @@ def _launch_speeds(problem, track, bt, mu, budget: Budget | None = None) -> dict
         except FitStopped as exc:      # not even the exit leg's first point: no v_out
             if budget is not None:
                 budget.stopped.append(f"exit leg: {exc.reason}")
-            leg2 = None
-    else:
-        leg2 = None
+    v_out = None
     if leg2 is not None:
-        if leg2["state"][2] < 0:
-            exit_state = model_to_start(problem, leg2["t"], leg2["state"], leg2["damping"], budget=budget)
-        out["exit_fit"] = {"t": leg2["t"], "state": leg2["state"].tolist(), "error": leg2["error"].tolist(),
-                           "damping": leg2["damping"], "damping_error": leg2["damping_error"], "rms": leg2["rms"]}
-        out["v_out_error"] = float(leg2["error"][2])
-    outcome, v_out = outcome_of(problem, track, bt, exit_state)
+        out["exit_fit"] = _leg_json(leg2)
+        if outcome == Outcome.ESCAPED and _fitted(leg2) and leg2["state"][2] < 0:
+            ex = model_to_start(problem, leg2["t"], leg2["state"], leg2["damping"], budget=budget)
+            if ex is not None:
+                v_out = abs(ex[3])
+                out["v_out_error"] = float(leg2["error"][2])
     out["outcome"], out["v_out"] = outcome, v_out
-    if v_out is None:
-        out.pop("v_out_error", None)
     return out
-
-
 
 
 def simulate_launch(problem, v_in: float, y0: float, vy0: float, mu: float, t_shift: float,

@@ -10,8 +10,6 @@ from __future__ import annotations
 
 import math
 
-from ..errors import SpecError
-
 
 def _num(v, fmt=".5g"):
     return "-" if v is None or (isinstance(v, float) and not math.isfinite(v)) else format(v, fmt)
@@ -32,8 +30,12 @@ def summary_lines(res, units) -> list[str]:
                    + (f" (turns of x that fall back less than {r['bounce_min_dip']:.2g} {u} are below the noise "
                       f"and not counted)" if r["outcome"] == "captured" and r["kind"] == "launch" else ""))
         if r["kind"] == "release":
+            if r.get("damping") is None:
+                out.append(f"  not fitted: {r.get('fit_status')} (residual rms {r['residual_rms']:.2g} {u} at the "
+                           f"best point reached)")
+                continue
             out.append(f"  damping {r['damping']:.5g} ± {r['damping_error']:.2g} 1/s (model fit, residual rms "
-                       f"{r['residual_rms']:.2g} {u}), omega {r['omega']:.5g} rad/s")
+                       f"{r['residual_rms']:.2g} {u}), omega {_num(r['omega'])} rad/s")
             out.append(f"  paper's log-decrement: damping {_num(r['damping_logdec'])} 1/s, omega "
                        f"{_num(r['omega_logdec'])} rad/s; on the fitted model itself the log-decrement reads "
                        f"{_num(r['logdec_ratio'], '.3f')} x the damping (anharmonic at this amplitude)")
@@ -57,19 +59,22 @@ def summary_lines(res, units) -> list[str]:
             if r.get("T_n") is not None:
                 out.append(f"  T_n = {r['T_n']:.4f} s between the bounces, n = {r['n']} transverse maxima")
     lo = res.get("losses")
-    if lo and lo.get("chosen"):
-        out.append(f"losses ({lo['criterion']} over {len(lo['segments'])} segment(s) of releases and launch legs): "
-                   f"the data support {lo['chosen']} (evidence {lo['evidence']})")
+    if lo and lo.get("laws"):
+        head = f"losses ({lo['criterion']} over {len(lo['segments'])} segment(s) of releases and launch legs): "
+        out.append(head + (f"the data support {lo['chosen']} (evidence {lo['evidence']})" if lo.get("chosen")
+                           else "no law's fit converged: none fitted"))
         for law, f in lo["laws"].items():
             c, e = f["coefficients"], f["errors"]
+            if c is None:
+                out.append(f"  {law}: not fitted ({f['fit_status']}); not ranked")
+                continue
             parts = []
             if "damping" in _LAW_KEYS[law]:
                 parts.append(f"damping {c['damping']:.5g} ± {_num(e['damping'], '.2g')} 1/s")
             if "rolling_resistance" in _LAW_KEYS[law]:
                 parts.append(f"rolling resistance {c['rolling_resistance']:.5g} ± {_num(e['rolling_resistance'], '.2g')}")
             out.append(f"  {law}: {', '.join(parts)}; residual rms {f['residual_rms']:.3g} {u}, "
-                       f"BIC {lo['delta_bic'][law]:+.1f}" + ("" if f["fit_status"] == "converged"
-                                                             else f" ({f['fit_status']})"))
+                       f"BIC {lo['delta_bic'][law]:+.1f}")
     tn = res.get("tn_fit")
     if tn:
         err = f" (± {tn['T_error']:.2g}, ± {tn['delta_error']:.2g})" if "T_error" in tn else ""
@@ -84,9 +89,16 @@ def summary_lines(res, units) -> list[str]:
 _LAW_KEYS = {"viscous": ("damping",), "rolling": ("rolling_resistance",), "both": ("damping", "rolling_resistance")}
 
 
+class NotWritten(Exception):
+    """``-o`` refused: no law was fitted (the reason, one line). The analysis is still
+    printed; nothing is written and the command exits 1."""
+
+
 def fitted_spec_text(spec, res, tracks) -> str:
     """The spec's YAML with the losses of the law the tracks support (simulation.damping,
-    ball.rolling_resistance; the other set to 0), validated before it is written."""
+    ball.rolling_resistance; the other set to 0), validated before it is written. Raises
+    :class:`NotWritten` when no law was fitted (no segment, or no law's fit converged with
+    its error bars)."""
     import yaml
 
     from ..io import read_regular
@@ -95,19 +107,22 @@ def fitted_spec_text(spec, res, tracks) -> str:
     lo = res.get("losses") or {}
     law = lo.get("chosen")
     if not law:
-        raise SpecError("no release or launch to fit the losses to: nothing written", key="--output")
+        if not lo.get("laws"):
+            raise NotWritten("no release or launch to fit the losses to: nothing written")
+        why = "; ".join(f"{k}: {f['fit_status']}" for k, f in lo["laws"].items())
+        raise NotWritten(f"no loss law's fit converged ({why}): nothing written")
     coef = lo["laws"][law]["coefficients"]
+    err = lo["laws"][law]["errors"]
     for k in ("damping", "rolling_resistance"):
-        if not (math.isfinite(coef[k]) and coef[k] >= 0):
-            raise SpecError(f"the {law} law's fitted {k} is {coef[k]:.4g} (negative or not finite): not written",
-                            key="--output")
+        if not (math.isfinite(coef[k]) and coef[k] >= 0 and math.isfinite(err[k])):
+            raise NotWritten(f"the {law} law's fitted {k} is {coef[k]:.4g} ± {err[k]:.2g} (negative or not finite): "
+                             "nothing written")
     raw = yaml.safe_load(read_regular(spec.path, 1 << 20, "spec").decode("utf-8-sig"))
     raw.setdefault("simulation", {})["damping"] = float(coef["damping"])
     if not isinstance(raw.get("ball"), dict):
         raw["ball"] = {}
     raw["ball"]["rolling_resistance"] = float(coef["rolling_resistance"])
     validate(raw, str(spec.path))
-    err = lo["laws"][law]["errors"]
     head = [f"# {spec.path} with the losses fitted by fabkit analyze to {', '.join(t.file for t in tracks)}:",
             f"# the {law} law ({lo['criterion']}, evidence {lo['evidence']} over the next law); damping "
             f"{coef['damping']:.6g} ± {err['damping']:.2g} 1/s, rolling resistance {coef['rolling_resistance']:.6g} "

@@ -3,53 +3,46 @@ least squares to a release whole, or to a launch's legs (before its first bounce
 its last).
 
 Pure functions on :class:`tracks.Track` and the spec's :class:`models.Problem`; no
-printing, no files. In: a track and its events (:mod:`.events`); out: the fitted
-state at the anchor frame, the damping, one-sigma errors from the fit's covariance,
-the fit's status (converged, or why not). The integration and the bounded least
-squares are :mod:`.fitting`'s.
+printing, no files. In: a track and its events (:mod:`.events`); out: the fitted state
+at the anchor frame, the damping, their one-sigma errors from the fit's covariance, the
+fit's status ("converged", or why not: a fit that did not converge is not fitted, its
+values and errors are None). The integration on the compiled engine, the bounded least
+squares (damping >= 0) and the budget (model runs, never seconds) are :mod:`.fitting`'s.
 
+Releases: the damping fitted with the model
+-------------------------------------------
+The spec's model (eq. xyODE or xyODE_simp, or the ball, with the spec's nonlinear
+damping and rolling resistance) with viscous damping mu is integrated from the first
+frame (DOP853, rtol 1e-8) and x(t), y(t) at the frame times are fitted to the track by
+least squares over (x0, y0, vx0, vy0, mu) (the ball's: its contact point, velocity and
+spin u). ``omega``: pi / (mean spacing of successive extrema of the fitted y(t), found
+on the model sampled every 1/20000 of the track, refined by cubic Hermite
+interpolation). Errors: one standard deviation from the fit's covariance.
+``damping_logdec``: the paper's estimate (:func:`.events.logdec`), which assumes the
+linear oscillator y'' + mu y' + w^2 y = 0. In the full model the ball's kinetic energy
+includes zdot^2 = (h_y ydot)^2, so at large amplitude the transverse oscillation is
+anharmonic: it spends more of each period near its turning points, the mean kinetic
+energy (the part viscous damping removes) is below half the energy, and the amplitude
+decays slower than e^{-mu t/2}. ``logdec_ratio`` measures that bias on the fitted
+model's own noise-free trajectory (log-decrement of the model / fitted mu).
 
-Entry and exit speeds
----------------------
-The model's state at the first frame and the viscous damping are fitted by least
-squares to the frames before the first bounce (x0, y0, vx0, vy0, mu; mu starts from the
-releases' fitted damping when the same run has releases, else the spec's: a leg of a
-second or more pins it well, so a wrong spec damping does not bias the speeds), then
-carried along the model to x = start: ``v_in`` = |xd| there (and y, yd there start the side-by-side simulation).
-Likewise the state at the last frame from the frames after the last bounce, carried
-forward to x = start: ``v_out``. A long leg is fitted by continuation: over the 0.5 s
-(:func:`fit_leg`).
-
-carries back to x = start has ``escaped``; one with a point beyond top - margin or
-outside the footprint shrunk by the margin ``flew_off``; else ``captured``.
+Launch legs
+-----------
+The state at the first frame and mu are fitted to the frames before the first bounce
+(mu starts from the releases' fitted damping when the same run has releases, else the
+spec's: a leg of a second or more pins it well, so a wrong spec damping does not bias
+the speeds); likewise the state at the last frame to the frames after the last bounce,
+integrated backward. A long leg is fitted by continuation: over the LEG_START s nearest
+its anchor frame first, then over twice that, ..., each fit starting from the last (a
+slow exit crawling for seconds before the track ends is otherwise out of reach of a
+start taken from the last frames alone).
 
 The ball model
 --------------
 A track is of the ball's centre C = P + r n(P). The ball model's state is the contact
 point's (x, y, xd, yd) and its spin u: the fits integrate that state and compare the
 model's centre (:func:`fitting.centre_of`) with the track; their start is the contact
-
-integration; running out is reported); :func:`screen_track` refuses, before any fit, a
-track that cannot be of this surface in the spec's unit, and finds a ball that never
-moves. The loss laws are compared in :mod:`fabkit.lab.losses`.
-
-Releases: the damping fitted with the model
--------------------------------------------
-The spec's model (models.fused, eq. xyODE or xyODE_simp, with the spec's nonlinear
-damping) with viscous damping mu is integrated from the first frame (scipy DOP853,
-rtol 1e-8) and x(t), y(t) at the frame times are fitted to the track by least
-squares over (x0, y0, vx0, vy0, mu) (Jacobian by finite differences, all perturbed
-lanes in one integration so they share their steps). ``omega``: pi / (mean spacing
-of successive extrema of the fitted y(t)). Errors: one standard deviation from the
-fit's covariance. ``damping_logdec``: the paper's estimate, from the half
-peak-to-peak amplitudes A_k of successive extrema of the track's y: ln A_k = c -
-mu t_k / 2 by least squares; it assumes the linear oscillator y'' + mu y' + w^2 y = 0.
-In the full model the ball's kinetic energy includes zdot^2 = (h_y ydot)^2, so at
-large amplitude the transverse oscillation is anharmonic: it spends more of each
-period near its turning points, the mean kinetic energy (the part viscous damping
-removes) is below half the energy, and the amplitude decays slower than
-e^{-mu t/2}. ``logdec_ratio`` measures that bias on the fitted model's own noise-free
-trajectory (log-decrement of the model / fitted mu).
+point under the seen centre (Newton, :func:`fitting.contact_of`) with u = 0.
 """
 
 from __future__ import annotations
@@ -60,10 +53,29 @@ import time
 import numpy as np
 
 from .events import edge_state
-from .fitting import (FIT_RTOL, Budget, FitStopped, centre_of, contact_of, covariance_errors,
-                      least_squares_bounded, model_solve, state_size)
+from .fitting import (COEF_FLOOR, COEF_STEP, FIT_RTOL, STATE_STEP, Budget, FitStopped, central_jacobian,
+                      centre_of, contact_of, covariance_errors, least_squares_bounded, model_solve, state_size)
 
 LEG_START = 0.5        # s: first span of a leg's continuation fit (fit_leg)
+#: evaluations of one least-squares fit (a leg's step, a release)
+LEG_MAX_NFEV = 100
+RELEASE_MAX_NFEV = 100
+#: samples of the fitted model over a release, for its extrema (omega, the model's logdec)
+DENSE_SAMPLES = 20000
+
+
+def _steps(p, ns) -> np.ndarray:
+    """The Jacobian's central-difference steps (:mod:`.fitting`): the state's, then mu's."""
+    h = STATE_STEP * np.maximum(1.0, np.abs(p))
+    h[ns] = COEF_STEP * max(abs(float(p[ns])), COEF_FLOOR["damping"])
+    return h
+
+
+def _lower(ns) -> np.ndarray:
+    """Bounds of (state, mu): the state free, mu >= 0."""
+    lo = np.full(ns + 1, -np.inf)
+    lo[ns] = 0.0
+    return lo
 
 
 def start_state(problem, st) -> list:
@@ -114,46 +126,55 @@ def _fit_leg_once(problem, track, idx, t0: float, p0, budget: Budget | None = No
     npar = ns + 1
 
     def run(P):
-        Y, _ = model_solve(problem, P[:, :ns].T.copy(), P[:, ns], t0, te, rtol=FIT_RTOL, budget=budget)
-        return Y
+        Y = model_solve(problem, P[:, :ns].T, P[:, ns], t0, te, rtol=FIT_RTOL)
+        return np.concatenate([Y[0], Y[1]], axis=1)
 
     def fun(p):
-        Y = run(p[None, :])
-        return np.concatenate([Y[0, 0], Y[1, 0]]) - data
+        return run(p[None, :])[0] - data
 
     def jac(p):
-        h = 1e-5 * np.maximum(1.0, np.abs(p))
-        P = np.vstack([p] + [p + np.eye(npar)[j] * h[j] for j in range(npar)])
-        Y = run(P)
-        base = np.concatenate([Y[0, 0], Y[1, 0]])
-        return np.column_stack([(np.concatenate([Y[0, j + 1], Y[1, j + 1]]) - base) / h[j]
-                                for j in range(npar)])
+        return central_jacobian(run, p, _steps(p, ns))
 
-    x, r, J, nfev, status = least_squares_bounded(fun, jac, p0, budget, xtol=1e-10, max_nfev=40)
+    x, r, J, nfev, status = least_squares_bounded(fun, jac, p0, budget, lower=_lower(ns), xtol=1e-10,
+                                                  max_nfev=LEG_MAX_NFEV)
     err = covariance_errors(J, r, npar)
     return {"t": t0, "state": x[:ns], "error": err[:ns], "damping": float(x[ns]),
             "damping_error": float(err[ns]), "rms": float(math.sqrt(float(r @ r) / r.size)), "p": x,
             "status": status, "nfev": int(nfev)}
 
 
-def _dense_extrema(sol, lane: int, m: int, t0: float, t1: float, n: int = 20000):
-    """Times of the extrema of y of one lane of a dense model solution (roots of vy)."""
-    from scipy.optimize import brentq
-
+def _dense_extrema(problem, p, ns: int, t0: float, t1: float, n: int = DENSE_SAMPLES):
+    """Times and values of the extrema of y of the model from the fitted start ``p``
+    (roots of yd; the ball's: its contact point's) on [t0, t1]: the model sampled at n
+    times, each root refined by the cubic Hermite interpolant of yd (with ydd), its
+    value by that of y (with yd)."""
     ts = np.linspace(t0, t1, n)
-    ns = sol.y.shape[0] // m
-    Y = sol.sol(ts).reshape(ns, m, n)
-    vy = Y[3, lane]
+    _, Y, dY = model_solve(problem, p[:ns, None], p[ns:ns + 1], t0, ts, derivatives=True)
+    y, vy, ay = Y[0, :, 1], Y[0, :, 3], dY[0, :, 3]
     out, vals = [], []
     for i in np.flatnonzero(np.sign(vy[:-1]) * np.sign(vy[1:]) < 0):
-        r = brentq(lambda s: sol.sol(s).reshape(ns, m)[3, lane], ts[i], ts[i + 1], xtol=1e-12)
-        out.append(r)
-        vals.append(float(sol.sol(r).reshape(ns, m)[1, lane]))
+        h = ts[i + 1] - ts[i]
+        # Hermite cubic of vy on [0, 1]: roots by a few Newton steps from the linear guess
+        a0, a1, m0, m1 = vy[i], vy[i + 1], ay[i] * h, ay[i + 1] * h
+        s = a0 / (a0 - a1)
+        for _ in range(8):
+            h00, h10, h01, h11 = 2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s, -2 * s**3 + 3 * s**2, s**3 - s**2
+            f = h00 * a0 + h10 * m0 + h01 * a1 + h11 * m1
+            df = (6 * s**2 - 6 * s) * a0 + (3 * s**2 - 4 * s + 1) * m0 + (-6 * s**2 + 6 * s) * a1 \
+                + (3 * s**2 - 2 * s) * m1
+            if df == 0:
+                break
+            s = min(1.0, max(0.0, s - f / df))
+        h00, h10, h01, h11 = 2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s, -2 * s**3 + 3 * s**2, s**3 - s**2
+        out.append(ts[i] + s * h)
+        vals.append(float(h00 * y[i] + h10 * vy[i] * h + h01 * y[i + 1] + h11 * vy[i + 1] * h))
     return np.array(out), np.array(vals)
 
 
 def fit_release(problem, track, sigma: float, mu0: float, budget: Budget | None = None) -> dict:
-    """Least-squares fit of (x0, y0, vx0, vy0, mu) to a release track (module doc)."""
+    """Least-squares fit of (x0, y0, vx0, vy0, mu) to a release track (module doc). A fit
+    that did not converge is not fitted: its values and errors are None, ``fit_status``
+    says why."""
     t = track.t
     st = edge_state(track)
     ns = state_size(problem)
@@ -161,45 +182,38 @@ def fit_release(problem, track, sigma: float, mu0: float, budget: Budget | None 
     p0 = np.array([*start_state(problem, st), max(mu0, 1e-3)])
     t0 = float(t[0])
     data = np.concatenate([track.x, track.y])
-    steps = np.full(npar, 1e-5)
-    cache = {}
 
     def run(P):
-        S0 = np.array(P[:, :ns]).T
-        Y, _ = model_solve(problem, S0, P[:, ns], t0, t, budget=budget)
-        return Y
+        Y = model_solve(problem, P[:, :ns].T, P[:, ns], t0, t)
+        return np.concatenate([Y[0], Y[1]], axis=1)
 
     def fun(p):
-        key = p.tobytes()
-        if key not in cache:
-            Y = run(p[None, :])
-            cache.clear()
-            cache[key] = np.concatenate([Y[0, 0], Y[1, 0]]) - data
-        return cache[key]
+        return run(p[None, :])[0] - data
 
     def jac(p):
-        h = steps * np.maximum(1.0, np.abs(p))
-        P = np.vstack([p] + [p + np.eye(npar)[j] * h[j] for j in range(npar)])
-        Y = run(P)
-        base = np.concatenate([Y[0, 0], Y[1, 0]])
-        J = np.empty((base.size, npar))
-        for j in range(npar):
-            J[:, j] = (np.concatenate([Y[0, j + 1], Y[1, j + 1]]) - base) / h[j]
-        return J
+        return central_jacobian(run, p, _steps(p, ns))
 
     t_start = time.perf_counter()
-    p, r, J, nfev, status = least_squares_bounded(fun, jac, p0, budget, xtol=1e-10, ftol=1e-12, max_nfev=60)
+    p, r, J, nfev, status = least_squares_bounded(fun, jac, p0, budget, lower=_lower(ns), xtol=1e-10,
+                                                  ftol=1e-12, max_nfev=RELEASE_MAX_NFEV)
     err = covariance_errors(J, r, npar)
+    keys = ("x", "y", "vx", "vy", "u")[:ns]
+    out = {"damping": None, "damping_error": None, "omega": None, "initial_state": None,
+           "initial_state_error": None, "residual_rms": float(math.sqrt(float(r @ r) / r.size)),
+           "noise_sigma": float(sigma), "iterations": int(nfev), "fit_seconds": None, "fit_status": status,
+           "model_logdec": None}
+    if status == "converged" and not np.all(np.isfinite(err)):
+        status = out["fit_status"] = "the fit's covariance is singular (no error bars)"
+    if status != "converged":
+        out["fit_seconds"] = time.perf_counter() - t_start
+        return out
     # omega and the model's own log-decrement on the fitted noise-free trajectory
     try:
-        _, sol = model_solve(problem, p[:ns, None], p[ns:ns + 1], t0, t, dense=True)
-    except FitStopped as exc:  # the best point of a stopped fit is not followed to the end
-        status = status if status != "converged" else exc.reason
-        sol = None
-    if sol is not None:
-        te, ve = _dense_extrema(sol, 0, 1, t0, float(t[-1]))
-    else:
+        te, ve = _dense_extrema(problem, p, ns, t0, float(t[-1]))
+        ys = model_solve(problem, p[:ns, None], p[ns:ns + 1], t0, t)[:2, 0]
+    except FitStopped:  # the fitted model followed the frames: its samples between them too
         te, ve = np.zeros(0), np.zeros(0)
+        ys = np.full((2, t.size), np.nan)
     # the release itself is a turning point (at rest): whether the fitted yd puts it just
     # inside the track or not, turning points within two frames of either end are left out
     inner = (te > t0 + 2 * track.dt) & (te < t[-1] - 2 * track.dt)
@@ -210,22 +224,13 @@ def fit_release(problem, track, sigma: float, mu0: float, budget: Budget | None 
         amp = 0.5 * np.abs(np.diff(ve))
         tm = 0.5 * (te[1:] + te[:-1])
         model_ld = float(-2.0 * np.polyfit(tm, np.log(amp), 1)[0])
-    # omega's error: the extrema spacing moves with the fitted state; propagate by the
-    # fit's covariance through a finite difference of omega in mu and y0 (the dominant terms)
-    ys = sol.sol(t) if sol is not None else np.full((ns, t.size), np.nan)
-    if ns == 5:       # the ball: the centre, what the track shows
-        ys = np.stack(centre_of(problem, ys[0], ys[1]))
-    keys = ("x", "y", "vx", "vy", "u")[:ns]
-    return {
+    out.update({
         "damping": float(p[ns]), "damping_error": float(err[ns]),
         "omega": float(omega),
         "initial_state": {"t": t0, **{k: float(v) for k, v in zip(keys, p[:ns])}},
         "initial_state_error": {k: float(e) for k, e in zip(keys, err[:ns])},
-        "residual_rms": float(math.sqrt(float(r @ r) / r.size)),
-        "noise_sigma": float(sigma),
-        "iterations": int(nfev), "fit_seconds": time.perf_counter() - t_start, "fit_status": status,
+        "fit_seconds": time.perf_counter() - t_start,
         "model_logdec": model_ld,
         "_model": {"t": t, "x": ys[0], "y": ys[1]},
-    }
-
-
+    })
+    return out
