@@ -213,6 +213,7 @@ def test_a_ball_that_never_moves_is_a_result_not_a_search(cli, tmp_path):
     assert code == 1 and "never moves" in out and err.count("\n") == 1, (code, err)
     assert "--output fitted.yaml: no release or launch to fit the losses to" in err
     assert not (tmp_path / "fitted.yaml").exists()
+    (tmp_path / "fig.png").unlink()        # the analysis itself (its figure) is delivered
     # the output may not be the spec or a track
     for target in (PAPER, f):
         code, out, err = _quiet_cli(cli, "analyze", PAPER, f, "-o", target)

@@ -184,7 +184,8 @@ def analyze(problem, tracks: list, screens: list | None = None, compare_losses: 
     mu_launch, mu_source = float(problem.damping), "spec"
     if fitted:
         w = np.array([1.0 / e ** 2 for _, e in fitted])
-        mu_launch = float(np.sum(w * np.array([d for d, _ in fitted])) / np.sum(w))
+        mu_launch = float(fitted[0][0]) if len(fitted) == 1 else \
+            float(np.sum(w * np.array([d for d, _ in fitted])) / np.sum(w))
         mu_source = "fitted"
     for i, tr in enumerate(tracks):
         if kinds[i] == "launch":

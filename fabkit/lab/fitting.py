@@ -1,7 +1,6 @@
 """Bounded least-squares fits of the model to tracks: the integration of lanes of the
 spec's model on the compiled engine (:func:`model_solve`), the budget the fits of one
-track share, and a bounded trust-region driver that keeps its best point when the
-budget runs out.
+track share, and a bounded Levenberg-Marquardt driver (:func:`least_squares_bounded`).
 
 Budgets count work, never seconds, so the same tracks give the same fit on any
 machine at any load: the fits of one track stop after MAX_MODEL_RUNS model runs (each
@@ -60,56 +59,114 @@ class Budget:
             raise FitStopped(f"the fits' budget of {self.runs_max} model runs a track ran out")
 
 
-def least_squares_bounded(fun, jac, p0, budget, lower=None, **kw):
-    """scipy's least_squares (trust region reflective, bounded below by ``lower``, -inf
-    where None): ``max_nfev`` evaluations (in ``kw``) and the track's ``budget``.
+def least_squares_bounded(fun, jac, p0, budget, lower=None, xtol: float = 1e-10, ftol: float = 1e-10,
+                          max_nfev: int = 100):
+    """Bounded Levenberg-Marquardt (Marquardt's scaled damping, the bound by an active
+    set): minimise |fun(p)|^2 with p >= ``lower`` (-inf where None), at most ``max_nfev``
+    residual evaluations, each residual and Jacobian counted on ``budget``.
+
+    Each iteration solves (J^T J + lam diag(J^T J)) dp = -J^T r over the free
+    parameters (a parameter on its bound whose gradient pushes it further is held
+    there), in Jacobi-scaled form (columns of unit norm); a step that lowers the
+    cost is taken (lam / 3), one that does not raises lam 4x. Converged: a trial step
+    changes the cost by less than ``ftol`` of it (either way: rounding), or a taken
+    step's scaled size is below ``xtol`` times the scaled parameters, or the projected
+    gradient vanishes (its largest cosine with the
+    residual below 1e-12). Linear algebra on n x n matrices only (J^T J): the cost of
+    an iteration is one product J^T J, whatever the number of residuals.
+
     Returns (x, residuals, jacobian or None, nfev, status): status "converged",
     "evaluations" (max_nfev reached), or the reason a :class:`FitStopped` ended it
     (then x is the best point evaluated, no jacobian). Only "converged" is a fit.
     Raises FitStopped if not even the first point could be evaluated."""
-    from scipy.optimize import least_squares
-
-    best = {"cost": math.inf, "x": None, "r": None, "n": 0}
-    p0 = np.asarray(p0, dtype=float)
-    lo = np.full(p0.size, -np.inf) if lower is None else np.asarray(lower, dtype=float)
-    # a start on a bound moves just inside it (the method needs a strictly feasible start)
-    low = np.isfinite(lo) & (p0 <= lo)
-    p0 = p0.copy()
-    p0[low] = lo[low] + 1e-6 * np.maximum(1.0, np.abs(lo[low]))
+    x = np.asarray(p0, dtype=float).copy()
+    n = x.size
+    lo = np.full(n, -np.inf) if lower is None else np.asarray(lower, dtype=float)
+    low = np.isfinite(lo) & (x <= lo)
+    x[low] = lo[low] + 1e-6 * np.maximum(1.0, np.abs(lo[low]))     # start strictly inside
+    state = {"nfev": 0}
 
     def f(p):
         if budget is not None:
             budget.count_run()
-        r = fun(p)
-        best["n"] += 1
-        c = float(r @ r)
-        if not math.isfinite(c):
+        r = np.asarray(fun(p), dtype=float)
+        state["nfev"] += 1
+        if not np.all(np.isfinite(r)):
             raise FitStopped("the model left the surface's finite values")
-        if c < best["cost"]:
-            best.update(cost=c, x=np.array(p, dtype=float), r=np.array(r))
         return r
 
-    def J(p):
+    def J_of(p):
         if budget is not None:
             budget.count_run()
-        out = jac(p)
+        out = np.asarray(jac(p), dtype=float)
         if not np.all(np.isfinite(out)):
             raise FitStopped("the model left the surface's finite values")
         return out
 
+    r = f(x)                        # raises: not even the first point
+    cost = float(r @ r)
+    J = None
+    lam = 1e-3
+    status = "evaluations"
     try:
-        res = least_squares(f, p0, jac=J, method="trf", bounds=(lo, np.full(p0.size, np.inf)),
-                            x_scale="jac", **kw)
+        J = J_of(x)
+        while state["nfev"] < max_nfev:
+            g = J.T @ r
+            A = J.T @ J
+            free = ~(np.isfinite(lo) & (x <= lo) & (g > 0))
+            d = np.sqrt(np.maximum(np.diag(A), 0.0))
+            d[d == 0] = 1.0
+            As = A / np.outer(d, d)
+            gs = g / d
+            # the projected gradient's largest cosine with the residual (MINPACK's gtol)
+            if cost == 0 or np.max(np.abs(gs[free])) <= 1e-12 * math.sqrt(cost):
+                status = "converged"
+                break
+            fi = np.flatnonzero(free)
+            M = As[np.ix_(fi, fi)] + lam * np.eye(fi.size)
+            try:
+                step_s = np.linalg.solve(M, -gs[fi])
+            except np.linalg.LinAlgError:
+                lam *= 4.0
+                continue
+            dp = np.zeros(n)
+            dp[fi] = step_s / d[fi]
+            x_new = np.maximum(x + dp, lo)
+            try:
+                r_new = f(x_new)
+            except FitStopped as exc:
+                if "budget" in exc.reason:
+                    raise
+                lam *= 4.0          # a trial the model cannot follow: a shorter step
+                continue
+            cost_new = float(r_new @ r_new)
+            if abs(cost - cost_new) <= ftol * cost:
+                # the cost no longer changes beyond ftol (rounding): a minimum
+                if cost_new < cost:
+                    x, r, cost = x_new, r_new, cost_new
+                    J = J_of(x)
+                status = "converged"
+                break
+            if cost_new < cost:
+                small = np.linalg.norm((x_new - x) * d) <= xtol * (xtol + np.linalg.norm(x * d))
+                x, r, cost = x_new, r_new, cost_new
+                J = J_of(x)
+                lam = max(lam / 3.0, 1e-12)
+                if small:
+                    status = "converged"
+                    break
+            else:
+                lam *= 4.0
+                if lam > 1e16:      # no step lowers the cost: a minimum to rounding
+                    status = "converged"
+                    break
     except FitStopped as exc:
-        if best["x"] is None:
-            raise
         if budget is not None:
             budget.stopped.append(exc.reason)
-        return best["x"], best["r"], None, best["n"], exc.reason
-    status = "converged" if res.status > 0 else "evaluations"
+        return x, r, None, state["nfev"], exc.reason
     if status != "converged" and budget is not None:
-        budget.stopped.append(f"the fit stopped after {res.nfev} evaluations without converging")
-    return res.x, res.fun, res.jac, res.nfev, status
+        budget.stopped.append(f"the fit stopped after {state['nfev']} evaluations without converging")
+    return x, r, J, state["nfev"], status
 
 
 def central_jacobian(run, p, steps) -> np.ndarray:

@@ -79,6 +79,7 @@ class LawFit:
     status: str
     rms: float
     segment_rms: list = field(default_factory=list)
+    states: np.ndarray | None = None      # (segments, state size): the fitted starts
 
     @property
     def fitted(self) -> bool:
@@ -139,9 +140,10 @@ def _law_vectors(law: str, q: np.ndarray, m: int):
     return mu, crr
 
 
-def fit_law(problem, segments: list[Segment], law: str, q0, budget=None) -> LawFit:
+def fit_law(problem, segments: list[Segment], law: str, q0, budget=None, states=None) -> LawFit:
     """Least squares of every segment's state and the law's shared coefficients, each
-    coefficient bounded at zero (module doc)."""
+    coefficient bounded at zero (module doc); ``states`` (segments, state size): the
+    starts (default: each segment's own fitted state)."""
     from .fitting import (COEF_FLOOR, COEF_STEP, FIT_RTOL, STATE_STEP, central_jacobian, covariance_errors,
                           least_squares_bounded, model_solve, state_size)
 
@@ -150,7 +152,8 @@ def fit_law(problem, segments: list[Segment], law: str, q0, budget=None) -> LawF
     ns = state_size(problem)
     S = len(segments)
     data = np.concatenate([np.concatenate([s.x, s.y]) for s in segments])
-    p0 = np.concatenate([np.concatenate([s.state for s in segments]), np.asarray(q0, dtype=float)])
+    st0 = np.concatenate([s.state for s in segments]) if states is None else np.ravel(states)
+    p0 = np.concatenate([st0, np.asarray(q0, dtype=float)])
     lower = np.concatenate([np.full(ns * S, -np.inf), np.zeros(nl)])
 
     def lanes(seg_i, P):
@@ -201,15 +204,19 @@ def fit_law(problem, segments: list[Segment], law: str, q0, budget=None) -> LawF
                         "rms": float(math.sqrt(float(r[row:row + n2] @ r[row:row + n2]) / n2))})
         row += n2
     rss = float(r @ r)
-    return LawFit(law, coef, errs, rss, int(r.size), int(p0.size), status, math.sqrt(rss / r.size), seg_rms)
+    return LawFit(law, coef, errs, rss, int(r.size), int(p0.size), status, math.sqrt(rss / r.size), seg_rms,
+                  x[:ns * S].reshape(S, ns))
 
 
 def compare_laws(problem, segments: list[Segment], mu0: float, budget_factory=None) -> dict | None:
     """Every law of :data:`LAWS` fitted to the segments and compared by BIC (module
     doc): {"criterion", "chosen", "evidence", "delta_bic", "laws": {law: LawFit.to_json()}};
     None without segments. ``mu0``: the viscous damping's start (the releases' fit or the
-    spec's); the rolling resistance starts where it removes the same power at the
-    segments' mean speed: c_rr = mu0 v_mean / g~."""
+    spec's). The viscous law is fitted first; the rolling law starts from its fitted
+    states with the c_rr that removes the same power at the segments' median speed
+    (c_rr = mu v_median / g~), ``both`` from the viscous optimum and from the rolling
+    one, keeping the lower cost (each start is deterministic: the same tracks, the same
+    fits)."""
     from .fitting import Budget, FitStopped
 
     if not segments:
@@ -218,16 +225,46 @@ def compare_laws(problem, segments: list[Segment], mu0: float, budget_factory=No
     vmean = float(np.median(v)) if v.size else 10.0
     mu0 = float(mu0) if math.isfinite(mu0) and mu0 > 1e-3 else 0.1
     vmean = vmean if math.isfinite(vmean) and vmean > 0 else 10.0
-    c0 = mu0 * vmean / problem.g_tilde
-    starts = {"viscous": [mu0], "rolling": [c0], "both": [0.5 * mu0, 0.5 * c0]}
+    gt = problem.g_tilde
     fits: dict[str, LawFit] = {}
     stopped = {}
-    for law in LAWS:
+
+    def fit(law, q0, states=None):
         budget = budget_factory() if budget_factory else Budget()
         try:
-            fits[law] = fit_law(problem, segments, law, starts[law], budget)
+            return fit_law(problem, segments, law, q0, budget, states)
         except FitStopped as exc:
             stopped[law] = exc.reason
+            return None
+
+    # viscous first, from the segments' own fits; the other laws start from its fitted
+    # states, with the rolling resistance that removes the same power at the median speed
+    # (c_rr = mu v / g~), and `both` from the better of the two single laws' optima
+    v = fit("viscous", [mu0])
+    if v is not None:
+        fits["viscous"] = v
+    ok_v = v is not None and v.fitted
+    mu_v = v.coefficients["damping"] if ok_v else mu0
+    st_v = v.states if ok_v else None
+    c0 = max(mu_v, 1e-3) * vmean / gt
+    r = fit("rolling", [c0], st_v)
+    if r is not None:
+        fits["rolling"] = r
+    ok_r = r is not None and r.fitted
+    starts = [([mu_v, 1e-3 * c0], st_v)]
+    if ok_r:
+        starts.append(([1e-3 * max(mu_v, 1e-3), r.coefficients["rolling_resistance"]], r.states))
+    if not ok_v and not ok_r:
+        starts = [([0.5 * mu0, 0.5 * c0], None)]
+    best = None
+    for q0, st in starts:
+        b = fit("both", q0, st)
+        if b is not None and (best is None or (b.fitted, -b.rss) > (best.fitted, -best.rss)):
+            best = b
+    if best is not None:
+        fits["both"] = best
+        if best.fitted:
+            stopped.pop("both", None)
     if not fits:
         return {"criterion": CRITERION, "chosen": None, "laws": {}, "stopped": stopped,
                 "segments": [f"{s.file}: {s.what}" for s in segments]}

@@ -195,7 +195,7 @@ def fit_release(problem, track, sigma: float, mu0: float, budget: Budget | None 
 
     t_start = time.perf_counter()
     p, r, J, nfev, status = least_squares_bounded(fun, jac, p0, budget, lower=_lower(ns), xtol=1e-10,
-                                                  ftol=1e-12, max_nfev=RELEASE_MAX_NFEV)
+                                                  max_nfev=RELEASE_MAX_NFEV)
     err = covariance_errors(J, r, npar)
     keys = ("x", "y", "vx", "vy", "u")[:ns]
     out = {"damping": None, "damping_error": None, "omega": None, "initial_state": None,

@@ -69,15 +69,35 @@ def lane_params(eng, problem, mu, crr) -> np.ndarray:
     return PA
 
 
+_ENGINES: dict = {}
+
+
+def _engine(problem):
+    """The launch engine of ``problem``'s formula and model, memoized on the surface
+    functions (the fits call this hundreds of times)."""
+    key = (id(problem.fns), problem.model == "ball")
+    hit = _ENGINES.get(key)
+    if hit is not None and hit[0] is problem.fns:
+        return hit[1]
+    from .batch import engine
+
+    eng = engine(problem)
+    with _LOCK:
+        if len(_ENGINES) > 64:
+            _ENGINES.clear()
+        _ENGINES[key] = (problem.fns, eng)
+    return eng
+
+
 def frames(problem, S0, mu, crr, t0: float, t_eval, *, rtol: float, atol: float, max_steps: int):
     """Carry lanes S0 (m, k) (the model's state without its dissipated work: 4 for a
     point, 5 for the ball) with damping ``mu`` (m,) and rolling resistance ``crr`` (m,)
     from t0 to the times ``t_eval`` (monotonic from t0, forward or backward). Returns
     (Y (m, n, NV), dY (m, n, NV), status, steps, rejected): status 0 done, 1 the step
     budget ran out, 2 a state not finite, 3 the step size underflowed."""
-    from .batch import engine, tableau_arrays
+    from .batch import tableau_arrays
 
-    eng = engine(problem)
+    eng = _engine(problem)
     mod = module(eng.template)
     A, B, E, E3, ns, order, dop = tableau_arrays("DOP853")
     S0 = np.ascontiguousarray(S0, dtype=float)
