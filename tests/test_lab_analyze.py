@@ -306,6 +306,32 @@ def test_the_fits_budget_running_out_is_reported(cli, tmp_path, monkeypatch):
     _refused(code, out, err, tmp_path, str(f), "more than 5 steps")
 
 
+def test_a_fit_that_did_not_converge_is_not_fitted_and_changes_no_outcome(cli, tmp_path, monkeypatch):
+    """A launch that escapes after two bounces stays `escaped` with its two bounces when its
+    legs' fits run out (no v_in, no v_out: not fitted); with every law's fit out of
+    evaluations no law is ranked, and -o prints the analysis, writes nothing, exits 1."""
+    import fabkit.lab.fitting as A
+    import fabkit.lab.losses as Lo
+
+    truth = L.run((L.START, 0.0, 47.5, 0.0), MU_TRUE, 15.0)
+    assert truth["escaped"] and len(truth["bounce_times"]) == 2
+    f = _write(tmp_path, "launch.csv", truth, seed=5)
+    monkeypatch.setattr(A, "MAX_MODEL_RUNS", 2)
+    code, out, err = _quiet_cli(cli, "analyze", PAPER, f, "--json")
+    assert code == 0, err
+    res = json.loads(out)
+    r = res["tracks"][0]
+    assert r["outcome"] == "escaped" and r["bounces"] == 2
+    assert r["v_in"] is None and r["v_out"] is None and "budget of 2 model runs" in r["fit_status"]
+    assert res["losses"] is None            # no fitted leg: nothing to fit the laws to
+    monkeypatch.setattr(A, "MAX_MODEL_RUNS", 2000)
+    monkeypatch.setattr(Lo, "FIT_MAX_NFEV", 2)
+    code, out, err = _quiet_cli(cli, "analyze", PAPER, f, "-o", "fitted.yaml")
+    assert code == 1 and err.count("\n") == 1 and "no loss law's fit converged" in err, (code, err)
+    assert "outcome escaped" in out and out.count("not fitted") == 3 and "the data support" not in out
+    assert not (tmp_path / "fitted.yaml").exists()
+
+
 # ----------------------------------------------------------------------------
 # loss laws: viscous damping, rolling resistance, both (the simulation: lab_sim's
 # hand-written rolling resistance, c N opposing v)
