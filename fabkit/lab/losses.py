@@ -118,7 +118,7 @@ def segments_of(tracks, rows) -> list[Segment]:
             bt = r.get("bounce_times") or []
             for key, what in (("entry_fit", "entry leg"), ("exit_fit", "exit leg")):
                 leg = r.get(key)
-                if not leg or leg.get("fit_status", "converged") != "converged" \
+                if not leg or leg.get("fit_status", "converged") != "converged" or leg["state"] is None \
                         or not np.all(np.isfinite(leg["state"])):
                     continue
                 if what == "entry leg":

@@ -112,6 +112,11 @@ def outcome_of(problem, track, bounces_t, mu: float | None = None):
 
 
 def _leg_json(leg) -> dict:
+    """A leg's fit for the result: its values only where it converged (not fitted: null)."""
+    if not _fitted(leg):
+        return {"t": leg["t"], "state": None, "error": None, "damping": None, "damping_error": None,
+                "rms": leg["rms"], "fit_status": leg["status"] if leg["status"] != "converged"
+                else "the fit's covariance is singular (no error bars)"}
     return {"t": leg["t"], "state": leg["state"].tolist(), "error": leg["error"].tolist(),
             "damping": leg["damping"], "damping_error": leg["damping_error"], "rms": leg["rms"],
             "fit_status": leg["status"]}
@@ -123,6 +128,13 @@ def _fitted(leg) -> bool:
         and math.isfinite(leg["damping_error"])
 
 
+def _singular(leg, what: str, budget) -> None:
+    """A leg whose fit converged without error bars is not fitted either: said in the
+    track's ``fit_status``."""
+    if budget is not None and leg["status"] == "converged" and not _fitted(leg):
+        budget.stopped.append(f"{what}: the fit's covariance is singular (no error bars)")
+
+
 def _launch_speeds(problem, track, bt, mu, budget: Budget | None = None) -> dict:
     """v_in, v_out and the outcome of a launch (module doc). The outcome is the track's
     (:func:`outcome_of`); v_in and v_out are the fitted legs' crossings of x = start, None
@@ -132,6 +144,7 @@ def _launch_speeds(problem, track, bt, mu, budget: Budget | None = None) -> dict
     sel = np.flatnonzero(t <= t_in_end)
     leg = fit_leg(problem, track, sel, False, mu, budget)
     out = {"entry_fit": _leg_json(leg)}
+    _singular(leg, "entry leg", budget)
     entry = None
     if _fitted(leg):
         entry = model_to_start(problem, leg["t"], leg["state"], leg["damping"], budget=budget)
@@ -152,6 +165,7 @@ def _launch_speeds(problem, track, bt, mu, budget: Budget | None = None) -> dict
     v_out = None
     if leg2 is not None:
         out["exit_fit"] = _leg_json(leg2)
+        _singular(leg2, "exit leg", budget)
         if outcome == Outcome.ESCAPED and _fitted(leg2) and leg2["state"][2] < 0:
             ex = model_to_start(problem, leg2["t"], leg2["state"], leg2["damping"], budget=budget)
             if ex is not None:
