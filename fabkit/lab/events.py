@@ -27,7 +27,8 @@ candidate (re-centred once): a parabola over 9 frames, or, where the turn is so 
 that the parabola falls less than 6 sigma across them, a cubic over a window widened
 2 frames at a time (up to 33 frames, within half the way to the neighbouring
 bounces) until it does: sub-frame, error about sigma / (|x''| dt^2 sqrt(60)) frames
-on a 9-frame window (``bounce_time_errors``: from the fit's covariance).
+on a 9-frame window (``bounce_time_errors``: from a cubic's covariance over the same
+window, which covers the parabola's bias on an asymmetric turn; :func:`_vertex_errors`).
 """
 
 from __future__ import annotations
@@ -222,19 +223,23 @@ def _vertex(t, z, i, sigma: float = 0.0, half_max: int = PEAK_HALF):
 
 
 def _vertex_errors(t, z, times, sigma, half=PEAK_HALF):
-    """One-sigma errors (s) of parabola-vertex times: sigma_c1 / (2 |c2|), c1 and c2 the
-    slope and half-curvature of the local fit (the slope vanishes at the vertex), over
-    the window the vertex was fitted on."""
+    """One-sigma errors (s) of the bounce times: sigma_d1 / (2 |d2|), d1 and d2 the slope
+    and half-curvature of a least-squares CUBIC through the window the vertex was fitted
+    on, centred on the vertex (the slope vanishes there). The parabola's own statistical
+    error is about half of this, but an asymmetric turn (a third derivative of x) biases
+    a parabola's vertex by as much: on 118 bounces of independent launches (0.3 mm noise,
+    125 frames/s) the parabola's sigma was exceeded 3-fold by 14 % of them, this one by
+    0.8 % (median |error| / sigma 0.53)."""
     out = []
     for tb in times:
         i = int(np.clip(np.searchsorted(t, tb), 0, len(t) - 1))
         h = _fit_half(t, z, i, sigma, PEAK_HALF_MAX)
         a, b = max(0, i - h), min(len(t), i + h + 1)
         dt = t[a:b] - tb
-        c2 = np.polyfit(dt, z[a:b], 2)[0]
-        A = np.column_stack([dt * dt, dt, np.ones_like(dt)])
+        d2 = np.polyfit(dt, z[a:b], 3)[1]
+        A = np.column_stack([dt ** 3, dt * dt, dt, np.ones_like(dt)])
         cov = np.linalg.inv(A.T @ A) * sigma * sigma
-        out.append(math.sqrt(cov[1, 1]) / (2 * abs(c2)) if c2 != 0 else math.nan)
+        out.append(math.sqrt(cov[2, 2]) / (2 * abs(d2)) if d2 != 0 else math.nan)
     return out
 
 
