@@ -17,7 +17,7 @@ fitted.yaml`` as a child process (its CPU time from the kernel's accounting), th
 CPU-bound processes running (``python -c "while 1: pass"``) and the two JSON outputs
 compared byte for byte (the ``seconds`` fields, wall clocks, left out).
 
-    python benchmarks/lab_fits.py [--load 2] [--model point|ball|both]
+    python benchmarks/lab_fits.py [--load 2] [--model point|ball|both] [--seed K]
 """
 
 from __future__ import annotations
@@ -55,6 +55,9 @@ def _csv(path, t, x, y, seed):
         f"{a:.6f},{b:.6f},{c:.6f},{NOISE:.3g},{NOISE:.3g}\n" for a, b, c in zip(t, x, y)))
 
 
+SEED = [0]      # the noise seeds' offset (--seed)
+
+
 def point_tracks(folder: Path, mu: float, crr: float) -> list[Path]:
     rel = L.run((-27.0, 5.5, 0.0, 0.0), mu, 3.0, escape=False, crr=crr)
     la = L.run((L.START, 0.0, 44.0, 0.0), mu, 15.0, crr=crr)
@@ -62,7 +65,7 @@ def point_tracks(folder: Path, mu: float, crr: float) -> list[Path]:
     for name, truth, seed in (("release.csv", rel, 11), ("launch.csv", la, 12)):
         t = np.arange(0.0, truth["t_end"], 1.0 / FPS)
         x, y = truth["sol"].sol(t)[:2]
-        _csv(folder / name, t, x, y, seed)
+        _csv(folder / name, t, x, y, seed + SEED[0])
         out.append(folder / name)
     return out
 
@@ -73,12 +76,12 @@ def ball_tracks(folder: Path, mu: float, crr: float) -> list[Path]:
     ne = RollingNewtonEuler(_problem(), mu, crr)
     out = []
     t, X, Y, _ = centre_track(ne, np.array([-27.0, 5.5, 0.0, 0.0, 0.0]), 3.0, 21, noise=0.0)
-    _csv(folder / "release.csv", t, X, Y, 21)
+    _csv(folder / "release.csv", t, X, Y, 21 + SEED[0])
     out.append(folder / "release.csv")
     truth = ne.launch(44.0, t_max=8.0, rtol=1e-10, atol=1e-12)
     t_end = float(truth["t_end"])         # filmed to its escape (or t_max), as the point's
     t, X, Y, _ = centre_track(ne, ne.initial(44.0), t_end, 22, noise=0.0)
-    _csv(folder / "launch.csv", t, X, Y, 22)
+    _csv(folder / "launch.csv", t, X, Y, 22 + SEED[0])
     out.append(folder / "launch.csv")
     return out
 
@@ -115,10 +118,12 @@ def analyze_case(spec: Path, files, folder: Path) -> dict:
 def main() -> int:
     ap = argparse.ArgumentParser()
     ap.add_argument("--load", type=int, default=0, help="also run with N CPU-bound processes and diff")
+    ap.add_argument("--seed", type=int, default=0, help="offset of the noise seeds")
     ap.add_argument("--case", choices=tuple(CASES), action="append", help="only these cases")
     ap.add_argument("--model", choices=("point", "ball", "both"), default="point",
                     help="the point model on the paper's spec, the finite ball on specs/surface.yaml, or both")
     args = ap.parse_args()
+    SEED[0] = args.seed
     models = [m for m in (("point", PAPER, point_tracks), ("ball", SURFACE, ball_tracks))
               if args.model in (m[0], "both")]
     print(f"load average before: {os.getloadavg()[0]:.2f} (2 cores)")
