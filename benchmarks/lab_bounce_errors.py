@@ -8,6 +8,7 @@ honest sigma has median 0.67 and 0.3 % beyond 3.
 """
 import numpy as np, sys
 from pathlib import Path
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))          # this tree's fabkit
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 import lab_sim as L
 from fabkit.lab.events import extrema, _vertex_errors, noise_sigma

@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))           # this tree's fabkit, not an installed one
 sys.path.insert(0, str(ROOT / "tests"))
 
 import lab_sim as L  # noqa: E402
