@@ -145,7 +145,7 @@ def main() -> int:
 def _plot(path, w_fit, w_true, launches, rows):
     from fabkit.plots import new_figure, png_bytes
 
-    plt, fig = new_figure(figsize=(7, 2.6), dpi=120)
+    plt, fig = new_figure(figsize=(7.5, 2.8), dpi=110)
     ax = fig.add_subplot(1, 1, 1)
     for a, b in w_true:
         ax.axvspan(a, b, ymin=0.55, ymax=0.95, color="tab:blue", alpha=0.35)
@@ -157,7 +157,8 @@ def _plot(path, w_fit, w_true, launches, rows):
         ax.annotate(str(r["bounces"]), (r["v_in"], 0.25), textcoords="offset points", xytext=(0, 6), ha="center")
     ax.set_yticks([0.25, 0.75], ["analyze / fitted spec", "independent truth"])
     ax.set_ylim(0, 1)
-    ax.set_xlabel("v_in (cm/s); shaded: two-bounce windows; marks: the launches (bounces counted)")
+    ax.set_xlabel("v_in (cm/s)")
+    ax.set_title("two-bounce windows (shaded) and the launches (bounces counted; grey: captured)", fontsize=9)
     fig.tight_layout()
     Path(path).write_bytes(png_bytes(plt, fig))
 
