@@ -1,4 +1,5 @@
-"""Analysis of tracked launches and releases: events, speeds, and fits with the model.
+"""The lab stage (tracks -> events -> fits -> outcomes -> loss laws): the analysis of
+tracked launches and releases, run here over the modules of each concern.
 
 Pure functions on :class:`tracks.Track` and the spec's :class:`models.Problem`; no
 printing, no files. Lengths in design units, times in s.

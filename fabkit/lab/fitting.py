@@ -1,4 +1,4 @@
-"""Bounded least-squares fits of the model to tracks: the integration of lanes of the
+"""The lab stage's fitting machinery: bounded least-squares fits of the model to tracks: the integration of lanes of the
 spec's model on the compiled engine (:func:`model_solve`), the budget the fits of one
 track share, and a bounded Levenberg-Marquardt driver (:func:`least_squares_bounded`).
 

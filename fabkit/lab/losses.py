@@ -1,4 +1,5 @@
-"""Which loss law the tracks support: viscous damping, rolling resistance, or both.
+"""The lab stage's loss laws: which one the tracks support, viscous damping, rolling
+resistance, or both.
 
 Pure functions on tracks and the spec's :class:`models.Problem`; no printing, no files.
 

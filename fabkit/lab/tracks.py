@@ -1,4 +1,5 @@
-"""Readers of tracked trajectories, and the map from video coordinates to the design's.
+"""The lab stage's tracks in: readers of tracked trajectories, and the map from video
+coordinates to the design's.
 
 Formats (detected from the first lines):
 
