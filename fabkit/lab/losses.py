@@ -15,7 +15,9 @@ bounded at zero; Jacobian by central differences between lanes of one integratio
 the compiled engine, :mod:`fabkit.lab.fitting`) to every segment at once: each release
 track whole, and each launch's legs before its first bounce and after its last (the
 segments :func:`fabkit.lab.analyze.analyze` fitted), each segment with its own state
-(x, y, xd, yd; the ball's adds its spin u) at its anchor frame and the law's coefficients shared by all. The laws
+(x, y, xd, yd; the ball's adds its spin u) at its anchor frame and the law's coefficients shared by all;
+each frame weighted by the tracker's sigma relative to its track's median (1 without
+sigma columns). The laws
 are compared by the Bayesian information criterion of Gaussian residuals of unknown
 variance,
 
@@ -61,6 +63,13 @@ class Segment:
     x: np.ndarray
     y: np.ndarray
     state: np.ndarray
+    wx: np.ndarray | None = None     # the frames' weights (Track.weights), None: 1
+    wy: np.ndarray | None = None
+
+    def weights(self) -> np.ndarray:
+        """The residuals' weights, x then y."""
+        n = self.t.size
+        return np.concatenate([np.ones(n) if self.wx is None else self.wx, np.ones(n) if self.wy is None else self.wy])
 
     @property
     def t0(self) -> float:
@@ -114,7 +123,8 @@ def segments_of(tracks, rows) -> list[Segment]:
             s = r["initial_state"]
             st = np.array([s[k] for k in ("x", "y", "vx", "vy", "u") if k in s], dtype=float)
             if np.all(np.isfinite(st)):
-                out.append(Segment(tr.file, "release", tr.t, tr.x, tr.y, st))
+                wx, wy = tr.weights()
+                out.append(Segment(tr.file, "release", tr.t, tr.x, tr.y, st, wx, wy))
         elif r.get("kind") == "launch":
             bt = r.get("bounce_times") or []
             for key, what in (("entry_fit", "entry leg"), ("exit_fit", "exit leg")):
@@ -129,7 +139,9 @@ def segments_of(tracks, rows) -> list[Segment]:
                     sl = np.flatnonzero(tr.t >= bt[-1])[::-1]
                 if sl.size < 8:
                     continue
-                out.append(Segment(tr.file, what, tr.t[sl], tr.x[sl], tr.y[sl], np.asarray(leg["state"], float)))
+                wx, wy = tr.weights()
+                out.append(Segment(tr.file, what, tr.t[sl], tr.x[sl], tr.y[sl], np.asarray(leg["state"], float),
+                                   wx[sl], wy[sl]))
     return out
 
 
@@ -152,7 +164,8 @@ def fit_law(problem, segments: list[Segment], law: str, q0, budget=None, states=
     nl = len(names)
     ns = state_size(problem)
     S = len(segments)
-    data = np.concatenate([np.concatenate([s.x, s.y]) for s in segments])
+    W = [s.weights() for s in segments]
+    data = np.concatenate([np.concatenate([s.x, s.y]) * w for s, w in zip(segments, W)])
     st0 = np.concatenate([s.state for s in segments]) if states is None else np.ravel(states)
     p0 = np.concatenate([st0, np.asarray(q0, dtype=float)])
     lower = np.concatenate([np.full(ns * S, -np.inf), np.zeros(nl)])
@@ -162,7 +175,7 @@ def fit_law(problem, segments: list[Segment], law: str, q0, budget=None, states=
         seg = segments[seg_i]
         mu, crr = _law_vectors(law, P[:, ns:], P.shape[0])
         Y = model_solve(problem, P[:, :ns].T, mu, seg.t0, seg.t, rtol=FIT_RTOL, crr=crr)
-        return np.concatenate([Y[0], Y[1]], axis=1)
+        return np.concatenate([Y[0], Y[1]], axis=1) * W[seg_i]
 
     def split(p):
         return p[:ns * S].reshape(S, ns), p[ns * S:]

@@ -3,7 +3,9 @@ least squares to a release whole, or to a launch's legs (before its first bounce
 its last).
 
 Pure functions on :class:`tracks.Track` and the spec's :class:`models.Problem`; no
-printing, no files. In: a track and its events (:mod:`.events`); out: the fitted state
+printing, no files. Each frame is weighted by the tracker's sigma relative to the
+track's median (``Track.weights``: all 1 without sigma columns, or with a constant
+sigma). In: a track and its events (:mod:`.events`); out: the fitted state
 at the anchor frame, the damping, their one-sigma errors from the fit's covariance, the
 fit's status ("converged", or why not: a fit that did not converge is not fitted, its
 values and errors are None). The integration on the compiled engine, the bounded least
@@ -121,13 +123,15 @@ def fit_leg(problem, track, sel: np.ndarray, end: bool, mu: float, budget: Budge
 def _fit_leg_once(problem, track, idx, t0: float, p0, budget: Budget | None = None) -> dict:
     """One least-squares fit of (state at t0, mu) to the frames ``idx`` (:func:`fit_leg`)."""
     te = track.t[idx]
-    data = np.concatenate([track.x[idx], track.y[idx]])
+    wx, wy = track.weights()
+    w = np.concatenate([wx[idx], wy[idx]])
+    data = np.concatenate([track.x[idx], track.y[idx]]) * w
     ns = state_size(problem)
     npar = ns + 1
 
     def run(P):
         Y = model_solve(problem, P[:, :ns].T, P[:, ns], t0, te, rtol=FIT_RTOL)
-        return np.concatenate([Y[0], Y[1]], axis=1)
+        return np.concatenate([Y[0], Y[1]], axis=1) * w
 
     def fun(p):
         return run(p[None, :])[0] - data
@@ -181,11 +185,12 @@ def fit_release(problem, track, sigma: float, mu0: float, budget: Budget | None 
     npar = ns + 1
     p0 = np.array([*start_state(problem, st), max(mu0, 1e-3)])
     t0 = float(t[0])
-    data = np.concatenate([track.x, track.y])
+    w = np.concatenate(track.weights())
+    data = np.concatenate([track.x, track.y]) * w
 
     def run(P):
         Y = model_solve(problem, P[:, :ns].T, P[:, ns], t0, t)
-        return np.concatenate([Y[0], Y[1]], axis=1)
+        return np.concatenate([Y[0], Y[1]], axis=1) * w
 
     def fun(p):
         return run(p[None, :])[0] - data
