@@ -108,7 +108,8 @@ def fitted_spec_text(spec, res, tracks) -> str:
     law = lo.get("chosen")
     if not law:
         if not lo.get("laws"):
-            raise NotWritten("no release or launch to fit the losses to: nothing written")
+            raise NotWritten("no release or launch to fit the losses to (none, or none whose fit converged): "
+                             "nothing written")
         why = "; ".join(f"{k}: {f['fit_status']}" for k, f in lo["laws"].items())
         raise NotWritten(f"no loss law's fit converged ({why}): nothing written")
     coef = lo["laws"][law]["coefficients"]
