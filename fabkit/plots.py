@@ -12,7 +12,7 @@ import io
 
 import numpy as np
 
-from .physics.outcomes import BRIDGED, CAPTURED, ESCAPED, FLEW_OFF, LOST_CONTACT, OUTCOMES, SLIPPED
+from .physics.outcomes import ESCAPED, OUTCOMES, Outcome
 
 
 class _Figures:
@@ -102,13 +102,13 @@ def trajectory_png(traj: dict, summary: dict, *, title: str = "", units: str = "
 #: one marker and colour per outcome of a launch that does not escape (escaped
 #: launches are coloured by bounce count); the same everywhere a figure shows outcomes
 #: (sweep, robustness, design, compare): captured is grey, one bounce black
-OUTCOME_STYLE = {OUTCOMES[CAPTURED]: ("x", "0.6"), OUTCOMES[FLEW_OFF]: ("^", "tab:orange"),
-                 OUTCOMES[LOST_CONTACT]: ("v", "tab:cyan"), OUTCOMES[BRIDGED]: ("s", "tab:pink"),
-                 OUTCOMES[SLIPPED]: ("D", "darkgoldenrod")}
+OUTCOME_STYLE = {Outcome.CAPTURED: ("x", "0.6"), Outcome.FLEW_OFF: ("^", "tab:orange"),
+                 Outcome.LOST_CONTACT: ("v", "tab:cyan"), Outcome.BRIDGED: ("s", "tab:pink"),
+                 Outcome.SLIPPED: ("D", "darkgoldenrod")}
 #: escaped launches by bounce count, as the seed paper's Fig. 1 colours them
 BOUNCE_COLOURS = {1: "black", 2: "tab:blue", 3: "tab:green", 4: "tab:red"}
 MANY_BOUNCES = "tab:brown"
-CAPTURED_COLOUR = OUTCOME_STYLE[OUTCOMES[CAPTURED]][1]
+CAPTURED_COLOUR = OUTCOME_STYLE[Outcome.CAPTURED][1]
 
 
 def sweep_figure(result: dict, title: str = "", *, units: str = "", fmt: str = "png",
@@ -383,8 +383,10 @@ def analyze_figure(rows: list[dict], *, title: str = "", units: str = "", fmt: s
             ax2.set_xlabel("t (s)")
         name = str(r.get("file", "")).rsplit("/", 1)[-1]
         if r.get("kind") == "release":
-            head = (f"{name}: release, damping {r.get('damping', float('nan')):.4g} 1/s (fit), "
-                    f"log-dec {r.get('damping_logdec') or float('nan'):.4g}, omega {r.get('omega', float('nan')):.4g}")
+            nan = float("nan")
+            head = (f"{name}: release, damping {nan if r.get('damping') is None else r['damping']:.4g} 1/s (fit), "
+                    f"log-dec {r.get('damping_logdec') or nan:.4g}, omega "
+                    f"{nan if r.get('omega') is None else r['omega']:.4g}")
         else:
             sim = r.get("simulation") or {}
             vo = r.get("v_out")

@@ -88,3 +88,34 @@ def transverse_extrema(truth, t0, t1, n=20000):
 
 def csv_text(t, x, y):
     return "t,x,y\n" + "".join(f"{a:.6f},{b:.6f},{c:.6f}\n" for a, b, c in zip(t, x, y))
+
+
+# ----------------------------------------------------------------------------
+# the lab loop: launches from release heights on a ramp, with a launch scatter
+# ----------------------------------------------------------------------------
+def speed_from_height(H):
+    """Entry speed (cm/s) of a solid ball released H cm above the entry level on a
+    loss-free ramp: (1 + k) v^2 / 2 = g H, v = sqrt(2 g~ H)."""
+    return float(np.sqrt(2.0 * G_TILDE * H))
+
+
+def scattered_launches(heights, mu, crr=0.0, seed=0, speed_rel=0.005, y_sd=0.1, vy_sd=0.5, t_max=15.0):
+    """One launch per release height, each with a launch scatter (the speed off by a
+    relative N(0, speed_rel), the entry point's y by N(0, y_sd) cm, its vy by N(0, vy_sd)
+    cm/s): [(H, v, y0, vy0, truth)]."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for H in heights:
+        v = speed_from_height(H) * (1.0 + rng.normal(0.0, speed_rel))
+        y0, vy0 = rng.normal(0.0, y_sd), rng.normal(0.0, vy_sd)
+        out.append((float(H), v, float(y0), float(vy0), run((START, y0, v, vy0), mu, t_max, crr=crr)))
+    return out
+
+
+def track_csv(truth, fps=125.0, noise=0.03, seed=0, t_end=None):
+    """The camera's track of a dense solution as ``t,x,y,sigma_x,sigma_y`` (the format
+    ``fabkit track`` writes): Gaussian noise of ``noise`` cm, its sigma in the columns;
+    filmed to ``t_end`` (default: the end of the solution, the escape or t_max)."""
+    t, x, y = frames(truth, fps=fps, noise=noise, seed=seed, t_end=t_end)
+    return "t,x,y,sigma_x,sigma_y\n" + "".join(f"{a:.6f},{b:.6f},{c:.6f},{noise:.3g},{noise:.3g}\n"
+                                                for a, b, c in zip(t, x, y))

@@ -186,3 +186,28 @@ def test_analyze_reads_a_launch_exported_in_metres_and_ms(cli, tmp_path):
     r = json.loads(out)["tracks"][0]
     assert r["kind"] == "launch" and abs(r["v_in"] / 47.5 - 1) < 0.02
     assert abs(r["accel_ratio"] - 1) < 0.1 and "units converted" in r["notes"][0]
+
+
+def test_sigma_columns_read_mapped_and_weighted(tmp_path):
+    """``t,x,y,sigma_x,sigma_y`` (what ``fabkit track`` writes): the sigmas come in the
+    positions' unit through the video map (scale, and a rotation of 90 degrees swaps them
+    exactly); a blank sigma is the track's median; the weights are median / sigma; a
+    negative sigma is refused naming the line."""
+    p = tmp_path / "s.csv"
+    p.write_text("t,x,y,sigma_x,sigma_y\n0,1,2,0.1,0.3\n0.01,1,2,0.2,0.3\n0.02,1,2,,0.3\n0.03,,,,\n"
+                 "0.04,1,2,0.4,0.6\n" + "".join(f"{0.05 + i / 100:.2f},1,2,0.2,0.3\n" for i in range(10)))
+    tr = read_track(p)
+    assert tr.skipped_rows == 1 and len(tr) == 14
+    np.testing.assert_array_equal(tr.sigma_x[[0, 1, 3]], [0.1, 0.2, 0.4])
+    wx, wy = tr.weights()
+    assert wx[2] == 1.0 and wx[0] == 2.0 and wx[3] == 0.5 and wy[3] == 0.5     # median 0.2 and 0.3
+    tr = read_track(p, video=VideoMap(scale=0.5, rotate=90.0))
+    np.testing.assert_allclose(tr.sigma_x[0], 0.5 * 0.3, rtol=1e-12)
+    np.testing.assert_allclose(tr.sigma_y[0], 0.5 * 0.1, rtol=1e-12)
+    p2 = tmp_path / "plain.csv"
+    p2.write_text("t,x,y\n" + "".join(f"{i / 100},{i},0\n" for i in range(14)))
+    assert read_track(p2).sigma_x is None and np.all(read_track(p2).weights()[0] == 1.0)
+    p.write_text("t,x,y,sigma_x,sigma_y\n0,1,2,0.1,0.3\n0.01,1,2,-0.2,0.3\n"
+                 + "".join(f"{0.02 + i / 100:.2f},1,2,0.2,0.3\n" for i in range(12)))
+    with pytest.raises(SpecError, match="line 3.*sigma_x"):
+        read_track(p)

@@ -1,29 +1,38 @@
-"""Bounded least-squares fits of the model to tracks: the integration of lanes of the
-spec's model (:func:`model_solve`), the budget the fits of one track share, and a
-Levenberg-Marquardt driver that keeps its best point when the budget runs out.
+"""The lab stage's fitting machinery: bounded least-squares fits of the model to tracks: the integration of lanes of the
+spec's model on the compiled engine (:func:`model_solve`), the budget the fits of one
+track share, and a bounded Levenberg-Marquardt driver (:func:`least_squares_bounded`).
 
-Budgets, stated up front: the fits of one track stop after TRACK_BUDGET_S s of wall
-time or MAX_MODEL_RUNS model runs (each residual or Jacobian is one run), one
-integration after MAX_RHS_CALLS evaluations of the model (a stiff or runaway trial: a
-damping of 1e6 1/s, a state far off the surface). What ran out is reported by the
-caller (:mod:`fabkit.lab.analyze`: the track's ``fit_status`` and its notes).
+Budgets count work, never seconds, so the same tracks give the same fit on any
+machine at any load: the fits of one track stop after MAX_MODEL_RUNS model runs (each
+residual or Jacobian is one run), one integration after MAX_STEPS steps (a stiff or
+runaway trial: a damping of 1e6 1/s, a state far off the surface). What ran out is
+reported by the caller (the track's ``fit_status`` and its notes); a fit that did not
+converge is reported as not fitted (:func:`least_squares_bounded`'s status).
+
+Integration: :func:`fabkit.physics.engine.fit.frames` (DOP853 with scipy's step control,
+rtol FIT_RTOL; every lane of one call takes the same steps, each step ends on the next
+frame time). Jacobians: central differences between lanes of one call (the lanes share
+their steps, so a difference is the derivative of one discrete map: no step-control
+noise), steps STATE_STEP max(1, |p|) for a start value and COEF_STEP max(|q|, floor) for
+a loss coefficient (floors COEF_FLOOR); their truncation error is O(step^2), about 1e-9
+of the derivative's scale, and their rounding error about 1e-16 |x| / step.
 """
 
 from __future__ import annotations
 
 import math
-import time
 
 import numpy as np
 
 FIT_RTOL = 1e-8
-#: budgets of the iterative work, stated up front: the fits of one track stop after
-#: TRACK_BUDGET_S s of wall time, one integration after MAX_RHS_CALLS evaluations of the
-#: model (a stiff or runaway trial: a damping of 1e6 1/s, a state far off the surface);
-#: what ran out is reported in the track's ``fit_status`` and its notes
-TRACK_BUDGET_S = 60.0
-MAX_RHS_CALLS = 200_000
-MAX_MODEL_RUNS = 500  # model runs (residuals and jacobians) of all the fits of one track
+#: budgets of the iterative work, stated up front: model runs (residuals and Jacobians)
+#: of all the fits of one track; steps of one integration
+MAX_MODEL_RUNS = 2000
+MAX_STEPS = 200_000
+#: central-difference steps of the Jacobians (module doc)
+STATE_STEP = 1e-5
+COEF_STEP = 1e-3
+COEF_FLOOR = {"damping": 1e-2, "rolling_resistance": 1e-4}
 
 
 class FitStopped(Exception):
@@ -36,73 +45,137 @@ class FitStopped(Exception):
 
 
 class Budget:
-    """The budget shared by the fits of one track: TRACK_BUDGET_S s of wall time and
-    MAX_MODEL_RUNS runs of the model (each residual or jacobian of a fit is one run)."""
+    """The budget shared by the fits of one track: MAX_MODEL_RUNS runs of the model (each
+    residual or Jacobian of a fit is one run). No clock: the same work on any machine."""
 
-    def __init__(self, seconds: float | None = None, runs: int | None = None):
-        self.seconds = float(TRACK_BUDGET_S if seconds is None else seconds)
+    def __init__(self, runs: int | None = None):
         self.runs_max = int(MAX_MODEL_RUNS if runs is None else runs)
-        self.deadline = time.perf_counter() + self.seconds
         self.runs = 0
         self.stopped: list[str] = []
 
-    def check(self) -> None:
-        if time.perf_counter() > self.deadline:
-            raise FitStopped(f"the fits' time budget ({self.seconds:g} s a track) ran out")
-
     def count_run(self) -> None:
-        self.check()
         self.runs += 1
         if self.runs > self.runs_max:
             raise FitStopped(f"the fits' budget of {self.runs_max} model runs a track ran out")
 
-    @property
-    def left(self) -> float:
-        return self.deadline - time.perf_counter()
 
+def least_squares_bounded(fun, jac, p0, budget, lower=None, xtol: float = 1e-10, ftol: float = 1e-10,
+                          max_nfev: int = 100):
+    """Bounded Levenberg-Marquardt (Marquardt's scaled damping, the bound by an active
+    set): minimise |fun(p)|^2 with p >= ``lower`` (-inf where None), at most ``max_nfev``
+    residual evaluations, each residual and Jacobian counted on ``budget``.
 
-def least_squares_bounded(fun, jac, p0, budget, **kw):
-    """scipy's least_squares (Levenberg-Marquardt), bounded: ``max_nfev`` evaluations
-    (in ``kw``) and the track's ``budget``. Returns (x, residuals, jacobian or None,
-    nfev, status): status "converged", "evaluations" (max_nfev reached), or the reason
-    a :class:`FitStopped` ended it (then x is the best point evaluated, no jacobian).
+    Each iteration solves (J^T J + lam diag(J^T J)) dp = -J^T r over the free
+    parameters (a parameter on its bound whose gradient pushes it further is held
+    there), in Jacobi-scaled form (columns of unit norm); a step that lowers the
+    cost is taken (lam / 3), one that does not raises lam 4x. Converged: a trial step
+    changes the cost by less than ``ftol`` of it (either way: rounding), or a taken
+    step's scaled size is below ``xtol`` times the scaled parameters, or the projected
+    gradient vanishes (its largest cosine with the
+    residual below 1e-12). Linear algebra on n x n matrices only (J^T J): the cost of
+    an iteration is one product J^T J, whatever the number of residuals.
+
+    Returns (x, residuals, jacobian or None, nfev, status): status "converged",
+    "evaluations" (max_nfev reached), or the reason a :class:`FitStopped` ended it
+    (then x is the best point evaluated, no jacobian). Only "converged" is a fit.
     Raises FitStopped if not even the first point could be evaluated."""
-    from scipy.optimize import least_squares
-
-    best = {"cost": math.inf, "x": None, "r": None, "n": 0}
+    x = np.asarray(p0, dtype=float).copy()
+    n = x.size
+    lo = np.full(n, -np.inf) if lower is None else np.asarray(lower, dtype=float)
+    low = np.isfinite(lo) & (x <= lo)
+    x[low] = lo[low] + 1e-6 * np.maximum(1.0, np.abs(lo[low]))     # start strictly inside
+    state = {"nfev": 0}
 
     def f(p):
         if budget is not None:
             budget.count_run()
-        r = fun(p)
-        best["n"] += 1
-        c = float(r @ r)
-        if not math.isfinite(c):
+        r = np.asarray(fun(p), dtype=float)
+        state["nfev"] += 1
+        if not np.all(np.isfinite(r)):
             raise FitStopped("the model left the surface's finite values")
-        if c < best["cost"]:
-            best.update(cost=c, x=np.array(p, dtype=float), r=np.array(r))
         return r
 
-    def J(p):
+    def J_of(p):
         if budget is not None:
             budget.count_run()
-        out = jac(p)
+        out = np.asarray(jac(p), dtype=float)
         if not np.all(np.isfinite(out)):
             raise FitStopped("the model left the surface's finite values")
         return out
 
+    r = f(x)                        # raises: not even the first point
+    cost = float(r @ r)
+    J = None
+    lam = 1e-3
+    status = "evaluations"
     try:
-        res = least_squares(f, p0, jac=J, method="lm", **kw)
+        J = J_of(x)
+        while state["nfev"] < max_nfev:
+            g = J.T @ r
+            A = J.T @ J
+            free = ~(np.isfinite(lo) & (x <= lo) & (g > 0))
+            d = np.sqrt(np.maximum(np.diag(A), 0.0))
+            d[d == 0] = 1.0
+            As = A / np.outer(d, d)
+            gs = g / d
+            # the projected gradient's largest cosine with the residual (MINPACK's gtol)
+            if cost == 0 or np.max(np.abs(gs[free])) <= 1e-12 * math.sqrt(cost):
+                status = "converged"
+                break
+            fi = np.flatnonzero(free)
+            M = As[np.ix_(fi, fi)] + lam * np.eye(fi.size)
+            try:
+                step_s = np.linalg.solve(M, -gs[fi])
+            except np.linalg.LinAlgError:
+                lam *= 4.0
+                continue
+            dp = np.zeros(n)
+            dp[fi] = step_s / d[fi]
+            x_new = np.maximum(x + dp, lo)
+            try:
+                r_new = f(x_new)
+            except FitStopped as exc:
+                if "budget" in exc.reason:
+                    raise
+                lam *= 4.0          # a trial the model cannot follow: a shorter step
+                continue
+            cost_new = float(r_new @ r_new)
+            if abs(cost - cost_new) <= ftol * cost:
+                # the cost no longer changes beyond ftol (rounding): a minimum
+                if cost_new < cost:
+                    x, r, cost = x_new, r_new, cost_new
+                    J = J_of(x)
+                status = "converged"
+                break
+            if cost_new < cost:
+                small = np.linalg.norm((x_new - x) * d) <= xtol * (xtol + np.linalg.norm(x * d))
+                x, r, cost = x_new, r_new, cost_new
+                J = J_of(x)
+                lam = max(lam / 3.0, 1e-12)
+                if small:
+                    status = "converged"
+                    break
+            else:
+                lam *= 4.0
+                if lam > 1e16:      # no step lowers the cost: a minimum to rounding
+                    status = "converged"
+                    break
     except FitStopped as exc:
-        if best["x"] is None:
-            raise
         if budget is not None:
             budget.stopped.append(exc.reason)
-        return best["x"], best["r"], None, best["n"], exc.reason
-    status = "converged" if res.status > 0 else "evaluations"
+        return x, r, None, state["nfev"], exc.reason
     if status != "converged" and budget is not None:
-        budget.stopped.append(f"the fit stopped after {res.nfev} evaluations without converging")
-    return res.x, res.fun, res.jac, res.nfev, status
+        budget.stopped.append(f"the fit stopped after {state['nfev']} evaluations without converging")
+    return x, r, J, state["nfev"], status
+
+
+def central_jacobian(run, p, steps) -> np.ndarray:
+    """d r / d p by central differences, all 2 len(p) perturbed lanes in ONE run (they
+    share their steps): ``run(P)`` (lanes, N) for parameter rows P (lanes, len(p))."""
+    n = p.size
+    P = np.vstack([p + np.eye(n)[j] * steps[j] for j in range(n)] + [p - np.eye(n)[j] * steps[j] for j in range(n)])
+    Y = run(P)
+    return ((Y[:n] - Y[n:]) / (2.0 * np.asarray(steps))[:, None]).T
 
 
 def covariance_errors(jac, r, n_par):
@@ -120,67 +193,45 @@ def covariance_errors(jac, r, n_par):
 
 
 # ----------------------------------------------------------------------------
-# model integration (for the fits): the spec's right-hand side, damping per lane
+# model integration (for the fits): lanes on the compiled engine
 # ----------------------------------------------------------------------------
-def _count(calls: list, budget) -> None:
-    """One evaluation of a fit's right-hand side: FitStopped past MAX_RHS_CALLS in one
-    integration, and the fit's budget checked every 64 evaluations."""
-    calls[0] += 1
-    if calls[0] > MAX_RHS_CALLS:
-        raise FitStopped(f"an integration of the model took more than {MAX_RHS_CALLS} evaluations "
-                         "(a stiff trial: the fit wandered far from the track)")
-    if budget is not None and calls[0] % 64 == 0:
-        budget.check()
-
-
 def model_solve(problem, S0: np.ndarray, mu: np.ndarray, t0: float, t_eval: np.ndarray,
-                rtol: float = FIT_RTOL, dense: bool = False, budget: Budget | None = None, crr=None):
-    """Integrate lanes of the spec's model from t0: S0 (4, m) states (the ball: (5, m), see
-    :func:`_ball_solve`), mu (m,) viscous damping,
-    ``crr`` (m,) rolling resistance (None: the spec's; models.py's module doc, the same
-    terms as :func:`fabkit.physics.models.rolling_coefficient`).
+                rtol: float = FIT_RTOL, budget: Budget | None = None, crr=None, derivatives: bool = False):
+    """Integrate lanes of the spec's model from t0 to the times ``t_eval`` (monotonic,
+    forward or backward) on the compiled engine: S0 (4, m) states (x, y, xd, yd; the
+    ball's (5, m): the contact point, its velocity and the spin u), mu (m,) viscous
+    damping, ``crr`` (m,) rolling resistance (None: the spec's); the spec's nonlinear
+    damping as the model has it. Returns Y (4, m, len(t_eval)): what a camera sees,
+    (x, y, xd, yd) of a point, the centre's (X, Y, VX, VY) of the ball
+    (:func:`centre_of`); with ``derivatives`` also (state, d state / dt) of the model
+    (m, len(t_eval), NV). Raises :class:`FitStopped` after MAX_STEPS steps or where
+    the model leaves the surface's finite values. ``budget`` is counted by the
+    fits (a run each residual or Jacobian), not here."""
+    from ..physics.engine.fit import frames
 
-    The conservative part (and any nonlinear damping) is ``models.rhs`` of the problem
-    with its viscous damping set to 0; -mu v is added per lane, exactly as the model
-    adds it. Returns (Y (4, m, len(t_eval)), sol). Raises :class:`FitStopped` after
-    MAX_RHS_CALLS evaluations, when ``budget`` runs out, or when the integration fails."""
-    from scipy.integrate import solve_ivp
-
-    from ..physics.models import fused
-
-    from ..physics.models import rolling_coefficient
-
+    ns = state_size(problem)
+    S0 = np.asarray(S0, dtype=float)
     m = S0.shape[1]
     mu = np.asarray(mu, dtype=float).reshape(m)
     crr = np.full(m, float(problem.rolling_resistance)) if crr is None else \
         np.asarray(crr, dtype=float).reshape(m)
+    t_eval = np.asarray(t_eval, dtype=float)
+    scale = max(1.0, float(np.max(np.abs(S0[:4]))))
+    Y, dY, status, steps, _ = frames(problem, S0[:ns].T, mu, crr, float(t0), t_eval, rtol=rtol,
+                                     atol=rtol * scale, max_steps=MAX_STEPS)
+    if status == 1:
+        raise FitStopped(f"an integration of the model took more than {MAX_STEPS} steps "
+                         "(a stiff trial: the fit wandered far from the track)")
+    if status != 0:
+        raise FitStopped("the model cannot follow this track (it left the surface's finite values)")
     if problem.model == "ball":
-        return _ball_solve(problem, S0, mu, crr, t0, t_eval, rtol, dense, budget)
-    rolling = bool(np.any(crr != 0))
-    p1 = problem.with_(rolling_resistance=1.0)
-    fn = fused(problem.with_(damping=0.0, rolling_resistance=0.0))   # the model's generated right-hand side
-    d = np.empty((4, m))
-    calls = [0]
-
-    def f(t, Yf):
-        _count(calls, budget)
-        S = Yf.reshape(4, m)
-        ax, ay, _, hx, hy, B, _ = fn(S[0], S[1], S[2], S[3])
-        d[0], d[1] = S[2], S[3]
-        c = -mu
-        if rolling:
-            c = c + crr * rolling_coefficient(p1, S[2], S[3], hx, hy, B)
-        d[2] = ax + c * S[2]
-        d[3] = ay + c * S[3]
-        return d.ravel().copy()
-
-    scale = max(1.0, float(np.max(np.abs(S0))))
-    with np.errstate(all="ignore"):
-        sol = solve_ivp(f, (t0, float(t_eval[-1])), S0.ravel(), method="DOP853", rtol=rtol,
-                        atol=rtol * scale, t_eval=t_eval, dense_output=dense)
-    if sol.status != 0 or sol.y.shape[1] != len(t_eval) or not np.all(np.isfinite(sol.y)):
-        raise FitStopped(f"the model cannot follow this track ({sol.message})")
-    return sol.y.reshape(4, m, len(t_eval)), sol
+        with np.errstate(all="ignore"):
+            out = np.stack(centre_of(problem, Y[:, :, 0], Y[:, :, 1], Y[:, :, 2], Y[:, :, 3]))
+        if not np.all(np.isfinite(out)):
+            raise FitStopped("the model left the surface's finite values")
+    else:
+        out = np.moveaxis(Y[:, :, :4], 2, 0)
+    return (out, Y, dY) if derivatives else out
 
 
 # ----------------------------------------------------------------------------
@@ -248,38 +299,3 @@ def contact_of(problem, X, Y, VX=None, VY=None):
             xd, yd = ball.contact_velocity(geo, np.asarray(VX, dtype=float), np.asarray(VY, dtype=float))
             return x, y, xd, yd
     raise ValueError("no contact point under this centre (off the surface, or where the ball bridges)")
-
-
-def _ball_solve(problem, S0, mu, crr, t0, t_eval, rtol, dense, budget):
-    """:func:`model_solve` of the ball (fabkit.physics.ball.evaluate, each lane with its
-    own mu and c_rr): S0 (5, m) = the contact point (x, y), its velocity (xd, yd) and the
-    spin u; returns Y (4, m, len(t_eval)) of what a camera sees, the centre's (X, Y, VX,
-    VY) (:func:`centre_of`), and the solution of the contact state (``sol``)."""
-    from scipy.integrate import solve_ivp
-
-    from ..physics import ball
-
-    m = S0.shape[1]
-    P = ball.Params.of(problem)
-    P.mu, P.c_rr = mu, crr
-    jet = ball.jet_function(problem.fns)
-    calls = [0]
-
-    def f(t, Yf):
-        _count(calls, budget)
-        S = Yf.reshape(5, m)
-        ev = ball.evaluate(jet(S[0], S[1]), S[2], S[3], S[4], P, contact=False)
-        return np.concatenate([S[2], S[3], ev["xdd"], ev["ydd"], ev["ud"]])
-
-    scale = max(1.0, float(np.max(np.abs(S0[:4]))))
-    with np.errstate(all="ignore"):
-        sol = solve_ivp(f, (t0, float(t_eval[-1])), np.asarray(S0, dtype=float).ravel(), method="DOP853",
-                        rtol=rtol, atol=rtol * scale, t_eval=t_eval, dense_output=dense)
-    if sol.status != 0 or sol.y.shape[1] != len(t_eval) or not np.all(np.isfinite(sol.y)):
-        raise FitStopped(f"the model cannot follow this track ({sol.message})")
-    S = sol.y.reshape(5, m, len(t_eval))
-    with np.errstate(all="ignore"):
-        out = np.stack(centre_of(problem, S[0], S[1], S[2], S[3]))
-    if not np.all(np.isfinite(out)):
-        raise FitStopped("the model left the surface's finite values")
-    return out, sol

@@ -1,4 +1,5 @@
-"""Which loss law the tracks support: viscous damping, rolling resistance, or both.
+"""The lab stage's loss laws: which one the tracks support, viscous damping, rolling
+resistance, or both.
 
 Pure functions on tracks and the spec's :class:`models.Problem`; no printing, no files.
 
@@ -9,11 +10,14 @@ models.py and ball.py):
 * ``rolling``: a force c_rr N opposing v (``ball.rolling_resistance`` = c_rr);
 * ``both``: the two together.
 
-Each law is fitted by least squares (Levenberg-Marquardt, Jacobian by finite differences
-with all perturbed lanes in one integration) to every segment at once: each release
+Each law is fitted by least squares (scipy's trust region reflective, every coefficient
+bounded at zero; Jacobian by central differences between lanes of one integration on
+the compiled engine, :mod:`fabkit.lab.fitting`) to every segment at once: each release
 track whole, and each launch's legs before its first bounce and after its last (the
 segments :func:`fabkit.lab.analyze.analyze` fitted), each segment with its own state
-(x, y, xd, yd; the ball's adds its spin u) at its anchor frame and the law's coefficients shared by all. The laws
+(x, y, xd, yd; the ball's adds its spin u) at its anchor frame and the law's coefficients shared by all;
+each frame weighted by the tracker's sigma relative to its track's median (1 without
+sigma columns). The laws
 are compared by the Bayesian information criterion of Gaussian residuals of unknown
 variance,
 
@@ -25,6 +29,10 @@ the difference to the next (Kass & Raftery: above 10 very strong, 6-10 strong, 2
 positive, below 2 not worth more than a mention) says how strongly. AIC (N ln(RSS/N)
 + 2 p) is reported beside it. Errors: one standard deviation from the fit's covariance
 (J^T J)^-1 RSS / (N - p).
+
+Only a law whose fit converged (with finite error bars) is fitted: a law that ran out of
+its budget (model runs, never seconds) or whose covariance is singular is reported with
+its status and no coefficients, never ranked, never written by ``analyze -o``.
 """
 
 from __future__ import annotations
@@ -39,7 +47,9 @@ LAWS = {"viscous": ("damping",), "rolling": ("rolling_resistance",), "both": ("d
 CRITERION = "BIC"
 #: Kass & Raftery's scale for a BIC difference
 EVIDENCE = ((10.0, "very strong"), (6.0, "strong"), (2.0, "positive"), (0.0, "not worth more than a mention"))
-FIT_MAX_NFEV = 40
+FIT_MAX_NFEV = 100
+#: the evidence when every other law's fit did not converge (nothing to compare with)
+ONLY_LAW = "the only law fitted"
 
 
 @dataclass
@@ -53,6 +63,13 @@ class Segment:
     x: np.ndarray
     y: np.ndarray
     state: np.ndarray
+    wx: np.ndarray | None = None     # the frames' weights (Track.weights), None: 1
+    wy: np.ndarray | None = None
+
+    def weights(self) -> np.ndarray:
+        """The residuals' weights, x then y."""
+        n = self.t.size
+        return np.concatenate([np.ones(n) if self.wx is None else self.wx, np.ones(n) if self.wy is None else self.wy])
 
     @property
     def t0(self) -> float:
@@ -72,6 +89,12 @@ class LawFit:
     status: str
     rms: float
     segment_rms: list = field(default_factory=list)
+    states: np.ndarray | None = None      # (segments, state size): the fitted starts
+
+    @property
+    def fitted(self) -> bool:
+        """The fit converged with finite error bars: only such a law is ranked or written."""
+        return self.status == "converged"
 
     @property
     def bic(self) -> float:
@@ -82,27 +105,32 @@ class LawFit:
         return self.n * math.log(self.rss / self.n) + 2.0 * self.p
 
     def to_json(self) -> dict:
-        return {"coefficients": self.coefficients, "errors": self.errors, "rss": self.rss, "residuals": self.n,
-                "parameters": self.p, "residual_rms": self.rms, "bic": self.bic, "aic": self.aic,
+        """The law's result; a law not fitted has no coefficients, errors or criteria (None)."""
+        ok = self.fitted
+        return {"coefficients": self.coefficients if ok else None, "errors": self.errors if ok else None,
+                "rss": self.rss, "residuals": self.n, "parameters": self.p, "residual_rms": self.rms,
+                "bic": self.bic if ok else None, "aic": self.aic if ok else None,
                 "fit_status": self.status, "segment_rms": self.segment_rms}
 
 
 def segments_of(tracks, rows) -> list[Segment]:
     """The segments of analyzed tracks (``rows`` from :func:`fabkit.lab.analyze.analyze`):
     releases whole from their fitted initial state, launches' legs from their fitted
-    states (the exit leg backward from its last frame)."""
+    states (the exit leg backward from its last frame); only fits that converged."""
     out = []
     for tr, r in zip(tracks, rows):
         if r.get("kind") == "release" and r.get("initial_state"):
             s = r["initial_state"]
             st = np.array([s[k] for k in ("x", "y", "vx", "vy", "u") if k in s], dtype=float)
             if np.all(np.isfinite(st)):
-                out.append(Segment(tr.file, "release", tr.t, tr.x, tr.y, st))
+                wx, wy = tr.weights()
+                out.append(Segment(tr.file, "release", tr.t, tr.x, tr.y, st, wx, wy))
         elif r.get("kind") == "launch":
             bt = r.get("bounce_times") or []
             for key, what in (("entry_fit", "entry leg"), ("exit_fit", "exit leg")):
                 leg = r.get(key)
-                if not leg or not np.all(np.isfinite(leg["state"])):
+                if not leg or leg.get("fit_status", "converged") != "converged" or leg["state"] is None \
+                        or not np.all(np.isfinite(leg["state"])):
                     continue
                 if what == "entry leg":
                     sel = tr.t <= (bt[0] if bt else tr.t[0] + 1.0)
@@ -111,7 +139,9 @@ def segments_of(tracks, rows) -> list[Segment]:
                     sl = np.flatnonzero(tr.t >= bt[-1])[::-1]
                 if sl.size < 8:
                     continue
-                out.append(Segment(tr.file, what, tr.t[sl], tr.x[sl], tr.y[sl], np.asarray(leg["state"], float)))
+                wx, wy = tr.weights()
+                out.append(Segment(tr.file, what, tr.t[sl], tr.x[sl], tr.y[sl], np.asarray(leg["state"], float),
+                                   wx[sl], wy[sl]))
     return out
 
 
@@ -123,22 +153,29 @@ def _law_vectors(law: str, q: np.ndarray, m: int):
     return mu, crr
 
 
-def fit_law(problem, segments: list[Segment], law: str, q0, budget=None) -> LawFit:
-    """Least squares of every segment's state and the law's shared coefficients (module doc)."""
-    from .fitting import FIT_RTOL, covariance_errors, least_squares_bounded, model_solve, state_size
+def fit_law(problem, segments: list[Segment], law: str, q0, budget=None, states=None) -> LawFit:
+    """Least squares of every segment's state and the law's shared coefficients, each
+    coefficient bounded at zero (module doc); ``states`` (segments, state size): the
+    starts (default: each segment's own fitted state)."""
+    from .fitting import (COEF_FLOOR, COEF_STEP, FIT_RTOL, STATE_STEP, central_jacobian, covariance_errors,
+                          least_squares_bounded, model_solve, state_size)
 
-    nl = len(LAWS[law])
+    names = LAWS[law]
+    nl = len(names)
     ns = state_size(problem)
     S = len(segments)
-    data = np.concatenate([np.concatenate([s.x, s.y]) for s in segments])
-    p0 = np.concatenate([np.concatenate([s.state for s in segments]), np.asarray(q0, dtype=float)])
+    W = [s.weights() for s in segments]
+    data = np.concatenate([np.concatenate([s.x, s.y]) * w for s, w in zip(segments, W)])
+    st0 = np.concatenate([s.state for s in segments]) if states is None else np.ravel(states)
+    p0 = np.concatenate([st0, np.asarray(q0, dtype=float)])
+    lower = np.concatenate([np.full(ns * S, -np.inf), np.zeros(nl)])
 
     def lanes(seg_i, P):
-        """x, y of segment seg_i for each row of P (lanes, 4 + nl): (lanes, 2 n)."""
+        """x, y of segment seg_i for each row of P (lanes, ns + nl): (lanes, 2 n)."""
         seg = segments[seg_i]
         mu, crr = _law_vectors(law, P[:, ns:], P.shape[0])
-        Y, _ = model_solve(problem, P[:, :ns].T.copy(), mu, seg.t0, seg.t, rtol=FIT_RTOL, budget=budget, crr=crr)
-        return np.concatenate([Y[0], Y[1]], axis=1)
+        Y = model_solve(problem, P[:, :ns].T, mu, seg.t0, seg.t, rtol=FIT_RTOL, crr=crr)
+        return np.concatenate([Y[0], Y[1]], axis=1) * W[seg_i]
 
     def split(p):
         return p[:ns * S].reshape(S, ns), p[ns * S:]
@@ -153,26 +190,27 @@ def fit_law(problem, segments: list[Segment], law: str, q0, budget=None) -> LawF
         row = 0
         for i, seg in enumerate(segments):
             base = np.concatenate([st[i], q])
-            h = 1e-5 * np.maximum(1.0, np.abs(base))
-            h[ns:] = 1e-6 * np.maximum(1e-2, np.abs(base[ns:]))
-            P = np.vstack([base] + [base + np.eye(base.size)[j] * h[j] for j in range(base.size)])
-            Y = lanes(i, P)
-            D = (Y[1:] - Y[0]) / h[:, None]            # (ns + nl, 2 n)
-            n2 = Y.shape[1]
-            J[row:row + n2, ns * i:ns * i + ns] = D[:ns].T
-            J[row:row + n2, ns * S:] = D[ns:].T
+            h = STATE_STEP * np.maximum(1.0, np.abs(base))
+            for j, nm in enumerate(names):
+                h[ns + j] = COEF_STEP * max(abs(float(base[ns + j])), COEF_FLOOR[nm])
+            D = central_jacobian(lambda P: lanes(i, P), base, h)     # (2 n, ns + nl)
+            n2 = D.shape[0]
+            J[row:row + n2, ns * i:ns * i + ns] = D[:, :ns]
+            J[row:row + n2, ns * S:] = D[:, ns:]
             row += n2
         return J
 
-    x, r, J, nfev, status = least_squares_bounded(fun, jac, p0, budget, xtol=1e-10, max_nfev=FIT_MAX_NFEV)
+    x, r, J, nfev, status = least_squares_bounded(fun, jac, p0, budget, lower=lower, xtol=1e-10,
+                                                  max_nfev=FIT_MAX_NFEV)
     err = covariance_errors(J, r, p0.size)
-    names = LAWS[law]
     q = x[ns * S:]
     coef = {"damping": 0.0, "rolling_resistance": 0.0}
     errs = {"damping": 0.0, "rolling_resistance": 0.0}
     for j, nm in enumerate(names):
         coef[nm] = float(q[j])
         errs[nm] = float(err[ns * S + j])
+    if status == "converged" and not all(math.isfinite(errs[nm]) for nm in names):
+        status = "the fit's covariance is singular (no error bars)"
     seg_rms, row = [], 0
     for seg in segments:
         n2 = 2 * seg.t.size
@@ -180,15 +218,19 @@ def fit_law(problem, segments: list[Segment], law: str, q0, budget=None) -> LawF
                         "rms": float(math.sqrt(float(r[row:row + n2] @ r[row:row + n2]) / n2))})
         row += n2
     rss = float(r @ r)
-    return LawFit(law, coef, errs, rss, int(r.size), int(p0.size), status, math.sqrt(rss / r.size), seg_rms)
+    return LawFit(law, coef, errs, rss, int(r.size), int(p0.size), status, math.sqrt(rss / r.size), seg_rms,
+                  x[:ns * S].reshape(S, ns))
 
 
 def compare_laws(problem, segments: list[Segment], mu0: float, budget_factory=None) -> dict | None:
     """Every law of :data:`LAWS` fitted to the segments and compared by BIC (module
     doc): {"criterion", "chosen", "evidence", "delta_bic", "laws": {law: LawFit.to_json()}};
     None without segments. ``mu0``: the viscous damping's start (the releases' fit or the
-    spec's); the rolling resistance starts where it removes the same power at the
-    segments' mean speed: c_rr = mu0 v_mean / g~."""
+    spec's). The viscous law is fitted first; the rolling law starts from its fitted
+    states with the c_rr that removes the same power at the segments' median speed
+    (c_rr = mu v_median / g~), ``both`` from the viscous optimum and from the rolling
+    one, keeping the lower cost (each start is deterministic: the same tracks, the same
+    fits)."""
     from .fitting import Budget, FitStopped
 
     if not segments:
@@ -197,24 +239,64 @@ def compare_laws(problem, segments: list[Segment], mu0: float, budget_factory=No
     vmean = float(np.median(v)) if v.size else 10.0
     mu0 = float(mu0) if math.isfinite(mu0) and mu0 > 1e-3 else 0.1
     vmean = vmean if math.isfinite(vmean) and vmean > 0 else 10.0
-    c0 = mu0 * vmean / problem.g_tilde
-    starts = {"viscous": [mu0], "rolling": [c0], "both": [0.5 * mu0, 0.5 * c0]}
+    gt = problem.g_tilde
     fits: dict[str, LawFit] = {}
     stopped = {}
-    for law in LAWS:
+
+    def fit(law, q0, states=None):
         budget = budget_factory() if budget_factory else Budget()
         try:
-            fits[law] = fit_law(problem, segments, law, starts[law], budget)
+            return fit_law(problem, segments, law, q0, budget, states)
         except FitStopped as exc:
             stopped[law] = exc.reason
+            return None
+
+    # viscous first, from the segments' own fits; the other laws start from its fitted
+    # states, with the rolling resistance that removes the same power at the median speed
+    # (c_rr = mu v / g~), and `both` from the better of the two single laws' optima
+    v = fit("viscous", [mu0])
+    if v is not None:
+        fits["viscous"] = v
+    ok_v = v is not None and v.fitted
+    mu_v = v.coefficients["damping"] if ok_v else mu0
+    st_v = v.states if ok_v else None
+    c0 = max(mu_v, 1e-3) * vmean / gt
+    r = fit("rolling", [c0], st_v)
+    if r is not None:
+        fits["rolling"] = r
+    ok_r = r is not None and r.fitted
+    starts = [([mu_v, 1e-3 * c0], st_v)]
+    if ok_r:
+        starts.append(([1e-3 * max(mu_v, 1e-3), r.coefficients["rolling_resistance"]], r.states))
+    if not ok_v and not ok_r:
+        starts = [([0.5 * mu0, 0.5 * c0], None)]
+    best = None
+    for q0, st in starts:
+        b = fit("both", q0, st)
+        if b is not None and (best is None or (b.fitted, -b.rss) > (best.fitted, -best.rss)):
+            best = b
+    if best is not None:
+        fits["both"] = best
+        if best.fitted:
+            stopped.pop("both", None)
     if not fits:
         return {"criterion": CRITERION, "chosen": None, "laws": {}, "stopped": stopped,
                 "segments": [f"{s.file}: {s.what}" for s in segments]}
-    order = sorted(fits, key=lambda k: fits[k].bic)
+    for law, f in fits.items():
+        if not f.fitted:
+            stopped.setdefault(law, f.status)
+    order = sorted((k for k in fits if fits[k].fitted), key=lambda k: fits[k].bic)
+    if not order:
+        return {"criterion": CRITERION, "chosen": None, "evidence": None, "delta_bic": {},
+                "laws": {k: fits[k].to_json() for k in fits}, "stopped": stopped,
+                "segments": [f"{s.file}: {s.what}" for s in segments]}
     best = order[0]
     delta = {k: fits[k].bic - fits[best].bic for k in order}
-    gap = delta[order[1]] if len(order) > 1 else math.inf
-    strength = next(name for lim, name in EVIDENCE if gap >= lim)
+    if len(order) > 1:
+        gap = delta[order[1]]
+        strength = next(name for lim, name in EVIDENCE if gap >= lim)
+    else:
+        strength = ONLY_LAW
     return {"criterion": CRITERION, "chosen": best, "evidence": strength, "delta_bic": delta,
             "laws": {k: fits[k].to_json() for k in fits}, "stopped": stopped,
             "segments": [f"{s.file}: {s.what}" for s in segments]}

@@ -1,4 +1,5 @@
-"""Readers of tracked trajectories, and the map from video coordinates to the design's.
+"""The lab stage's tracks in: readers of tracked trajectories, and the map from video
+coordinates to the design's.
 
 Formats (detected from the first lines):
 
@@ -79,6 +80,11 @@ class VideoMap:
         return self == VideoMap()
 
 
+#: a frame's stated sigma is taken as at least this share of the track's median (a weight
+#: at most 10 times the median frame's)
+SIGMA_FLOOR = 0.1
+
+
 @dataclass
 class Track:
     """One tracked trajectory: t (N,) s increasing, x, y (N,) design units."""
@@ -92,9 +98,28 @@ class Track:
     particle: int | None = None
     skipped_rows: int = 0
     notes: list = field(default_factory=list)
+    #: the tracker's one-sigma of each x and y (design units; ``t,x,y,sigma_x,sigma_y``
+    #: files), None when the file has none
+    sigma_x: np.ndarray | None = None
+    sigma_y: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.t)
+
+    def weights(self) -> tuple[np.ndarray, np.ndarray]:
+        """Relative least-squares weights of x and y: median sigma / sigma per frame (a
+        frame's sigma floored at SIGMA_FLOOR of the median, a missing one the median), all
+        1 without sigma columns or with a constant sigma (the fits are then unweighted)."""
+        out = []
+        for s in (self.sigma_x, self.sigma_y):
+            if s is None:
+                out.append(np.ones(len(self.t)))
+                continue
+            ok = np.isfinite(s) & (s > 0)
+            med = float(np.median(s[ok])) if ok.any() else 1.0
+            ss = np.where(ok, np.maximum(s, SIGMA_FLOOR * med), med)
+            out.append(med / ss)
+        return out[0], out[1]
 
     @property
     def dt(self) -> float:
@@ -250,6 +275,8 @@ def read_track(path, *, fps: float | None = None, video: VideoMap | None = None,
     headers = [parse_header_cell(h) for h in _split(head, delim)]
     it, ix, iy = _col(headers, "t"), _col(headers, "x"), _col(headers, "y")
     iframe, ipart = _col(headers, "frame"), _col(headers, "particle")
+    isx, isy = _col(headers, "sigma_x"), _col(headers, "sigma_y")
+    has_sigma = isx is not None and isy is not None
     if ix is None or iy is None or (it is None and iframe is None):
         raise _bad(path, hline + 1, f"header {head.strip()[:80]!r}: need columns t, x, y (or frame, x, y; "
                    "units may be stated, as in Time (s), X (m); "
@@ -265,7 +292,7 @@ def read_track(path, *, fps: float | None = None, video: VideoMap | None = None,
         check_options(fps=fps)
     want = [iframe if use_frame else it, ix, iy] + ([ipart] if ipart is not None else [])
     names = ["frame" if use_frame else "t", "x", "y", "particle"]
-    rows, where, skipped = [], [], 0
+    rows, where, skipped, sig = [], [], 0, []
     for n, ln in enumerate(lines[hline + 1:], start=hline + 2):
         if not ln.strip():
             continue
@@ -287,6 +314,18 @@ def read_track(path, *, fps: float | None = None, video: VideoMap | None = None,
         if blank:
             skipped += 1
             continue
+        if has_sigma:       # a blank sigma: the track's median; a negative or non-number one refused
+            sv = []
+            for j, c in ((isx, "sigma_x"), (isy, "sigma_y")):
+                cell = cells[j] if j < len(cells) else ""
+                try:
+                    v = float(cell) if cell not in ("",) and cell.lower() not in ("nan", "na") else math.nan
+                except ValueError:
+                    raise _bad(path, n, f"{c}: not a number: {cell[:40]!r}") from None
+                if v < 0 or v == math.inf:
+                    raise _bad(path, n, f"{c}: {cell[:40]!r} is not a standard deviation (>= 0, finite)")
+                sv.append(v)
+            sig.append(sv)
         rows.append(vals)
         where.append(n)
     if not rows:
@@ -302,10 +341,14 @@ def read_track(path, *, fps: float | None = None, video: VideoMap | None = None,
             notes.append(f"{ids.size} particles; kept particle {particle:g} ({counts.max()} frames)")
         keep = a[:, 3] == particle
         a, where = a[keep], where[keep]
+        if sig:
+            sig = [v for v, k in zip(sig, keep) if k]
         particle = int(particle) if float(particle).is_integer() else particle
     if fmt == "trackpy":   # trackpy writes frames in any order
         order = np.argsort(a[:, 0], kind="stable")
         a, where = a[order], where[order]
+        if sig:
+            sig = [sig[i] for i in order]
     t = a[:, 0] / fps if use_frame else a[:, 0] * ft
     d = np.diff(t)
     if np.any(d <= 0):
@@ -326,8 +369,19 @@ def read_track(path, *, fps: float | None = None, video: VideoMap | None = None,
         i = int(np.flatnonzero(~(np.isfinite(x) & np.isfinite(y)))[0])
         raise _bad(path, int(where[i]), f"x, y = {a[i, 1]:g}, {a[i, 2]:g} map to a non-finite position "
                    f"(--scale, --origin)")
+    sx = sy = None
+    if has_sigma and sig:
+        S = np.asarray(sig, dtype=float)
+        # the sigmas in the positions' unit: the header's length factor, then the video map's scale
+        vm = video or VideoMap()
+        su = S[:, 0] * (fl[0] if fl[0] is not None else 1.0)
+        sv = S[:, 1] * (fl[1] if fl[1] is not None else 1.0)
+        c, sn = math.cos(math.radians(vm.rotate)), math.sin(math.radians(vm.rotate))
+        # independent errors of u and v through the rotation: the variances add
+        sx = vm.scale * np.sqrt((c * su) ** 2 + (sn * sv) ** 2)
+        sy = vm.scale * np.sqrt((sn * su) ** 2 + (c * sv) ** 2)
     return Track(file=str(path), t=t, x=x, y=y, format=fmt, name=name, particle=particle,
-                 skipped_rows=skipped, notes=notes)
+                 skipped_rows=skipped, notes=notes, sigma_x=sx, sigma_y=sy)
 
 
 def write_csv(track_t, x, y) -> str:

@@ -12,10 +12,36 @@ it needs exceeds ``ball.friction``.
 
 from __future__ import annotations
 
+from enum import StrEnum
+
 import numpy as np
 
+
+class Outcome(StrEnum):
+    """The outcome labels, in the order of their integer codes. A member is its label
+    (a ``str``: it compares, hashes and formats as the label); results and JSON carry
+    the plain label (``Outcome.X.value``)."""
+
+    ESCAPED = "escaped"
+    CAPTURED = "captured"
+    FLEW_OFF = "flew_off"
+    LOST_CONTACT = "lost_contact"
+    BRIDGED = "bridged"
+    SLIPPED = "slipped"
+
+    @property
+    def code(self) -> int:
+        """The integer outcome code of the simulator's results."""
+        return OUTCOMES.index(self.value)
+
+    @classmethod
+    def of(cls, code) -> "Outcome":
+        """The outcome of an integer code."""
+        return cls(OUTCOMES[int(code)])
+
+
 #: outcome names; the index is the integer outcome code of the simulator's results
-OUTCOMES = ("escaped", "captured", "flew_off", "lost_contact", "bridged", "slipped")
+OUTCOMES = tuple(o.value for o in Outcome)
 ESCAPED, CAPTURED, FLEW_OFF, LOST_CONTACT, BRIDGED, SLIPPED = range(6)
 #: outcomes where the ball leaves the modelled motion: a design with one is unsafe
 UNSAFE = (FLEW_OFF, LOST_CONTACT, BRIDGED, SLIPPED)
