@@ -20,8 +20,7 @@ import architecture as A  # noqa: E402
 
 #: waiting for another branch: the cycle and the long modules known when this was written
 KNOWN_CYCLES: set = set()   # none left: the ramp's profile lives in physics (fabkit.physics.ramp_profile)
-KNOWN_LONG = {"fabkit.toolpath.roughing", "fabkit.toolpath.rough.roughing",
-              "fabkit.lab.track"}     # the video branch grew it to 1091 lines: to split
+KNOWN_LONG: set = set()     # none left: roughing split (roughing_loops, roughing_rest), lab/track.py by concern
 
 
 @pytest.fixture(scope="module")
@@ -68,8 +67,6 @@ def test_no_new_module_over_1000_lines():
     assert set(A.long_modules()) <= KNOWN_LONG, set(A.long_modules()) - KNOWN_LONG
 
 
-@pytest.mark.xfail(strict=False, reason="toolpath/roughing.py (1112 lines) until the toolpath restructure splits "
-                                        "it (36); lab/track.py (1091 on the video branch)")
 def test_no_module_over_1000_lines():
     assert A.long_modules() == {}
 
