@@ -52,7 +52,7 @@ def specs(raw: dict, a) -> dict:
 
 
 def measure(raw: dict, name: str, machine_file, verify: bool) -> dict:
-    from fabkit.machine.profile import machine_from_spec
+    from fabkit.machine.profile import dialect_for_machine, machine_from_spec
     from fabkit.spec import validate
     from fabkit.surface import Surface
     from fabkit.toolpath.job import run_job
@@ -61,6 +61,8 @@ def measure(raw: dict, name: str, machine_file, verify: bool) -> dict:
     spec = validate(raw, f"{name}.yaml")
     surface = Surface.from_spec(spec)
     machine = machine_from_spec(spec, machine_file) if machine_file else None
+    if machine is not None:
+        spec = dialect_for_machine(spec, machine)      # as `fabkit gcode --machine`: its dialect
     t0 = time.perf_counter()
     job = run_job(spec, surface, machine=machine, verify=verify)
     wall = time.perf_counter() - t0
@@ -73,6 +75,7 @@ def measure(raw: dict, name: str, machine_file, verify: bool) -> dict:
         from fabkit.machine.planner import run_time
 
         row["machine_s"] = sum(run_time(text, machine).total_s for _, text in programs)
+        row["per_operation"] = [(f.kind, f.lines, f.estimate_s, f.run_s) for f in job.figures]
     return row
 
 
@@ -117,6 +120,9 @@ def main(argv=None) -> int:
     print()
     for r in rows:
         print(f"{r['job']}: {r['verdict']}")
+        for kind, lines, lf, ms in r.get("per_operation") or ():
+            print(f"  {kind}: {lines:,} lines, length/feed {lf / 60:.1f} min"
+                  + (f", machine planner {ms / 60:.1f} min" if ms is not None else ""))
     for m in missing:
         print(m)
     if len(rows) == 2:

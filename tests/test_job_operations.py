@@ -510,3 +510,46 @@ def test_gcode_writes_the_stock_pictures_and_the_whole_job_verdict(cli, tmp_path
     code, out, err = cli("gcode", spec, "-o", "w.ngc")
     assert code == 1 and "whole job: operation 3 (finish): removes 7.3 mm" in err
     assert "FAILED" in out
+
+
+def test_sheet_says_where_a_tool_left_material_for_the_next(finish):
+    """The stock check's areas above a bound become the sheet's ``left_for_next``: where a
+    tool could not reach (the next operation takes it) and where it reached but did not
+    hold the bound; lengths in program units (an inch program: mm / 25.4, areas / 25.4^2)."""
+    from fabkit.toolpath.gcode import profile_from_spec, write_job
+    from fabkit.toolpath.job import job_figures
+    from fabkit.toolpath.setup import _left_for_next, setup_sheet, sheet_markdown
+
+    cuts = [{"unreachable_area": 12.5, "unreachable": 0.25, "unreachable_at": (254.0, 50.8),
+             "over_area": 0.0, "over_reachable": 0.0, "over_at": None},
+            {"unreachable_area": 0.0, "unreachable": 0.0, "unreachable_at": None,
+             "over_area": 2.54 * 2.54, "over_reachable": 0.0254, "over_at": (25.4, 2.54)},
+            {"unreachable_area": 0.0, "unreachable": 0.0, "unreachable_at": None,
+             "over_area": 0.0, "over_reachable": 0.0, "over_at": None}]
+
+    class Check:
+        failures = []
+
+        def to_json(self):
+            return {"ok": True, "operations": cuts}
+
+    spec, surface, tp = finish
+    profile = profile_from_spec(spec, surface)
+    ops = _job(tp)
+    figures, _ = job_figures(ops, write_job(ops, profile), profile)
+    sheet = setup_sheet(spec, surface, tp, profile, "a.ngc", None, 1.0, 10, operations=figures, job_check=Check())
+    numbers = [o["tool"]["number"] for o in sheet["operations"]]
+    assert sheet["left_for_next"] == [
+        {"operation": "rough", "tool": numbers[0], "kind": "unreachable", "area": 12.5, "largest": 0.25,
+         "at": [254.0, 50.8], "taken_by": {"operation": "rest", "tool": numbers[1]}},
+        {"operation": "rest", "tool": numbers[1], "kind": "over", "area": 6.4516, "largest": 0.0254,
+         "at": [25.4, 2.54], "taken_by": {"operation": "finish", "tool": numbers[2]}}]
+    md = sheet_markdown(sheet, None)
+    assert "cannot reach its allowance over 12.5 mm^2, up to 0.25 mm above its bound (largest at X254 Y50.8)" in md
+    assert "the rest" in md and "takes what is left" in md
+    # an inch program: the same places in inches
+    inch = _left_for_next(sheet["operations"], {"operations": cuts}, 1.0 / 25.4)
+    assert inch[0]["at"] == [10.0, 2.0]
+    assert inch[1]["area"] == pytest.approx(0.01, rel=1e-9)
+    assert inch[1]["largest"] == pytest.approx(0.001, rel=1e-9)
+    assert inch[1]["taken_by"]["operation"] == "finish"

@@ -159,6 +159,34 @@ def _operations_keys(figures, program_path, dialect: str, k: float, job_check) -
         if isinstance(jv, dict):
             jv = {key: v for key, v in jv.items() if key != "seconds"}     # wall time: in timings_s
         out["job_verification"] = _plain(jv)
+        out["left_for_next"] = _left_for_next(ops, jv, k)
+    return out
+
+
+def _left_for_next(ops: list, jv, k: float) -> list:
+    """Where an operation left material above its allowance's bound, from the whole
+    job's stock check (``jv``: its JSON): where its tool could not reach (the next
+    operation takes what is left) and where it reaches but did not hold the bound (out of
+    bounds). One entry per such operation: ``operation``, ``tool`` (its number),
+    ``kind`` (``unreachable`` | ``over``), ``area`` (program units^2), ``largest`` (above
+    the bound, program units), ``at`` ([x, y] of the largest, program units, work zero),
+    ``taken_by`` (the next operation's kind and tool number, None after the last)."""
+    if not isinstance(jv, dict):
+        return []
+    cut = jv.get("operations") or []
+    out = []
+    for i, (o, c) in enumerate(zip(ops, cut)):
+        nxt = ops[i + 1] if i + 1 < len(ops) else None
+        for kind, area, largest, at in (("unreachable", "unreachable_area", "unreachable", "unreachable_at"),
+                                        ("over", "over_area", "over_reachable", "over_at")):
+            a = c.get(area) or 0.0
+            if a <= 0.0 or c.get(at) is None:
+                continue
+            out.append({"operation": o["kind"], "tool": o["tool"]["number"], "kind": kind,
+                        "area": _r(float(a) * k * k, 6), "largest": _r(float(c[largest]) * k, 6),
+                        "at": [_r(float(v) * k, 6) for v in c[at]],
+                        "taken_by": ({"operation": nxt["kind"], "tool": nxt["tool"]["number"]}
+                                     if nxt is not None else None)})
     return out
 
 
@@ -503,6 +531,20 @@ def _operations_markdown(sheet: dict) -> list[str]:
         lines.append("Whole job simulated on the stock, each tool with its own shape: "
                      + ("within its bounds." if ok else "see `job_verification` in the JSON sheet."
                         if ok is None else "OUT OF BOUNDS: see `job_verification` in the JSON sheet."))
+    if sheet.get("left_for_next"):
+        lines += ["", "Where a tool left material above its allowance's bound (the same simulation):", ""]
+    for e in sheet.get("left_for_next") or ():
+        tool = f" (T{e['tool']})" if e["tool"] is not None else ""
+        where = (f"{e['area']:g} {u}^2, up to {e['largest']:g} {u} above its bound (largest at "
+                 f"X{e['at'][0]:g} Y{e['at'][1]:g})")
+        if e["kind"] == "unreachable":
+            nxt = e["taken_by"]
+            then = (f"the {nxt['operation']}" + (f" (T{nxt['tool']})" if nxt["tool"] is not None else "")
+                    + " takes what is left" if nxt is not None else "nothing after it takes it")
+            lines.append(f"- The {e['operation']}{tool} cannot reach its allowance over {where}: {then}.")
+        else:
+            lines.append(f"- The {e['operation']}{tool} left material above its bound where it reaches, "
+                         f"over {where}.")
     return lines + [""]
 
 
