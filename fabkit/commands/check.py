@@ -8,7 +8,7 @@ why) otherwise, 2 on bad input.
 from __future__ import annotations
 
 from ..errors import DesignError
-from ..numba_start import prepare
+from ..first_run import prepare
 from ._common import Timer, emit, prepare_simulator
 from .sweep import completeness_line
 

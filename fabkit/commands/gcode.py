@@ -53,7 +53,7 @@ def run(args) -> int:
     _machine_precheck(spec, surface, machine)  # the machine's travel, spindle, tool changer: before planning
     plan_estimate(spec, surface)  # the guards first: a refusal costs about a second
     # a first run compiles every kernel gcode, check and report need for this surface, and says so
-    from ..numba_start import prepare
+    from ..first_run import prepare
 
     prepare(spec, need=("toolpath",), quiet=getattr(args, "no_progress", False))
     check_depth(spec, surface)

@@ -141,7 +141,7 @@ def run(args) -> int:
     machine = machine_from_spec(spec, getattr(args, "machine", None))    # a bad profile: exit 2 now
     spec = dialect_for_machine(spec, machine)        # the toolpath in the machine's dialect
 
-    from ..numba_start import cold_kernels, prepare
+    from ..first_run import cold_kernels, prepare
 
     # a first run compiles every kernel the page needs (the simulator, the toolpath's) at once, and
     # says so; a job the time guard refuses is refused before that (the guard runs again in the job)

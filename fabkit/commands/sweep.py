@@ -63,7 +63,7 @@ def run(args) -> int:
         stage("compiling or loading the simulator")
         say = None if quiet(args) else (lambda m: stage(m, advance=False))
         if args.v_in is None:       # the ramp's spec: a first run compiles what gcode, check, report need
-            from ..numba_start import prepare
+            from ..first_run import prepare
 
             prepare(spec, need=("simulator",), say=say, quiet=quiet(args))
         prepare_simulator(problem, say=say)
