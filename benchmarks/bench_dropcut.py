@@ -3,7 +3,7 @@
     python benchmarks/bench_dropcut.py [SPEC] [--repeat 3] [--save CALLS.pkl] [--calls CALLS.pkl]
 
 Runs ``fabkit gcode SPEC`` once in-process (outputs to a scratch folder) recording
-every call of :func:`fabkit.toolpath.compensate.compensate` (its positions, R, caller),
+every call of :func:`fabkit.toolpath.finish.compensate.compensate` (its positions, R, caller),
 then replays the calls and prints, best of ``--repeat``, the CPU seconds per caller
 (passes.compensate_passes, spacing.space_points, the verification, ...), the positions
 per call, the microseconds per position, the compiled kernel's share (``drop_batch``
@@ -12,7 +12,7 @@ called directly on the same positions) and the wrapper's per-call overhead.
 ``--check REF.npz`` / ``--write REF.npz`` compare the tip heights and contact
 information bit for bit with (or write) a reference from another version of the code.
 ``--versus OLD_DROPCUT.py`` runs another version of the kernel's template (for example
-``git show REV:fabkit/toolpath/dropcut.py > old.py``) and this one in the same process,
+``git show REV:fabkit/toolpath/finish/dropcut.py > old.py``) and this one in the same process,
 alternated call by call (the machine's load then weighs on both alike), and prints the
 best and median CPU seconds of each over ``--repeat`` rounds and whether every output
 (heights, contacts, kinds, flags) is the same bits.
@@ -39,7 +39,7 @@ ROOT = Path(__file__).resolve().parents[1]
 def record(spec: str) -> list:
     """The compensate calls of one `fabkit gcode SPEC` run: (X, Y, R, return_info, caller)."""
     from fabkit.cli import main
-    from fabkit.toolpath import compensate as C
+    from fabkit.toolpath.finish import compensate as C
 
     calls = []
     orig = C._compensate
@@ -80,7 +80,7 @@ def main() -> int:
 
     from fabkit.spec import load_spec
     from fabkit.surface import Surface
-    from fabkit.toolpath import compensate as C
+    from fabkit.toolpath.finish import compensate as C
 
     if a.calls:
         calls = pickle.loads(Path(a.calls).read_bytes())
@@ -161,8 +161,8 @@ def versus(calls, ws, kern, old_template: Path, rounds: int) -> int:
 
     from fabkit.physics.engine import codegen
     from fabkit.physics.engine.batch import _import
-    from fabkit.toolpath import compensate as C
-    from fabkit.toolpath import kernels
+    from fabkit.toolpath.finish import compensate as C
+    from fabkit.toolpath.finish import kernels
 
     if kern is None:
         print("no compiled kernel (FABKIT_NO_KERNELS, or no formula)")

@@ -14,7 +14,7 @@ reported as CPU time (user + sys of the child, resource.getrusage: not wall time
 which a loaded machine inflates), peak resident memory, the ratio to the floor's
 CPU time (best of --repeat each), the load average at each run, and the stages'
 CPU seconds (the command's timers read time.process_time in the child) beside
-the time guard's estimate (toolpath.guards; its ratio measured / estimated).
+the time guard's estimate (toolpath.finish.guards; its ratio measured / estimated).
 ``--numpy`` adds a run of each SPEC without the compiled kernels (``FABKIT_NO_KERNELS=1``,
 the numpy code they transcribe) right after it, and checks the programs are the same
 bytes. The kernels' cache is ``FABKIT_CACHE_DIR`` (warm it with one run first: the

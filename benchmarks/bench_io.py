@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fabkit.toolpath import gcode, reader
+from fabkit.toolpath.program import gcode, reader
 from fabkit.toolpath.path import CUT, PLUNGE, RAPID
 
 

@@ -26,8 +26,8 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def replay(spec: str) -> str:
     from fabkit.cli import main
-    from fabkit.toolpath import passes, scallop, scallop_kernels
-    from fabkit.toolpath.compensate import WorkSurface
+    from fabkit.toolpath.finish import passes, scallop, scallop_kernels
+    from fabkit.toolpath.finish.compensate import WorkSurface
 
     calls = []
     orig = scallop.sweep_material

@@ -14,9 +14,9 @@ Rows:
 
 Both jobs are planned by :func:`fabkit.toolpath.job.run_job` and written by its writer;
 every column comes from the programs' TEXT read back: lines, and the time by ONE
-estimator for both (:func:`fabkit.toolpath.verify.estimate_time`: G1 length / F, G0 at
+estimator for both (:func:`fabkit.toolpath.program.reader.estimate_time`: G1 length / F, G0 at
 5000 mm/min, no acceleration), plus the machine planner's time with ``--machine``. The
-planning wall time is printed too (by hand, not a test). Needs fabkit/toolpath/roughing.py.
+planning wall time is printed too (by hand, not a test). Needs fabkit/toolpath/rough/roughing.py.
 """
 
 from __future__ import annotations
@@ -56,7 +56,7 @@ def measure(raw: dict, name: str, machine_file, verify: bool) -> dict:
     from fabkit.spec import validate
     from fabkit.surface import Surface
     from fabkit.toolpath.job import run_job
-    from fabkit.toolpath.verify import estimate_time, read_program
+    from fabkit.toolpath.program.reader import estimate_time, read_program
 
     spec = validate(raw, f"{name}.yaml")
     surface = Surface.from_spec(spec)

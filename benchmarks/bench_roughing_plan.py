@@ -1,4 +1,4 @@
-"""Time the roughing and rest planning (fabkit/toolpath/roughing.py) against the
+"""Time the roughing and rest planning (fabkit/toolpath/rough/roughing.py) against the
 finishing plan, and print each operation's figures.
 
     python benchmarks/bench_roughing_plan.py [SPEC] (default specs/surface_roughing.yaml)
@@ -19,8 +19,8 @@ sys.path.insert(0, str(ROOT))
 
 from fabkit.spec import load_spec  # noqa: E402
 from fabkit.surface import Surface  # noqa: E402
-from fabkit.toolpath.raster import plan_toolpath  # noqa: E402
-from fabkit.toolpath.roughing import plan_operations  # noqa: E402
+from fabkit.toolpath.finish.raster import plan_toolpath  # noqa: E402
+from fabkit.toolpath.rough.roughing import plan_operations  # noqa: E402
 
 
 def main(argv):

@@ -11,7 +11,7 @@ roughing planner, enough to exercise the whole-job check and draw both pictures
 (``<png>`` after finishing, ``<png stem>.rough.png`` after roughing).
 
 Reads the written program back (verify.read_program), replays it with the spec's ball
-on a height-field stock (fabkit.toolpath.stock) and prints the grid, the seconds of
+on a height-field stock (fabkit.toolpath.cut.stock) and prints the grid, the seconds of
 each stage and the whole-job check (verify_job) with its figures. The first run
 compiles the kernels (numba cache): the figures below are from a second run.
 """
@@ -39,10 +39,10 @@ def main():
 
     from fabkit.spec import load_spec
     from fabkit.surface import Surface
-    from fabkit.toolpath import stock as st
-    from fabkit.toolpath.compensate import WorkSurface
+    from fabkit.toolpath.cut import stock as st
+    from fabkit.toolpath.finish.compensate import WorkSurface
     from fabkit.toolpath.tools import Tool
-    from fabkit.toolpath.verify import read_program
+    from fabkit.toolpath.program.reader import read_program
 
     spec = load_spec(args.spec)
     surface = Surface.from_spec(spec)

@@ -6,7 +6,7 @@
 ``rs274 -g`` (the LinuxCNC interpreter) reads the program, M6 included; its canonical
 moves are replayed by brute force with each tool's own shape (the functions of
 tests/test_roughing_job.py: every tool placed every ``--step`` mm along each feed move,
-lowering a height field of nodes ``--h`` mm apart; nothing of fabkit.toolpath.stock).
+lowering a height field of nodes ``--h`` mm apart; nothing of fabkit.toolpath.cut.stock).
 The design is the spec's surface (fabkit.surface), clipped at the top face, in work mm.
 
 Printed per operation: the deepest gouge; after roughing, the material left above
@@ -42,8 +42,8 @@ def main(argv=None):
     import test_roughing_job as T
     from fabkit.spec import load_spec
     from fabkit.surface import Surface
-    from fabkit.toolpath.compensate import WorkSurface
-    from fabkit.toolpath.roughing import spec_tools
+    from fabkit.toolpath.finish.compensate import WorkSurface
+    from fabkit.toolpath.rough.roughing import spec_tools
 
     spec = load_spec(a.spec)
     ws = WorkSurface(Surface.from_spec(spec))

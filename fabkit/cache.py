@@ -3,7 +3,7 @@
 Everything fabkit generates once and loads later lives here: the formulas' generated
 functions (:mod:`fabkit.expr_cache`, subfolder ``formulas``), the simulator's compiled
 engines and surfaces (:mod:`fabkit.physics.engine.codegen`) and the toolpath's kernels
-(:mod:`fabkit.toolpath.kernels`).
+(:mod:`fabkit.toolpath.finish.kernels`).
 
 Folder: ``FABKIT_CACHE_DIR`` if set, else the user cache (``$XDG_CACHE_HOME/fabkit`` or
 ``~/.cache/fabkit`` on Linux, ``~/Library/Caches/fabkit`` on macOS,

@@ -23,7 +23,7 @@ def _toolpath_signatures():
     def A(dt, nd, readonly=False):
         return T.Array(dt, nd, "C", readonly=readonly)
 
-    from .toolpath import kernels, scallop_kernels, spacing_kernels
+    from .toolpath.finish import kernels, scallop_kernels, spacing_kernels
 
     out = [(scallop_kernels.sweep_balls, (A(f8, 1), A(f8, 1, True), A(f8, 2), A(f8, 2), A(f8, 1), f8, i8,
                                           A(f8, 2), A(f8, 2), f8)),
@@ -61,7 +61,7 @@ def cold_kernels(spec) -> dict:
                 out["simulator_install"] = cold_engine
     if spec.has("tool") and spec.has("stock"):
         from .surface import Surface
-        from .toolpath import kernels
+        from .toolpath.finish import kernels
 
         out["toolpath"] = kernels.cold_build_seconds(Surface.from_spec(spec))
         out["toolpath_install"] = out["toolpath"] > kernels.BUILD_FORMULA_S + 1e-9
@@ -105,7 +105,7 @@ def prepare(spec, say=None, *, need=("simulator", "toolpath"), quiet: bool = Fal
         engine(problem_from_spec(spec))
     if do["toolpath"]:
         from .surface import Surface
-        from .toolpath import kernels
+        from .toolpath.finish import kernels
 
         kernels.kernel_for(Surface.from_spec(spec))
         if kernels.enabled():

@@ -279,7 +279,7 @@ def _table_html(rows: list[str]) -> str:
 
 
 def markdown_html(md: str, top: int = 3, after_title: str = "") -> str:
-    """The operator's setup sheet (``setup.md``, :func:`fabkit.toolpath.setup.sheet_markdown`)
+    """The operator's setup sheet (``setup.md``, :func:`fabkit.toolpath.program.setup_sheet.sheet_markdown`)
     as HTML: the same lines, each with its unit, so the page and the file beside the
     program say the same thing. Handles what the sheet uses: headings, bullet lists,
     paragraphs, inline code and bold; its preview image is shown elsewhere on the page.
@@ -334,7 +334,7 @@ def _sheet_section(sheet: dict) -> str:
     """The setup sheet as the operator reads it (setup.md's text), or a note without one."""
     if not sheet:
         return "<h2>Setup sheet</h2><p class=missing>(setup sheet: not available)</p>"
-    from .toolpath.setup import sheet_markdown
+    from .toolpath.program.setup_sheet import sheet_markdown
 
     refusals = (sheet.get("machine_check") or {}).get("refusals") or []
     refused = ("".join(f"<p class=unsafe><b>The machine cannot run this program:</b> {_e(r)} "

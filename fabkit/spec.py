@@ -156,7 +156,7 @@ SCHEMA: dict[str, dict[str, Any]] = {
         "plunge": Num(default=None, gt=0, le=1e6, doc="mm/min; default: machining.plunge"),
         "spindle": Num(default=None, gt=0, le=1e6, doc="rpm; default: machining.spindle"),
     },
-    # roughing with its own tool, then rest passes, then the finish (fabkit/toolpath/roughing.py)
+    # roughing with its own tool, then rest passes, then the finish (fabkit/toolpath/rough/roughing.py)
     "roughing": {
         "tool": Num(ge=1, le=99_999, integer=True, doc="the roughing tool: a number from `tools`"),
         "stepdown": Num(gt=0, le=1000, length="mm", doc="mm between Z levels (<= the tool's depth_of_cut)"),

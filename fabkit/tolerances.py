@@ -29,7 +29,7 @@ class Tolerances:
     max_mesh_triangles: int = 1_000_000    # ~25 s and 50 MB of STL on a 2-core machine
     max_program_points: int = 4_000_000  # a program this size plans, verifies and writes in < 2 GB
     max_roughing_levels: int = 2_000
-    max_plan_seconds: float = 60.0     # estimated planning time (toolpath.guards), reference machine
+    max_plan_seconds: float = 60.0     # estimated planning time (toolpath.finish.guards), reference machine
     max_passes: int = 200_000
     max_verify_points: int = 2_000_000
     max_launches: int = 10_000_000

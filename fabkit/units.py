@@ -3,7 +3,7 @@ lengths (stock, tool, machining) are in millimetres; programs are written in
 their own units at the edge.
 
 The program's rounding rules live here too (one home for the writer,
-:mod:`fabkit.toolpath.gcode`, and the spec's checks, :mod:`fabkit.spec`): each
+:mod:`fabkit.toolpath.program.gcode`, and the spec's checks, :mod:`fabkit.spec`): each
 program unit's coordinate and feed decimals, the most decimals a coordinate
 carries (:data:`MAX_DECIMALS`), and the share of the machining tolerance a
 coordinate's rounding may take (half a unit in the last place at most

@@ -9,7 +9,7 @@ import pytest
 
 from fabkit.spec import load_spec, validate
 from fabkit.surface import Surface
-from fabkit.toolpath.compensate import CREASE, EDGE, compensate
+from fabkit.toolpath.finish.compensate import CREASE, EDGE, compensate
 
 from conftest import PAPER
 
@@ -150,7 +150,7 @@ def test_scale_design_units_to_work_mm():
 def test_fast_surface_evaluation_matches_the_general_path():
     # the generated code called directly (in chunks on large arrays) gives the values of
     # the checked wrappers, constants (a plane's second derivatives) broadcast
-    from fabkit.toolpath.compensate import CHUNK, WorkSurface
+    from fabkit.toolpath.finish.compensate import CHUNK, WorkSurface
 
     for height in ("0.3*x - 0.1*y - 2", "0.01*x**2 + exp(0.05*y) - 9"):
         surf = _surface(height)
@@ -168,7 +168,7 @@ def test_fast_surface_evaluation_matches_the_general_path():
 
 
 def test_top_samples_order_as_a_stable_sort():
-    from fabkit.toolpath.compensate import _top
+    from fabkit.toolpath.finish.compensate import _top
 
     rng = np.random.default_rng(5)
     F = rng.choice([0.0, -0.0, 0.5, 1.0, -np.inf], size=(400, 49))

@@ -1,4 +1,4 @@
-"""The compiled drop cutter and swept cut (toolpath/dropcut.py) against the numpy code
+"""The compiled drop cutter and swept cut (toolpath/finish/dropcut.py) against the numpy code
 they transcribe (compensate.py's candidates, verify.capsule_lower): the same heights
 within 1e-9 mm on smooth ground, creases, ridges, walls and the footprint's edges.
 (tests/test_compensate.py checks the same drop cutter, compiled, against closed forms
@@ -11,8 +11,8 @@ import pytest
 
 from fabkit.spec import validate
 from fabkit.surface import Surface
-from fabkit.toolpath import compensate as C
-from fabkit.toolpath.verify import SegmentGrid
+from fabkit.toolpath.finish import compensate as C
+from fabkit.toolpath.cut.verify import SegmentGrid
 
 R = 1.6
 

@@ -108,7 +108,7 @@ def test_precision_figure_has_units_on_both_axes(svg_text):
 
 
 def test_stock_picture_says_where_its_scale_is_clipped_and_shows_the_top_faces_grey():
-    """The stock picture (fabkit.toolpath.stock.stock_png): a scale clipped at its material
+    """The stock picture (fabkit.toolpath.cut.stock.stock_png): a scale clipped at its material
     end draws an arrow past the bar in the end's colour and marks the bound '>='; the flat
     top face on the design is the grey of the legend's swatch (pixels read back)."""
     from io import BytesIO
@@ -116,7 +116,7 @@ def test_stock_picture_says_where_its_scale_is_clipped_and_shows_the_top_faces_g
     import numpy as np
     from PIL import Image
 
-    from fabkit.toolpath.stock import _LEFT, make_stock, stock_png
+    from fabkit.toolpath.cut.stock import _LEFT, make_stock, stock_png
 
     s = make_stock(40.0, 20.0, 0.25)
     design = np.zeros(s.z.shape)

@@ -16,7 +16,7 @@ from fabkit import first_run
 def recorded(monkeypatch):
     calls = []
     import fabkit.physics.engine.batch as batch
-    import fabkit.toolpath.kernels as kernels
+    import fabkit.toolpath.finish.kernels as kernels
 
     monkeypatch.setattr(batch, "engine", lambda problem, notify=None: calls.append(("simulator", problem.model)))
     monkeypatch.setattr(kernels, "kernel_for", lambda surface: calls.append(("toolpath", "drop cutter")))
@@ -62,7 +62,7 @@ def test_cold_kernels_reads_the_caches():
     """On the tests' session cache the paper's simulator is compiled (conftest) and every
     estimate is a whole part's: the engine's measured compile plus its formula, or 2 s."""
     from fabkit.spec import load_spec
-    from fabkit.toolpath import kernels
+    from fabkit.toolpath.finish import kernels
 
     c = first_run.cold_kernels(load_spec(PAPER))
     assert set(c) == {"simulator", "toolpath", "simulator_install", "toolpath_install"}

@@ -10,9 +10,9 @@ import subprocess
 import numpy as np
 import pytest
 
-from fabkit.toolpath.gcode import DIALECTS, MachineProfile, used_words, write_program
+from fabkit.toolpath.program.gcode import DIALECTS, MachineProfile, used_words, write_program
 from fabkit.toolpath.path import CUT, PLUNGE, RAPID, Toolpath
-from fabkit.toolpath.verify import read_program
+from fabkit.toolpath.program.reader import read_program
 
 RS274 = shutil.which("rs274")
 COMBOS = [("linuxcnc", "mm"), ("linuxcnc", "in"), ("grbl", "mm"), ("grbl", "in")]
@@ -205,7 +205,7 @@ def _inch_grbl_job():
 def test_header_speaks_the_program_units():
     """A G20 program's comments give tool, stock, scallop and tolerance in inches,
     computed here from the millimetre inputs."""
-    from fabkit.toolpath.gcode import profile_from_spec
+    from fabkit.toolpath.program.gcode import profile_from_spec
 
     spec, surface = _inch_grbl_job()
     text = write_program(wavy_toolpath(), profile_from_spec(spec, surface))
@@ -222,7 +222,7 @@ def test_header_names_the_gap_to_passes_beyond_the_edges():
     """The stepover line gives the stepover between passes over the stock; where the gap to
     a pass beyond a stock edge is larger, the header names it for what it is (1.234567 mm
     stepover, a 2.69 mm gap: 0.0486 and 0.1059 in)."""
-    from fabkit.toolpath.gcode import profile_from_spec
+    from fabkit.toolpath.program.gcode import profile_from_spec
 
     spec, surface = _inch_grbl_job()
     tp = wavy_toolpath()

@@ -13,9 +13,9 @@ import pytest
 
 from fabkit.expr import compile_surface
 from fabkit.surface import Surface
-from fabkit.toolpath.compensate import compensate
+from fabkit.toolpath.finish.compensate import compensate
 from fabkit.toolpath.path import CUT, PLUNGE, RAPID, Toolpath
-from fabkit.toolpath.verify import read_program
+from fabkit.toolpath.program.reader import read_program
 
 from conftest import SPECS, write_spec
 
@@ -69,7 +69,7 @@ def simple_plan(surface, R, scallop, spacing=0.25, dz=0.0, safe_z=3.0):
 @pytest.fixture
 def plain_planner(monkeypatch):
     """Replace the production planner by :func:`simple_plan` (``dz`` settable)."""
-    import fabkit.toolpath.raster as raster
+    import fabkit.toolpath.finish.raster as raster
 
     opts = {"dz": 0.0}
 
@@ -141,7 +141,7 @@ def test_bad_input_exits_2_and_writes_nothing(cli, tmp_path, raw, key, plain_pla
 
 
 def test_interrupted_run_leaves_previous_program_intact(cli, tmp_path, plain_planner, monkeypatch):
-    import fabkit.toolpath.verify as verify
+    import fabkit.toolpath.cut.verify as verify
 
     spec = write_spec(tmp_path, small_raw())
     old = tmp_path / "keep.ngc"

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fabkit.toolpath import gcode
+from fabkit.toolpath.program import gcode
 from fabkit.toolpath.path import CUT, PLUNGE, RAPID
 
 

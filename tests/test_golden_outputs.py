@@ -100,7 +100,7 @@ def produce(name: str, folder: Path) -> dict[str, str]:
     os.chdir(folder)
     undo = None
     if name.startswith("plain_"):
-        import fabkit.toolpath.raster as raster
+        import fabkit.toolpath.finish.raster as raster
         from test_gcode_cli import simple_plan
 
         undo = raster.plan_toolpath

@@ -17,7 +17,7 @@ numba = pytest.importorskip("numba")
 from fabkit.expr import compile_surface  # noqa: E402
 from fabkit.physics.engine import codegen  # noqa: E402
 from fabkit.physics.engine.batch import _formula  # noqa: E402
-from fabkit.toolpath import kernels  # noqa: E402
+from fabkit.toolpath.finish import kernels  # noqa: E402
 
 PAPER_PARAMS = {"a": 0.389, "b": 0.306, "c": 0.0764, "d": 0.306, "eta": 3.27, "eps": 0.25}
 

@@ -139,7 +139,7 @@ def test_cli_interrupted_while_writing(cli, tmp_path, monkeypatch, command, outp
 
 
 def test_cli_gcode_interrupted_during_verification(cli, tmp_path, monkeypatch):
-    import fabkit.toolpath.verify as verify
+    import fabkit.toolpath.cut.verify as verify
 
     def interrupted(*a, **k):
         raise KeyboardInterrupt

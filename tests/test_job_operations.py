@@ -1,11 +1,11 @@
 """A job of several operations (roughing, rest, finishing), each with its own tool:
-the programs per dialect (fabkit/toolpath/gcode.py ``write_job``), the job's figures and
+the programs per dialect (fabkit/toolpath/program/gcode.py ``write_job``), the job's figures and
 the setup sheet (fabkit/toolpath/job.py, setup.py) and ``fabkit gcode``'s outputs.
 
 The operations are built by hand here: a flat end mill's rectangle whose length and
 time are known in closed form, and the ball's finishing toolpath from the planner on a
 small spec. ``fabkit gcode`` is run with a stand-in for the roughing planner
-(fabkit/toolpath/roughing.py) returning those operations, so the wiring is tested
+(fabkit/toolpath/rough/roughing.py) returning those operations, so the wiring is tested
 without it. A one-tool job is the same program, byte for byte (also the golden tests).
 """
 
@@ -45,7 +45,7 @@ def _spec(**machining):
 def finish():
     """(spec, surface, finishing toolpath) of the small bowl, LinuxCNC and mm."""
     from fabkit.surface import Surface
-    from fabkit.toolpath.raster import plan_toolpath
+    from fabkit.toolpath.finish.raster import plan_toolpath
 
     spec = _spec()
     surface = Surface.from_spec(spec)
@@ -91,7 +91,7 @@ def _feeds(lines: list[str]) -> set[float]:
 # the writer
 # ----------------------------------------------------------------------------
 def test_one_finish_operation_is_todays_program(finish):
-    from fabkit.toolpath.gcode import profile_from_spec, write_job, write_program
+    from fabkit.toolpath.program.gcode import profile_from_spec, write_job, write_program
 
     spec, surface, tp = finish
     profile = profile_from_spec(spec, surface)
@@ -103,7 +103,7 @@ def test_linuxcnc_one_program_tool_changes_in_order(finish):
     """One program; before each operation a retract, M5 (from the second on), the tool
     call, a rapid to the safe height and the operation's own spindle speed; each
     operation's moves carry exactly its tool's feeds."""
-    from fabkit.toolpath.gcode import profile_from_spec, write_job
+    from fabkit.toolpath.program.gcode import profile_from_spec, write_job
 
     spec, surface, tp = finish
     profile = profile_from_spec(spec, surface)
@@ -129,7 +129,7 @@ def test_linuxcnc_one_program_tool_changes_in_order(finish):
 
 
 def test_linuxcnc_job_needs_tool_numbers(finish):
-    from fabkit.toolpath.gcode import profile_from_spec, write_job
+    from fabkit.toolpath.program.gcode import profile_from_spec, write_job
     from fabkit.toolpath.operations import Operation
     from fabkit.toolpath.tools import Tool
 
@@ -141,7 +141,7 @@ def test_linuxcnc_job_needs_tool_numbers(finish):
 
 
 def test_grbl_one_complete_program_per_operation(finish):
-    from fabkit.toolpath.gcode import profile_from_spec, write_job
+    from fabkit.toolpath.program.gcode import profile_from_spec, write_job
 
     spec, surface, tp = finish
     gspec = _spec(dialect="grbl")
@@ -164,9 +164,9 @@ def test_programs_read_back_to_the_operations(finish):
     """Each operation's moves read back from the written text are its toolpath, to the
     rounding of 4 decimals (0.5e-4 mm per axis); the split of a one-program job by tool
     change gives the same moves as one program per operation."""
-    from fabkit.toolpath.gcode import profile_from_spec
+    from fabkit.toolpath.program.gcode import profile_from_spec
     from fabkit.toolpath.job import job_figures
-    from fabkit.toolpath.gcode import write_job
+    from fabkit.toolpath.program.gcode import write_job
 
     spec, surface, tp = finish
     ops = _job(tp)
@@ -192,7 +192,7 @@ def test_programs_read_back_to_the_operations(finish):
 def test_operation_time_is_length_over_feed(finish):
     """The rectangle's time in closed form: 2 mm rapid down and 4 mm up at 5000 mm/min,
     2 mm plunge at 500, 44 mm cut at 3000."""
-    from fabkit.toolpath.gcode import operation_seconds, profile_from_spec
+    from fabkit.toolpath.program.gcode import operation_seconds, profile_from_spec
 
     spec, surface, tp = finish
     want = (6 / 5000 + 2 / 500 + 44 / 3000) * 60.0
@@ -203,7 +203,7 @@ def test_operation_time_is_length_over_feed(finish):
 def test_rs274_reads_the_two_tool_program(finish, tmp_path):
     """LinuxCNC's interpreter accepts the program, M6 included, and executes the tool
     changes, spindle speeds and feeds in the order written."""
-    from fabkit.toolpath.gcode import profile_from_spec, write_job
+    from fabkit.toolpath.program.gcode import profile_from_spec, write_job
 
     spec, surface, tp = finish
     ops = _job(tp, ops=_rough_ops()[:1])
@@ -230,16 +230,16 @@ from fabkit.toolpath.job import _stock_verification as _STOCK_VERIFICATION
 
 @pytest.fixture
 def roughing(monkeypatch):
-    """fabkit.toolpath.roughing replaced by one returning the hand-built rough and rest
+    """fabkit.toolpath.rough.roughing replaced by one returning the hand-built rough and rest
     operations; every spec counts as asking for roughing."""
     from fabkit.toolpath import job
     from fabkit.toolpath.tools import Tool
 
-    fake = types.ModuleType("fabkit.toolpath.roughing")
+    fake = types.ModuleType("fabkit.toolpath.rough.roughing")
     fake.plan_operations = lambda spec, surface, finish: _rough_ops()
     fake.finish_tool = lambda spec: Tool.ball(spec.tool.diameter, number=spec.tool.number)
-    monkeypatch.setitem(sys.modules, "fabkit.toolpath.roughing", fake)
-    import fabkit.toolpath as pkg
+    monkeypatch.setitem(sys.modules, "fabkit.toolpath.rough.roughing", fake)
+    import fabkit.toolpath.rough as pkg
 
     monkeypatch.setattr(pkg, "roughing", fake, raising=False)
     monkeypatch.setattr(job, "has_roughing", lambda spec: True)
@@ -291,11 +291,11 @@ def test_gcode_json_keeps_every_key(cli, tmp_path, monkeypatch):
     from fabkit.toolpath.tools import Tool
     from fabkit.toolpath import job
 
-    fake = types.ModuleType("fabkit.toolpath.roughing")
+    fake = types.ModuleType("fabkit.toolpath.rough.roughing")
     fake.plan_operations = lambda spec, surface, finish: _rough_ops()
     fake.finish_tool = lambda spec: Tool.ball(spec.tool.diameter, number=spec.tool.number)
-    monkeypatch.setitem(sys.modules, "fabkit.toolpath.roughing", fake)
-    import fabkit.toolpath as pkg
+    monkeypatch.setitem(sys.modules, "fabkit.toolpath.rough.roughing", fake)
+    import fabkit.toolpath.rough as pkg
 
     monkeypatch.setattr(pkg, "roughing", fake, raising=False)   # also when the real one is imported
     monkeypatch.setattr(job, "has_roughing", lambda spec: True)
@@ -311,7 +311,7 @@ def test_gcode_json_keeps_every_key(cli, tmp_path, monkeypatch):
     assert [ln for ln in text.splitlines() if "M6" in ln] == ["T2 M6 G43 H2", "T3 M6 G43 H3", "T1 M6 G43 H1"]
     # the operations' lines and times partition the program's
     assert sum(o["lines"] for o in after["operations"]) == text.count("\n")
-    from fabkit.toolpath.verify import estimate_time, read_program
+    from fabkit.toolpath.program.reader import estimate_time, read_program
 
     whole = estimate_time(read_program(text), 5000.0)
     assert after["estimated_time_s"] == pytest.approx(whole, abs=0.05)
@@ -365,7 +365,7 @@ def test_machine_time_per_operation(finish):
     own program (grbl: the very file written), and the estimator is named so."""
     from fabkit.machine.planner import run_time
     from fabkit.machine.profile import grbl_defaults
-    from fabkit.toolpath.gcode import profile_from_spec, write_job
+    from fabkit.toolpath.program.gcode import profile_from_spec, write_job
     from fabkit.toolpath.job import job_figures
 
     spec, surface, tp = finish
@@ -388,7 +388,7 @@ def test_report_page_shows_operations_and_stock(finish, roughing):
 
     from fabkit.report import _stock_section, markdown_html
     from fabkit.toolpath.job import run_job
-    from fabkit.toolpath.setup import sheet_markdown
+    from fabkit.toolpath.program.setup_sheet import sheet_markdown
 
     spec, surface, tp = finish
     res = run_job(spec, surface, verify=False)
@@ -408,7 +408,7 @@ def test_same_tool_twice_is_not_changed_again(finish):
     """Rest passes with the finishing ball, then the finish: one tool change for both
     (LinuxCNC), and the sheet's steps keep the tool; the operations still split the
     program (each from its own comment) and their lines add up to it."""
-    from fabkit.toolpath.gcode import profile_from_spec, write_job
+    from fabkit.toolpath.program.gcode import profile_from_spec, write_job
     from fabkit.toolpath.job import job_figures
     from fabkit.toolpath.operations import Operation
     from fabkit.toolpath.tools import Tool
@@ -432,9 +432,9 @@ def test_same_tool_twice_is_not_changed_again(finish):
 def test_sheet_job_verification_is_plain_json(finish):
     """Whatever the stock model reports (numpy numbers, tuples, inf) the sheet stays
     strict JSON."""
-    from fabkit.toolpath.gcode import profile_from_spec, write_job
+    from fabkit.toolpath.program.gcode import profile_from_spec, write_job
     from fabkit.toolpath.job import job_figures
-    from fabkit.toolpath.setup import setup_sheet, sheet_json
+    from fabkit.toolpath.program.setup_sheet import setup_sheet, sheet_json
 
     class Check:
         failures = []
@@ -454,9 +454,9 @@ def test_sheet_job_verification_is_plain_json(finish):
 
 @pytest.fixture
 def stock_model(monkeypatch):
-    """fabkit.toolpath.stock replaced by a recorder: it receives the moves READ BACK per
+    """fabkit.toolpath.cut.stock replaced by a recorder: it receives the moves READ BACK per
     operation and answers with a given verdict and one picture per snapshot."""
-    import fabkit.toolpath as pkg
+    import fabkit.toolpath.cut as pkg
     from fabkit.toolpath import job
 
     # the job's own stock verification (the `roughing` fixture turns it off), on this recorder
@@ -480,9 +480,9 @@ def stock_model(monkeypatch):
     def stock_png(snapshot, design, *, title="", tolerance=0.0):
         return f"PNG {snapshot}: {title}".encode()
 
-    fake = types.ModuleType("fabkit.toolpath.stock")
+    fake = types.ModuleType("fabkit.toolpath.cut.stock")
     fake.verify_job, fake.stock_png = verify_job, stock_png
-    monkeypatch.setitem(sys.modules, "fabkit.toolpath.stock", fake)
+    monkeypatch.setitem(sys.modules, "fabkit.toolpath.cut.stock", fake)
     monkeypatch.setattr(pkg, "stock", fake, raising=False)
     return seen, verdict
 
@@ -516,9 +516,9 @@ def test_sheet_says_where_a_tool_left_material_for_the_next(finish):
     """The stock check's areas above a bound become the sheet's ``left_for_next``: where a
     tool could not reach (the next operation takes it) and where it reached but did not
     hold the bound; lengths in program units (an inch program: mm / 25.4, areas / 25.4^2)."""
-    from fabkit.toolpath.gcode import profile_from_spec, write_job
+    from fabkit.toolpath.program.gcode import profile_from_spec, write_job
     from fabkit.toolpath.job import job_figures
-    from fabkit.toolpath.setup import _left_for_next, setup_sheet, sheet_markdown
+    from fabkit.toolpath.program.setup_sheet import _left_for_next, setup_sheet, sheet_markdown
 
     cuts = [{"unreachable_area": 12.5, "unreachable": 0.25, "unreachable_at": (254.0, 50.8),
              "over_area": 0.0, "over_reachable": 0.0, "over_at": None},

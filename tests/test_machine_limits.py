@@ -13,7 +13,7 @@ import pytest
 
 from fabkit.machine.limits import check_program
 from fabkit.machine.profile import grbl_defaults, parse_grbl
-from fabkit.toolpath.verify import read_program
+from fabkit.toolpath.program.reader import read_program
 
 from conftest import write_spec
 from test_gcode_cli import plain_planner, small_raw  # noqa: F401  (fixture)

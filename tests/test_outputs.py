@@ -53,7 +53,7 @@ def test_a_valid_name_of_249_characters_is_written(tmp_path):
 def no_planning(monkeypatch):
     """Fail the test if the command starts its real work (planning, launching)."""
     import fabkit.physics.sweep as sweep
-    import fabkit.toolpath.raster as raster
+    import fabkit.toolpath.finish.raster as raster
 
     def boom(*a, **k):
         raise AssertionError("the work started before the output path was checked")

@@ -10,10 +10,10 @@ import pytest
 from fabkit.errors import SpecError
 from fabkit.spec import load_spec, validate
 from fabkit.surface import Surface
-from fabkit.toolpath.compensate import compensate
+from fabkit.toolpath.finish.compensate import compensate
 from fabkit.toolpath.path import CUT, PLUNGE, RAPID
-from fabkit.toolpath.raster import (LINK_CLEARANCE, flat_stepover, plan_toolpath,
-                                    tilted_plane_cusp)
+from fabkit.toolpath.finish.raster import (LINK_CLEARANCE, flat_stepover, plan_toolpath,
+                                           tilted_plane_cusp)
 
 from conftest import PAPER, mutated
 
@@ -197,7 +197,7 @@ def test_guards_name_the_keys():
 def test_tiny_scallop_or_stepdown_refused_before_any_planning(monkeypatch, machining):
     """The guards refuse from the spec's estimates alone: no pass is placed and no tip
     height computed (either would fail here), so the refusal costs what the estimate does."""
-    from fabkit.toolpath import passes, raster
+    from fabkit.toolpath.finish import passes, raster
 
     def never(*a, **k):
         raise AssertionError("planning started before the guards refused")
@@ -247,8 +247,9 @@ def test_open_edges_do_not_gouge_at_a_fine_tolerance():
     """Beyond the stock the tip height has a vertical tangent where the ball's equator
     touches the edge (u = -R); a pass node there gouged the edge by ~7 um whatever the
     tolerance. Now the verified gouge of the paper's open end stays within 0.004 mm."""
-    from fabkit.toolpath.gcode import profile_from_spec, write_program
-    from fabkit.toolpath.verify import read_program, verify_cut
+    from fabkit.toolpath.program.gcode import profile_from_spec, write_program
+    from fabkit.toolpath.program.reader import read_program
+    from fabkit.toolpath.cut.verify import verify_cut
 
     spec = load_spec(PAPER).with_overrides({"machining.tolerance": 0.004, "machining.scallop": 0.1,
                                             "surface.x": [-44, -36], "surface.y": [-4, 4],
@@ -272,7 +273,7 @@ def test_estimated_passes_match_the_closed_form_on_flat_ground_and_the_planner()
     """Flat ground: the estimate is Lv / flat stepover (+2 for the edge passes), and the
     planner places about as many. On a plane of slope 4 along the passes and on a V
     crease the passes cross, the estimate is within x2 of the planner's count."""
-    from fabkit.toolpath.raster import plan_estimate
+    from fabkit.toolpath.finish.raster import plan_estimate
     spec, surf = _spec("-2 + 0*x", machining={"direction": "x"}, x=(0, 12), y=(0, 9))
     s = flat_stepover(R, 0.95 * 0.05)
     est = plan_estimate(spec, surf)
@@ -312,7 +313,7 @@ def test_tiny_scallop_refused_by_the_cli_before_planning(cli, tmp_path, monkeypa
     planned, nothing written. (On 160 x 100 mm it is estimated at 53 s and runs; at
     0.5 um there it is 1 826 passes and 24 s.)"""
     from conftest import write_spec
-    from fabkit.toolpath import passes, raster
+    from fabkit.toolpath.finish import passes, raster
 
     def never(*a, **k):
         raise AssertionError("planning started before the guards refused")
@@ -367,7 +368,7 @@ def test_dome_above_the_top_face_cuts_no_air():
 def test_pass_gaps_split_stepovers_over_the_stock_from_gaps_beyond_its_edges():
     """Passes at -2.997 (beyond the edge 0), 0, 1, 2.05 and 4.75 (beyond the edge 2.1):
     stepovers 1 and 1.05 over the stock, gaps 2.997 and 2.7 to the passes beyond."""
-    from fabkit.toolpath.raster import pass_gaps
+    from fabkit.toolpath.finish.raster import pass_gaps
 
     steps, beyond = pass_gaps([-2.997, 0.0, 1.0, 2.05, 4.75], 2.1)
     np.testing.assert_allclose(steps, [1.0, 1.05])

@@ -1,4 +1,4 @@
-"""The verification's reachable height (:func:`fabkit.toolpath.reach.reachable_height`)
+"""The verification's reachable height (:func:`fabkit.toolpath.cut.reach.reachable_height`)
 on creases and valleys tighter than the ball, against independent answers: the closed
 form of the ball bridging a V crease (straight and oblique to the axes) and a brute-force
 zooming search over ball centres written here (exact drop-cutter heights, no model)."""
@@ -16,7 +16,7 @@ R = 1.5875                              # 1/8 in ball
 def _ws(formula, x, y):
     from fabkit.expr import compile_surface
     from fabkit.surface import Surface
-    from fabkit.toolpath.compensate import WorkSurface
+    from fabkit.toolpath.finish.compensate import WorkSurface
 
     return WorkSurface(Surface(compile_surface(formula, {}), x, y, 0.0))
 
@@ -30,7 +30,7 @@ def test_v_crease_closed_form(k, m):
     only, K u higher. The lowest ball surface above a point at distance u from the crease
     is therefore the centred ball's, -D + R sqrt(1 + K^2) - sqrt(R^2 - u^2), for
     |u| < R K / sqrt(1 + K^2) (beyond, the ball touches the design: it reaches)."""
-    from fabkit.toolpath.reach import reachable_height
+    from fabkit.toolpath.cut.reach import reachable_height
 
     D = 12.0
     # the crease crosses the block's middle; the points stay more than R from the edges
@@ -61,7 +61,7 @@ def _brute(ws, px, py, R, overhang):
     farther than ``overhang`` beyond the footprint: exact drops on a 121 x 121 grid of
     centres over the disk, then on grids about 4 times finer around the best, eight
     times (each 61 x 61 spanning 16 of the previous cells), and the lowest of all found."""
-    from fabkit.toolpath.compensate import compensate
+    from fabkit.toolpath.finish.compensate import compensate
 
     def g(ux, uy):
         qx, qy = px + ux, py + uy
@@ -106,7 +106,7 @@ def test_reachable_height_against_brute_force_search(formula, x, y, pts):
     """Against a brute-force zooming search over ball centres (exact drops): never more
     than 2e-5 mm above it, and not below it by more than the brute search's own
     resolution (both are real balls: the reachable height is a valid upper bound)."""
-    from fabkit.toolpath.reach import OVERHANG, reachable_height
+    from fabkit.toolpath.cut.reach import OVERHANG, reachable_height
 
     ws = _ws(formula, x, y)
     px, py = np.array([p[0] for p in pts]), np.array([p[1] for p in pts])
@@ -121,7 +121,7 @@ def test_compiled_loops_match_the_numpy_code(monkeypatch):
     """The reachable height's grid minimum and shared balls run compiled (dropcut.py's
     reach_grid_best, reach_share) or in numpy (FABKIT_NO_KERNELS=1, the drop cutter too):
     the same heights and normal scales, to the drop cutter's own agreement (1e-9 mm)."""
-    from fabkit.toolpath.reach import OVERHANG, reachable_height
+    from fabkit.toolpath.cut.reach import OVERHANG, reachable_height
 
     rng = np.random.default_rng(5)
     X, Y = rng.uniform(2.5, 5.5, 400), rng.uniform(0.0, 6.0, 400)

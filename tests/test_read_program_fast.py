@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 from fabkit.errors import DesignError
-from fabkit.toolpath import reader as readback
+from fabkit.toolpath.program import reader as readback
 from fabkit.units import MM_PER_INCH
 
 NAN = float("nan")

@@ -1,4 +1,4 @@
-"""Roughing with its own tool and rest passes (fabkit/toolpath/roughing.py), against
+"""Roughing with its own tool and rest passes (fabkit/toolpath/rough/roughing.py), against
 closed forms and an independent cut simulation written here.
 
 - A paraboloid bowl H = a rho^2 - d: at level z a flat end mill's tip may stand
@@ -27,7 +27,7 @@ from fabkit.errors import SpecError
 from fabkit.spec import load_spec, validate
 from fabkit.surface import Surface
 from fabkit.toolpath.path import CUT, PLUNGE, RAPID
-from fabkit.toolpath.roughing import (finish_tool, plan_operations, plan_rough, spec_tools)
+from fabkit.toolpath.rough.roughing import (finish_tool, plan_operations, plan_rough, spec_tools)
 from fabkit.toolpath.tools import Tool
 
 from conftest import SPECS, run_cli
@@ -305,7 +305,7 @@ def engagement(S, h, tp, tool):
 
 
 def test_groove_narrower_than_the_tool_gets_rest_passes(tmp_path):
-    from fabkit.toolpath.raster import plan_toolpath
+    from fabkit.toolpath.finish.raster import plan_toolpath
 
     # the bowl with a groove 4 mm wide (1/e half width 2 mm) and 12 mm deep along y in its floor
     height = f"{A}*(x**2 + y**2) - {DEPTH} - 12*exp(-(x/2)**2)"
@@ -439,7 +439,7 @@ def test_tool_and_roughing_keys_refused_up_front(tmp_path, change, key, words):
 
 
 def _refusal(tmp_path, raw):
-    from fabkit.toolpath.raster import plan_estimate
+    from fabkit.toolpath.finish.raster import plan_estimate
 
     spec, surface = load(tmp_path, raw)
     with pytest.raises(SpecError) as e:
@@ -465,7 +465,7 @@ def test_tool_too_large_for_the_reach_search_and_too_short(tmp_path):
     # the bowl is 30 mm deep: a 20 mm reach cannot come within one 5 mm stepdown of 29.5 mm
     e = _refusal(tmp_path, bowl_raw(tools=[{"number": 1, "shape": "flat", "diameter": 12.7, "reach": 20}]))
     assert e.key == "tools[0].reach" and "24.5" in e.detail
-    from fabkit.toolpath.raster import plan_estimate
+    from fabkit.toolpath.finish.raster import plan_estimate
 
     spec, surface = load(tmp_path, bowl_raw(tools=[{"number": 1, "shape": "flat", "diameter": 12.7, "reach": 25}]))
     est = plan_estimate(spec, surface)
@@ -476,7 +476,7 @@ def test_tool_too_large_for_the_reach_search_and_too_short(tmp_path):
 
 
 def test_offset_tree_walked_without_recursion():
-    from fabkit.toolpath.roughing import _post_order, _pre_order
+    from fabkit.toolpath.rough.roughing import _post_order, _pre_order
 
     class N:
         def __init__(self, i):
@@ -501,7 +501,7 @@ def test_level_cleared_region_by_pocket_fill_equals_the_discs():
     union of every loop's disc (shapely's own buffer of all the lines)."""
     import shapely
     from shapely.geometry import Polygon, box
-    from fabkit.toolpath.roughing import _erosion_tree, _Level, _pre_order, _ring_region
+    from fabkit.toolpath.rough.roughing import _erosion_tree, _Level, _pre_order, _ring_region
 
     P = Polygon([(0, 0), (40, 0), (40, 25), (22, 25), (22, 12), (16, 12), (16, 25), (0, 25)]).difference(
         box(5, 5, 9, 9))
@@ -516,7 +516,7 @@ def test_level_cleared_region_by_pocket_fill_equals_the_discs():
 
 
 def test_kernels_in_chunks_give_the_same_stock(monkeypatch):
-    from fabkit.toolpath import stock as st
+    from fabkit.toolpath.cut import stock as st
 
     s0 = st.make_stock(20.0, 12.0, 0.25)
     X, Y = s0.grid()
@@ -539,7 +539,7 @@ def test_kernels_in_chunks_give_the_same_stock(monkeypatch):
 def test_sheet_names_each_tool_its_number_offset_and_touch_off(dialect):
     from types import SimpleNamespace
 
-    from fabkit.toolpath.setup import _operations_keys, _tool_line
+    from fabkit.toolpath.program.setup_sheet import _operations_keys, _tool_line
 
     def fig(kind, n, shape, d, prog):
         js = {"kind": kind, "tool": {"number": n, "shape": shape, "diameter": d}}
@@ -593,7 +593,7 @@ def test_finish_reach_only_as_far_beyond_the_edge_as_its_passes():
     beyond the end (up to R out) it reaches the bottom; up to 2.9 mm out (a grid node:
     centres stand on nodes) its section at the end face has radius sqrt(9 - 2.9^2) =
     0.768 mm and stays 0.768 (sqrt(2) - 1) = 0.318 mm above the bottom."""
-    from fabkit.toolpath import stock as st
+    from fabkit.toolpath.cut import stock as st
 
     s0 = st.make_stock(6.0, 6.0, 0.1)
     X, Y = s0.grid()
@@ -611,7 +611,7 @@ def test_flat_rest_tool_stands_on_the_design_from_above(tmp_path):
     """A rest flat end mill's tip on the bowl H = A rho^2 - D: exactly A (rho + r)^2 - D
     (its disc's highest point, on its rim away from the axis); the grid bound is never
     below it and at most the slope x a cell's diagonal + 2 e above it."""
-    from fabkit.toolpath.roughing_rest import _tool_on_design
+    from fabkit.toolpath.rough.roughing_rest import _tool_on_design
 
     spec, surf = load(tmp_path, bowl_raw())
     op = plan_rough(spec, surf)

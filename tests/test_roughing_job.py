@@ -6,7 +6,7 @@ end mill. The program is read by ``rs274 -g`` (the LinuxCNC interpreter, M6 incl
 and its canonical moves are replayed here by brute force: each tool (6 mm flat end mill,
 3 mm ball) placed every ``STEP`` mm along every feed move and lowering a height field of
 nodes ``H`` mm apart to its own shape (flat bottom, or the ball's lift
-``R - sqrt(R^2 - rho^2)``). Nothing of fabkit.toolpath.stock is used. Sampling a move
+``R - sqrt(R^2 - rho^2)``). Nothing of fabkit.toolpath.cut.stock is used. Sampling a move
 only leaves more material than the swept envelope (the ball by at most
 ``STEP^2 / (8 R)`` = 0.0008 mm), so a gouge found here is real and material found left
 is at most that much too high.

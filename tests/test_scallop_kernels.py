@@ -1,4 +1,4 @@
-"""The material bound's compiled loops (fabkit/toolpath/scallop_kernels.py) against the
+"""The material bound's compiled loops (fabkit/toolpath/finish/scallop_kernels.py) against the
 numpy code they transcribe (the same bits), and against the tilted plane's closed-form
 cusp."""
 
@@ -11,14 +11,14 @@ import pytest
 
 from fabkit.spec import validate
 from fabkit.surface import Surface
-from fabkit.toolpath import scallop
-from fabkit.toolpath.compensate import WorkSurface
-from fabkit.toolpath.passes import Frame, compensate_passes, fine_grid, u_grid
-from fabkit.toolpath.scallop import (hermite_profile, stack_profiles, sweep_material,
-                                     tilted_plane_cusp)
+from fabkit.toolpath.finish import scallop
+from fabkit.toolpath.finish.compensate import WorkSurface
+from fabkit.toolpath.finish.passes import Frame, compensate_passes, fine_grid, u_grid
+from fabkit.toolpath.finish.scallop import (hermite_profile, stack_profiles, sweep_material,
+                                            tilted_plane_cusp)
 
 pytest.importorskip("numba")
-from fabkit.toolpath import scallop_kernels  # noqa: E402
+from fabkit.toolpath.finish import scallop_kernels  # noqa: E402
 
 R = 3.175
 

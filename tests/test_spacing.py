@@ -5,10 +5,10 @@ tolerance of its chord."""
 import numpy as np
 import pytest
 
-from fabkit.toolpath import spacing
-from fabkit.toolpath.passes import AIR_EPS
+from fabkit.toolpath.finish import spacing
+from fabkit.toolpath.finish.passes import AIR_EPS
 
-kern = pytest.importorskip("fabkit.toolpath.spacing_kernels")
+kern = pytest.importorskip("fabkit.toolpath.finish.spacing_kernels")
 # the numpy rounds on NaN and -inf tips (as they meet them) warn; the comparisons hold
 pytestmark = pytest.mark.filterwarnings("ignore:invalid value encountered:RuntimeWarning")
 

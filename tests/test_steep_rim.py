@@ -19,7 +19,7 @@ import pytest
 
 from fabkit.spec import validate
 from fabkit.surface import Surface
-from fabkit.toolpath import compensate as C
+from fabkit.toolpath.finish import compensate as C
 
 R = 1.5
 

@@ -17,9 +17,9 @@ import pytest
 from fabkit.errors import DesignError
 from fabkit.toolpath.path import CUT, PLUNGE, RAPID, Toolpath
 from fabkit.toolpath.operations import Operation
-from fabkit.toolpath.stock import cut, make_stock, operations_from_program, stock_png, verify_job
+from fabkit.toolpath.cut.stock import cut, make_stock, operations_from_program, stock_png, verify_job
 from fabkit.toolpath.tools import Tool
-from fabkit.toolpath.verify import read_program
+from fabkit.toolpath.program.reader import read_program
 
 RS274 = shutil.which("rs274")
 
@@ -418,7 +418,7 @@ def test_reach_of_a_ball_in_a_narrow_groove():
     z = |y - 10| - 4, clipped at the top face 0): the ball rests on both walls, its
     centre sqrt(2) R above the apex, its tip (sqrt(2) - 1) R above the apex. Sampled
     (every 2nd node, the rest by the nearest) and computed at every node agree with it."""
-    from fabkit.toolpath.stock import reach_height
+    from fabkit.toolpath.cut.stock import reach_height
 
     s = make_stock(20.0, 20.0, 0.1)
     X, Y = s.grid()

@@ -139,8 +139,8 @@ def _family_case(cli, tmp_path, height, x, y, direction, units, band, measure):
         # only the gouge is asserted there (above)
         from fabkit.spec import load_spec
         from fabkit.surface import Surface
-        from fabkit.toolpath.compensate import WorkSurface
-        from fabkit.toolpath.reach import reachable_height
+        from fabkit.toolpath.finish.compensate import WorkSurface
+        from fabkit.toolpath.cut.reach import reachable_height
         ws = WorkSurface(Surface.from_spec(load_spec(spec)))
         _, reach = reachable_height(ws, px, py, R)
     elif band is not None:
@@ -179,8 +179,8 @@ def test_edge_finished_only_below_the_depth_limit_is_refused_naming_where(cli, t
 def test_edge_depth_needed_closed_form():
     from fabkit.expr import compile_surface
     from fabkit.surface import Surface
-    from fabkit.toolpath.compensate import WorkSurface
-    from fabkit.toolpath.raster import edge_depth_needed
+    from fabkit.toolpath.finish.compensate import WorkSurface
+    from fabkit.toolpath.finish.raster import edge_depth_needed
 
     ws = WorkSurface(Surface(compile_surface("8*x - 25", {}), (-0.55, 4.0), (0.0, 6.0), 0.0))
     X, Y, need = edge_depth_needed(ws, R, 30.0, 1e-7)
@@ -213,8 +213,8 @@ def test_reachable_height_in_a_valley_tighter_than_the_ball_closed_form():
     the normal ball reaches the walls beyond the contact."""
     from fabkit.expr import compile_surface
     from fabkit.surface import Surface
-    from fabkit.toolpath.compensate import WorkSurface
-    from fabkit.toolpath.reach import reachable_height
+    from fabkit.toolpath.finish.compensate import WorkSurface
+    from fabkit.toolpath.cut.reach import reachable_height
 
     ws = WorkSurface(Surface(compile_surface("2*x**2 - 12", {}), (-2.4, 2.4), (0.0, 6.0), 0.0))
     x = np.linspace(-1.4, 0.0, 15)

@@ -86,7 +86,7 @@ def test_report_takes_the_option(tmp_path):
 # the estimate's share of the footprint where the verification's compass search runs
 # ----------------------------------------------------------------------------
 def _fraction(slope_u, R, L=10.0, W=20.0, n=201):
-    from fabkit.toolpath.guards import _tight_fraction
+    from fabkit.toolpath.finish.guards import _tight_fraction
 
     u, v = np.linspace(-L / 2, L / 2, n), np.linspace(0.0, W, n)
     UU, _ = np.meshgrid(u, v)
@@ -116,7 +116,7 @@ def test_tight_fraction_of_a_parabolic_valley():
 
 def _creases(m, R=2.0, L=12.0, W=12.0, n=201, k=2.0):
     """guards._creases of the V crease k |y - m x| on [0, L] x [-W/2, W/2], passes along x."""
-    from fabkit.toolpath.guards import _creases
+    from fabkit.toolpath.finish.guards import _creases
 
     u, v = np.linspace(0.0, L, n), np.linspace(-W / 2, W / 2, n)
     UU, VV = np.meshgrid(u, v)
@@ -132,7 +132,7 @@ def test_a_crease_along_or_across_the_passes_is_not_oblique():
     for R in (1.5875, 3.0):
         tight, oblique, rows, _ = _creases(0.0, R)
         assert tight > 0 and oblique == 0.0 and not rows.any()
-    from fabkit.toolpath.guards import _creases as creases
+    from fabkit.toolpath.finish.guards import _creases as creases
 
     u, v = np.linspace(0.0, 12.0, 201), np.linspace(-6.0, 6.0, 201)
     UU, _ = np.meshgrid(u, v)
@@ -168,8 +168,8 @@ def test_preview_draws_each_feed_move_at_its_place_in_its_colour():
 
     from PIL import Image
 
-    from fabkit.toolpath.setup import preview_png
-    from fabkit.toolpath.verify import read_program
+    from fabkit.toolpath.program.setup_sheet import preview_png
+    from fabkit.toolpath.program.reader import read_program
 
     text = ("G21 G90\nG0 Z5\nG0 X1 Y2\nG0 Z-1\nG1 X9 Y2 F100\nG0 Z5\nG0 X1 Y8\nG0 Z-3\n"
             "G1 X9 Y8\nG0 Z5\nM2\n")
@@ -195,8 +195,8 @@ def test_the_estimate_counts_a_first_compile_only_when_the_cache_lacks_it(tmp_pa
     from fabkit.errors import SpecError
     from fabkit.spec import load_spec
     from fabkit.surface import Surface
-    from fabkit.toolpath import kernels
-    from fabkit.toolpath.raster import plan_estimate
+    from fabkit.toolpath.finish import kernels
+    from fabkit.toolpath.finish.raster import plan_estimate
 
     spec = load_spec(_spec(tmp_path))
     surface = Surface.from_spec(spec)

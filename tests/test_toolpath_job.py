@@ -111,7 +111,8 @@ def test_cut_report_keeps_verify_cut_keys():
     from fabkit.expr import compile_surface
     from fabkit.surface import Surface
     from fabkit.toolpath.job import CutReport
-    from fabkit.toolpath.verify import read_program, verify_cut
+    from fabkit.toolpath.program.reader import read_program
+    from fabkit.toolpath.cut.verify import verify_cut
 
     surface = Surface(compile_surface("-1 + 0*x", {}), (0, 10), (0, 4), 0.0, 1.0)
     R = 1.0

@@ -15,9 +15,10 @@ import pytest
 from fabkit.errors import DesignError
 from fabkit.expr import compile_surface
 from fabkit.surface import Surface
-from fabkit.toolpath.gcode import MachineProfile, write_program
+from fabkit.toolpath.program.gcode import MachineProfile, write_program
 from fabkit.toolpath.path import CUT, PLUNGE, RAPID, Toolpath
-from fabkit.toolpath.verify import capsule_lower, read_program, verify_cut
+from fabkit.toolpath.cut.verify import capsule_lower, verify_cut
+from fabkit.toolpath.program.reader import read_program
 
 RS274 = shutil.which("rs274")
 

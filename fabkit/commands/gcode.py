@@ -34,10 +34,10 @@ def _hm(seconds: float) -> str:
 
 def run(args) -> int:
     from ..machine.profile import dialect_for_machine, machine_from_spec
-    from ..toolpath.guards import with_time_budget
+    from ..toolpath.finish.guards import with_time_budget
     from ..toolpath.job import run_job
-    from ..toolpath.raster import plan_estimate
-    from ..toolpath.setup import sheet_paths
+    from ..toolpath.finish.raster import plan_estimate
+    from ..toolpath.program.setup_sheet import sheet_paths
 
     total = Timer()
     spec = load_spec(args.spec, need=NEEDS, command="gcode")
@@ -77,7 +77,7 @@ def _job_paths(spec, out) -> dict:
     """A job with roughing: the files it may write besides ``out`` (grbl's programs per
     operation, the stock pictures), to refuse before planning."""
     from ..toolpath.job import has_roughing
-    from ..toolpath.setup import job_program_paths_possible, stock_paths
+    from ..toolpath.program.setup_sheet import job_program_paths_possible, stock_paths
 
     if not has_roughing(spec):
         return {}
@@ -108,7 +108,7 @@ def _machine_verdict(job) -> None:
 
 def _finish(args, job, out, paths, total) -> int:
     """Write the program and its setup sheet (atomically, all or nothing), report."""
-    from ..toolpath.setup import sheet_json, sheet_markdown
+    from ..toolpath.program.setup_sheet import sheet_json, sheet_markdown
 
     _machine_verdict(job)          # refuses before anything is written
     t = Timer()
@@ -192,7 +192,7 @@ def _finish(args, job, out, paths, total) -> int:
 
 def _program_files(job, out) -> list:
     """[(path, text)]: the job's programs (today's one program at ``out``)."""
-    from ..toolpath.setup import job_program_path
+    from ..toolpath.program.setup_sheet import job_program_path
 
     if not job.programs:
         return [(out, job.text)]
@@ -201,7 +201,7 @@ def _program_files(job, out) -> list:
 
 def _stock_pictures(job, out) -> dict:
     """{'rough'|'finish': (path, png)}: the shaded stock pictures the job made."""
-    from ..toolpath.setup import stock_paths
+    from ..toolpath.program.setup_sheet import stock_paths
 
     paths = stock_paths(out)
     return {k: (paths[k], png) for k, png in (job.stock_pictures or {}).items() if k in paths}
@@ -210,7 +210,7 @@ def _stock_pictures(job, out) -> dict:
 def _operations_summary(job, out) -> list[str]:
     """One line per operation: tool, levels, passes, lines, time and its estimator; then
     the total and the whole job's verdict."""
-    from ..toolpath.setup import job_program_path
+    from ..toolpath.program.setup_sheet import job_program_path
 
     lines = []
     for i, f in enumerate(job.figures, start=1):

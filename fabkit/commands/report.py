@@ -124,7 +124,7 @@ def run(args) -> int:
     from ..physics.models import problem_from_spec
     from ..report import render
     from ..surface import Surface, check_depth
-    from ..toolpath.guards import with_time_budget
+    from ..toolpath.finish.guards import with_time_budget
     from ..toolpath.job import generated_at as _generated_at
 
     total = Timer()
@@ -147,7 +147,7 @@ def run(args) -> int:
     # says so; a job the time guard refuses is refused before that (the guard runs again in the job)
     cold = cold_kernels(spec)
     if cold["simulator"] > 0 or cold["toolpath"] > 0:
-        from ..toolpath.raster import plan_estimate
+        from ..toolpath.finish.raster import plan_estimate
 
         plan_estimate(spec, surface)
         prepare(spec, quiet=getattr(args, "no_progress", False))

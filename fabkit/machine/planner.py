@@ -50,7 +50,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..toolpath.verify import FEED, RAPID
+from ..toolpath.program.reader import FEED, RAPID
 
 #: grbl 1.1: BLOCK_BUFFER_SIZE 16 on the ATmega328p, one slot kept empty
 GRBL_LOOKAHEAD = 15

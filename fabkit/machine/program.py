@@ -2,7 +2,7 @@
 planner receives (mm, machine coordinates), with the points where the planner's buffer
 empties and the dwell time.
 
-This reader is permissive where :func:`fabkit.toolpath.verify.read_program` (the
+This reader is permissive where :func:`fabkit.toolpath.program.reader.read_program` (the
 verification's reader of fabkit's own programs) is strict: it takes programs from any
 CAM tool or written by hand. Understood:
 

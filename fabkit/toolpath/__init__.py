@@ -1,13 +1,15 @@
-"""Toolpath stage: exact ball-end compensation, raster planning, G-code, verification, setup sheet.
+"""Toolpath stage: from the spec and its surface to verified programs and a setup sheet.
 
-    compensate.py   drop-cutter tip heights against the analytic clipped surface
-    raster.py       passes, slope-aware stepover, adaptive point spacing, air skipping, links
-    path.py         the Toolpath data passed between the stages
-    gcode.py        pure G-code writer (dialects as data)
-    reader.py       read a written program back (the text, independent of the writer)
-    verify.py       sweep the ball along the moves read back, measure gouge and material left
-    reach.py        the lowest height the ball can cut at a point (what the verification expects)
-    setup.py        the setup sheet (JSON + Markdown)
-    job.py          the whole job once (plan, write, read back, verify, add passes, estimate,
-                    sheet): run_job -> JobResult with its verdict; gcode, report, precision call it
+The job (:func:`fabkit.toolpath.job.run_job`, returning a JobResult with its verdict)
+runs the phases in order; each subpackage's docstring says what comes in and goes out:
+
+    rough/      roughing with its own tool, rest passes, the ball's Z levels (Operations)
+    finish/     the ball's passes with exact compensation, their points, the guards (Toolpath)
+    program/    the G-code writer, the independent reader, the setup sheet (text, Program, sheet)
+    cut/        the stock simulated and the cut verified from the program read back (verdicts)
+
+    job.py         the whole job once: gcode, report and precision call run_job
+    operations.py  an Operation: what one tool does (rough, rest, finish)
+    path.py        the Toolpath passed between the phases (tool-tip positions, work mm)
+    tools.py       cutting tools as shapes (flat end mill, bull nose, ball)
 """

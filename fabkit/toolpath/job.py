@@ -13,9 +13,9 @@ program's formatting and rounding are part of what is checked. Lengths are work 
 (the program's own units appear only in the text and the sheet).
 
 With a ``roughing`` section the finish above is planned, verified and repaired the
-same way; then the roughing planner (:mod:`fabkit.toolpath.roughing`) adds its rough
-and rest operations, :func:`fabkit.toolpath.gcode.write_job` writes every program, each
-is read back, and the stock model (:mod:`fabkit.toolpath.stock`, when present)
+same way; then the roughing planner (:mod:`fabkit.toolpath.rough.roughing`) adds its rough
+and rest operations, :func:`fabkit.toolpath.program.gcode.write_job` writes every program, each
+is read back, and the stock model (:mod:`fabkit.toolpath.cut.stock`, when present)
 replays the whole job from the text.
 """
 
@@ -49,7 +49,7 @@ def generated_at() -> str:
 @dataclass(frozen=True)
 class CutReport:
     """The verified cut of one program (work mm, work X, Y): what
-    :func:`fabkit.toolpath.verify.verify_cut` measures, typed. ``to_json()`` gives the
+    :func:`fabkit.toolpath.cut.verify.verify_cut` measures, typed. ``to_json()`` gives the
     keys of verify_cut's dict unchanged (``over_at`` as [[X, Y], ...] when asked for);
     keys verify_cut may add later are kept in ``extra`` and passed through."""
 
@@ -133,8 +133,8 @@ def verify_program(spec, surface, program, cache: dict | None = None) -> CutRepo
     """The one verification of a program read back for ``spec`` (the arguments every
     command uses: the spec's check points, depth limit, reach, scallop measure; the
     points above scallop + tolerance kept for the repair)."""
-    from .raster import scallop_normal
-    from .verify import verify_cut
+    from .finish.raster import scallop_normal
+    from .cut.verify import verify_cut
 
     m = spec.machining
     return CutReport.from_dict(verify_cut(surface, program, spec.tool.diameter / 2.0, m.verify_points,
@@ -147,9 +147,9 @@ def repair(spec, surface, toolpath, profile, text, program, cut: CutReport, cach
     """Where the cut leaves more than scallop + tolerance (and nothing else is wrong),
     add passes there and verify again (at most REPAIR_ROUNDS times, kept only if it
     leaves less and gouges no more). Returns (toolpath, text, program, cut) to write."""
-    from .gcode import write_program
-    from .raster import add_passes
-    from .verify import read_program
+    from .program.gcode import write_program
+    from .finish.raster import add_passes
+    from .program.reader import read_program
 
     m = spec.machining
     cache = {} if cache is None else cache
@@ -183,7 +183,7 @@ class JobResult:
     A job with roughing (a ``roughing`` section) also has ``operations`` (rough, rest,
     finish: :class:`~fabkit.toolpath.operations.Operation`), ``figures`` (one
     :class:`OperationFigures` each), ``programs`` ([(suffix, text)] as written:
-    :func:`fabkit.toolpath.gcode.write_job`), ``job_check`` (the whole job simulated on
+    :func:`fabkit.toolpath.program.gcode.write_job`), ``job_check`` (the whole job simulated on
     the stock, None without the stock model or unverified) and ``stock_pictures``
     ({'rough'|'finish': PNG bytes}). Then ``toolpath``, ``program`` and ``cut`` are the
     finish's (verified as without roughing), ``text`` the program holding the finish,
@@ -244,7 +244,7 @@ class JobResult:
 
     def preview_png(self) -> bytes:
         """The top view of the passes coloured by depth (the sheet's preview)."""
-        from .setup import preview_png
+        from .program.setup_sheet import preview_png
 
         L, W = self.surface.stock_size_mm
         return preview_png(self.program, L, W, self.profile.units)
@@ -261,7 +261,7 @@ class OperationFigures:
     itself); ``lines``: its lines (in a one-program job, those from its tool change to
     the next); ``estimate_s``: length / feed at its tool's feeds; ``run_s``: the machine
     planner's time of its moves (None without a machine profile). Both from the program
-    text: ``estimate_s`` is :func:`fabkit.toolpath.verify.estimate_time` of its moves read
+    text: ``estimate_s`` is :func:`fabkit.toolpath.program.reader.estimate_time` of its moves read
     back (today's estimator; in a one-program job the moves from the previous
     operation's last position, so the operations' figures add up to the program's)."""
 
@@ -312,7 +312,7 @@ def has_roughing(spec) -> bool:
 
 def _op_line_ranges(text: str, n: int) -> list[tuple[int, int]]:
     """[(first line, last line)] (1-based) of each operation in a one-program job: from its
-    ``(operation: i of n, ...)`` comment (:func:`fabkit.toolpath.gcode.write_job`) to the
+    ``(operation: i of n, ...)`` comment (:func:`fabkit.toolpath.program.gcode.write_job`) to the
     line before the next one (the first from line 1, the last to the end)."""
     lines = text.splitlines()
     starts = [i + 1 for i, ln in enumerate(lines) if ln.startswith("(operation: ")]
@@ -325,7 +325,7 @@ def _op_line_ranges(text: str, n: int) -> list[tuple[int, int]]:
 def _section(program, lo: int, hi: int):
     """The moves of ``program`` on lines lo..hi, as a Program starting where the one
     before left off."""
-    from .verify import Program
+    from .program.reader import Program
 
     keep = (program.line >= lo) & (program.line <= hi)
     idx = np.nonzero(keep)[0]
@@ -346,7 +346,7 @@ def plan_job_operations(spec, surface, finish_toolpath) -> list:
         tool = Tool(t.shape, t.diameter, 0.5 * t.diameter if t.shape == "ball" else 0.0,
                     reach=t.reach, number=t.number)
         return [Operation("finish", tool, finish_toolpath, passes=int(finish_toolpath.passes))]
-    from . import roughing
+    from .rough import roughing
 
     ops = list(roughing.plan_operations(spec, surface, finish_toolpath))
     ops.append(Operation("finish", roughing.finish_tool(spec), finish_toolpath,
@@ -357,11 +357,11 @@ def plan_job_operations(spec, surface, finish_toolpath) -> list:
 def job_figures(operations, programs, profile, machine=None, raster_axis: int | None = None) -> tuple:
     """Per operation :class:`OperationFigures` and the programs read back.
 
-    ``programs``: :func:`fabkit.toolpath.gcode.write_job`'s [(suffix, text)]: one per
+    ``programs``: :func:`fabkit.toolpath.program.gcode.write_job`'s [(suffix, text)]: one per
     operation, or one for all. Returns (figures, readback) with ``readback`` one
     Program per operation (its moves read back from the written text)."""
-    from .gcode import operation_profile, write_program
-    from .verify import estimate_time, read_program
+    from .program.gcode import operation_profile, write_program
+    from .program.reader import estimate_time, read_program
 
     n = len(operations)
     if len(programs) == n:
@@ -397,10 +397,10 @@ def job_figures(operations, programs, profile, machine=None, raster_axis: int | 
 _ROUGHING_KINDS = ("rough", "rest")
 def _stock_verification(spec, surface, operations, readback):
     """The whole job simulated on the stock, each operation's moves AS READ BACK from the
-    written text, each with its own tool (:func:`fabkit.toolpath.stock.verify_job`), and
+    written text, each with its own tool (:func:`fabkit.toolpath.cut.stock.verify_job`), and
     the shaded pictures of the stock after roughing and after finishing
-    (:func:`fabkit.toolpath.stock.stock_png`): (check, {'rough'|'finish': png}). The one place that knows the stock module's interface."""
-    from . import stock
+    (:func:`fabkit.toolpath.cut.stock.stock_png`): (check, {'rough'|'finish': png}). The one place that knows the stock module's interface."""
+    from .cut import stock
     from .operations import Operation
     from .path import Toolpath
 
@@ -439,10 +439,10 @@ def run_job(spec, surface, *, machine=None, verify: bool = True,
     told the stage that runs next. ``program_path``: the program's file name for the
     sheet (default ``<name>.ngc``). ``generated``: the sheet's ``generated_at``
     (default: now, or SOURCE_DATE_EPOCH)."""
-    from .gcode import profile_from_spec, write_program
-    from .raster import plan_toolpath
-    from .setup import setup_sheet
-    from .verify import estimate_time, read_program
+    from .program.gcode import profile_from_spec, write_program
+    from .finish.raster import plan_toolpath
+    from .program.setup_sheet import setup_sheet
+    from .program.reader import estimate_time, read_program
 
     say = progress or (lambda stage: None)
     say("planning the passes")
@@ -487,7 +487,7 @@ def run_job(spec, surface, *, machine=None, verify: bool = True,
     lines = sum(t.count("\n") for _, t in extra["programs"]) if extra else text.count("\n")
     sheet_program = job_path = program_path if program_path is not None else f"{spec.name}.ngc"
     if extra and len(extra["programs"]) > 1:        # grbl: the finishing program's own file
-        from .setup import job_program_path
+        from .program.setup_sheet import job_program_path
 
         sheet_program = job_program_path(sheet_program, extra["programs"][-1][0])
     needs = program if not extra else _merged(extra["readback_programs"])
@@ -515,7 +515,7 @@ def _operations(spec, surface, toolpath, profile, text, program, machine, verify
     the finish's moves read back are the ones verified, figure each operation and, when
     the stock simulation is there, verify the whole job."""
     from ..errors import DesignError, SpecError
-    from .gcode import write_job
+    from .program.gcode import write_job
 
     say("planning the roughing")
     t0 = time.perf_counter()
@@ -546,7 +546,7 @@ def _operations(spec, surface, toolpath, profile, text, program, machine, verify
 def _merged(programs):
     """Every operation's moves read back, in order, as one Program (what the whole job
     asks of the machine)."""
-    from .verify import Program
+    from .program.reader import Program
 
     return Program(start=programs[0].start, points=np.vstack([p.points for p in programs]),
                    kinds=np.concatenate([p.kinds for p in programs]),
@@ -558,7 +558,7 @@ def _merged(programs):
 def _machine_checks(programs, readback, machine, finish_check):
     """The machine's checks over every program of the job, merged into one verdict."""
     from ..machine.limits import MachineCheck, check_program
-    from .verify import read_program
+    from .program.reader import read_program
 
     merged = MachineCheck(machine=finish_check.machine, travel=dict(finish_check.travel))
     for suffix, text in programs:

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import SpecError
+from ...errors import SpecError
 from .compensate import compensate
 from .passes import AIR_EPS
 

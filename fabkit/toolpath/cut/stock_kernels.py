@@ -1,4 +1,4 @@
-"""Compiled kernels of the height-field stock model (:mod:`fabkit.toolpath.stock`).
+"""Compiled kernels of the height-field stock model (:mod:`fabkit.toolpath.cut.stock`).
 
 The tool is a solid of revolution given by its radius R, corner radius r and flat
 radius f = R - r (flat end mill: r = 0; ball: f = 0; bull nose: both > 0), its cutting
@@ -28,7 +28,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .. import numba_start  # noqa: F401  (numba's short start-up for cached code)
+from ... import numba_start  # noqa: F401  (numba's short start-up for cached code)
 
 jit = njit(cache=True, nogil=True, error_model="numpy")
 

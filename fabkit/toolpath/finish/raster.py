@@ -1,16 +1,16 @@
 """Raster planning for a ball-end mill, as named stages a test can call one by one:
 
-1. :func:`fabkit.toolpath.guards.estimate` / ``guard``: passes, points, roughing
+1. :func:`fabkit.toolpath.finish.guards.estimate` / ``guard``: passes, points, roughing
    levels and planning time from the spec, refused before any work.
-2. :func:`fabkit.toolpath.passes.place_passes`: the passes across with the
+2. :func:`fabkit.toolpath.finish.passes.place_passes`: the passes across with the
    slope-aware stepover; each pass carries its exact tip heights
-   (:func:`fabkit.toolpath.passes.compensate_passes`, the drop cutter of
-   :mod:`fabkit.toolpath.compensate`).
-3. :func:`fabkit.toolpath.spacing.space_points`: points along each pass within the
+   (:func:`fabkit.toolpath.finish.passes.compensate_passes`, the drop cutter of
+   :mod:`fabkit.toolpath.finish.compensate`).
+3. :func:`fabkit.toolpath.finish.spacing.space_points`: points along each pass within the
    chord tolerance, air left out.
 4. :func:`order_runs`: cut runs in machining order (zigzag or one-way).
-5. :func:`fabkit.toolpath.rough.rough_runs`: optional z-level roughing runs.
-6. :func:`fabkit.toolpath.links.link_runs`: links, retracts and rapids.
+5. :func:`fabkit.toolpath.rough.ball_levels.rough_runs`: optional z-level roughing runs.
+6. :func:`fabkit.toolpath.finish.links.link_runs`: links, retracts and rapids.
 7. :func:`check_depth_limits` and :func:`summarize`.
 
 Work coordinates, mm (see :mod:`fabkit.toolpath.path`); the rules and their
@@ -23,15 +23,15 @@ import math
 
 import numpy as np
 
-from ..errors import SpecError
-from ..tolerances import DEFAULT, Tolerances
+from ...errors import SpecError
+from ...tolerances import DEFAULT, Tolerances
 from .compensate import WorkSurface
 from .guards import estimate, guard
 from .links import link_runs
 from .passes import (SCALLOP_SAFETY, Frame, PassPlan, compensate_passes, flat_stepover,
                      place_passes, sweep_material, tilted_plane_cusp)
-from .path import RAPID, Toolpath
-from .rough import rough_runs
+from ..path import RAPID, Toolpath
+from ..rough.ball_levels import rough_runs
 from .spacing import AIR_CUT_FRACTION, CHORD_SAFETY, cut_runs, space_points
 
 LINK_CLEARANCE = 1.0    # mm above material for short links and approaches (<= safe_height)
@@ -69,7 +69,7 @@ def scallop_normal(spec) -> bool:
 def _on_readback_grid(spec, ws, R, points, kinds):
     """Stage 6b: feed moves on the grid the controller reads back (:mod:`.snap`) where
     the program's decimals are finer than it (inch programs)."""
-    from .gcode import UNITS, MachineProfile
+    from ..program.gcode import UNITS, MachineProfile
     from .snap import readback_step, snap_points
 
     m = spec.machining

@@ -12,7 +12,7 @@ small module per formula), and reach the kernel inside ``P = (Pa, jet, height, h
     heights(n, X, Y, OUT, Pa): OUT[i] = height(X[i], Y[i], Pa)[0], i < n (pointers; the
                      same source per point: the same bits, without a call per point)
 
-It is the scalar transcription of :func:`fabkit.toolpath.compensate._compensate`,
+It is the scalar transcription of :func:`fabkit.toolpath.finish.compensate._compensate`,
 candidates (i)-(iv) (the samples, the interior Newton, the crease, the footprint's
 edges and corners): the same operations in the same order on each position, so the
 same candidates and the same maximum (to the last bits of the surface's own

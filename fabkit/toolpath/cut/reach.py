@@ -3,8 +3,8 @@
 Where a ball touching the design (centre R along its normal) is free of the surface,
 the design itself; elsewhere (a valley tighter than the ball, a V crease, a wall's
 foot) the lowest surface of the balls resting on the design, from the exact drop
-cutter heights (:mod:`fabkit.toolpath.compensate`). The verification of the cut
-(:func:`fabkit.toolpath.verify.verify_cut`) separates the material a program leaves
+cutter heights (:mod:`fabkit.toolpath.finish.compensate`). The verification of the cut
+(:func:`fabkit.toolpath.cut.verify.verify_cut`) separates the material a program leaves
 where the ball reaches it from the material no ball position removes by it.
 """
 
@@ -78,7 +78,7 @@ def reachable_height(ws, px, py, R: float, chunk: int = 20000, overhang: float |
     ball reaches it, and where it cannot, of the lowest ball's surface above the point
     (the surface the ball leaves there is that ball's: d from its centre, the scale is
     sqrt(R^2 - d^2) / R; never below the design's)."""
-    from .compensate import compensate
+    from ..finish.compensate import compensate
 
     overhang = OVERHANG * R if overhang is None else overhang
     ox_, oy_ = (overhang, overhang) if np.isscalar(overhang) else (float(overhang[0]), float(overhang[1]))
@@ -440,7 +440,7 @@ def _share(bx, by, best, bo_x, bo_y, R, src, dst):
     order = np.argsort(cid, kind="stable")
     cid_s = cid[order]
     px, py = bx[dst], by[dst]
-    from .kernels import module
+    from ..finish.kernels import module
 
     kern = module()
     if kern is not None:
@@ -557,7 +557,7 @@ def _grid_starts(ws, bx, by, R, drop, overhang=(0.0, 0.0), split=False):
     qi, qj = np.nonzero(near)
     z = drop(xs[qi], ys[qj])
     Z[qi, qj] = np.where(np.isfinite(z), z, np.inf)
-    from .kernels import module
+    from ..finish.kernels import module
 
     kern = module()
     if kern is not None and bx.size:

@@ -12,7 +12,7 @@ safe_z, rapid across, rapid down to the clearance above the top face and plunge.
 Rapids move only straight up out of the cut, across at the safe height or at
 least ``clearance`` above the top face, or down to above the top face; every
 rapid below the top face is checked against the material present by
-:func:`fabkit.toolpath.verify.verify_cut`.
+:func:`fabkit.toolpath.cut.verify.verify_cut`.
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ import math
 import numpy as np
 
 from .compensate import compensate
-from .path import CUT, PLUNGE, RAPID
+from ..path import CUT, PLUNGE, RAPID
 
 
 def link_runs(ws, R, all_runs, link_max, one_way, safe_z, clr):

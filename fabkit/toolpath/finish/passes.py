@@ -5,7 +5,7 @@ Work coordinates, mm. A pass runs along ``u`` (X for ``direction: x``, Y for
 ``direction: y``) at a fixed ``v`` across.
 
 * Stepover, pass by pass: the next pass is the farthest (never beyond the
-  flat-ground stepover) for which the scallop bound of :mod:`fabkit.toolpath.scallop`
+  flat-ground stepover) for which the scallop bound of :mod:`fabkit.toolpath.finish.scallop`
   (the material left between the two balls, from their actual centres, along the
   design's normal or vertically) stays <= 0.95 * scallop; that module says how it
   holds on steep walls and on slopes along the pass.
@@ -35,7 +35,7 @@ import math
 
 import numpy as np
 
-from ..errors import SpecError
+from ...errors import SpecError
 from .compensate import INTERIOR, TOP, compensate
 # the scallop bound has its own module; its names stay importable from here
 from .scallop import (EDGE_NODES, SCALLOP_SAFETY, STEEP_ALONG, between_rows, flat_stepover,  # noqa: F401
@@ -211,7 +211,7 @@ def _extend_where_profile_holds(ws, fr, R, ug, passes, target):
 def _edge_segments(ug, Lu, R):
     """(segments (sign, a, b) between the nodes at 7/8, 0.95 and 0.99 R out on both sides,
     their quarter points uq (read-only)), or None where the grid lacks those nodes. Kept
-    per read-only grid (:func:`fabkit.toolpath.scallop.grid_memo`)."""
+    per read-only grid (:func:`fabkit.toolpath.finish.scallop.grid_memo`)."""
     def make():
         sides = []
         for sign, edge in ((-1.0, 0.0), (1.0, Lu)):
@@ -358,7 +358,7 @@ def place_passes(ws, fr, R: float, scallop: float, depth_lim: float, max_passes:
 class PassPlacer:
     """Places the passes across one block (:func:`place_passes`): the first pass on or
     beyond the edge v = 0, then each next pass as far as the scallop bound
-    (:func:`fabkit.toolpath.scallop.sweep_material`) allows, the last one on or beyond
+    (:func:`fabkit.toolpath.finish.scallop.sweep_material`) allows, the last one on or beyond
     the edge v = Lv, then the combs hanging off the edges (:func:`edge_comb`).
 
     What the placement finds on the way: ``unreach`` [mm, u, v], the most material

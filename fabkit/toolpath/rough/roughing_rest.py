@@ -1,5 +1,5 @@
 """Rest passes after roughing with its own tool (the ``roughing`` section,
-:mod:`fabkit.toolpath.roughing`): the stock the roughing left, and the rest tools' passes.
+:mod:`fabkit.toolpath.rough.roughing`): the stock the roughing left, and the rest tools' passes.
 
 Rest passes (:func:`plan_rest`): the stock after roughing is a height field on the
 grid (each level's cleared region at its Z; conservatively the highest of a cell's
@@ -24,13 +24,13 @@ import time
 
 import numpy as np
 
-from ..errors import SpecError
-from .compensate import WorkSurface, compensate
-from .operations import Operation
-from .passes import AIR_EPS, Frame
-from .path import CUT, PLUNGE, RAPID, Toolpath
+from ...errors import SpecError
+from ..finish.compensate import WorkSurface, compensate
+from ..operations import Operation
+from ..finish.passes import AIR_EPS, Frame
+from ..path import CUT, PLUNGE, RAPID, Toolpath
 from .roughing_loops import LINK_CLEARANCE, _figures, _Path, _polys
-from .tools import Tool, depth_of_cut, feeds_of, finish_tool, spec_tools
+from ..tools import Tool, depth_of_cut, feeds_of, finish_tool, spec_tools
 
 __all__ = ["stock_after", "drop_on_grid", "drop_on_levels", "plan_rest"]
 
@@ -86,7 +86,7 @@ def drop_on_grid(S, x, y, X, Y, tool: Tool, slack: float = 0.0) -> np.ndarray:
     ok = rho - diag <= R
     di, dj = di[ok], dj[ok]
     lift = tool.lift(np.clip(rho[ok] - diag, 0.0, R))
-    from .stock_kernels import drop_grid
+    from ..cut.stock_kernels import drop_grid
 
     X, Y = np.asarray(X, float), np.asarray(Y, float)
     Xf, Yf = np.ascontiguousarray(X.ravel()), np.ascontiguousarray(Y.ravel())

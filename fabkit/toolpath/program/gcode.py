@@ -17,7 +17,7 @@ position (``machining.park``, default X0 Y0) and the program end (M2 or M30). Mo
 G0/G1, F and unchanged axis words are written only when they change. Coordinates
 have fixed decimals (4 in mm, 5 in inch, more if the tolerance needs them) so the
 rounding error (half a unit in the last place, per axis) stays below 1/20 of the
-tolerance; :mod:`fabkit.toolpath.verify` reads the TEXT back, so whatever rounding
+tolerance; :mod:`fabkit.toolpath.cut.verify` reads the TEXT back, so whatever rounding
 remains is part of the verified figures. Same toolpath and profile -> same text.
 """
 
@@ -29,8 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..units import PROGRAM_UNITS as UNITS, ProgramUnits as Units, MM_PER_INCH, coordinate_decimals  # noqa: F401
-from .path import CUT, PLUNGE, RAPID, Toolpath
+from ...units import PROGRAM_UNITS as UNITS, ProgramUnits as Units, MM_PER_INCH, coordinate_decimals  # noqa: F401
+from ..path import CUT, PLUNGE, RAPID, Toolpath
 
 #: rapid rate assumed for time estimates, mm/min (G0 speed is set by the machine,
 #: not the program; 5000 mm/min is a typical hobby router/mill figure)

@@ -1,4 +1,4 @@
-"""Compiled loops of the material bound (:func:`fabkit.toolpath.scallop.sweep_material`).
+"""Compiled loops of the material bound (:func:`fabkit.toolpath.finish.scallop.sweep_material`).
 
 Two kernels, each the numpy code's arithmetic transcribed operation by operation per
 sample point (the same floating-point expressions in the same order; the minima over
@@ -9,11 +9,11 @@ balls and passes are exact whatever their order), so the bounds are the same bit
 * :func:`rim_cut` (stage 3): per pass, the lowest ball between the fine positions,
   found by 65 samples within R and a golden-section search of 24 steps around the
   lowest, the balls following the pass's Hermite tip profile
-  (:func:`fabkit.toolpath.scallop.hermite_profile`).
+  (:func:`fabkit.toolpath.finish.scallop.hermite_profile`).
 
 The formula-dependent parts (the design's height and slopes, the normal's scale, the
 steep-along test) stay in numpy outside. Minima propagate NaN as numpy's do. Compiled
-with ``cache=True`` like :mod:`fabkit.toolpath.stock_kernels` (numba's cache next to
+with ``cache=True`` like :mod:`fabkit.toolpath.cut.stock_kernels` (numba's cache next to
 this module, or NUMBA_CACHE_DIR).
 """
 
@@ -24,7 +24,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .. import numba_start  # noqa: F401  (numba's short start-up for cached code)
+from ... import numba_start  # noqa: F401  (numba's short start-up for cached code)
 
 jit = njit(cache=True, nogil=True, error_model="numpy")
 

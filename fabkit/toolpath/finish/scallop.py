@@ -1,10 +1,10 @@
 """The scallop bound: how much material two ball-end passes leave between them.
 
 Work coordinates, mm; a pass runs along ``u`` at a fixed ``v`` across (see
-:class:`fabkit.toolpath.passes.Frame`). The closed forms first: the flat-ground
+:class:`fabkit.toolpath.finish.passes.Frame`). The closed forms first: the flat-ground
 stepover (:func:`flat_stepover`) and the cusp on a tilted plane
 (:func:`tilted_plane_cusp`). Then the bound the pass placement
-(:mod:`fabkit.toolpath.passes`) spaces every pass by, on any ground
+(:mod:`fabkit.toolpath.finish.passes`) spaces every pass by, on any ground
 (:func:`sweep_material`): an upper bound of the material left above the design at
 sample points, from the actual ball centres of the passes, measured along the
 design's normal (:func:`slope_scale`) or vertically.
@@ -40,7 +40,7 @@ _KERNELS: list = []     # the compiled module once imported (or None: numba miss
 
 
 def _kernels():
-    """The compiled loops (:mod:`fabkit.toolpath.scallop_kernels`), or None
+    """The compiled loops (:mod:`fabkit.toolpath.finish.scallop_kernels`), or None
     (``FABKIT_NO_KERNELS=1``, numba missing): the numpy code below, the same bits."""
     if not enabled():
         return None
@@ -186,7 +186,7 @@ def sweep_material(ws, fr, R, uq, vs, cutters, uf, threshold=0.0, chord=0.0, nor
     """Upper bound of the material left above the design at the points (uq, vs)
     (``normal``: measured along the design's normal, else vertically; mm; vs (m, nq)
     across, uq (nq,) along) after the passes ``cutters``
-    (list of :class:`fabkit.toolpath.passes._Pass`). Each point is cut by the lowest of the balls at the
+    (list of :class:`fabkit.toolpath.finish.passes._Pass`). Each point is cut by the lowest of the balls at the
     fine positions uf of those passes: a discrete subset of the continuous sweep,
     so the bound is conservative (by at most (du/4)^2 / (8 R) along steep slopes).
     Where a first bound from the balls at the same u alone is <= ``threshold`` it

@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from .passes import AIR_EPS
+from ..finish.passes import AIR_EPS
 
 
 def rough_runs(spec, ws, fr, R, V, runs, passes_cut, depth_lim):

@@ -1,5 +1,5 @@
 """Verification of a written program: sweep the ball-end tool along the moves READ BACK
-from its text (:func:`fabkit.toolpath.reader.read_program`) and compare the cut with the
+from its text (:func:`fabkit.toolpath.program.reader.read_program`) and compare the cut with the
 design.
 
 :func:`verify_cut` computes the material surface left by the program at many
@@ -15,7 +15,7 @@ height at a point is min(0, lowest capsule point over all moves) (0 = the top
 face: nothing is above it). Figures are exact at the sample points (floating
 point, ~1e-9 mm); between samples the cut is not checked, so the sample count
 (``machining.verify_points``) and the jitter set how sharp the check is. Material
-the ball cannot reach (:mod:`fabkit.toolpath.reach`) is told apart from material the
+the ball cannot reach (:mod:`fabkit.toolpath.cut.reach`) is told apart from material the
 program leaves.
 """
 
@@ -23,13 +23,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import SpecError
-from ..tolerances import DEFAULT, Tolerances
+from ...errors import SpecError
+from ...tolerances import DEFAULT, Tolerances
 from .reach import OVERHANG, OVERHANG_ALONG, reachable_height
-from .reader import RAPID, Program
-# read back before the reader had a module of its own (fabkit.toolpath.reader): the same
-# objects, for the callers that import them from here
-from .reader import FEED, estimate_time, read_program  # noqa: F401
+from ..program.reader import RAPID, Program
 
 
 # ----------------------------------------------------------------------------
@@ -122,7 +119,7 @@ class SegmentGrid:
         ``before``: (m,) int, only segments with index < before[i] count."""
         out = np.full(len(px), np.inf)
         cid = self.cell_of(px, py)
-        from .kernels import module
+        from ..finish.kernels import module
 
         kern = module()
         if kern is not None and len(px):
@@ -253,7 +250,7 @@ def verify_cut(surface, program: Program, R: float, points: int = 40000, *, seed
     OVERHANG x R across the passes and OVERHANG_ALONG x R along them (None: OVERHANG both).
     With ``detail`` also the arrays ``X``, ``Y``, ``design``, ``cut`` (per sample point).
     """
-    from .compensate import WorkSurface
+    from ..finish.compensate import WorkSurface
 
     ws = surface if isinstance(surface, WorkSurface) else WorkSurface(surface)
     L, W = ws.L, ws.W

@@ -42,8 +42,8 @@ material (no air above material already removed).
 Levels stop at the roughing tool's reach and stock.depth_limit: material below is
 left to the rest passes and the finish (which refuse depths beyond their own limits).
 
-Rest passes: :mod:`fabkit.toolpath.roughing_rest`; the loops and moves of a level:
-:mod:`fabkit.toolpath.roughing_loops`.
+Rest passes: :mod:`fabkit.toolpath.rough.roughing_rest`; the loops and moves of a level:
+:mod:`fabkit.toolpath.rough.roughing_loops`.
 """
 
 from __future__ import annotations
@@ -53,14 +53,14 @@ import time
 
 import numpy as np
 
-from .compensate import WorkSurface
-from .operations import Operation
-from .path import CUT, PLUNGE, RAPID, Toolpath
+from ..finish.compensate import WorkSurface
+from ..operations import Operation
+from ..path import CUT, PLUNGE, RAPID, Toolpath
 from .roughing_loops import (HELIX_FRACTION, HELIX_SEGS, LINK_CLEARANCE, QUAD_SEGS, _cut_inside_out,  # noqa: F401
                              _cut_outside_in, _erosion_tree, _figures, _go, _Node, _parts, _Path, _polys,
                              _post_order, _pre_order, _raster_pocket, _ring_from, _ring_region, _rings, _walk)
 from .roughing_rest import drop_on_grid, drop_on_levels, plan_rest, stock_after  # noqa: F401
-from .tools import Tool, depth_of_cut, feeds_of, finish_tool, spec_tools  # noqa: F401
+from ..tools import Tool, depth_of_cut, feeds_of, finish_tool, spec_tools  # noqa: F401
 
 __all__ = ["spec_tools", "finish_tool", "depth_of_cut", "plan_operations", "plan_rough", "plan_rest",
            "LevelSets", "allowed_region", "ENTRY_ANGLE_DEG", "stock_after"]

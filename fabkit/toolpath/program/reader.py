@@ -1,10 +1,10 @@
 """Reading a written program back: the TEXT, not the moves that were meant.
 
 :func:`read_program` is an independent reader of the G-code subset fabkit writes
-(it shares no code with the writer, :mod:`fabkit.toolpath.gcode`): modal G0/G1,
+(it shares no code with the writer, :mod:`fabkit.toolpath.program.gcode`): modal G0/G1,
 G20/G21, G90, F, X/Y/Z, tool changes. It returns a :class:`Program` (the moves in
 work millimetres and their feeds), which the verification of the cut
-(:mod:`fabkit.toolpath.verify`), the stock simulation, the run-time estimates
+(:mod:`fabkit.toolpath.cut.verify`), the stock simulation, the run-time estimates
 (:func:`estimate_time`) and the machine's planner and limits all start from.
 """
 
@@ -15,8 +15,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import DesignError
-from ..units import MM_PER_INCH
+from ...errors import DesignError
+from ...units import MM_PER_INCH
 
 RAPID, FEED = 0, 1
 _WORD = re.compile(r"([A-Z])\s*([-+]?(?:\d+\.?\d*|\.\d+))")

@@ -1,4 +1,4 @@
-"""Compiled kernel of the point spacing's simplification (:func:`fabkit.toolpath.spacing._simplify`).
+"""Compiled kernel of the point spacing's simplification (:func:`fabkit.toolpath.finish.spacing._simplify`).
 
 The numpy code works each round on every sample at once (a search of each sample's
 segment, two chord errors, scattered maxima): 15 rounds over the 210 000 samples of
@@ -7,7 +7,7 @@ the samples per round, with the same arithmetic in the same order (the chord err
 ``|z - (za + t (zb - za))|``, ``t = (u - ua) / (ub - ua)``), so the same comparisons
 and the same nodes, bit for bit. ``FABKIT_NO_KERNELS=1`` runs the numpy code.
 
-Compiled with ``cache=True`` like :mod:`.stock_kernels` (numba's cache next to this
+Compiled with ``cache=True`` like :mod:`fabkit.toolpath.cut.stock_kernels` (numba's cache next to this
 module, or ``NUMBA_CACHE_DIR``).
 """
 
@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .. import numba_start  # noqa: F401  (numba's short start-up for cached code)
+from ... import numba_start  # noqa: F401  (numba's short start-up for cached code)
 
 jit = njit(cache=True, nogil=True, error_model="numpy")
 

@@ -1,4 +1,4 @@
-"""The loops and moves of one roughing level (:mod:`fabkit.toolpath.roughing`): a
+"""The loops and moves of one roughing level (:mod:`fabkit.toolpath.rough.roughing`): a
 pocket's contour-parallel loops (its boundary eroded by i x stepover, as a tree walked
 without recursion) or rows, entries (helix, ramp, plunge), links within the pocket,
 and the path being built. Geometry by shapely.
@@ -10,7 +10,7 @@ import math
 
 import numpy as np
 
-from .path import CUT, PLUNGE, RAPID
+from ..path import CUT, PLUNGE, RAPID
 
 __all__ = ["QUAD_SEGS", "HELIX_FRACTION", "HELIX_SEGS", "LINK_CLEARANCE"]
 

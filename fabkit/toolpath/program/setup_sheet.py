@@ -22,9 +22,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import __version__
+from ... import __version__
 
-from ..units import MM_PER_INCH
+from ...units import MM_PER_INCH
 
 #: grbl 1.1's default settings, for comparison on the sheet: $110-$112 max rate
 #: (mm/min), $30 max spindle speed (rpm), $130-$132 max travel (mm)
@@ -86,7 +86,7 @@ def job_program_paths_possible(program_path, dialect: str) -> list[Path]:
     ``dialect`` (to check them before planning): none with a tool change (one program),
     else (grbl) one per operation."""
     from .gcode import DIALECTS
-    from .operations import OPERATION_KINDS
+    from ..operations import OPERATION_KINDS
 
     if DIALECTS[dialect].tool_change is not None:
         return []
@@ -224,8 +224,8 @@ def setup_sheet(spec, surface, toolpath, profile, program_path, check: dict | No
                 generated_at: str | None = None, program=None, machine=None, run=None,
                 machine_check=None, operations=None, job_check=None, job_path=None) -> dict:
     """The setup sheet as a dict (JSON-ready). ``check``: the result of
-    :func:`fabkit.toolpath.verify.verify_cut` (work mm) or None when not verified.
-    ``program``: the program read back (:func:`fabkit.toolpath.verify.read_program`);
+    :func:`fabkit.toolpath.cut.verify.verify_cut` (work mm) or None when not verified.
+    ``program``: the program read back (:func:`fabkit.toolpath.program.reader.read_program`);
     with it the sheet states what the program needs from the machine
     (``machine_needs``, program units; ``grbl_defaults`` in mm for comparison)."""
     k = 1.0 / (MM_PER_INCH if profile.units == "in" else 1.0)   # mm -> program units

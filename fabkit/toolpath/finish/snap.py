@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from .compensate import compensate
-from .path import RAPID
+from ..path import RAPID
 
 READBACK_DECIMALS = 4   # decimals of the program's unit the controller reads back
 

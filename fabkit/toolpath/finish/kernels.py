@@ -33,7 +33,7 @@ last_build_s: float | None = None
 
 
 def _template():
-    from ..physics.engine import codegen
+    from ...physics.engine import codegen
 
     return codegen.Template(
         "toolpath", KERNEL_TEMPLATE,
@@ -61,7 +61,7 @@ def enabled() -> bool:
 
 def _kernel_file() -> Path:
     """Where the kernel's module is (or will be) in the cache."""
-    from ..physics.engine import codegen
+    from ...physics.engine import codegen
 
     src = (_HERE / KERNEL_TEMPLATE).read_text()
     key = codegen._digest(["toolpath-kernel", src, *codegen._versions()])
@@ -69,10 +69,10 @@ def _kernel_file() -> Path:
 
 
 def _kernel_path() -> Path:
-    from ..physics.engine import codegen
+    from ...physics.engine import codegen
 
     def make():
-        from .. import __version__
+        from ... import __version__
 
         return codegen._HEADER.format(version=__version__, what="the toolpath's drop cutter kernel") \
             + "\n\n# ---- " + KERNEL_TEMPLATE + " " + "-" * 60 + "\n" + (_HERE / KERNEL_TEMPLATE).read_text()
@@ -81,7 +81,7 @@ def _kernel_path() -> Path:
 
 
 def _load(path: Path):
-    from ..physics.engine.batch import _import
+    from ...physics.engine.batch import _import
 
     mod = _MODS.get(str(path))
     if mod is None:
@@ -135,7 +135,7 @@ def kernel_for(surface) -> Kernel | None:
         else:
             from numba.core.errors import NumbaError
 
-            from ..physics.engine.batch import _formula
+            from ...physics.engine.batch import _formula
 
             t0 = time.process_time()
             try:
@@ -193,8 +193,8 @@ def cold_build_seconds(surface) -> float:
     hit = _BY_FNS.get(id(fns))
     if hit is not None and hit[0] is fns:
         return 0.0
-    from ..physics.engine import codegen
-    from ..physics.engine.batch import _cached
+    from ...physics.engine import codegen
+    from ...physics.engine.batch import _cached
 
     s = 0.0
     try:

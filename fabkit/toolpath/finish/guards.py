@@ -23,7 +23,7 @@ import math
 
 import numpy as np
 
-from ..errors import SpecError
+from ...errors import SpecError
 
 # per-unit CPU costs of the whole `fabkit gcode` job on the 2-core reference machine,
 # seconds. The planner's per-pass terms were fitted to the stage times of place_passes
@@ -40,7 +40,7 @@ from ..errors import SpecError
 # plane steep along the passes in a second run (2.28: its CPU time varied 10.1-14.9 s
 # between runs, and its per-pass cost is not explained by these terms; see
 # benchmarks/notes_gcode_profile.md)
-#: with the compiled drop cutter and swept cut (toolpath/dropcut.py) every planning term
+#: with the compiled drop cutter and swept cut (toolpath/finish/dropcut.py) every planning term
 #: was scaled by PLAN_SCALE, the fixed cost and the verification refitted, to the measured
 #: CPU time of the whole command on plane, block, steep, vee, tiny, bowl, surface, the
 #: paper's surface at scallop 0.02 mm and four dishes (benchmarks/notes_gcode_profile.md,
@@ -82,7 +82,7 @@ OBLIQUE_STEP = 0.08            # stepover over strips an oblique tight crease cr
 OBLIQUE_MIN = 0.15             # a crease counts as oblique beyond this tan(angle to the passes)
 OBLIQUE_VERIFY = 4.0           # a tight point's verification costs (1 + this x obliqueness x (R / OBLIQUE_R)^2)
 OBLIQUE_R = 2.0                # times more (mm)
-STEEP_ALONG = 1.5              # as fabkit.toolpath.passes.STEEP_ALONG
+STEEP_ALONG = 1.5              # as fabkit.toolpath.finish.passes.STEEP_ALONG
 # memory (peak resident, bytes): the process with the verification and the setup sheet
 # (measured 470-810 MB end to end on the jobs above, programs of 900-91 000 lines;
 # the small blocks' peak is the verification's chunk of segment-point pairs), what the
@@ -93,7 +93,7 @@ STEEP_ALONG = 1.5              # as fabkit.toolpath.passes.STEEP_ALONG
 BYTES_BASE = 175e6             # 560e6 before the kernels, 230e6 before the second pass
 BYTES_PER_POINT = 2500.0       # (and the per-pass bytes x MEM_SCALE): measured / estimated 0.83-1.01
 MEM_SCALE = 0.5                # on plane, bowl, surface and the 1/8 in ball job (peak 179-374 MB)
-# roughing with its own tool, per node of the stock's grid (toolpath/stock.py): the paper's
+# roughing with its own tool, per node of the stock's grid (toolpath/cut/stock.py): the paper's
 # rough + rest + finish job (2001 x 1001 nodes) measured 12.6-16.0 s CPU and 617-694 MB
 SEC_PER_STOCK_NODE = 3.2e-6
 BYTES_PER_STOCK_NODE = 180.0
@@ -126,7 +126,7 @@ def estimate(spec, ws, fr, R: float, target: float, tolerance: float, depth_mm: 
     """Passes, program points, roughing levels and points, planning seconds and memory
     (bytes), from the surface's exact slopes and curvatures on an n_grid^2 grid.
 
-    n_nodes: nodes along a pass (:func:`fabkit.toolpath.passes.u_grid`); n_fine and
+    n_nodes: nodes along a pass (:func:`fabkit.toolpath.finish.passes.u_grid`); n_fine and
     fine_step: the material bounds' fine grid along a pass (size, step mm)."""
     Lu, Lv = fr.Lu, fr.Lv
     u = np.linspace(0.0, Lu, n_grid)
@@ -199,8 +199,8 @@ def estimate(spec, ws, fr, R: float, target: float, tolerance: float, depth_mm: 
     # passes and the whole job's stock simulation, per node of the stock's grid
     out["roughing_seconds"] = out["roughing_bytes"] = 0.0
     if hasattr(spec, "has") and spec.has("roughing"):
-        from .roughing import spec_tools
-        from .stock import grid_spacing
+        from ..rough.roughing import spec_tools
+        from ..cut.stock import grid_spacing
 
         h = grid_spacing(list(spec_tools(spec).values()), tolerance)
         nodes = (ws.L / h + 1.0) * (ws.W / h + 1.0)
@@ -219,7 +219,7 @@ def estimate(spec, ws, fr, R: float, target: float, tolerance: float, depth_mm: 
     return out
 
 
-# roughing with its own tool (toolpath/roughing.py), before planning: the levels' loops or
+# roughing with its own tool (toolpath/rough/roughing.py), before planning: the levels' loops or
 # rows (their length: each level's area / stepover), the program points on them, and the
 # whole-job check's reach search (stock.reach_height: per stock-grid centre within R of a
 # node asked, the tool's offsets within R). The loops are offsets of contours on the design
@@ -246,7 +246,7 @@ def roughing_estimate(spec, ws, H, hx, hy, hxx, hxy, hyy, depth_mm: float, toler
     seconds and bytes, and the worst case of the whole-job check's reach search (every
     stock node asked, ``stock_grid_mm`` h). Also the depth the roughing tool must reach
     (``rough_depth_mm``) against its ``reach``."""
-    from .roughing import spec_tools
+    from ..rough.roughing import spec_tools
 
     fin = lambda a: np.where(np.isfinite(a), a, 0.0)   # noqa: E731
     rg = spec.roughing

@@ -5,7 +5,7 @@ the footprint [0, L] x [0, W] (work mm, the top face Z = 0, edges included). :fu
 lowers it to the lower envelope of a tool (:class:`~fabkit.toolpath.tools.Tool`: flat
 end mill, bull nose or ball) swept along straight moves. The envelope is EXACT at the
 nodes (closed forms for the flat end mill and the ball, a bisection to ~1e-12 mm for
-the bull nose; see :mod:`fabkit.toolpath.stock_kernels`); between nodes nothing is
+the bull nose; see :mod:`fabkit.toolpath.cut.stock_kernels`); between nodes nothing is
 checked, so the grid spacing h sets the sharpness: a smooth cut surface of curvature
 radius rho is sampled with a chordal error below h^2 / (8 rho), a feature narrower than
 h can fall between nodes, and a ridge (a scallop's crest, flanks of slope m) between
@@ -19,8 +19,8 @@ Rapids never cut: a rapid whose tool would pass below the stock present at that 
 
 :func:`verify_job` replays the operations of a job (roughing, rest, finishing, each
 with its tool) on one stock, snapshots it after each, and checks against the clipped
-design surface (:class:`~fabkit.toolpath.compensate.WorkSurface`, min(H, 0), as
-:func:`~fabkit.toolpath.verify.verify_cut` uses):
+design surface (:class:`~fabkit.toolpath.finish.compensate.WorkSurface`, min(H, 0), as
+:func:`~fabkit.toolpath.cut.verify.verify_cut` uses):
 
 * gouge: stock below the design by more than the tolerance, after any operation;
 * roughing: material above the design within [leave - tolerance, leave + cusp +
@@ -38,7 +38,7 @@ design surface (:class:`~fabkit.toolpath.compensate.WorkSurface`, min(H, 0), as
   one is given.
 
 Where a tool "reaches" is the grey-scale opening of the target surface by the tool
-over the grid nodes (:func:`~fabkit.toolpath.stock_kernels.reach_at`): centres and
+over the grid nodes (:func:`~fabkit.toolpath.cut.stock_kernels.reach_at`): centres and
 contacts at the nodes only, so the reach is known to about the chordal error above,
 either way (a ball in a 45-degree V groove at h = 0.1 mm: 2e-4 mm low, tested; for a
 flat bottom on a slope s, to about s x h).
@@ -52,9 +52,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import DesignError, SpecError
-from .path import RAPID
-from .tools import Tool
+from ...errors import DesignError, SpecError
+from ..path import RAPID
+from ..tools import Tool
 
 __all__ = ["RAPID_TOL", "MAX_NODES", "Stock", "CutResult", "OperationCut", "JobCut", "grid_spacing",
            "make_stock", "cut", "design_heights", "operations_from_program", "verify_job", "stock_png"]
@@ -131,7 +131,7 @@ def make_stock(L: float, W: float, spacing: float, top: float = 0.0) -> Stock:
 def design_heights(surface, stock: Stock) -> np.ndarray:
     """The clipped design min(H, 0) at the stock's nodes (work mm; WorkSurface, as the
     verification of the finishing program uses)."""
-    from .compensate import WorkSurface
+    from ..finish.compensate import WorkSurface
 
     ws = surface if isinstance(surface, WorkSurface) else WorkSurface(surface)
     X, Y = stock.grid()
@@ -290,13 +290,13 @@ def reach_height(target: np.ndarray, stock: Stock, tool: Tool, mask: np.ndarray,
 # ----------------------------------------------------------------------------
 def operations_from_program(program, tools: dict, kinds: dict | None = None, info: dict | None = None):
     """Operations (:class:`~fabkit.toolpath.operations.Operation`) from a program read
-    back (:func:`~fabkit.toolpath.verify.read_program`), one per run of one tool.
+    back (:func:`~fabkit.toolpath.program.reader.read_program`), one per run of one tool.
     ``tools``: {tool number: Tool} (-1: the moves before any M6); ``kinds``: {tool
     number: "rough" | "rest" | "finish"} (default: the last tool finishes, the first
     roughs, any other rests); ``info``: {tool number: dict} merged into each
     operation's info (leave, cusp, ...: ``leave`` also sets Operation.leave)."""
-    from .operations import Operation
-    from .path import Toolpath
+    from ..operations import Operation
+    from ..path import Toolpath
 
     runs = program.split()
     order = []
@@ -448,7 +448,7 @@ def verify_job(surface, operations, tolerance: float, *, spacing: float | None =
     """
     import time
 
-    from .compensate import WorkSurface
+    from ..finish.compensate import WorkSurface
 
     t0 = time.perf_counter()
     ws = surface if isinstance(surface, WorkSurface) else WorkSurface(surface)
@@ -521,7 +521,7 @@ def verify_job(surface, operations, tolerance: float, *, spacing: float | None =
         # the finishing passes end EDGE_NODES[-1] x R beyond the stock (passes.u_grid): the
         # finish is judged where its ball can stand (as its own verification judges it)
         if op.kind == "finish":
-            from .scallop import EDGE_NODES
+            from ..finish.scallop import EDGE_NODES
 
             reach = reach_height(target, stock, op.tool, high, beyond=float(EDGE_NODES[-1]) * op.tool.radius)
         else:
