@@ -8,7 +8,12 @@ docs/outputs/<job>.txt. A passage that quotes one is marked in the Markdown sour
     <!-- /numbers -->
 
 and every decimal number inside it (59.2241, 2.6063, 34.346, ...) must be one that those
-outputs print, to the digits quoted (59.2241 matches a printed 59.224142). So a number that
+outputs print, to the digits quoted (59.2241 matches a printed 59.224142). A time or a load inside a
+marked passage depends on the machine, not on the command, and is named in the mark:
+
+    <!-- numbers: gcode-surface; timings: 65.4 54.7 0.7 4.7 0.4 -->
+
+those numbers (each must occur in the passage) are not checked. So a number that
 drifts from what the command prints fails here, without re-running the heavy commands:
 regenerating an output (``python docs/regenerate.py JOB``) and not the docs, or the docs and
 not the output, is caught. One cheap job is re-run to show the outputs are the commands'.
@@ -28,7 +33,7 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 OUT = ROOT / "docs" / "outputs"
 DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
-BLOCK = re.compile(r"<!-- numbers: ([\w\-, ]+) -->(.*?)<!-- /numbers -->", re.S)
+BLOCK = re.compile(r"<!-- numbers: ([\w\-, ]+?)\s*(?:;\s*timings:([-+\d.eE ]+))? -->(.*?)<!-- /numbers -->", re.S)
 # a decimal number (not part of a word, a version like 3.11.7 or a file name like 0.ngc);
 # "a..b" is a range of two numbers
 _DECIMAL = re.compile(r"(?<![\w.])[-+]?\d+\.\d+(?:[eE][-+]?\d+)?(?![\w.]*\d)")
@@ -59,7 +64,20 @@ def _printed(job: str) -> list[Decimal]:
 def _blocks():
     for doc in DOCS:
         for m in BLOCK.finditer(doc.read_text()):
-            yield doc.relative_to(ROOT).as_posix(), [j.strip() for j in m.group(1).split(",")], m.group(2)
+            yield (doc.relative_to(ROOT).as_posix(), [j.strip() for j in m.group(1).split(",")],
+                   m.group(3), (m.group(2) or "").split())
+
+
+def checked_decimals(text: str, timings: list[str]) -> tuple[list[str], list[str]]:
+    """The passage's decimals less one occurrence of each named timing, and the timings
+    the passage does not hold."""
+    quoted, missing = decimals(text), []
+    for t in timings:
+        if t in quoted:
+            quoted.remove(t)
+        else:
+            missing.append(t)
+    return quoted, missing
 
 
 def _matches(quoted: str, printed: list[Decimal]) -> bool:
@@ -70,14 +88,16 @@ def _matches(quoted: str, printed: list[Decimal]) -> bool:
 
 def test_every_quoted_number_is_printed_by_its_command():
     blocks = list(_blocks())
-    have = {(doc, j) for doc, jobs, _ in blocks for j in jobs}
+    have = {(doc, j) for doc, jobs, _, _ in blocks for j in jobs}
     assert not [r for r in REQUIRED if r not in have], "a quoting passage lost its marks"
     jobs = _regenerate().JOBS_BY_NAME
     bad, checked = [], 0
-    for doc, names, text in blocks:
+    for doc, names, text, timings in blocks:
         assert all(n in jobs for n in names), f"{doc}: unknown output {names} (docs/regenerate.py --list)"
         printed = [p for n in names for p in _printed(n)]
-        for q in decimals(text):
+        quoted, missing = checked_decimals(text, timings)
+        bad += [f"{doc}: timing {t} named in the mark is not in the passage" for t in missing]
+        for q in quoted:
             checked += 1
             if not _matches(q, printed):
                 bad.append(f"{doc}: {q} is not printed by {', '.join(names)}")
@@ -93,6 +113,16 @@ def test_the_check_rejects_a_drifted_number():
     assert decimals("v 34.346..50.886; python 3.11.7, file 0.ngc, -1.5 cm, < 1.2e-07") == \
         ["34.346", "50.886", "-1.5", "1.2e-07"]
     assert _matches("1.2e-07", [Decimal("1.2e-07")]) and not _matches("1.3e-07", [Decimal("1.2e-07")])
+
+
+def test_a_named_timing_is_skipped_once_and_must_be_there():
+    m = BLOCK.search("<!-- numbers: gcode-surface; timings: 65.4 0.4 -->\n"
+                     "gouge 0.0051 mm; 65.4 s (sheet 0.4), 0.4\n<!-- /numbers -->")
+    assert m.group(1) == "gcode-surface" and m.group(2).split() == ["65.4", "0.4"]
+    assert checked_decimals(m.group(3), m.group(2).split()) == (["0.0051", "0.4"], [])
+    assert checked_decimals("65.4 s", ["66.0"]) == (["65.4"], ["66.0"])
+    plain = BLOCK.search("<!-- numbers: check, sweep -->x 1.5<!-- /numbers -->")
+    assert plain.group(1) == "check, sweep" and plain.group(2) is None
 
 
 def test_regenerating_a_small_output_reproduces_its_file():
