@@ -52,6 +52,7 @@ JOBS = (
     Job("calibrate", "docs/simulator.md", ("calibrate", "specs/surface.yaml", "--height", "1", "4.5",
                                            "--v-in", "50")),
     Job("sweep", "docs/sweep_check.md", ("sweep", "specs/surface.yaml", "--plot", "docs/sweep.png")),
+    Job("stl", "docs/stl.md", ("stl", "specs/surface.yaml")),
     Job("gcode-surface", "docs/gcode.md", ("gcode", "specs/surface.yaml", "--no-progress")),
     Job("gcode-bowl", "docs/gcode.md", ("gcode", "specs/bowl.yaml", "--no-progress")),
     Job("ramp", "docs/lab.md", ("ramp", "specs/surface.yaml")),

@@ -58,7 +58,8 @@ def _regenerate():
 def _printed(job: str) -> list[Decimal]:
     text = (OUT / f"{job}.txt").read_text()
     text = text[:text.rindex("\n[exit ")]             # not the wall time and load of the run
-    return [Decimal(m) for m in re.findall(r"[-+]?\d+\.\d+(?:[eE][-+]?\d+)?|[-+]?\d+", text)]
+    # a sign only where a number starts ("0.22-1.09 mm" is a range, not 0.22 and -1.09)
+    return [Decimal(m) for m in re.findall(r"(?:(?<![\w.])[-+])?(?:\d+\.\d+(?:[eE][-+]?\d+)?|\d+)", text)]
 
 
 def _blocks():
@@ -112,6 +113,7 @@ def test_the_check_rejects_a_drifted_number():
     assert _matches("59.2241", printed) and not _matches("59.2242", printed)
     assert decimals("v 34.346..50.886; python 3.11.7, file 0.ngc, -1.5 cm, < 1.2e-07") == \
         ["34.346", "50.886", "-1.5", "1.2e-07"]
+    assert Decimal("1.09") in _printed("gcode-surface") and Decimal("-1.09") not in _printed("gcode-surface")
     assert _matches("1.2e-07", [Decimal("1.2e-07")]) and not _matches("1.3e-07", [Decimal("1.2e-07")])
 
 
