@@ -43,7 +43,10 @@ def decimals(text: str) -> list[str]:
     return _DECIMAL.findall(text.replace("..", " .. "))
 #: passages that must stay marked: (doc, an output it quotes)
 REQUIRED = [("README.md", "check"), ("README.md", "ball-compare"), ("docs/ball.md", "ball-compare"),
-            ("docs/ball.md", "check"), ("docs/sweep_check.md", "sweep")]
+            ("docs/ball.md", "check"), ("docs/sweep_check.md", "sweep"), ("README.md", "check-as-built"),
+            ("README.md", "design"), ("README.md", "stl"), ("README.md", "gcode-surface"), ("README.md", "phi4"),
+            ("docs/gcode.md", "gcode-surface"), ("docs/gcode.md", "gcode-bowl"), ("docs/stl.md", "stl"),
+            ("docs/numerics.md", "precision"), ("docs/phi4.md", "compare"), ("docs/design.md", "design")]
 
 
 def _regenerate():
