@@ -46,7 +46,8 @@ REQUIRED = [("README.md", "check"), ("README.md", "ball-compare"), ("docs/ball.m
             ("docs/ball.md", "check"), ("docs/sweep_check.md", "sweep"), ("README.md", "check-as-built"),
             ("README.md", "design"), ("README.md", "stl"), ("README.md", "gcode-surface"), ("README.md", "phi4"),
             ("docs/gcode.md", "gcode-surface"), ("docs/gcode.md", "gcode-bowl"), ("docs/stl.md", "stl"),
-            ("docs/numerics.md", "precision"), ("docs/phi4.md", "compare"), ("docs/design.md", "design")]
+            ("docs/numerics.md", "precision"), ("docs/phi4.md", "compare"), ("docs/design.md", "design"),
+            ("docs/simulator.md", "calibrate"), ("docs/explore.md", "explore")]
 
 
 def _regenerate():
