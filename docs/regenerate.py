@@ -55,6 +55,11 @@ JOBS = (
     Job("stl", "docs/stl.md", ("stl", "specs/surface.yaml")),
     Job("gcode-surface", "docs/gcode.md", ("gcode", "specs/surface.yaml", "--no-progress")),
     Job("gcode-bowl", "docs/gcode.md", ("gcode", "specs/bowl.yaml", "--no-progress")),
+    Job("gcode-router", "docs/machine.md", ("gcode", "specs/surface.yaml", "--machine", "grbl-router", "-o",
+                                             "toolpaths/surface_grbl.ngc", "--no-progress")),
+    # the program gcode-router writes, timed on two profiles (cheap: under 1 s each)
+    Job("time-router", "docs/machine.md", ("time", "toolpaths/surface_grbl.ngc", "--machine", "grbl-router")),
+    Job("time-defaults", "docs/machine.md", ("time", "toolpaths/surface_grbl.ngc", "--machine", "grbl")),
     Job("ramp", "docs/lab.md", ("ramp", "specs/surface.yaml")),
     Job("precision", "docs/numerics.md", ("precision", "specs/surface.yaml", "--plot", "docs/precision.png",
                                           "--no-progress")),
