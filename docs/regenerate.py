@@ -48,6 +48,7 @@ class Job:
 JOBS = (
     Job("check", "README.md", ("check", "specs/surface.yaml")),
     Job("check-as-built", "README.md", ("check", "specs/surface_as_built.yaml")),
+    Job("check-clipped-top2", "docs/sweep_check.md", ("check", "tests/fixtures/check/clipped_top2.yaml")),
     Job("ball-compare", "README.md, docs/ball.md", (), script="benchmarks/ball_compare.py"),
     Job("calibrate", "docs/simulator.md", ("calibrate", "specs/surface.yaml", "--height", "1", "4.5",
                                            "--v-in", "50")),
