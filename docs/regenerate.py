@@ -52,6 +52,7 @@ JOBS = (
     Job("ball-compare", "README.md, docs/ball.md", (), script="benchmarks/ball_compare.py"),
     Job("calibrate", "docs/simulator.md", ("calibrate", "specs/surface.yaml", "--height", "1", "4.5",
                                            "--v-in", "50")),
+    Job("calibrate-range", "README.md", ("calibrate", "specs/surface.yaml", "--height", "0.2", "4.5")),
     Job("sweep", "docs/sweep_check.md", ("sweep", "specs/surface.yaml", "--plot", "docs/sweep.png")),
     Job("stl", "docs/stl.md", ("stl", "specs/surface.yaml")),
     Job("gcode-surface", "docs/gcode.md", ("gcode", "specs/surface.yaml", "--no-progress")),
