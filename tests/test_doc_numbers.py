@@ -119,6 +119,14 @@ def test_every_quoted_number_is_printed_by_its_command():
     assert checked >= 60 and not bad, "\n".join(bad)
 
 
+def test_each_job_names_the_docs_that_quote_it():
+    """An output file's last line says which docs quote it: the marks are that list."""
+    jobs = _regenerate().JOBS_BY_NAME
+    missing = [f"{doc} quotes {n}" for doc, names, _, _ in _blocks() for n in names
+               if n in jobs and doc not in [d.strip() for d in jobs[n].doc.split(",")]]
+    assert not missing, "docs/regenerate.py does not list: " + "; ".join(missing)
+
+
 def test_the_check_rejects_a_drifted_number():
     # the comparison itself: 0.7232 is printed (check), 0.745 is not; 59.2241 matches a
     # printed 59.224142, 59.2242 does not
