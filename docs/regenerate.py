@@ -56,7 +56,8 @@ JOBS = (
     Job("calibrate", "docs/simulator.md", ("calibrate", "specs/surface.yaml", "--height", "1", "4.5",
                                            "--v-in", "50")),
     Job("calibrate-range", "README.md", ("calibrate", "specs/surface.yaml", "--height", "0.2", "4.5")),
-    Job("sweep", "docs/sweep_check.md, docs/explore.md, docs/paper.md", ("sweep", "specs/surface.yaml", "--plot", "docs/sweep.png")),
+    Job("sweep", "docs/sweep_check.md, docs/explore.md, docs/paper.md",
+        ("sweep", "specs/surface.yaml", "--plot", "docs/sweep.png")),
     Job("stl", "docs/stl.md, README.md", ("stl", "specs/surface.yaml")),
     Job("gcode-surface", "docs/gcode.md, README.md", ("gcode", "specs/surface.yaml", "--no-progress")),
     Job("gcode-bowl", "docs/gcode.md", ("gcode", "specs/bowl.yaml", "--no-progress")),
@@ -76,10 +77,11 @@ JOBS = (
     Job("robustness", "docs/explore.md", ("robustness", "specs/surface.yaml", "--v-in", "43", "52", "46",
                                           "--sigma-y", "0.1", "--sigma-vy", "0.5", "--samples", "50",
                                           "--no-progress")),
-    Job("design", "docs/design.md, README.md", ("design", "specs/surface_eps015.yaml", "--vary", "surface.params.eps=0.1:0.4",
-                                     "--vary", "surface.params.c=0.04:0.12", "--vary", "surface.params.eta=2:5",
-                                     "--seed", "1", "--plot", "docs/design.png", "-o",
-                                     "toolpaths/surface_eps015.design.yaml", "--no-progress")),
+    Job("design", "docs/design.md, README.md",
+        ("design", "specs/surface_eps015.yaml", "--vary", "surface.params.eps=0.1:0.4",
+         "--vary", "surface.params.c=0.04:0.12", "--vary", "surface.params.eta=2:5",
+         "--seed", "1", "--plot", "docs/design.png", "-o",
+         "toolpaths/surface_eps015.design.yaml", "--no-progress")),
 )
 
 

@@ -53,7 +53,8 @@ REQUIRED = [("README.md", "check"), ("README.md", "ball-compare"), ("docs/ball.m
             ("docs/gcode.md", "gcode-surface"), ("docs/gcode.md", "gcode-bowl"), ("docs/stl.md", "stl"),
             ("docs/numerics.md", "precision"), ("docs/phi4.md", "compare"), ("docs/design.md", "design"),
             ("docs/simulator.md", "calibrate"), ("docs/explore.md", "explore"),
-            ("docs/machine.md", "time-defaults"), ("docs/machine.md", "time-router"), ("docs/machine.md", "gcode-router"),
+            ("docs/machine.md", "time-defaults"), ("docs/machine.md", "time-router"),
+            ("docs/machine.md", "gcode-router"),
             ("docs/sweep_check.md", "check-clipped-top2"), ("docs/phi4.md", "phi4"), ("docs/paper.md", "sweep"),
             ("README.md", "calibrate-range")]
 
