@@ -630,10 +630,10 @@ def stock_png(stock: Stock, design: np.ndarray, *, title: str = "", tolerance: f
     isolated gouge stays visible). A scale clipped at either end says so (an arrow in the
     end's colour, the bound marked >= or <=, and the largest value and share beyond it);
     the legend shows the grey of a flat face on the design (the uncut top face), the scale's
-    white as the hill shade lights it. PNG bytes (numpy, scipy.ndimage and Pillow)."""
+    white as the hill shade lights it. PNG bytes (numpy, the window filters of :mod:`~fabkit.toolpath.cut.stock_kernels` and Pillow)."""
     from PIL import Image, ImageDraw, ImageFont
 
-    from scipy.ndimage import maximum_filter, minimum_filter, uniform_filter
+    from .stock_kernels import window_mean, window_minmax
 
     z = stock.z
     dev = z - np.asarray(design, dtype=float)
@@ -643,11 +643,13 @@ def stock_png(stock: Stock, design: np.ndarray, *, title: str = "", tolerance: f
     # finer than a pixel would alias into stripes): the highest material and the deepest
     # gouge within it, whichever is larger
     w = (max(1, int(round(envelope / stock.hx))) | 1, max(1, int(round(envelope / stock.hy))) | 1)
-    env = dev if w == (1, 1) else np.where(
-        -minimum_filter(dev, size=w, mode="nearest") > maximum_filter(dev, size=w, mode="nearest"),
-        minimum_filter(dev, size=w, mode="nearest"), maximum_filter(dev, size=w, mode="nearest"))
+    if w == (1, 1):
+        env = dev
+    else:
+        lo_env, hi_env = window_minmax(dev, w)
+        env = np.where(-lo_env > hi_env, lo_env, hi_env)
     dv = _pool(env, k, True)
-    zz = _pool(z if w == (1, 1) else uniform_filter(z, size=w, mode="nearest"), k, False)
+    zz = _pool(z if w == (1, 1) else window_mean(z, w), k, False)
     hx, hy = stock.hx * k, stock.hy * k
     up = max(1, min(width // nx, int(0.75 * width) // ny)) if k == 1 else 1   # small grids: enlarged
     if up > 1:

@@ -385,3 +385,74 @@ def node_verdicts(z, dz, scale, use_scale, slope, extra_h, slack, leave, tol, re
                 if a > left_max or left_at < 0:
                     left_max, left_at = a, k
     return n_over, over_max, over_at, n_unre, unre_max, unre_at, low_at, low_max, left_min, left_max, left_at
+
+
+# ----------------------------------------------------------------------------
+# window filters along the rows of a 2-D array, the edges repeated (scipy.ndimage's
+# mode "nearest"), to the last bit of scipy.ndimage's own (its running sum for the
+# mean; min and max are exact); :func:`window_minmax` and :func:`window_mean` apply
+# them along both axes
+# ----------------------------------------------------------------------------
+@jit
+def _minmax_rows(a_lo, a_hi, size, lo, hi):
+    n0, n = a_lo.shape
+    s1 = size // 2
+    for i in range(n0):
+        for t in range(n):
+            m, M = np.inf, -np.inf
+            for u in range(t - s1, t - s1 + size):
+                q = min(max(u, 0), n - 1)
+                if a_lo[i, q] < m:
+                    m = a_lo[i, q]
+                if a_hi[i, q] > M:
+                    M = a_hi[i, q]
+            lo[i, t] = m
+            hi[i, t] = M
+
+
+@jit
+def _mean_rows(a, size, out):
+    n0, n = a.shape
+    s1 = size // 2
+    for i in range(n0):
+        tmp = 0.0
+        for u in range(-s1, size - s1):
+            tmp += a[i, min(max(u, 0), n - 1)]
+        out[i, 0] = tmp / size
+        for t in range(1, n):
+            tmp += a[i, min(t + size - 1 - s1, n - 1)] - a[i, max(t - 1 - s1, 0)]
+            out[i, t] = tmp / size
+
+
+def window_minmax(a, size):
+    """(min, max) of ``a`` (2-D, float) over windows of ``size`` = (s0, s1) nodes (odd)
+    centred on each node, the edges repeated: scipy.ndimage.minimum_filter and
+    maximum_filter(a, size, mode="nearest") (a max window reaching past the edge is the
+    same with mode "constant", cval -inf)."""
+    lo = np.ascontiguousarray(a, dtype=float)
+    hi = lo
+    for axis, s in ((0, size[0]), (1, size[1])):
+        if s <= 1:
+            continue
+        if axis == 0:
+            lo_t, hi_t = np.ascontiguousarray(lo.T), np.ascontiguousarray(hi.T)
+        else:
+            lo_t, hi_t = lo, hi
+        l2, h2 = np.empty_like(lo_t), np.empty_like(hi_t)
+        _minmax_rows(lo_t, hi_t, int(s), l2, h2)
+        lo, hi = (np.ascontiguousarray(l2.T), np.ascontiguousarray(h2.T)) if axis == 0 else (l2, h2)
+    return lo, hi
+
+
+def window_mean(a, size):
+    """scipy.ndimage.uniform_filter(a, size, mode="nearest") (2-D, float64; axes of size
+    1 untouched, as there), to the last bit."""
+    out = np.ascontiguousarray(a, dtype=float)
+    for axis, s in ((0, size[0]), (1, size[1])):
+        if s <= 1:
+            continue
+        src = np.ascontiguousarray(out.T) if axis == 0 else out
+        res = np.empty_like(src)
+        _mean_rows(src, int(s), res)
+        out = np.ascontiguousarray(res.T) if axis == 0 else res
+    return out
