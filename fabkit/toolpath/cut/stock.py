@@ -425,9 +425,9 @@ class JobCut:
 def _max3(a: np.ndarray) -> np.ndarray:
     """The 3 x 3 maximum of ``a`` at every node, the edges repeated (scipy.ndimage's
     maximum_filter(a, size=3, mode="nearest"), without its import)."""
-    p = np.pad(a, 1, mode="edge")
-    rows = np.maximum(np.maximum(p[:-2], p[1:-1]), p[2:])
-    return np.maximum(np.maximum(rows[:, :-2], rows[:, 1:-1]), rows[:, 2:])
+    from .stock_kernels import window_minmax
+
+    return window_minmax(a, (3, 3))[1]
 
 
 def _at(stock, flat_index):
