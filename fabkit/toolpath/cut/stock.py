@@ -480,7 +480,7 @@ def verify_job(surface, operations, tolerance: float, *, spacing: float | None =
     reports, snaps, failures = [], [], []
     for n, op in enumerate(operations, start=1):
         name = f"operation {n} ({op.kind}, {op.tool.describe()})"
-        before = stock.z.copy()
+        before = snaps[-1].z if snaps else stock.z.copy()     # the stock before it (snapshots are copies)
         tp = op.toolpath
         start = tp.info.get("start") if isinstance(tp.info, dict) else None
         if start is None and len(tp.points) and np.isfinite(tp.safe_z):
