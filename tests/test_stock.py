@@ -475,3 +475,26 @@ def test_rest_pass_keeps_the_finishing_ball_within_its_depth_of_cut():
     without = verify_job(Slot(), [ops[0], ops[2]], 0.01, spacing=0.25, depth_of_cut=limit)
     assert without.operations[1].max_removed == 2.5
     assert any("removes 2.500 mm" in x and "depth of cut 1 mm" in x for x in without.failures)
+
+
+@pytest.mark.parametrize("size", [(3, 3), (7, 5), (1, 9), (9, 1), (13, 13)])
+def test_window_filters_equal_scipy_ndimage_to_the_bit(size):
+    """The pictures' and the rest roughing's window filters are scipy.ndimage's, to the
+    last bit (min, max and the running-sum mean, edges repeated), and the min/max agree
+    with a brute-force window over the edge-padded array."""
+    from scipy.ndimage import maximum_filter, minimum_filter, uniform_filter
+
+    from fabkit.toolpath.cut.stock_kernels import window_mean, window_minmax
+
+    rng = np.random.default_rng(7)
+    for a in (rng.normal(size=(41, 23)).cumsum(axis=0) * 0.37, -np.abs(rng.normal(size=(5, 4))) * 1e3):
+        lo, hi = window_minmax(a, size)
+        assert np.array_equal(lo, minimum_filter(a, size=size, mode="nearest"))
+        assert np.array_equal(hi, maximum_filter(a, size=size, mode="nearest"))
+        assert np.array_equal(hi, maximum_filter(a, size=size, mode="constant", cval=-np.inf))
+        assert np.array_equal(window_mean(a, size), uniform_filter(a, size=size, mode="nearest"))
+        s0, s1 = size[0] // 2, size[1] // 2
+        p = np.pad(a, ((s0, s0), (s1, s1)), mode="edge")
+        ref = np.array([[p[i:i + size[0], j:j + size[1]].max() for j in range(a.shape[1])]
+                        for i in range(a.shape[0])])
+        assert np.array_equal(hi, ref)

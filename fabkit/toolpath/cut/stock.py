@@ -422,6 +422,14 @@ class JobCut:
                 "operations": [o.to_json() for o in self.operations]}
 
 
+def _max3(a: np.ndarray) -> np.ndarray:
+    """The 3 x 3 maximum of ``a`` at every node, the edges repeated (scipy.ndimage's
+    maximum_filter(a, size=3, mode="nearest"), without its import)."""
+    from .stock_kernels import window_minmax
+
+    return window_minmax(a, (3, 3))[1]
+
+
 def _at(stock, flat_index):
     i, j = np.unravel_index(int(flat_index), stock.z.shape)
     return (float(i * stock.hx), float(j * stock.hy))
@@ -464,10 +472,15 @@ def verify_job(surface, operations, tolerance: float, *, spacing: float | None =
         raise ValueError(f"measure {measure!r}: normal or vertical")
     gx, gy = np.gradient(dz, stock.hx, stock.hy)
     normal_scale = 1.0 / np.sqrt(1.0 + gx * gx + gy * gy) if measure == "normal" else np.ones_like(dz)
+    from .stock_kernels import node_bounds, node_verdicts
+
+    dz = np.ascontiguousarray(dz, dtype=float)
+    dzf, scale_f = dz.ravel(), np.ascontiguousarray(normal_scale, dtype=float).ravel()
+    slope, empty = None, np.empty(0)        # the design's slope: once, for the operations that use it
     reports, snaps, failures = [], [], []
     for n, op in enumerate(operations, start=1):
         name = f"operation {n} ({op.kind}, {op.tool.describe()})"
-        before = stock.z.copy()
+        before = snaps[-1].z if snaps else stock.z.copy()     # the stock before it (snapshots are copies)
         tp = op.toolpath
         start = tp.info.get("start") if isinstance(tp.info, dict) else None
         if start is None and len(tp.points) and np.isfinite(tp.safe_z):
@@ -476,11 +489,6 @@ def verify_job(surface, operations, tolerance: float, *, spacing: float | None =
         res = cut(stock, op.tool, tp.points, tp.kinds, start=start)
         snaps.append(stock.copy())
         z = stock.z
-        above = z - dz
-        ig = int(np.argmax(-above))
-        gouge = float(-above.flat[ig])
-        removed = before - z
-        irm = int(np.argmax(removed))
         extra_v = extra_h = 0.0
         fin_doc = (depth_of_cut or {}).get("finish", op.info.get("finish_depth_of_cut_mm"))
         if op.kind == "finish":
@@ -500,43 +508,38 @@ def verify_job(surface, operations, tolerance: float, *, spacing: float | None =
             extra_h = float(op.info.get("allowance_offset_mm", 0.0))
         lo, hi = leave - tol, leave + cusp + extra_v + tol
         slack = cusp + tol + extra_v
-        reach_err = 0.0
-        if op.kind != "finish":
-            from scipy.ndimage import maximum_filter
-
-            slope = maximum_filter(np.hypot(gx, gy), size=3, mode="nearest")
-            slack = slack + extra_h * slope
-            # the reach takes contacts at the nodes only: a flat bottom's rim or a corner
-            # touching a wall between nodes is missed, the reach up to the slope x half a
-            # cell's diagonal too low (not the finish's: its bound stays the chordal one)
-            reach_err = slope * 0.5 * math.hypot(stock.hx, stock.hy)
-        # the target is design + leave, clipped at the top face (no material above it);
-        # the bounds hold relative to the target: [T - tol, T + slack] - design
+        # per node (stock_kernels.node_bounds / node_verdicts, one pass each): the target is
+        # design + leave, clipped at the top face (no material above it); the bounds hold
+        # relative to the target: [T - tol, T + slack] - design, slack raised by extra_h x
+        # the design's slope (3 x 3 maximum of its gradient's norm) for all but the finish.
+        # Material above the bound is excused where the tool cannot reach the target: the
+        # allowance then holds above the tool's reach (z - max(T, reach) <= slack). The
+        # reach takes contacts at the nodes only: a flat bottom's rim or a corner touching
+        # a wall between nodes is missed, the reach up to the slope x half a cell's
+        # diagonal too low (not the finish's: its bound stays the chordal one). The finish
+        # is measured with normal_scale, and judged where its ball can stand: its passes
+        # end EDGE_NODES[-1] x R beyond the stock (passes.u_grid), as its own verification
+        # judges it.
+        finish = op.kind == "finish"
+        if not finish and slope is None:
+            slope = _max3(np.hypot(gx, gy))
+        slope_k = empty if finish else slope.ravel()
+        high = np.empty(z.shape, dtype=np.bool_)
+        zf, bf = z.ravel(), before.ravel()
+        ig, gouge, irm, removed_max = node_bounds(zf, dzf, bf, scale_f, finish, slope_k, extra_h, slack, leave,
+                                                  tol, high.ravel())
+        gouge = float(gouge)
         target = np.minimum(dz + leave, 0.0)
-        want = target - dz
-        lo_n, hi_n = want - tol, want + slack
-        # material above the bound is excused where the tool cannot reach the target:
-        # the allowance then holds above the tool's reach (z - max(T, reach) <= slack)
-        high = above * (normal_scale if op.kind == "finish" else 1.0) > hi_n
-        # the finishing passes end EDGE_NODES[-1] x R beyond the stock (passes.u_grid): the
-        # finish is judged where its ball can stand (as its own verification judges it)
-        if op.kind == "finish":
+        if finish:
             from ..finish.scallop import EDGE_NODES
 
             reach = reach_height(target, stock, op.tool, high, beyond=float(EDGE_NODES[-1]) * op.tool.radius)
         else:
             reach = reach_height(target, stock, op.tool, high)
-        scale = normal_scale if op.kind == "finish" else 1.0
-        excess = np.where(high, (z - np.fmax(target, reach + reach_err)) * scale - slack, -np.inf)
-        over = high & (excess > 0)
-        unre = high & ~over
-        low = above < lo_n
-        full = (dz + leave < 0.0) & ~unre          # where the allowance is not clipped by the top
-        left = np.where(full, above * (normal_scale if op.kind == "finish" else 1.0), np.nan)
-        if np.isfinite(left).any():
-            il = int(np.nanargmax(left))
-            min_left, max_left = float(np.nanmin(left)), float(left.flat[il])
-        else:
+        (n_over, over_max, over_k, n_unre, unre_max, unre_k, low_k, _low, min_left, max_left,
+         il) = node_verdicts(zf, dzf, scale_f, finish, slope_k, extra_h, slack, leave, tol, reach.ravel(),
+                             -1.0 if finish else math.hypot(stock.hx, stock.hy), high.ravel())
+        if il < 0:
             il, min_left, max_left = 0, 0.0, 0.0
         limit = None
         if depth_of_cut and op.kind in depth_of_cut:
@@ -545,15 +548,14 @@ def verify_job(surface, operations, tolerance: float, *, spacing: float | None =
             limit = float(op.info["depth_of_cut_mm"])
         rep = OperationCut(
             kind=op.kind, tool=op.tool.describe(), max_gouge=max(gouge, 0.0) + 0.0, gouge_at=_at(stock, ig),
-            min_left=min_left, max_left=max_left, left_at=_at(stock, il), bounds=(lo, hi),
-            over_reachable=float(excess[over].max()) if over.any() else 0.0,
-            over_area=float(over.sum() * area),
-            unreachable=float((above - hi_n)[unre].max()) if unre.any() else 0.0,
-            unreachable_area=float(unre.sum() * area),
-            over_at=_at(stock, np.argmax(np.where(over, excess, -np.inf))) if over.any() else None,
-            unreachable_at=(_at(stock, np.argmax(np.where(unre, above - hi_n, -np.inf)))
-                            if unre.any() else None),
-            max_removed=float(removed.flat[irm]), removed_at=_at(stock, irm),
+            min_left=float(min_left), max_left=float(max_left), left_at=_at(stock, il), bounds=(lo, hi),
+            over_reachable=float(over_max) if n_over else 0.0,
+            over_area=float(n_over * area),
+            unreachable=float(unre_max) if n_unre else 0.0,
+            unreachable_area=float(n_unre * area),
+            over_at=_at(stock, over_k) if n_over else None,
+            unreachable_at=_at(stock, unre_k) if n_unre else None,
+            max_removed=float(removed_max), removed_at=_at(stock, irm),
             max_engagement=res.max_engagement, depth_of_cut_limit=limit, deepest_cut=res.deepest_cut,
             rapids_into_stock=res.rapids_into_stock, rapid_depth=res.rapid_depth, rapid_at=res.rapid_at,
             unlocated_low=res.unlocated_low, moves=res.moves, feeds=res.feeds)
@@ -561,11 +563,13 @@ def verify_job(surface, operations, tolerance: float, *, spacing: float | None =
         if rep.max_gouge > tol:
             failures.append(f"{name}: gouge {rep.max_gouge:.4f} mm at X{rep.gouge_at[0]:.3f} "
                             f"Y{rep.gouge_at[1]:.3f} (tolerance {tol:g} mm)")
-        if op.kind != "finish" and low.any():
-            k = int(np.argmax(np.where(low, lo_n - above, -np.inf)))
-            failures.append(f"{name}: material left {float(above.flat[k]):.4f} mm at X{_at(stock, k)[0]:.3f} "
-                            f"Y{_at(stock, k)[1]:.3f}, below the allowance's bound {float(lo_n.flat[k]):.4f} mm")
-        if over.any():
+        if op.kind != "finish" and low_k >= 0:
+            k = int(low_k)
+            above_k = z.flat[k] - dz.flat[k]
+            lo_k = (np.minimum(dz.flat[k] + leave, 0.0) - dz.flat[k]) - tol
+            failures.append(f"{name}: material left {float(above_k):.4f} mm at X{_at(stock, k)[0]:.3f} "
+                            f"Y{_at(stock, k)[1]:.3f}, below the allowance's bound {float(lo_k):.4f} mm")
+        if n_over:
             failures.append(f"{name}: material left {rep.over_reachable:.4f} mm above its bound ({hi:.4f} mm "
                             + (f"+ {extra_h:.4f} x the slope " if extra_h > 0 else "")
                             + f"above the design) where the tool reaches, at X{rep.over_at[0]:.3f} "
@@ -626,10 +630,10 @@ def stock_png(stock: Stock, design: np.ndarray, *, title: str = "", tolerance: f
     isolated gouge stays visible). A scale clipped at either end says so (an arrow in the
     end's colour, the bound marked >= or <=, and the largest value and share beyond it);
     the legend shows the grey of a flat face on the design (the uncut top face), the scale's
-    white as the hill shade lights it. PNG bytes (numpy, scipy.ndimage and Pillow)."""
+    white as the hill shade lights it. PNG bytes (numpy, the window filters of :mod:`~fabkit.toolpath.cut.stock_kernels` and Pillow)."""
     from PIL import Image, ImageDraw, ImageFont
 
-    from scipy.ndimage import maximum_filter, minimum_filter, uniform_filter
+    from .stock_kernels import window_mean, window_minmax
 
     z = stock.z
     dev = z - np.asarray(design, dtype=float)
@@ -639,11 +643,13 @@ def stock_png(stock: Stock, design: np.ndarray, *, title: str = "", tolerance: f
     # finer than a pixel would alias into stripes): the highest material and the deepest
     # gouge within it, whichever is larger
     w = (max(1, int(round(envelope / stock.hx))) | 1, max(1, int(round(envelope / stock.hy))) | 1)
-    env = dev if w == (1, 1) else np.where(
-        -minimum_filter(dev, size=w, mode="nearest") > maximum_filter(dev, size=w, mode="nearest"),
-        minimum_filter(dev, size=w, mode="nearest"), maximum_filter(dev, size=w, mode="nearest"))
+    if w == (1, 1):
+        env = dev
+    else:
+        lo_env, hi_env = window_minmax(dev, w)
+        env = np.where(-lo_env > hi_env, lo_env, hi_env)
     dv = _pool(env, k, True)
-    zz = _pool(z if w == (1, 1) else uniform_filter(z, size=w, mode="nearest"), k, False)
+    zz = _pool(z if w == (1, 1) else window_mean(z, w), k, False)
     hx, hy = stock.hx * k, stock.hy * k
     up = max(1, min(width // nx, int(0.75 * width) // ny)) if k == 1 else 1   # small grids: enlarged
     if up > 1:

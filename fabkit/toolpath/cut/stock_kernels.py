@@ -284,3 +284,175 @@ def drop_grid(S, hx, hy, X, Y, di, dj, lift, out):
                 if v > best:
                     best = v
         out[k] = best
+
+
+# ----------------------------------------------------------------------------
+# the whole job's per-node checks (stock.verify_job): one pass over the grid each,
+# the same floating-point operations, in the same order, as the array expressions
+# they replace (so the same figures to the last bit)
+# ----------------------------------------------------------------------------
+@jit
+def node_bounds(z, dz, before, scale, use_scale, slope, extra_h, slack, leave, tol, high):
+    """Per node (flat arrays): above = z - dz, the allowance's target
+    T = min(dz + leave, 0), its upper bound hi = (T - dz) + (slack + extra_h slope)
+    (slope: only when extra_h is given as used: ``slope.size``), high[k] = above
+    (times scale[k] when use_scale) > hi. Returns (ig, gouge, irm, removed): the first
+    node of largest -above and its value, the first of largest before - z and its value."""
+    n = z.size
+    ig, gmax = 0, -np.inf
+    irm, rmax = 0, -np.inf
+    gnan = rnan = False
+    use_slope = slope.size == n
+    for k in range(n):
+        above = z[k] - dz[k]
+        g = -above
+        if not gnan:
+            if g != g:
+                ig, gmax, gnan = k, g, True
+            elif g > gmax:
+                ig, gmax = k, g
+        rm = before[k] - z[k]
+        if not rnan:
+            if rm != rm:
+                irm, rmax, rnan = k, rm, True
+            elif rm > rmax:
+                irm, rmax = k, rm
+        t = dz[k] + leave
+        if not (t <= 0.0):
+            t = 0.0 if t == t else t
+        s = slack + extra_h * slope[k] if use_slope else slack
+        hi = (t - dz[k]) + s
+        a = above * scale[k] if use_scale else above
+        high[k] = a > hi
+    return ig, gmax, irm, rmax
+
+
+@jit
+def node_verdicts(z, dz, scale, use_scale, slope, extra_h, slack, leave, tol, reach, reach_c, high):
+    """The figures of the nodes above their bound (``high``, from :func:`node_bounds`)
+    against the tool's reach (nan: not computed) raised by reach_c x slope (the reach's
+    own error; reach_c < 0: none), and of all nodes against the low bound and the
+    allowance left. Returns
+    (n_over, over_max, over_at, n_unre, unre_max, unre_at, low_at, low_max,
+     left_min, left_max, left_at) with -1 for an index that does not exist."""
+    n = z.size
+    use_slope = slope.size == n
+    n_over, over_max, over_at = 0, -np.inf, -1
+    n_unre, unre_max, unre_at = 0, -np.inf, -1
+    low_at, low_max = -1, -np.inf
+    left_min, left_max, left_at = np.inf, -np.inf, -1
+    for k in range(n):
+        above = z[k] - dz[k]
+        d = dz[k] + leave
+        t = d
+        if not (t <= 0.0):
+            t = 0.0 if t == t else t
+        want = t - dz[k]
+        lo = want - tol
+        sl = slope[k] if use_slope else 0.0
+        s = slack + extra_h * sl if use_slope else slack
+        hi = want + s
+        a = above * scale[k] if use_scale else above
+        unre = False
+        if high[k]:
+            if reach_c >= 0.0:
+                r = reach[k] + sl * 0.5 * reach_c
+            else:
+                r = reach[k] + 0.0
+            m = t if r != r else (r if t != t else (t if t >= r else r))
+            ex = z[k] - m
+            if use_scale:
+                ex = ex * scale[k]
+            ex = ex - s
+            if ex > 0.0:
+                n_over += 1
+                if ex > over_max:
+                    over_max, over_at = ex, k
+            else:
+                unre = True
+                n_unre += 1
+                u = above - hi
+                if u > unre_max or unre_at < 0:
+                    unre_max, unre_at = u, k
+        if above < lo:
+            v = lo - above
+            if v > low_max or low_at < 0:
+                low_max, low_at = v, k
+        if d < 0.0 and not unre:
+            if a == a:
+                if a < left_min:
+                    left_min = a
+                if a > left_max or left_at < 0:
+                    left_max, left_at = a, k
+    return n_over, over_max, over_at, n_unre, unre_max, unre_at, low_at, low_max, left_min, left_max, left_at
+
+
+# ----------------------------------------------------------------------------
+# window filters along the rows of a 2-D array, the edges repeated (scipy.ndimage's
+# mode "nearest"), to the last bit of scipy.ndimage's own (its running sum for the
+# mean; min and max are exact); :func:`window_minmax` and :func:`window_mean` apply
+# them along both axes
+# ----------------------------------------------------------------------------
+@jit
+def _minmax_rows(a_lo, a_hi, size, lo, hi):
+    n0, n = a_lo.shape
+    s1 = size // 2
+    for i in range(n0):
+        for t in range(n):
+            m, M = np.inf, -np.inf
+            for u in range(t - s1, t - s1 + size):
+                q = min(max(u, 0), n - 1)
+                if a_lo[i, q] < m:
+                    m = a_lo[i, q]
+                if a_hi[i, q] > M:
+                    M = a_hi[i, q]
+            lo[i, t] = m
+            hi[i, t] = M
+
+
+@jit
+def _mean_rows(a, size, out):
+    n0, n = a.shape
+    s1 = size // 2
+    for i in range(n0):
+        tmp = 0.0
+        for u in range(-s1, size - s1):
+            tmp += a[i, min(max(u, 0), n - 1)]
+        out[i, 0] = tmp / size
+        for t in range(1, n):
+            tmp += a[i, min(t + size - 1 - s1, n - 1)] - a[i, max(t - 1 - s1, 0)]
+            out[i, t] = tmp / size
+
+
+def window_minmax(a, size):
+    """(min, max) of ``a`` (2-D, float) over windows of ``size`` = (s0, s1) nodes (odd)
+    centred on each node, the edges repeated: scipy.ndimage.minimum_filter and
+    maximum_filter(a, size, mode="nearest") (a max window reaching past the edge is the
+    same with mode "constant", cval -inf)."""
+    lo = np.ascontiguousarray(a, dtype=float)
+    hi = lo
+    for axis, s in ((0, size[0]), (1, size[1])):
+        if s <= 1:
+            continue
+        if axis == 0:
+            lo_t, hi_t = np.ascontiguousarray(lo.T), np.ascontiguousarray(hi.T)
+        else:
+            lo_t, hi_t = lo, hi
+        l2, h2 = np.empty_like(lo_t), np.empty_like(hi_t)
+        _minmax_rows(lo_t, hi_t, int(s), l2, h2)
+        lo, hi = (np.ascontiguousarray(l2.T), np.ascontiguousarray(h2.T)) if axis == 0 else (l2, h2)
+    return lo, hi
+
+
+def window_mean(a, size):
+    """scipy.ndimage.uniform_filter(a, size, mode="nearest") (2-D, float64; axes of size
+    1 untouched, as there), to the last bit."""
+    out = np.ascontiguousarray(a, dtype=float)
+    for axis, s in ((0, size[0]), (1, size[1])):
+        if s <= 1:
+            continue
+        src = np.ascontiguousarray(out.T) if axis == 0 else out
+        res = np.empty_like(src)
+        _mean_rows(src, int(s), res)
+        out = np.ascontiguousarray(res.T) if axis == 0 else res
+    return out
