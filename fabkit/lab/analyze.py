@@ -135,6 +135,30 @@ def _analyze_moving(problem, track, mu_launch, sigma, sx, sy, budget) -> dict:
     return out
 
 
+def between_segments(tracks, rows) -> list:
+    """The loss-law fits' segments of the legs between a launch's bounces
+    (:func:`.outcome.fit_between`, only those that converged), each from its fitted state
+    at its first frame, its frames weighted as the whole track's (:meth:`Track.weights`).
+    With the release and the entry and exit legs (:func:`.losses.segments_of`) they span
+    the launch's whole range of speeds, which is what tells a loss ~ v (viscous) from a
+    constant one (rolling)."""
+    from .losses import Segment
+
+    out = []
+    for tr, r in zip(tracks, rows):
+        if r.get("kind") != "launch":
+            continue
+        wx, wy = tr.weights()
+        for leg in r.get("between_fits") or []:
+            if leg.get("fit_status") != "converged" or leg.get("state") is None \
+                    or not np.all(np.isfinite(leg["state"])):
+                continue
+            sl = np.flatnonzero((tr.t >= leg["t_first"]) & (tr.t <= leg["t_last"]))
+            out.append(Segment(tr.file, "leg between bounces", tr.t[sl], tr.x[sl], tr.y[sl],
+                               np.asarray(leg["state"], float), wx[sl], wy[sl]))
+    return out
+
+
 def fit_tn(rows: list[dict]) -> dict | None:
     """Eq. (tn) over two-bounce launches: T_n = T n + delta by least squares (with the
     standard errors of T and delta), or None with fewer than two distinct n."""
@@ -196,7 +220,7 @@ def analyze(problem, tracks: list, screens: list | None = None, compare_losses: 
     if compare_losses:
         from .losses import compare_laws, segments_of
 
-        losses = compare_laws(problem, segments_of(tracks, ordered), mu_launch)
+        losses = compare_laws(problem, segments_of(tracks, ordered) + between_segments(tracks, ordered), mu_launch)
         if losses and losses.get("chosen"):
             # each launch again through the simulator with the law the data support
             c = losses["laws"][losses["chosen"]]["coefficients"]

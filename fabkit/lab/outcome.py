@@ -172,6 +172,41 @@ def _launch_speeds(problem, track, bt, mu, budget: Budget | None = None) -> dict
                 v_out = abs(ex[3])
                 out["v_out_error"] = float(leg2["error"][2])
     out["outcome"], out["v_out"] = outcome, v_out
+    out["between_fits"] = fit_between(problem, track, bt, mu)
+    return out
+
+
+#: a leg between two bounces is fitted when it has at least this many frames
+BETWEEN_MIN_FRAMES = 16
+
+
+def fit_between(problem, track, bt, mu) -> list[dict]:
+    """The legs between successive bounces, each fitted like the entry leg (its state at
+    its first frame after the bounce and the viscous damping, :func:`.track_fits.fit_leg`)
+    on a budget of its own: these legs only add the speeds of the middle of a launch to
+    the loss-law fits (:mod:`.losses`), so one that does not converge is left out of them
+    (its ``fit_status`` says why) and changes nothing else of the track. Each leg:
+    {"t_first", "t_last", "frames", and the leg's fit as the entry leg's}."""
+    from dataclasses import replace
+
+    out = []
+    t = track.t
+    for a, b in zip(bt[:-1], bt[1:]):
+        sel = np.flatnonzero((t >= a) & (t <= b))
+        if sel.size < BETWEEN_MIN_FRAMES:
+            continue
+        sub = replace(track, t=t[sel], x=track.x[sel], y=track.y[sel],
+                      sigma_x=None if track.sigma_x is None else track.sigma_x[sel],
+                      sigma_y=None if track.sigma_y is None else track.sigma_y[sel], notes=[])
+        try:
+            leg = fit_leg(problem, sub, np.arange(sel.size), False, mu, Budget())
+        except FitStopped as exc:
+            out.append({"t_first": float(t[sel[0]]), "t_last": float(t[sel[-1]]), "frames": int(sel.size),
+                        "t": float(t[sel[0]]), "state": None, "error": None, "damping": None,
+                        "damping_error": None, "rms": None, "fit_status": exc.reason})
+            continue
+        out.append({"t_first": float(t[sel[0]]), "t_last": float(t[sel[-1]]), "frames": int(sel.size),
+                    **_leg_json(leg)})
     return out
 
 
