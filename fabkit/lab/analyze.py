@@ -135,6 +135,30 @@ def _analyze_moving(problem, track, mu_launch, sigma, sx, sy, budget) -> dict:
     return out
 
 
+#: a launch's whole-track fit replaces its legs in the loss-law fits when its residual
+#: rms is within this factor of the track's noise sigma (else: a wrong minimum, the legs)
+WHOLE_RMS_FACTOR = 2.0
+
+
+def law_segments(tracks, rows) -> list:
+    """The segments the loss laws are fitted to (:mod:`.losses`): each release whole;
+    each launch whole (one state, through its bounces: :func:`.track_fits.fit_whole`)
+    where that fit converged with a residual rms within WHOLE_RMS_FACTOR of the noise,
+    else its legs (before the first bounce, between bounces, after the last)."""
+    from .losses import Segment, segments_of
+
+    whole = {}
+    for tr, r in zip(tracks, rows):
+        w = r.get("whole_fit") if r.get("kind") == "launch" else None
+        if w and w.get("fit_status") == "converged" and w.get("state") is not None \
+                and np.all(np.isfinite(w["state"])) and w["rms"] <= WHOLE_RMS_FACTOR * r["noise_sigma"]:
+            wx, wy = tr.weights()
+            whole[tr.file] = Segment(tr.file, "launch", tr.t, tr.x, tr.y, np.asarray(w["state"], float), wx, wy)
+    segs = [s for s in segments_of(tracks, rows) if s.file not in whole or s.what == "release"]
+    segs += [s for s in between_segments(tracks, rows) if s.file not in whole]
+    return segs + list(whole.values())
+
+
 def between_segments(tracks, rows) -> list:
     """The loss-law fits' segments of the legs between a launch's bounces
     (:func:`.outcome.fit_between`, only those that converged), each from its fitted state
@@ -220,7 +244,7 @@ def analyze(problem, tracks: list, screens: list | None = None, compare_losses: 
     if compare_losses:
         from .losses import compare_laws, segments_of
 
-        losses = compare_laws(problem, segments_of(tracks, ordered) + between_segments(tracks, ordered), mu_launch)
+        losses = compare_laws(problem, law_segments(tracks, ordered), mu_launch)
         if losses and losses.get("chosen"):
             # each launch again through the simulator with the law the data support
             c = losses["laws"][losses["chosen"]]["coefficients"]

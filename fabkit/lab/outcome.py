@@ -28,7 +28,7 @@ import numpy as np
 from ..physics.outcomes import Outcome
 from .events import edge_state
 from .fitting import Budget, FitStopped, centre_of
-from .track_fits import fit_leg, start_state
+from .track_fits import fit_leg, fit_whole, start_state
 
 
 #: evaluations of the model carrying one state to x = start (a bound on the work, not on time)
@@ -173,6 +173,15 @@ def _launch_speeds(problem, track, bt, mu, budget: Budget | None = None) -> dict
                 out["v_out_error"] = float(leg2["error"][2])
     out["outcome"], out["v_out"] = outcome, v_out
     out["between_fits"] = fit_between(problem, track, bt, mu)
+    out["whole_fit"] = None
+    if bt.size and _fitted(leg):
+        span = float(t_in_end - t[0])
+        try:
+            whole = fit_whole(problem, track, {**leg, "span": span}, Budget())
+            out["whole_fit"] = _leg_json(whole)
+        except FitStopped as exc:
+            out["whole_fit"] = {"t": float(t[0]), "state": None, "error": None, "damping": None,
+                                "damping_error": None, "rms": None, "fit_status": exc.reason}
     return out
 
 

@@ -120,6 +120,29 @@ def fit_leg(problem, track, sel: np.ndarray, end: bool, mu: float, budget: Budge
     return _fit_leg_once(problem, track, idx, t0, p, budget)
 
 
+def fit_whole(problem, track, leg: dict, budget: Budget | None = None) -> dict:
+    """The model's state at the first frame and the viscous damping fitted to the WHOLE
+    track, through its bounces (the model rolls up the wall and back: nothing breaks
+    there), from the entry leg's fit ``leg`` (:func:`fit_leg`): by continuation, over
+    twice the leg's span, then four times, ... each fit from the last. One state for the
+    whole launch ties the speeds before, between and after the bounces to one
+    trajectory, which is what separates a loss ~ v (viscous) from a constant one
+    (rolling) (:mod:`.losses`). Returns as :func:`fit_leg`."""
+    t = track.t
+    idx = np.arange(len(t))
+    t0 = float(t[0])
+    p = np.array([*np.asarray(leg["state"], dtype=float), max(float(leg["damping"]), 1e-3)])
+    reach = t - t0
+    span = 2.0 * max(float(leg.get("span", LEG_START)), LEG_START)
+    while span < reach[-1]:
+        step = _fit_leg_once(problem, track, idx[reach <= span], t0, p, budget)
+        p = step["p"]
+        if step["status"] not in ("converged", "evaluations"):
+            return step
+        span *= 2.0
+    return _fit_leg_once(problem, track, idx, t0, p, budget)
+
+
 def _fit_leg_once(problem, track, idx, t0: float, p0, budget: Budget | None = None) -> dict:
     """One least-squares fit of (state at t0, mu) to the frames ``idx`` (:func:`fit_leg`)."""
     te = track.t[idx]
