@@ -159,6 +159,39 @@ def law_segments(tracks, rows) -> list:
     return segs + list(whole.values())
 
 
+def _whole_damping(rows) -> float | None:
+    """The launches' whole fits' damping (inverse-variance mean), None without any: the
+    loss laws start from it, the damping their whole-launch states were fitted with (a
+    launch of seconds through its bounces from another damping is far from its track)."""
+    d = [(w["damping"], w["damping_error"]) for w in (r.get("whole_fit") for r in rows if r.get("kind") == "launch")
+         if w and w.get("fit_status") == "converged" and w.get("damping") is not None
+         and w.get("damping_error") and math.isfinite(w["damping_error"]) and w["damping_error"] > 0]
+    if not d:
+        return None
+    wts = np.array([1.0 / e ** 2 for _, e in d])
+    return float(np.sum(wts * np.array([v for v, _ in d])) / np.sum(wts))
+
+
+def _compare_laws(problem, tracks, rows, mu_launch) -> dict | None:
+    """The loss laws fitted to :func:`law_segments` (launches whole where they could be
+    fitted whole); if a law's fit does not converge there, the laws again on the legs
+    (:func:`.losses.segments_of` and :func:`between_segments`), that result kept if
+    every law converged on it."""
+    from .losses import compare_laws, segments_of
+
+    segs = law_segments(tracks, rows)
+    legs = segments_of(tracks, rows) + between_segments(tracks, rows)
+    whole = len(segs) != len(legs) or any(s.what == "launch" for s in segs)
+    mu0 = _whole_damping(rows) if whole else None
+    res = compare_laws(problem, segs, mu_launch if mu0 is None else mu0)
+    if not whole or res is None or not res.get("stopped"):
+        return res
+    alt = compare_laws(problem, legs, mu_launch)
+    if alt is not None and not alt.get("stopped") and alt.get("chosen"):
+        return alt
+    return res
+
+
 def between_segments(tracks, rows) -> list:
     """The loss-law fits' segments of the legs between a launch's bounces
     (:func:`.outcome.fit_between`, only those that converged), each from its fitted state
@@ -244,7 +277,7 @@ def analyze(problem, tracks: list, screens: list | None = None, compare_losses: 
     if compare_losses:
         from .losses import compare_laws, segments_of
 
-        losses = compare_laws(problem, law_segments(tracks, ordered), mu_launch)
+        losses = _compare_laws(problem, tracks, ordered, mu_launch)
         if losses and losses.get("chosen"):
             # each launch again through the simulator with the law the data support
             c = losses["laws"][losses["chosen"]]["coefficients"]
