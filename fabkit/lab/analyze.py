@@ -35,7 +35,7 @@ from .events import (  # noqa: F401  (the stage's public names, re-exported)
 from .events import _savgol, _vertex_errors  # noqa: F401
 from .fitting import Budget, FitStopped
 from .outcome import model_to_start, outcome_of, simulate_launch, well_bottom  # noqa: F401
-from .outcome import _launch_speeds
+from .outcome import _launch_speeds, whole_usable
 from .track_fits import LEG_START, fit_leg, fit_release, start_state  # noqa: F401
 
 
@@ -135,23 +135,17 @@ def _analyze_moving(problem, track, mu_launch, sigma, sx, sy, budget) -> dict:
     return out
 
 
-#: a launch's whole-track fit replaces its legs in the loss-law fits when its residual
-#: rms is within this factor of the track's noise sigma (else: a wrong minimum, the legs)
-WHOLE_RMS_FACTOR = 2.0
-
-
 def law_segments(tracks, rows) -> list:
     """The segments the loss laws are fitted to (:mod:`.losses`): each release whole;
     each launch whole (one state, through its bounces: :func:`.track_fits.fit_whole`)
-    where that fit converged with a residual rms within WHOLE_RMS_FACTOR of the noise,
+    where that fit is usable (:func:`.outcome.whole_usable`),
     else its legs (before the first bounce, between bounces, after the last)."""
     from .losses import Segment, segments_of
 
     whole = {}
     for tr, r in zip(tracks, rows):
         w = r.get("whole_fit") if r.get("kind") == "launch" else None
-        if w and w.get("fit_status") == "converged" and w.get("state") is not None \
-                and np.all(np.isfinite(w["state"])) and w["rms"] <= WHOLE_RMS_FACTOR * r["noise_sigma"]:
+        if whole_usable(w, tr):
             wx, wy = tr.weights()
             whole[tr.file] = Segment(tr.file, "launch", tr.t, tr.x, tr.y, np.asarray(w["state"], float), wx, wy)
     segs = [s for s in segments_of(tracks, rows) if s.file not in whole or s.what == "release"]

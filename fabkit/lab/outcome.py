@@ -172,7 +172,6 @@ def _launch_speeds(problem, track, bt, mu, budget: Budget | None = None) -> dict
                 v_out = abs(ex[3])
                 out["v_out_error"] = float(leg2["error"][2])
     out["outcome"], out["v_out"] = outcome, v_out
-    out["between_fits"] = fit_between(problem, track, bt, mu)
     out["whole_fit"] = None
     if bt.size and _fitted(leg):
         span = float(t_in_end - t[0])
@@ -182,7 +181,26 @@ def _launch_speeds(problem, track, bt, mu, budget: Budget | None = None) -> dict
         except FitStopped as exc:
             out["whole_fit"] = {"t": float(t[0]), "state": None, "error": None, "damping": None,
                                 "damping_error": None, "rms": None, "fit_status": exc.reason}
+    # the legs between bounces only where the whole launch is not fitted (the loss laws
+    # then use the legs, :func:`.analyze.law_segments`)
+    out["between_fits"] = [] if whole_usable(out["whole_fit"], track) else fit_between(problem, track, bt, mu)
     return out
+
+
+#: a launch's whole fit stands for its legs in the loss-law fits when its residual rms is
+#: within this factor of the track's noise sigma (else: a wrong minimum; the legs)
+WHOLE_RMS_FACTOR = 2.0
+
+
+def whole_usable(whole: dict | None, track) -> bool:
+    """A launch's whole fit converged, with finite values, its rms within WHOLE_RMS_FACTOR
+    of the track's noise sigma (:func:`.events.noise_sigma`)."""
+    from .events import noise_sigma
+
+    if not whole or whole.get("fit_status") != "converged" or whole.get("state") is None \
+            or not np.all(np.isfinite(whole["state"])):
+        return False
+    return whole["rms"] <= WHOLE_RMS_FACTOR * max(noise_sigma(track.x), noise_sigma(track.y))
 
 
 #: a leg between two bounces is fitted when it has at least this many frames
