@@ -384,6 +384,11 @@ def test_both_losses_fitted_and_written_to_a_spec(cli, tmp_path):
     assert lo["chosen"] == "both" and min(lo["delta_bic"]["viscous"], lo["delta_bic"]["rolling"]) > 6
     c = lo["laws"]["both"]["coefficients"]
     assert abs(c["damping"] / mu - 1) < 0.10 and abs(c["rolling_resistance"] / crr - 1) < 0.10
+    # the launch fitted whole, through its two bounces (one state: the speeds tied together),
+    # and each error bar covers the truth
+    assert lo["segments"][-1].endswith("launch.csv: launch")
+    e = lo["laws"]["both"]["errors"]
+    assert abs(c["damping"] - mu) < 3 * e["damping"] and abs(c["rolling_resistance"] - crr) < 3 * e["rolling_resistance"]
     # the launch simulated again with the fitted losses does what the track did
     sim = json.loads(out)["tracks"][1]["simulation_fitted_losses"]
     assert sim["law"] == "both" and sim["bounces"] == len(la["bounce_times"]) == 2
