@@ -39,6 +39,14 @@ its anchor frame first, then over twice that, ..., each fit starting from the la
 slow exit crawling for seconds before the track ends is otherwise out of reach of a
 start taken from the last frames alone).
 
+A launch whole
+--------------
+The state at the first frame and mu fitted to every frame of a launch, through its
+bounces (:func:`fit_whole`: continuation from the entry leg's fit, twice its span, four
+times, ...). The loss laws use it in place of the legs where it converged with a residual
+rms within 2 noise sigma (:func:`.outcome.whole_usable`); the legs between bounces are
+fitted only where it did not (:func:`.outcome.fit_between`).
+
 The ball model
 --------------
 A track is of the ball's centre C = P + r n(P). The ball model's state is the contact
