@@ -35,7 +35,7 @@ from .events import (  # noqa: F401  (the stage's public names, re-exported)
 from .events import _savgol, _vertex_errors  # noqa: F401
 from .fitting import Budget, FitStopped
 from .outcome import model_to_start, outcome_of, simulate_launch, well_bottom  # noqa: F401
-from .outcome import _launch_speeds
+from .outcome import _launch_speeds, whole_usable
 from .track_fits import LEG_START, fit_leg, fit_release, start_state  # noqa: F401
 
 
@@ -135,6 +135,81 @@ def _analyze_moving(problem, track, mu_launch, sigma, sx, sy, budget) -> dict:
     return out
 
 
+def law_segments(tracks, rows) -> list:
+    """The segments the loss laws are fitted to (:mod:`.losses`): each release whole;
+    each launch whole (one state, through its bounces: :func:`.track_fits.fit_whole`)
+    where that fit is usable (:func:`.outcome.whole_usable`),
+    else its legs (before the first bounce, between bounces, after the last)."""
+    from .losses import Segment, segments_of
+
+    whole = {}
+    for tr, r in zip(tracks, rows):
+        w = r.get("whole_fit") if r.get("kind") == "launch" else None
+        if whole_usable(w, tr):
+            wx, wy = tr.weights()
+            whole[tr.file] = Segment(tr.file, "launch", tr.t, tr.x, tr.y, np.asarray(w["state"], float), wx, wy)
+    segs = [s for s in segments_of(tracks, rows) if s.file not in whole or s.what == "release"]
+    segs += [s for s in between_segments(tracks, rows) if s.file not in whole]
+    return segs + list(whole.values())
+
+
+def _whole_damping(rows) -> float | None:
+    """The launches' whole fits' damping (inverse-variance mean), None without any: the
+    loss laws start from it, the damping their whole-launch states were fitted with (a
+    launch of seconds through its bounces from another damping is far from its track)."""
+    d = [(w["damping"], w["damping_error"]) for w in (r.get("whole_fit") for r in rows if r.get("kind") == "launch")
+         if w and w.get("fit_status") == "converged" and w.get("damping") is not None
+         and w.get("damping_error") and math.isfinite(w["damping_error"]) and w["damping_error"] > 0]
+    if not d:
+        return None
+    wts = np.array([1.0 / e ** 2 for _, e in d])
+    return float(np.sum(wts * np.array([v for v, _ in d])) / np.sum(wts))
+
+
+def _compare_laws(problem, tracks, rows, mu_launch) -> dict | None:
+    """The loss laws fitted to :func:`law_segments` (launches whole where they could be
+    fitted whole); if a law's fit does not converge there, the laws again on the legs
+    (:func:`.losses.segments_of` and :func:`between_segments`), that result kept if
+    every law converged on it."""
+    from .losses import compare_laws, segments_of
+
+    segs = law_segments(tracks, rows)
+    legs = segments_of(tracks, rows) + between_segments(tracks, rows)
+    whole = len(segs) != len(legs) or any(s.what == "launch" for s in segs)
+    mu0 = _whole_damping(rows) if whole else None
+    res = compare_laws(problem, segs, mu_launch if mu0 is None else mu0)
+    if not whole or res is None or not res.get("stopped"):
+        return res
+    alt = compare_laws(problem, legs, mu_launch)
+    if alt is not None and not alt.get("stopped") and alt.get("chosen"):
+        return alt
+    return res
+
+
+def between_segments(tracks, rows) -> list:
+    """The loss-law fits' segments of the legs between a launch's bounces
+    (:func:`.outcome.fit_between`, only those that converged), each from its fitted state
+    at its first frame, its frames weighted as the whole track's (:meth:`Track.weights`).
+    With the release and the entry and exit legs (:func:`.losses.segments_of`) they span
+    the launch's whole range of speeds, which is what tells a loss ~ v (viscous) from a
+    constant one (rolling)."""
+    from .losses import Segment
+
+    out = []
+    for tr, r in zip(tracks, rows):
+        if r.get("kind") != "launch":
+            continue
+        wx, wy = tr.weights()
+        for leg in r.get("between_fits") or []:
+            if leg.get("fit_status") != "converged" or leg.get("state") is None \
+                    or not np.all(np.isfinite(leg["state"])):
+                continue
+            sl = np.flatnonzero((tr.t >= leg["t_first"]) & (tr.t <= leg["t_last"]))
+            out.append(Segment(tr.file, "leg between bounces", tr.t[sl], tr.x[sl], tr.y[sl],
+                               np.asarray(leg["state"], float), wx[sl], wy[sl]))
+    return out
+
+
 def fit_tn(rows: list[dict]) -> dict | None:
     """Eq. (tn) over two-bounce launches: T_n = T n + delta by least squares (with the
     standard errors of T and delta), or None with fewer than two distinct n."""
@@ -196,7 +271,7 @@ def analyze(problem, tracks: list, screens: list | None = None, compare_losses: 
     if compare_losses:
         from .losses import compare_laws, segments_of
 
-        losses = compare_laws(problem, segments_of(tracks, ordered), mu_launch)
+        losses = _compare_laws(problem, tracks, ordered, mu_launch)
         if losses and losses.get("chosen"):
             # each launch again through the simulator with the law the data support
             c = losses["laws"][losses["chosen"]]["coefficients"]

@@ -279,6 +279,16 @@ def compare_laws(problem, segments: list[Segment], mu0: float, budget_factory=No
         fits["both"] = best
         if best.fitted:
             stopped.pop("both", None)
+            # a single law whose fit did not converge from its start (a launch fitted whole,
+            # through its bounces, is far from its track from another law's states) again
+            # from the `both` optimum: its states and the law's own coefficient
+            for law, (nm,) in (("viscous", ("damping",)), ("rolling", ("rolling_resistance",))):
+                if law not in fits or not fits[law].fitted:
+                    again = fit(law, [max(best.coefficients[nm], 1e-6)], best.states)
+                    if again is not None and (law not in fits or again.fitted):
+                        fits[law] = again
+                        if again.fitted:
+                            stopped.pop(law, None)
     if not fits:
         return {"criterion": CRITERION, "chosen": None, "laws": {}, "stopped": stopped,
                 "segments": [f"{s.file}: {s.what}" for s in segments]}

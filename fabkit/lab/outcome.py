@@ -28,7 +28,7 @@ import numpy as np
 from ..physics.outcomes import Outcome
 from .events import edge_state
 from .fitting import Budget, FitStopped, centre_of
-from .track_fits import fit_leg, start_state
+from .track_fits import fit_leg, fit_whole, start_state
 
 
 #: evaluations of the model carrying one state to x = start (a bound on the work, not on time)
@@ -172,6 +172,68 @@ def _launch_speeds(problem, track, bt, mu, budget: Budget | None = None) -> dict
                 v_out = abs(ex[3])
                 out["v_out_error"] = float(leg2["error"][2])
     out["outcome"], out["v_out"] = outcome, v_out
+    out["whole_fit"] = None
+    if bt.size and _fitted(leg):
+        span = float(t_in_end - t[0])
+        try:
+            whole = fit_whole(problem, track, {**leg, "span": span}, Budget())
+            out["whole_fit"] = _leg_json(whole)
+        except FitStopped as exc:
+            out["whole_fit"] = {"t": float(t[0]), "state": None, "error": None, "damping": None,
+                                "damping_error": None, "rms": None, "fit_status": exc.reason}
+    # the legs between bounces only where the whole launch is not fitted (the loss laws
+    # then use the legs, :func:`.analyze.law_segments`)
+    out["between_fits"] = [] if whole_usable(out["whole_fit"], track) else fit_between(problem, track, bt, mu)
+    return out
+
+
+#: a launch's whole fit stands for its legs in the loss-law fits when its residual rms is
+#: within this factor of the track's noise sigma (else: a wrong minimum; the legs)
+WHOLE_RMS_FACTOR = 2.0
+
+
+def whole_usable(whole: dict | None, track) -> bool:
+    """A launch's whole fit converged, with finite values, its rms within WHOLE_RMS_FACTOR
+    of the track's noise sigma (:func:`.events.noise_sigma`)."""
+    from .events import noise_sigma
+
+    if not whole or whole.get("fit_status") != "converged" or whole.get("state") is None \
+            or not np.all(np.isfinite(whole["state"])):
+        return False
+    return whole["rms"] <= WHOLE_RMS_FACTOR * max(noise_sigma(track.x), noise_sigma(track.y))
+
+
+#: a leg between two bounces is fitted when it has at least this many frames
+BETWEEN_MIN_FRAMES = 16
+
+
+def fit_between(problem, track, bt, mu) -> list[dict]:
+    """The legs between successive bounces, each fitted like the entry leg (its state at
+    its first frame after the bounce and the viscous damping, :func:`.track_fits.fit_leg`)
+    on a budget of its own: these legs only add the speeds of the middle of a launch to
+    the loss-law fits (:mod:`.losses`), so one that does not converge is left out of them
+    (its ``fit_status`` says why) and changes nothing else of the track. Each leg:
+    {"t_first", "t_last", "frames", and the leg's fit as the entry leg's}."""
+    from dataclasses import replace
+
+    out = []
+    t = track.t
+    for a, b in zip(bt[:-1], bt[1:]):
+        sel = np.flatnonzero((t >= a) & (t <= b))
+        if sel.size < BETWEEN_MIN_FRAMES:
+            continue
+        sub = replace(track, t=t[sel], x=track.x[sel], y=track.y[sel],
+                      sigma_x=None if track.sigma_x is None else track.sigma_x[sel],
+                      sigma_y=None if track.sigma_y is None else track.sigma_y[sel], notes=[])
+        try:
+            leg = fit_leg(problem, sub, np.arange(sel.size), False, mu, Budget())
+        except FitStopped as exc:
+            out.append({"t_first": float(t[sel[0]]), "t_last": float(t[sel[-1]]), "frames": int(sel.size),
+                        "t": float(t[sel[0]]), "state": None, "error": None, "damping": None,
+                        "damping_error": None, "rms": None, "fit_status": exc.reason})
+            continue
+        out.append({"t_first": float(t[sel[0]]), "t_last": float(t[sel[-1]]), "frames": int(sel.size),
+                    **_leg_json(leg)})
     return out
 
 

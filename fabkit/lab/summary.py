@@ -60,7 +60,8 @@ def summary_lines(res, units) -> list[str]:
                 out.append(f"  T_n = {r['T_n']:.4f} s between the bounces, n = {r['n']} transverse maxima")
     lo = res.get("losses")
     if lo and lo.get("laws"):
-        head = f"losses ({lo['criterion']} over {len(lo['segments'])} segment(s) of releases and launch legs): "
+        kinds = ", ".join(sorted({s.rsplit(": ", 1)[-1] for s in lo["segments"]}))   # release, launch, entry leg...
+        head = f"losses ({lo['criterion']} over {len(lo['segments'])} segment(s): {kinds}): "
         out.append(head + (f"the data support {lo['chosen']} (evidence {lo['evidence']})" if lo.get("chosen")
                            else "no law's fit converged: none fitted"))
         for law, f in lo["laws"].items():

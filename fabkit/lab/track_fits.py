@@ -39,6 +39,14 @@ its anchor frame first, then over twice that, ..., each fit starting from the la
 slow exit crawling for seconds before the track ends is otherwise out of reach of a
 start taken from the last frames alone).
 
+A launch whole
+--------------
+The state at the first frame and mu fitted to every frame of a launch, through its
+bounces (:func:`fit_whole`: continuation from the entry leg's fit, twice its span, four
+times, ...). The loss laws use it in place of the legs where it converged with a residual
+rms within 2 noise sigma (:func:`.outcome.whole_usable`); the legs between bounces are
+fitted only where it did not (:func:`.outcome.fit_between`).
+
 The ball model
 --------------
 A track is of the ball's centre C = P + r n(P). The ball model's state is the contact
@@ -116,6 +124,29 @@ def fit_leg(problem, track, sel: np.ndarray, end: bool, mu: float, budget: Budge
         p = step["p"]
         if step["status"] not in ("converged", "evaluations"):
             return step          # out of budget: the best so far, reported
+        span *= 2.0
+    return _fit_leg_once(problem, track, idx, t0, p, budget)
+
+
+def fit_whole(problem, track, leg: dict, budget: Budget | None = None) -> dict:
+    """The model's state at the first frame and the viscous damping fitted to the WHOLE
+    track, through its bounces (the model rolls up the wall and back: nothing breaks
+    there), from the entry leg's fit ``leg`` (:func:`fit_leg`): by continuation, over
+    twice the leg's span, then four times, ... each fit from the last. One state for the
+    whole launch ties the speeds before, between and after the bounces to one
+    trajectory, which is what separates a loss ~ v (viscous) from a constant one
+    (rolling) (:mod:`.losses`). Returns as :func:`fit_leg`."""
+    t = track.t
+    idx = np.arange(len(t))
+    t0 = float(t[0])
+    p = np.array([*np.asarray(leg["state"], dtype=float), max(float(leg["damping"]), 1e-3)])
+    reach = t - t0
+    span = 2.0 * max(float(leg.get("span", LEG_START)), LEG_START)
+    while span < reach[-1]:
+        step = _fit_leg_once(problem, track, idx[reach <= span], t0, p, budget)
+        p = step["p"]
+        if step["status"] not in ("converged", "evaluations"):
+            return step
         span *= 2.0
     return _fit_leg_once(problem, track, idx, t0, p, budget)
 
