@@ -411,13 +411,7 @@ def _needs_markdown(sheet: dict) -> list[str]:
              f"grbl 1.1's defaults for comparison: max rates $110-$112 {g['max_rate_mm_min']:g} mm/min, "
              f"max spindle $30 {g['spindle_max_rpm']:g} rpm, max travel $130-$132 {g['max_travel_mm']:g} mm.",
              ""]
-    if sheet.get("tools_loaded"):
-        lines[4:4] = [_tool_line(t, sheet["dialect"]) for t in sheet["tools_loaded"]]
-    elif sheet.get("tool_number") is not None:
-        n = sheet["tool_number"]
-        lines.insert(4, f"- Tool T{n}"
-                     + (f": the program calls T{n} M6 G43 H{n} (tool change and length offset)"
-                        if sheet["dialect"] == "linuxcnc" else ": load it by hand before the start (grbl has no M6)"))
+    lines[4:4] = _tool_lines(sheet)
     return lines
 
 
@@ -474,17 +468,22 @@ def _needs_vs_machine(sheet: dict, need: dict, mach: dict, u: str, k: float) -> 
              + (f", from {mach['source']}" if mach.get("source") else "") + "), in mm.", "",
              "| need | program | machine | verdict |", "|---|---|---|---|"]
     lines += [r for r in rows if r]
-    lines += ["", f"- Largest plunge F " + (f"{need['plunge_max']:g} {u}/min" if need["plunge_max"] is not None
+    lines += ["", "- Largest plunge F " + (f"{need['plunge_max']:g} {u}/min" if need["plunge_max"] is not None
                                              else "none"),
               f"- Program ends parked at X{sheet['park'][0]:g} Y{sheet['park'][1]:g} at the safe height", ""]
-    if sheet.get("tools_loaded"):
-        lines[4:4] = [_tool_line(t, sheet["dialect"]) for t in sheet["tools_loaded"]]
-    elif sheet.get("tool_number") is not None:
-        n = sheet["tool_number"]
-        lines.insert(4, f"- Tool T{n}"
-                     + (f": the program calls T{n} M6 G43 H{n} (tool change and length offset)"
-                        if sheet["dialect"] == "linuxcnc" else ": load it by hand before the start (grbl has no M6)"))
+    lines[4:4] = _tool_lines(sheet)
     return lines
+
+
+def _tool_lines(sheet: dict) -> list[str]:
+    """The needs' lines on the tools: one per tool the job loads, or the single tool's call."""
+    if sheet.get("tools_loaded"):
+        return [_tool_line(t, sheet["dialect"]) for t in sheet["tools_loaded"]]
+    n = sheet.get("tool_number")
+    if n is None:
+        return []
+    return [f"- Tool T{n}" + (f": the program calls T{n} M6 G43 H{n} (tool change and length offset)"
+                              if sheet["dialect"] == "linuxcnc" else ": load it by hand before the start (grbl has no M6)")]
 
 
 def _tool_line(t: dict, dialect: str) -> str:
