@@ -124,10 +124,11 @@ class RunTime:
                 "feed_cap_cost_s": round(self.lost_rate_s, 1), "feed_cap_cost_model": self.cap_cost_model}
 
     def summary(self) -> str:
-        s = (f"run time on {self.machine}: {_hm(self.total_s)} ({self.total_s:.0f} s: feeds {self.feed_s:.0f}, "
+        head = _hm(self.total_s) if self.total_s >= 59.5 else f"{self.total_s:.1f} s"
+        s = (f"run time on {self.machine}: {head} ({self.total_s:.0f} s: feeds {self.feed_s:.0f}, "
              f"plunges {self.plunge_s:.0f}, rapids {self.rapid_s:.0f}"
              + (f", dwells {self.dwell_s:.0f}" if self.dwell_s else "")
-             + f"); length/feed {_hm(self.length_over_feed_s)}")
+             + f"); length/feed {_hm(self.length_over_feed_s) if self.length_over_feed_s >= 59.5 else f'{self.length_over_feed_s:.1f} s'}")
         if self.passes:
             p = self.passes
             s += (f"; {p['passes']} passes of {p['median_s']:.1f} s median ({p['min_s']:.1f}-{p['max_s']:.1f}; "
