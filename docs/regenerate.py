@@ -13,10 +13,11 @@ a doc disagrees with its output file, the doc is stale. (One job runs a benchmar
 
 A passage of README.md or docs/*.md that quotes an output is marked
 ``<!-- numbers: JOB[, JOB] -->`` ... ``<!-- /numbers -->``; tests/test_doc_numbers.py checks
-every decimal number inside it against those outputs (to the digits quoted), so a number
+every decimal number inside it against those outputs (to the digits quoted), and every whole
+number (a count) against the whole numbers they print, so a number
 that drifts from what the command prints fails the suite. A time or load inside such a
 passage depends on the machine and is named in the mark, ``<!-- numbers: JOB; timings: 65.4 0.7 -->``,
-and not checked. Jobs run in this order: ``time-router`` and ``time-defaults`` time the program
+and not checked; so is a spec's input or a year the passage names, ``; inputs: 25``. Jobs run in this order: ``time-router`` and ``time-defaults`` time the program
 ``gcode-router`` writes.
 """
 
