@@ -17,8 +17,9 @@ every decimal number inside it against those outputs (to the digits quoted), and
 number (a count) against the whole numbers they print, so a number
 that drifts from what the command prints fails the suite. A time or load inside such a
 passage depends on the machine and is named in the mark, ``<!-- numbers: JOB; timings: 65.4 0.7 -->``,
-and not checked; so is a spec's input or a year the passage names, ``; inputs: 25``. Jobs run in this order: ``time-router`` and ``time-defaults`` time the program
-``gcode-router`` writes.
+and not checked; so is a spec's input or a year the passage names, ``; inputs: 25``. Jobs
+run in this order: ``time-router`` and ``time-defaults`` time the program ``gcode-router``
+writes.
 """
 
 from __future__ import annotations
@@ -60,13 +61,14 @@ JOBS = (
     Job("sweep", "docs/sweep_check.md, docs/explore.md, docs/paper.md",
         ("sweep", "specs/surface.yaml", "--plot", "docs/sweep.png")),
     Job("stl", "docs/stl.md, README.md", ("stl", "specs/surface.yaml")),
-    Job("gcode-surface", "docs/gcode.md, README.md", ("gcode", "specs/surface.yaml", "--no-progress")),
+    Job("gcode-surface", "docs/gcode.md, README.md, docs/toolpath.md",
+        ("gcode", "specs/surface.yaml", "--no-progress")),
     Job("gcode-bowl", "docs/gcode.md", ("gcode", "specs/bowl.yaml", "--no-progress")),
-    Job("gcode-router", "docs/machine.md", ("gcode", "specs/surface.yaml", "--machine", "grbl-router", "-o",
+    Job("gcode-router", "docs/machine.md, README.md", ("gcode", "specs/surface.yaml", "--machine", "grbl-router", "-o",
                                              "toolpaths/surface_grbl.ngc", "--no-progress")),
     # the program gcode-router writes, timed on two profiles (cheap: under 1 s each)
     Job("time-router", "docs/machine.md", ("time", "toolpaths/surface_grbl.ngc", "--machine", "grbl-router")),
-    Job("time-defaults", "docs/machine.md", ("time", "toolpaths/surface_grbl.ngc", "--machine", "grbl")),
+    Job("time-defaults", "docs/machine.md, README.md", ("time", "toolpaths/surface_grbl.ngc", "--machine", "grbl")),
     Job("ramp", "docs/lab.md", ("ramp", "specs/surface.yaml")),
     Job("precision", "docs/numerics.md", ("precision", "specs/surface.yaml", "--plot", "docs/precision.png",
                                           "--no-progress")),

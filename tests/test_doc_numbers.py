@@ -41,7 +41,8 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 OUT = ROOT / "docs" / "outputs"
 DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
-BLOCK = re.compile(r"<!-- numbers: ([\w\-, ]+?)\s*(?:;\s*timings:([-+\d.eE ]+?))?\s*(?:;\s*inputs:([-+\d.eE ]+?))?\s*-->"
+BLOCK = re.compile(r"<!-- numbers: ([\w\-, ]+?)\s*(?:;\s*timings:([-+\d.eE ]+?))?"
+                   r"\s*(?:;\s*inputs:([-+\d.eE ]+?))?\s*-->"
                    r"(.*?)<!-- /numbers -->", re.S)
 # a decimal number (not part of a word, a version like 3.11.7 or a file name like 0.ngc);
 # "a..b" is a range of two numbers
@@ -83,7 +84,8 @@ REQUIRED = [("README.md", "check"), ("README.md", "ball-compare"), ("docs/ball.m
             ("docs/machine.md", "time-defaults"), ("docs/machine.md", "time-router"),
             ("docs/machine.md", "gcode-router"),
             ("docs/sweep_check.md", "check-clipped-top2"), ("docs/phi4.md", "phi4"), ("docs/paper.md", "sweep"),
-            ("README.md", "calibrate-range")]
+            ("README.md", "calibrate-range"), ("README.md", "time-defaults"), ("README.md", "gcode-router"),
+            ("docs/toolpath.md", "gcode-surface")]
 
 
 def _regenerate():
