@@ -18,8 +18,8 @@ number (a count) against the whole numbers they print, so a number
 that drifts from what the command prints fails the suite. A time or load inside such a
 passage depends on the machine and is named in the mark, ``<!-- numbers: JOB; timings: 65.4 0.7 -->``,
 and not checked; so is a spec's input or a year the passage names, ``; inputs: 25``. Jobs
-run in this order: ``time-router`` and ``time-defaults`` time the program ``gcode-router``
-writes.
+run in this order: ``time-router``, ``time-defaults``, ``time-fast`` and ``time-unequal`` time the
+program ``gcode-router`` writes.
 """
 
 from __future__ import annotations
@@ -69,6 +69,11 @@ JOBS = (
     # the program gcode-router writes, timed on two profiles (cheap: under 1 s each)
     Job("time-router", "docs/machine.md", ("time", "toolpaths/surface_grbl.ngc", "--machine", "grbl-router")),
     Job("time-defaults", "docs/machine.md, README.md", ("time", "toolpaths/surface_grbl.ngc", "--machine", "grbl")),
+    # and on the two other profiles of benchmarks/time_reference.py, as grbl $$ dumps (not shipped)
+    Job("time-fast", "docs/machine.md", ("time", "toolpaths/surface_grbl.ngc", "--machine",
+                                         "tests/fixtures/machine/router.grbl.txt")),
+    Job("time-unequal", "docs/machine.md", ("time", "toolpaths/surface_grbl.ngc", "--machine",
+                                            "tests/fixtures/machine/unequal.grbl.txt")),
     Job("ramp", "docs/lab.md", ("ramp", "specs/surface.yaml")),
     Job("precision", "docs/numerics.md", ("precision", "specs/surface.yaml", "--plot", "docs/precision.png",
                                           "--no-progress")),

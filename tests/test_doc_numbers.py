@@ -85,7 +85,8 @@ REQUIRED = [("README.md", "check"), ("README.md", "ball-compare"), ("docs/ball.m
             ("docs/machine.md", "gcode-router"),
             ("docs/sweep_check.md", "check-clipped-top2"), ("docs/phi4.md", "phi4"), ("docs/paper.md", "sweep"),
             ("README.md", "calibrate-range"), ("README.md", "time-defaults"), ("README.md", "gcode-router"),
-            ("docs/toolpath.md", "gcode-surface")]
+            ("docs/toolpath.md", "gcode-surface"), ("docs/machine.md", "time-fast"),
+            ("docs/machine.md", "time-unequal")]
 
 
 def _regenerate():
