@@ -60,6 +60,10 @@ JOBS = (
     Job("calibrate-range", "README.md", ("calibrate", "specs/surface.yaml", "--height", "0.2", "4.5")),
     Job("sweep", "docs/sweep_check.md, docs/explore.md, docs/paper.md",
         ("sweep", "specs/surface.yaml", "--plot", "docs/sweep.png")),
+    # the paper's spec undamped on the two point models (docs/sweep_check.md's table; about 10 s each)
+    Job("sweep-undamped-full", "docs/sweep_check.md", ("sweep", "tests/fixtures/sweep/undamped_full.yaml")),
+    Job("sweep-undamped-simplified", "docs/sweep_check.md",
+        ("sweep", "tests/fixtures/sweep/undamped_simplified.yaml")),
     Job("stl", "docs/stl.md, README.md", ("stl", "specs/surface.yaml")),
     Job("gcode-surface", "docs/gcode.md, README.md, docs/toolpath.md",
         ("gcode", "specs/surface.yaml", "--no-progress")),

@@ -86,7 +86,8 @@ REQUIRED = [("README.md", "check"), ("README.md", "ball-compare"), ("docs/ball.m
             ("docs/sweep_check.md", "check-clipped-top2"), ("docs/phi4.md", "phi4"), ("docs/paper.md", "sweep"),
             ("README.md", "calibrate-range"), ("README.md", "time-defaults"), ("README.md", "gcode-router"),
             ("docs/toolpath.md", "gcode-surface"), ("docs/machine.md", "time-fast"),
-            ("docs/machine.md", "time-unequal")]
+            ("docs/machine.md", "time-unequal"), ("docs/sweep_check.md", "sweep-undamped-full"),
+            ("docs/sweep_check.md", "sweep-undamped-simplified")]
 
 
 def _regenerate():
@@ -231,6 +232,25 @@ def test_regenerating_a_small_output_reproduces_its_file():
         return re.sub(r"\d+(\.\d+)? s$", "N s", t, flags=re.M)
 
     assert timeless(reg.body(job, proc.stdout)) == timeless(want)
+
+
+def test_the_variant_specs_differ_from_the_shipped_one_only_where_the_docs_say():
+    """docs/sweep_check.md's undamped table and docs/machine.md's profiles come from specs and
+    profiles that are not shipped: each differs from the shipped one only in the keys named."""
+    import yaml
+
+    shipped = yaml.safe_load((ROOT / "specs" / "surface.yaml").read_text())
+    for model in ("full", "simplified"):
+        variant = yaml.safe_load((ROOT / "tests" / "fixtures" / "sweep" / f"undamped_{model}.yaml").read_text())
+        assert variant["simulation"] == {**shipped["simulation"], "model": model, "damping": 0}
+        assert {k: v for k, v in variant.items() if k not in ("name", "simulation")} == \
+            {k: v for k, v in shipped.items() if k not in ("name", "simulation")}
+    # the grbl $$ dumps are benchmarks/time_reference.py's profiles, setting for setting
+    spec = importlib.util.spec_from_file_location("time_reference", ROOT / "benchmarks" / "time_reference.py")
+    ref = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(ref)
+    for name in ("router", "unequal"):
+        assert (ROOT / "tests" / "fixtures" / "machine" / f"{name}.grbl.txt").read_text() == ref.PROFILES[name]
 
 
 if __name__ == "__main__":
