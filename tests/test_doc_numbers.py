@@ -87,7 +87,9 @@ REQUIRED = [("README.md", "check"), ("README.md", "ball-compare"), ("docs/ball.m
             ("README.md", "calibrate-range"), ("README.md", "time-defaults"), ("README.md", "gcode-router"),
             ("docs/toolpath.md", "gcode-surface"), ("docs/machine.md", "time-fast"),
             ("docs/machine.md", "time-unequal"), ("docs/sweep_check.md", "sweep-undamped-full"),
-            ("docs/sweep_check.md", "sweep-undamped-simplified")]
+            ("docs/sweep_check.md", "sweep-undamped-simplified"), ("docs/paper.md", "sweep-full"),
+            ("docs/paper.md", "sweep-full-in"), ("docs/paper.md", "sweep-ball-in"),
+            ("docs/paper.md", "sweep-ball-in-2p5cm")]
 
 
 def _regenerate():
@@ -245,6 +247,16 @@ def test_the_variant_specs_differ_from_the_shipped_one_only_where_the_docs_say()
         assert variant["simulation"] == {**shipped["simulation"], "model": model, "damping": 0}
         assert {k: v for k, v in variant.items() if k not in ("name", "simulation")} == \
             {k: v for k, v in shipped.items() if k not in ("name", "simulation")}
+    # docs/paper.md's inch rows: units only, and the ball put back to 2.5 cm in one
+    point = yaml.safe_load((ROOT / "tests" / "fixtures" / "paper_full.yaml").read_text())
+    for name, source, ball in (("paper_full_in", point, None), ("paper_ball_in", shipped, None),
+                               ("paper_ball_in_2p5cm", shipped, 0.98425)):   # 2.5 cm to 5 digits
+        variant = yaml.safe_load((ROOT / "tests" / "fixtures" / "sweep" / f"{name}.yaml").read_text())
+        want = {**source, "name": name, "units": "in"}
+        if ball is not None:
+            assert variant["ball"]["diameter"] == ball == pytest.approx(2.5 / 2.54, abs=5e-6)
+            want["ball"] = {**source["ball"], "diameter": variant["ball"]["diameter"]}
+        assert variant == want, name
     # the grbl $$ dumps are benchmarks/time_reference.py's profiles, setting for setting
     spec = importlib.util.spec_from_file_location("time_reference", ROOT / "benchmarks" / "time_reference.py")
     ref = importlib.util.module_from_spec(spec)
