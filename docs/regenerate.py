@@ -13,11 +13,13 @@ a doc disagrees with its output file, the doc is stale. (One job runs a benchmar
 
 A passage of README.md or docs/*.md that quotes an output is marked
 ``<!-- numbers: JOB[, JOB] -->`` ... ``<!-- /numbers -->``; tests/test_doc_numbers.py checks
-every decimal number inside it against those outputs (to the digits quoted), so a number
+every decimal number inside it against those outputs (to the digits quoted), and every whole
+number (a count) against the whole numbers they print, so a number
 that drifts from what the command prints fails the suite. A time or load inside such a
 passage depends on the machine and is named in the mark, ``<!-- numbers: JOB; timings: 65.4 0.7 -->``,
-and not checked. Jobs run in this order: ``time-router`` and ``time-defaults`` time the program
-``gcode-router`` writes.
+and not checked; so is a spec's input or a year the passage names, ``; inputs: 25``. Jobs
+run in this order: ``time-router``, ``time-defaults``, ``time-fast`` and ``time-unequal`` time the
+program ``gcode-router`` writes.
 """
 
 from __future__ import annotations
@@ -58,14 +60,29 @@ JOBS = (
     Job("calibrate-range", "README.md", ("calibrate", "specs/surface.yaml", "--height", "0.2", "4.5")),
     Job("sweep", "docs/sweep_check.md, docs/explore.md, docs/paper.md",
         ("sweep", "specs/surface.yaml", "--plot", "docs/sweep.png")),
+    # the paper's spec undamped on the two point models (docs/sweep_check.md's table; about 10 s each)
+    Job("sweep-undamped-full", "docs/sweep_check.md", ("sweep", "tests/fixtures/sweep/undamped_full.yaml")),
+    Job("sweep-undamped-simplified", "docs/sweep_check.md",
+        ("sweep", "tests/fixtures/sweep/undamped_simplified.yaml")),
+    # docs/paper.md's table: the point model in cm, and both models in inches (about 10 s each)
+    Job("sweep-full", "docs/paper.md", ("sweep", "tests/fixtures/paper_full.yaml")),
+    Job("sweep-full-in", "docs/paper.md", ("sweep", "tests/fixtures/sweep/paper_full_in.yaml")),
+    Job("sweep-ball-in", "docs/paper.md", ("sweep", "tests/fixtures/sweep/paper_ball_in.yaml")),
+    Job("sweep-ball-in-2p5cm", "docs/paper.md", ("sweep", "tests/fixtures/sweep/paper_ball_in_2p5cm.yaml")),
     Job("stl", "docs/stl.md, README.md", ("stl", "specs/surface.yaml")),
-    Job("gcode-surface", "docs/gcode.md, README.md", ("gcode", "specs/surface.yaml", "--no-progress")),
+    Job("gcode-surface", "docs/gcode.md, README.md, docs/toolpath.md",
+        ("gcode", "specs/surface.yaml", "--no-progress")),
     Job("gcode-bowl", "docs/gcode.md", ("gcode", "specs/bowl.yaml", "--no-progress")),
-    Job("gcode-router", "docs/machine.md", ("gcode", "specs/surface.yaml", "--machine", "grbl-router", "-o",
+    Job("gcode-router", "docs/machine.md, README.md", ("gcode", "specs/surface.yaml", "--machine", "grbl-router", "-o",
                                              "toolpaths/surface_grbl.ngc", "--no-progress")),
     # the program gcode-router writes, timed on two profiles (cheap: under 1 s each)
     Job("time-router", "docs/machine.md", ("time", "toolpaths/surface_grbl.ngc", "--machine", "grbl-router")),
-    Job("time-defaults", "docs/machine.md", ("time", "toolpaths/surface_grbl.ngc", "--machine", "grbl")),
+    Job("time-defaults", "docs/machine.md, README.md", ("time", "toolpaths/surface_grbl.ngc", "--machine", "grbl")),
+    # and on the two other profiles of benchmarks/time_reference.py, as grbl $$ dumps (not shipped)
+    Job("time-fast", "docs/machine.md", ("time", "toolpaths/surface_grbl.ngc", "--machine",
+                                         "tests/fixtures/machine/router.grbl.txt")),
+    Job("time-unequal", "docs/machine.md", ("time", "toolpaths/surface_grbl.ngc", "--machine",
+                                            "tests/fixtures/machine/unequal.grbl.txt")),
     Job("ramp", "docs/lab.md", ("ramp", "specs/surface.yaml")),
     Job("precision", "docs/numerics.md", ("precision", "specs/surface.yaml", "--plot", "docs/precision.png",
                                           "--no-progress")),
