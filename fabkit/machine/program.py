@@ -208,7 +208,7 @@ def read_moves(text: str, controller: str = "grbl", arc_tolerance: float = 0.002
     stored_set: set = set()
     home_warned = False
     src = text.upper().split("\n")
-    out.lines = len(src)
+    out.lines = len(src) - (src[-1] == "")       # a final newline ends the last line, it starts none
     for ln, s in enumerate(src, start=1):
         if "(" in s or ";" in s:
             s = _strip_comments(s, grbl, ln, file)
