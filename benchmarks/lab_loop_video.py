@@ -54,11 +54,34 @@ def render(path: Path, truth: dict, t_end: float, fps: float, seed: int):
     cam = vr.Cam.looking_down(CAM_H, 8.0, 200.0, f, -0.04, W, H_PX)
     rend = vr.Renderer(cam, vr.MARKERS, lamps=[vr.Lamp.at(55, 40, 1800, 80, 0.7)], ambient=0.25)
     times = np.arange(0.0, t_end, 1.0 / fps)
+    spec = path.with_suffix(".yaml")
+    if path.exists() and spec.exists():      # kept from an earlier run (--keep): the same frames
+        times = np.round(times * 90000) / 90000
+        return spec, times, vr.Trajectory(truth).centre(times)
     times, centres = vr.render_video(path, rend, vr.Trajectory(truth), times, noise=1.5, seed=seed,
                                      exposure=0.5)
-    spec = path.with_suffix(".yaml")
     spec.write_text(vr.SPEC_TEXT + f"lab:\n  markers: {json.dumps(vr.MARKERS)}\n  camera_height: {CAM_H + 8:g}\n")
     return spec, times, centres
+
+
+def to_contact(problem, res):
+    """The track's centres (X, Y) mapped to the contact points under them (fabkit's
+    ``contact_of``: the point models' state is the contact point, a camera sees the
+    centre); each sigma carried through the map's diagonal derivative."""
+    import dataclasses
+
+    from fabkit.lab.fitting import contact_of
+
+    ok = np.isfinite(res.xy).all(axis=1)
+    X, Y = res.xy[ok, 0], res.xy[ok, 1]
+    x, y = contact_of(problem, X, Y)
+    h = 1e-4
+    dxx = (contact_of(problem, X + h, Y)[0] - contact_of(problem, X - h, Y)[0]) / (2 * h)
+    dyy = (contact_of(problem, X, Y + h)[1] - contact_of(problem, X, Y - h)[1]) / (2 * h)
+    xy, sig = res.xy.copy(), res.sigma.copy()
+    xy[ok] = np.c_[x, y]
+    sig[ok] = np.c_[res.sigma[ok, 0] * np.abs(dxx), res.sigma[ok, 1] * np.abs(dyy)]
+    return dataclasses.replace(res, xy=xy, sigma=sig)
 
 
 def main() -> int:
@@ -66,6 +89,8 @@ def main() -> int:
     ap.add_argument("n", nargs="?", type=int, default=4)
     ap.add_argument("--fps", type=float, default=100.0)
     ap.add_argument("--keep", default=None)
+    ap.add_argument("--contact", action="store_true",
+                    help="map each tracked centre to its contact point before analyze")
     args = ap.parse_args()
     from fabkit.lab.analyze import analyze
     from fabkit.lab.track import track_video
@@ -103,7 +128,9 @@ def main() -> int:
         gaps = ", ".join(f"{k} {v}" for k, v in res.gaps().items() if v) or "none"
         print(f" {name:15s}  {e['frames']:5d}  {e['tracked']:6d}   {e['rms_mm']:.3f} / {e['max_mm']:.3f}"
               f"          {100 * e['within_3_sigma']:5.1f} %     {gaps}", flush=True)
-        csv = out_dir / f"{name}.csv"
+        csv = out_dir / f"{name}{'_contact' if args.contact else ''}.csv"
+        if args.contact:
+            res = to_contact(problem_from_spec(spec), res)
         csv.write_text(res.csv_text())
         tracks.append(read_track(csv, units="cm"))
     problem = problem_from_spec(load_spec(spec_path))
