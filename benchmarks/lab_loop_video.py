@@ -187,6 +187,26 @@ def main() -> int:
             zk = abs(val - truth) / err if err else math.inf
             law_ok = law_ok and zk <= 3
             print(f"  {kname}: {val:.5g} ± {err:.2g}, truth {truth:g}: {val / truth - 1:+.2%}, {zk:.1f} sigma")
+        # the two-bounce windows: the fitted spec (fabkit's engine) against the independent model
+        from fabkit.physics.integrate import launch_batch
+        from lab_loop import windows
+
+        vs = np.arange(L.speed_from_height(heights[0]) - 1, L.speed_from_height(heights[-1]) + 1, 0.05)
+        p_fit = problem.with_(damping=f["coefficients"]["damping"],
+                              rolling_resistance=f["coefficients"].get("rolling_resistance", 0.0))
+        rb = launch_batch(p_fit, vs, np.zeros_like(vs), np.zeros_like(vs), workers=1)
+        w_fit = windows(vs, np.asarray(rb.bounces), np.asarray(rb.outcome) == 0)
+        c0 = time.process_time()
+        tw = [L.run((L.START, 0.0, v, 0.0), MU, 15.0, crr=CRR) for v in vs]
+        w_true = windows(vs, np.array([len(t["bounce_times"]) for t in tw]), np.array([t["escaped"] for t in tw]))
+        edges = [abs(a - b) for (a1, b1), (a2, b2) in zip(w_fit, w_true) for a, b in ((a1, a2), (b1, b2))]
+        print(f"two-bounce windows in v_in (cm/s, 0.05 steps; independent sweep {time.process_time() - c0:.0f} s CPU):")
+        print(f"  fitted spec: {', '.join(f'{a:.2f}-{b:.2f}' for a, b in w_fit)}")
+        print(f"  truth:       {', '.join(f'{a:.2f}-{b:.2f}' for a, b in w_true)}")
+        win_ok = len(w_fit) == len(w_true) and max(edges, default=0.0) <= 0.05 + 1e-9
+        print(f"  windows: {'every edge within one step' if win_ok else 'DIFFER'}"
+              + (f" (largest edge difference {max(edges):.2f} cm/s)" if edges else ""))
+        law_ok = law_ok and win_ok
     else:
         print(f"losses: none chosen ({lo})")
     for r in rows:
