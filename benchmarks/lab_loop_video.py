@@ -12,9 +12,16 @@ sigma_y`` tracks read back like the files the command writes, and ``fabkit analy
 * tracking: the ball centre's error per reported frame (mm rms, max) and |error| / sigma;
 * each launch's bounce count and outcome (exact), bounce times, v_in and v_out
   (|error| / the stated sigma);
-* T_n of a two-bounce launch; the loss law and its coefficients (|error| / sigma).
+* T_n of a two-bounce launch; the loss law and its coefficients (|error| / sigma);
+* the two-bounce windows in v_in: the fitted spec's simulator (fabkit's engine) against
+  the independent model, both swept at 0.05 cm/s.
 
-    nice python benchmarks/lab_loop_video.py [N_LAUNCHES] [--fps 100] [--keep DIR]
+``fabkit track`` reports the ball's centre seen from above; the point models (this spec's
+``model: full``) fit a track as the contact point's path. ``--contact`` maps each tracked
+centre to the contact point under it (fabkit's ``contact_of``) before the analysis; without
+it the loop measures what ``fabkit analyze`` does with the command's file as written.
+
+    nice python benchmarks/lab_loop_video.py [N_LAUNCHES] [--fps 100] [--keep DIR] [--contact]
 
 Videos are rendered into a temporary directory (``--keep DIR``: kept there).
 """
