@@ -214,3 +214,25 @@ def test_silhouette_fit_exact_on_half_an_ellipse():
         got = fit_silhouette(pts, np.ones(len(pts)), c + [1.5, -1.0], a, b, phi)
         assert np.max(np.abs(got[0] - c)) < 1e-6
         assert abs(got[1] - grow) < (1e-6 if grow == 1.0 else 0.01)
+
+
+def test_trajectory_adapter_is_the_launch():
+    """``vr.Trajectory`` (any lab_sim run in render_video's place) puts the ball exactly
+    where ``vr.Launch`` does for the same run, and at C = P + r n of the run's contact
+    point (the closed form written here again)."""
+    import lab_sim
+
+    la = vr.Launch(v_in=52.0, vy0=0.3, t_max=3.0)
+    tr = vr.Trajectory(lab_sim.run((lab_sim.START, 0.0, 52.0, 0.3), 0.127, 3.0))
+    t = np.linspace(0.0, 3.5, 41)
+    a, b = la.centre(t), tr.centre(t)
+    assert np.array_equal(np.isnan(a), np.isnan(b)) and np.isnan(b[t > tr.truth["t_end"]]).all()
+    ok = t <= tr.truth["t_end"]
+    np.testing.assert_allclose(b[ok], a[ok], rtol=0, atol=1e-9)
+    x, y = tr.truth["sol"].sol(t[ok])[:2]
+    p = lab_sim.P
+    hx = p["eta"] * (p["a"] * np.exp(p["a"] * x) - p["b"] * np.exp(p["b"] * x)) + p["eps"] * p["d"] * y * np.exp(p["d"] * x)
+    hy = 2 * p["c"] * y + p["eps"] * np.exp(p["d"] * x)
+    w = np.sqrt(1 + hx * hx + hy * hy)
+    np.testing.assert_allclose(b[ok, 0], (x - vr.RADIUS * hx / w - vr.X_RANGE[0]) * vr.SCALE, atol=1e-9)
+    np.testing.assert_allclose(b[ok, 1], (y - vr.RADIUS * hy / w - vr.Y_RANGE[0]) * vr.SCALE, atol=1e-9)

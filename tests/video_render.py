@@ -436,6 +436,19 @@ class Launch:
         return C
 
 
+class Trajectory:
+    """Any dense run of tests/lab_sim.py (``lab_sim.run``'s dict: a launch with a scatter
+    in y and vy, rolling resistance, or a release from rest) in ``render_video``'s place
+    of a ``Launch``: the ball's centre (n, 3), work mm, at times t (s); nan after the run
+    ended."""
+
+    def __init__(self, truth: dict):
+        self.truth = truth
+
+    def centre(self, t):
+        return Launch.centre(self, t)
+
+
 def render_video(path, rend: Renderer, launch: Launch, times, *, codec="libx264", crf=18, noise=1.5, seed=0,
                  exposure=0.5, hide=(), t_offset=0.0, gop=None, hand=None, report=None):
     """Render and encode a video with ``rend`` (its camera and scene): frames at
