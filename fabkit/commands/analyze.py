@@ -57,6 +57,16 @@ def run(args) -> int:
         res["seconds"] = timer.seconds
         payload = _public(res)
         lines = summary_lines(res, spec.units)
+        if problem.model != "ball" and spec.has("ball"):
+            # a camera (fabkit track, Tracker) sees the ball's centre; a point model moves a point
+            # on the surface: its fit of a centre track is biased (benchmarks/lab_loop_video.py)
+            note = (f"note: simulation.model {problem.model} takes each track as the path of a point on the "
+                    f"surface, while a camera (fabkit track, Tracker) sees the ball's centre, "
+                    f"{float(spec.ball.diameter) / 2:g} {spec.units} above it along the normal: on tracked "
+                    "video its speeds and losses come out biased (rendered launches: v_in 3-5 % high, damping "
+                    "+39 %); analyze centre tracks with simulation.model: ball")
+            lines.append(note)
+            payload["model_note"] = note
         refused = None
         fitted_text = None
         if args.output:
