@@ -274,3 +274,48 @@ def test_swept_ball_over_the_edge_within_tolerance(edge_job):
     ref = np.minimum(slope * (gx - xc), 0.0) - min(swept_floor(moves, R, np.array([gx]), np.array([gy]))[0], 0.0)
     assert abs(ref - cr.max_gouge) < 2e-5
     assert job.ok
+
+
+# --------------------------------------------------------------------------
+# the program's own rounding on the ball's flank at an edge pass
+# --------------------------------------------------------------------------
+def _tip_brute(ws, X, Y, n=1201):
+    """Tip height over the footprint by a dense search of the disk's part inside it
+    (a lower bound at any resolution: every sample is material the ball clears)."""
+    out = np.empty(len(X))
+    for i, (cx, cy) in enumerate(zip(X, Y)):
+        dy = max(abs(cy - np.clip(cy, 0.0, ws.W)), 0.0)
+        a = math.sqrt(max(R * R - dy * dy, 0.0))
+        px, py = np.meshgrid(np.linspace(cx - a, cx + a, n),
+                             np.linspace(0.0, min(R - dy, ws.W), 9))
+        d2 = (px - cx) ** 2 + (py - cy) ** 2
+        ok = (d2 <= R * R) & ws.inside(px, py)
+        out[i] = np.max(np.where(ok, np.minimum(ws.H(px, py), 0.0)
+                                 + np.sqrt(np.maximum(R * R - d2, 0.0)), -np.inf)) - R
+    return out
+
+
+def test_rounded_program_points_clear_the_rim_at_an_edge_pass():
+    """A V trench of slope 20 whose convex rim runs at 45 degrees to the passes and meets
+    the stock's edge: on the pass 1.49604 mm beyond the edge the disk holds a 4 um sliver
+    of the stock, where the tip height falls ~270 mm per mm across; written with 4
+    decimals (Y-1.496) the exact points sat up to 0.012 mm below the tip height at the
+    written position (the job's gouge of 0.0134 mm at the rim). After the program's own
+    grid rounding, no written point is below the brute-force tip height at its written
+    X, Y by more than the tolerance's rounding share."""
+    from fabkit.toolpath.finish.raster import _on_readback_grid
+    from fabkit.toolpath.path import CUT
+    from fabkit.units import ROUNDING_SHARE
+
+    spec = validate(_raw("20*abs(x - y) - 8", (-15, 15), (-15, 15), 0), "rim.yaml")
+    ws = C.WorkSurface(Surface.from_spec(spec))
+    X = np.linspace(0.0, 0.29, 12)
+    Y = np.full_like(X, -1.49604)
+    pts = np.column_stack([X, Y, C.compensate(ws, X, Y, R)])
+    kinds = np.full(len(X), CUT)
+    budget = 0.01 / ROUNDING_SHARE
+    raw = np.round(pts, 4)
+    # the case is a real one: the writer's rounding alone puts points deep in the wall
+    assert np.max(_tip_brute(ws, raw[:, 0], raw[:, 1]) - raw[:, 2]) > 10 * budget
+    got = np.round(_on_readback_grid(spec, ws, R, pts, kinds), 4)
+    assert np.max(_tip_brute(ws, got[:, 0], got[:, 1]) - got[:, 2]) <= budget + 1e-9

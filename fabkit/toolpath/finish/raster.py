@@ -68,14 +68,21 @@ def scallop_normal(spec) -> bool:
 
 def _on_readback_grid(spec, ws, R, points, kinds):
     """Stage 6b: feed moves on the grid the controller reads back (:mod:`.snap`) where
-    the program's decimals are finer than it (inch programs)."""
+    the program's decimals are finer than it (inch programs); elsewhere on the program's
+    own grid where the X, Y rounding alone would put the ball more than the tolerance's
+    rounding share into the material (the ball's flank at an edge pass)."""
     from ..program.gcode import UNITS, MachineProfile
     from .snap import readback_step, snap_points
 
     m = spec.machining
     k = UNITS[m.units].mm_per_unit
-    step = readback_step(k, MachineProfile(units=m.units, tolerance=float(m.tolerance)).decimals)
-    return points if step is None else snap_points(ws, R, points, kinds, step, k)
+    dec = MachineProfile(units=m.units, tolerance=float(m.tolerance)).decimals
+    step = readback_step(k, dec)
+    if step is None:
+        from ...units import ROUNDING_SHARE
+        return snap_points(ws, R, points, kinds, 10.0 ** -dec * k, k,
+                           slack_mm=float(m.tolerance) / ROUNDING_SHARE)
+    return snap_points(ws, R, points, kinds, step, k)
 
 
 def order_runs(fr, m, V, runs, passes_cut):

@@ -33,13 +33,22 @@ def readback_step(units_mm: float, decimals: int) -> float | None:
 
 
 def snap_points(ws, R: float, points: np.ndarray, kinds: np.ndarray, step: float,
-                units_mm: float) -> np.ndarray:
+                units_mm: float, slack_mm: float | None = None) -> np.ndarray:
     """(n, 3) tip points (work mm) with every feed move's end point on the read-back
     grid of ``step`` mm: X, Y rounded, Z = the larger of the rounded Z and the exact tip
     height at the rounded X, Y rounded up (links above the material keep their height;
     points beyond the stock, where nothing is touched, too). Rapids are left to the
     writer's rounding. Grid values are whole multiples of 1e-4 program units, computed
-    in program units so that the writer's decimal text of them is exact."""
+    in program units so that the writer's decimal text of them is exact.
+
+    ``slack_mm``: the grid is the program's own (its decimals no finer than the read-back
+    grid); a point is put on it (X, Y rounded, Z rounded up to the exact tip height
+    there) only where the exact tip height at the rounded X, Y lies more than
+    ``slack_mm`` above the rounded Z: where rounding X, Y costs more than the share of
+    the tolerance given to rounding (units.ROUNDING_SHARE). That happens on the ball's
+    steep flank at an edge pass (the disk overhangs the stock but for a sliver: slope
+    ~270 on a slope-20 wall, so 0.05 um across is 0.013 mm down); elsewhere every point
+    is written as before."""
     out = points.copy()
     feed = kinds != RAPID
     if not feed.any():
@@ -52,6 +61,12 @@ def snap_points(ws, R: float, points: np.ndarray, kinds: np.ndarray, step: float
     z_round = np.round(P[:, 2] / q) * q
     with np.errstate(invalid="ignore"):
         z_up = np.ceil(np.where(np.isfinite(Zx), Zx, -np.inf) / q - 1e-9) * q
-    Z = np.maximum(z_round, z_up)
+    if slack_mm is not None:
+        with np.errstate(invalid="ignore"):
+            far = np.isfinite(Zx) & (Zx > z_round + slack_mm / k)
+        Z = np.where(far, np.maximum(z_round, z_up), P[:, 2])
+        XY = np.where(far[:, None], XY, P[:, :2])
+    else:
+        Z = np.maximum(z_round, z_up)
     out[feed] = np.column_stack([XY, Z]) * k
     return out
