@@ -118,7 +118,7 @@ def interrupted_line() -> tuple[str, int]:
 
 def pause_at(point: str) -> None:
     """A hook for testing Ctrl-C at the edges of a run: with ``FABKIT_PAUSE_AT=point``
-    (start, written, exit) the process says ``fabkit: paused at <point>`` on stderr and
+    (start, staged, written, exit) the process says ``fabkit: paused at <point>`` on stderr and
     waits up to 60 s for a signal there. Without it, nothing."""
     if os.environ.get("FABKIT_PAUSE_AT") != point:
         return

@@ -224,6 +224,7 @@ def atomic_outputs():
         outputs._discard()
         raise
     try:
+        pause_at("staged")            # every output made, none renamed into place yet
         outputs._commit()
     except BaseException:
         outputs._discard()

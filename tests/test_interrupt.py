@@ -315,6 +315,25 @@ def test_sigint_at_the_edges_of_a_run(tmp_path, point, code, words):
     assert temporaries(tmp_path) == []
 
 
+@pytest.mark.parametrize("command", ["stl", "gcode"])
+def test_sigint_when_the_outputs_are_made_but_not_renamed(tmp_path, command):
+    """Ctrl-C after all the work, in the last instant before the renames (every output staged):
+    130, one line, the previous output byte-identical, no temporary file left. The same as a
+    Ctrl-C anywhere during the work, at a point reached on any machine at any speed."""
+    spec = tmp_path / "tiny.yaml"
+    raw = tiny_raw()
+    raw["surface"].update(x=[-44, 6], y=[-12.5, 12.5])
+    spec.write_text(yaml.safe_dump(raw, sort_keys=False))
+    target = tmp_path / "out" / f"block.{'stl' if command == 'stl' else 'ngc'}"
+    target.parent.mkdir()
+    target.write_bytes(OLD)
+    rc, out, err = _sigint_at(tmp_path, "staged", command, str(spec), "-o", str(target))
+    assert rc == 130, err
+    assert "Traceback" not in err and len(err.splitlines()) == 1 and "interrupted" in err, err
+    assert target.read_bytes() == OLD
+    assert temporaries(tmp_path) == []
+
+
 def test_cli_interrupted_after_the_renames_says_written(cli, tmp_path, monkeypatch):
     """In-process: a KeyboardInterrupt once the outputs are renamed (a held SIGINT delivered
     as the renames end) reports them written, exit 4, not "left intact"."""
