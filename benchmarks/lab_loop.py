@@ -54,6 +54,20 @@ def windows(v, nb, escaped):
     return out
 
 
+def score_launch(r, v, truth):
+    """One analysed launch ``r`` against its truth (entry speed ``v``, the independent model's
+    run): the true bounce count (None when captured), the true outcome, whether the outcome and
+    the count agree, each bounce time's |error| / stated sigma, and v_in's."""
+    nb_true = len(truth["bounce_times"]) if truth["escaped"] else None
+    out_true = "escaped" if truth["escaped"] else "captured"
+    ok = r["outcome"] == out_true and (nb_true is None or r["bounces"] == nb_true)
+    k = min(r["bounces"], len(truth["bounce_times"])) if truth["escaped"] else 0
+    dts = [abs(a - b) / e for a, b, e in zip(r["bounce_times"][:k], truth["bounce_times"][:k],
+                                               r["bounce_time_errors"][:k])]
+    dv = abs(r["v_in"] - v) / r["v_in_error"] if r.get("v_in") is not None and r.get("v_in_error") else math.nan
+    return nb_true, out_true, ok, dts, dv
+
+
 def main() -> int:
     ap = argparse.ArgumentParser()
     ap.add_argument("n", nargs="?", type=int, default=8)
@@ -92,13 +106,7 @@ def main() -> int:
     bad = 0
     zt, zv = [], []
     for (H, v, y0, vy0, truth), r in zip(launches, rows):
-        nb_true = len(truth["bounce_times"]) if truth["escaped"] else None
-        out_true = "escaped" if truth["escaped"] else "captured"
-        ok = r["outcome"] == out_true and (nb_true is None or r["bounces"] == nb_true)
-        k = min(r["bounces"], len(truth["bounce_times"])) if truth["escaped"] else 0
-        dts = [abs(a - b) / e for a, b, e in zip(r["bounce_times"][:k], truth["bounce_times"][:k],
-                                                   r["bounce_time_errors"][:k])]
-        dv = abs(r["v_in"] - v) / r["v_in_error"] if r["v_in"] is not None else math.nan
+        nb_true, out_true, ok, dts, dv = score_launch(r, v, truth)
         zt += dts
         zv.append(dv)
         bad += not ok

@@ -44,6 +44,7 @@ sys.path.insert(0, str(ROOT / "tests"))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import lab_sim as L  # noqa: E402
+from lab_loop import score_launch  # noqa: E402
 
 MU, CRR = 0.11, 0.0015
 CAPTURED_FILM_S = 6.0        # a captured launch is filmed this long (it never leaves)
@@ -153,13 +154,7 @@ def main() -> int:
           "   bounce |dt|/sigma max")
     bad, zt, zv = 0, [], []
     for (H, v, y0, vy0, truth), r in zip(launches, rows):
-        nb_true = len(truth["bounce_times"]) if truth["escaped"] else None
-        out_true = "escaped" if truth["escaped"] else "captured"
-        ok = r["outcome"] == out_true and (nb_true is None or r["bounces"] == nb_true)
-        k = min(r["bounces"], len(truth["bounce_times"])) if truth["escaped"] else 0
-        dts = [abs(a - b) / e for a, b, e in zip(r["bounce_times"][:k], truth["bounce_times"][:k],
-                                                   r["bounce_time_errors"][:k])]
-        dv = abs(r["v_in"] - v) / r["v_in_error"] if r.get("v_in") is not None and r.get("v_in_error") else math.nan
+        nb_true, out_true, ok, dts, dv = score_launch(r, v, truth)
         vo_t, vo = truth.get("v_out"), r.get("v_out")
         dvo = abs(vo - vo_t) / r["v_out_error"] if vo is not None and vo_t is not None and r.get("v_out_error") \
             else math.nan
