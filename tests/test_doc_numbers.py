@@ -41,7 +41,7 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 OUT = ROOT / "docs" / "outputs"
 DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
-BLOCK = re.compile(r"<!-- numbers: ([\w\-, ]+?)\s*(?:;\s*timings:([-+\d.eE ]+?))?"
+BLOCK = re.compile(r"<!-- numbers: ([\w\-., ]+?)\s*(?:;\s*timings:([-+\d.eE ]+?))?"
                    r"\s*(?:;\s*inputs:([-+\d.eE ]+?))?\s*-->"
                    r"(.*?)<!-- /numbers -->", re.S)
 # a decimal number (not part of a word, a version like 3.11.7 or a file name like 0.ngc);

@@ -1,0 +1,367 @@
+"""Every number the README and docs/ give is classified: a command's output is checked.
+
+tests/test_doc_numbers.py checks the passages marked ``<!-- numbers: JOB -->`` against the
+outputs docs/regenerate.py records. Every other number in README.md and docs/*.md must sit in
+a passage that says what kind of figure it is, so that no command's output can be quoted
+unchecked:
+
+    <!-- figures: KIND[ ARGUMENTS][, KIND ...] -->
+    ... the passage (a paragraph, a table, a list, or a few of them) ...
+    <!-- /figures -->
+
+The kinds (``KINDS`` below):
+
+* ``benchmark benchmarks/X.py`` -- measured by a script run by hand (never in the tests); the
+  passage gives its command (``python benchmarks/X.py ...``), so a reader can rerun it.
+* ``test tests/X.py`` -- measured in a test of the suite, which the passage names.
+* ``reference`` -- published values and other programs' figures (the seed paper, grbl,
+  rs274, LinuxCNC, scipy, the literature), and hardware or format facts.
+* ``history`` -- figures of earlier code, before a change (``was``, ``before``).
+* ``input`` -- what is given, not computed: spec values, defaults, options and their
+  ranges, the interface's constants (exit codes, limits), the parameters of a study.
+* ``timing`` -- wall or CPU times, memory and load averages measured by hand: they depend on
+  the machine, not on the command.
+* ``closed-form`` -- worked by hand from a formula or a derivation the passage gives.
+* ``derived NAME from JOB[ JOB]`` -- computed by hand from the quoted outputs of the jobs
+  named (a percentage, a fit, a ratio): ``DERIVATIONS[NAME]`` recomputes each such figure
+  from the jobs' printed numbers (or from the passage's own checked numbers) and fails when
+  one differs.
+* ``unchecked`` -- said plainly: a figure read by hand from a command's output (its JSON, a
+  fit through its numbers) that nothing here checks yet. Each is a debt, counted by
+  ``test_unchecked_figures_do_not_grow``.
+
+A passage with a number outside every mark fails here. Numbers that are names rather than
+figures are left out by the rules of ``strip_names``: headings, link targets, identifiers
+(T_5, DOP853, x86_64, G64, P0.01, $110, 0.ngc), versions (grbl 1.1, Python 3.11), issue and
+item numbers, exponents and subscripts in formulas (y^2, x**2, e_1), ordered-list labels, and
+code spans and code blocks that are commands, options, spec keys or G-code. A code block or a
+code span that shows what a command prints is a passage like any other. This test reads text
+only: it runs no command.
+"""
+
+from __future__ import annotations
+
+import re
+from decimal import Decimal
+from pathlib import Path
+
+import pytest
+
+from test_doc_numbers import DOCS, OUT, ROOT, _regenerate, decimals, whole_numbers
+
+FIGURES = re.compile(r"<!-- figures: (.*?) -->(.*?)<!-- /figures -->", re.S)
+NUMBERS = re.compile(r"<!-- numbers: .*?-->.*?<!-- /numbers -->", re.S)
+KINDS = ("benchmark", "test", "reference", "history", "input", "timing", "closed-form", "derived", "unchecked")
+
+# a line that is a command a user types (a code block of these shows no output)
+_COMMAND = re.compile(r"^\s*(\$ )?(fabkit|python3?|pip|pytest|nice|dask|sed|git|cd|\.|apt-get|"
+                      r"PYTHONPATH=|GRBLTIME=|LCNCTIME=|FABKIT_\w+=|export)\b")
+_VERSIONED = re.compile(r"\b(grbl|Python|numpy|scipy|numba|LinuxCNC|linuxcnc|Debian|Chromium|trimesh|PyAV|"
+                        r"matplotlib|manifold3d|OpenCV|x264|grbl-sim|Dask|dask|pytest)(\s+v?\d[\d.]*\w*)")
+
+
+def _blank(m: re.Match) -> str:
+    return re.sub(r"[^\n]", " ", m.group(0))
+
+
+def _commands_only(lines: list[str]) -> bool:
+    follows = False
+    for line in (x for x in lines if x.strip()):
+        if not (follows or _COMMAND.match(line)):
+            return False
+        follows = line.rstrip().endswith("\\")
+    return True
+
+
+def _code_span(m: re.Match) -> str:
+    """A code span that is a name, an option, a command, a spec key or G-code holds no figure."""
+    s = m.group(1)
+    if (not re.search(r"\s", s.strip()) or _COMMAND.match(s) or s.lstrip().startswith("-")
+            or re.fullmatch(r"[\w.\[\]]+:\s+\S+(\s\w+)?", s)
+            or re.fullmatch(r"(\s*[A-Z$#]-?[\d.]+)+\s*", s)):
+        return _blank(m)
+    return m.group(0)
+
+
+def strip_names(text: str) -> str:
+    """The text with every mark, every marked passage and every number that is a name blanked
+    (line numbers kept)."""
+    text = NUMBERS.sub(_blank, text)
+    text = FIGURES.sub(_blank, text)
+    text = re.sub(r"<!--.*?-->", _blank, text, flags=re.S)
+    lines, out, fence = text.split("\n"), [], None
+    for line in lines:                       # fenced code blocks of commands only
+        if fence is None and line.lstrip().startswith("```"):
+            fence = [line]
+        elif fence is not None:
+            fence.append(line)
+            if line.lstrip().startswith("```"):
+                out += [""] * len(fence) if _commands_only(fence[1:-1]) else fence
+                fence = None
+        else:
+            out.append(line)
+    lines, out, k = out + (fence or []), [], 0
+    while k < len(lines):                    # indented code blocks of commands only
+        if lines[k].startswith("    ") and (not out or not out[-1].strip()):
+            j = k
+            while j < len(lines) and (lines[j].startswith("    ") or not lines[j].strip()):
+                j += 1
+            out += [""] * (j - k) if _commands_only(lines[k:j]) else lines[k:j]
+            k = j
+        else:
+            out.append(lines[k])
+            k += 1
+    text = "\n".join("" if re.match(r"\s*#+ ", line) else line for line in out)   # headings
+    text = re.sub(r"!\[[^\]]*\]\([^)]*\)", _blank, text)          # images: a caption is the figure's
+    text = re.sub(r"\]\([^)]*\)", _blank, text)                  # link targets
+    text = re.sub(r"https?://\S+", _blank, text)
+    text = re.sub(r"`([^`\n]+)`", _code_span, text)
+    text = _VERSIONED.sub(lambda m: m.group(1) + " " * len(m.group(2)), text)
+    text = re.sub(r"([#$]|\b(?:issues?|wave|round|stop|items?|Fig\.|Figure|figure|eq\.|section)\s+)\d+", _blank, text)
+    text = re.sub(r"[A-Za-z]-\d+|\d+-D\b", _blank, text)         # MPEG-4, 3-D
+    text = re.sub(r"(\^|_|\*\*)\{?-?\d+", _blank, text)           # y^2, e_1, x**2
+    text = re.sub(r"^\s*\d+\.\s", _blank, text, flags=re.M)      # ordered-list labels
+    text = re.sub(r"\d{4}-\d{2}-\d{2}|\b\d{1,2}:\d{2}\b", _blank, text)
+    return text
+
+
+def unclassified(text: str) -> list[tuple[int, list[str]]]:
+    """(line, numbers) of each passage that gives a number outside every mark."""
+    text, found, start = strip_names(text), [], 0
+    for m in re.finditer(r"(?:\n[ \t]*){2,}|\Z", text):
+        chunk = text[start:m.start()]
+        numbers = decimals(chunk) + whole_numbers(chunk)
+        if numbers:
+            found.append((text.count("\n", 0, start) + 1, numbers))
+        start = m.end()
+    return found
+
+
+def marks(text: str):
+    """(line, [(kind, arguments)], passage) of each figures mark."""
+    for m in FIGURES.finditer(text):
+        kinds = []
+        for part in m.group(1).split(","):
+            kind, _, args = part.strip().partition(" ")
+            kinds.append((kind, args.split()))
+        yield text.count("\n", 0, m.start()) + 1, kinds, m.group(2)
+
+
+# ---------------------------------------------------------------------------------------------
+# derivations: each recomputes the figures of a ``derived`` passage from what the jobs print
+
+def _half(q: str) -> Decimal:
+    return Decimal(1).scaleb(Decimal(q).as_tuple().exponent) / 2
+
+
+def _close(quoted: str, value: float) -> bool:
+    return abs(Decimal(quoted) - Decimal(repr(value))) <= _half(quoted) * Decimal("1.0001")
+
+
+def _lab_line(n: int) -> float:
+    """The seed paper's published fit, T_n = 0.961 n + 0.755 s (n = 2..6)."""
+    return 0.961 * n + 0.755
+
+
+def _paper_rows(text: str) -> list[tuple[list[str], list[str]]]:
+    """docs/paper.md's table: (the windows' T_n at n = 3..6, the percentages against the lab)."""
+    rows = []
+    for line in text.splitlines():
+        cells = [c for c in line.split("|")][1:-1]
+        if len(cells) == 6 and re.search(r"\d", cells[3]):
+            rows.append((re.findall(r"\d+\.\d+", cells[3]), re.findall(r"[-+]?\d+(?:\.\d+)?(?= %)", cells[4])))
+    return rows
+
+
+def _paper_against_lab(text: str, jobs: list[str]) -> list[str]:
+    """Each percentage is 100 (T_n / lab's T_n - 1), from the row's own checked T_n."""
+    bad, rows = [], _paper_rows(text)
+    assert len(rows) == 5
+    for tns, pcts in rows:
+        assert len(tns) == len(pcts) == 4
+        for n, tn, pct in zip(range(3, 7), tns, pcts):
+            if not _close(pct, 100 * (float(tn) / _lab_line(n) - 1)):
+                bad.append(f"{pct} % against the lab at n = {n} (T_n {tn})")
+    return bad
+
+
+def _slope(tns: list[str]) -> float:
+    ns = [3, 4, 5, 6]
+    return sum((n - 4.5) * float(t) for n, t in zip(ns, tns)) / sum((n - 4.5) ** 2 for n in ns)
+
+
+def _paper_summary(text: str, jobs: list[str]) -> list[str]:
+    """The prose under docs/paper.md's table: slopes over the lab's n (least squares through the
+    table's T_n at n = 3..6), the ranges of the fits' slopes and of the percentages."""
+    rows = _paper_rows(text)
+    slopes = [_slope(tns) for tns, _ in rows]          # full cm, ball cm, full in, ball in, ball in 2.5 cm
+    bad = []
+    m = re.search(r"the slopes are (\S+) and (\S+) s \(full and ball, cm\) and (\S+), (\S+) and\s+(\S+) s", text)
+    for q, s in zip(m.groups(), slopes):
+        if not _close(q.rstrip(","), s):
+            bad.append(f"slope over n = 3..6: {q} against {s:.4f}")
+    pct = [[abs(float(p)) for p in ps] for _, ps in rows]
+    m = re.search(r"within (\S+) % at n = 3..6 \(point model\) and within (\S+) %", text)
+    for q, row in zip(m.groups(), (pct[2], pct[4])):
+        if not _close(q, max(row)):
+            bad.append(f"within {q} % against {max(row)}")
+    m = re.search(r"centimetre reading is (\d+)-(\d+) % short", text)
+    cm = pct[0] + pct[1]
+    if (int(m.group(1)), int(m.group(2))) != (round(min(cm)), round(max(cm))):
+        bad.append(f"centimetre reading {m.group(1)}-{m.group(2)} % against {min(cm)}-{max(cm)}")
+    return bad
+
+
+def _output(job: str) -> str:
+    text = (OUT / f"{job}.txt").read_text()
+    return text[:text.rindex("\n[exit ")]
+
+
+#: the published critical velocity of the phi^4 kink-antikink collision (Anninos et al. 1991)
+PHI4_PUBLISHED = 0.2598
+
+
+def _phi4_against_published(text: str, jobs: list[str]) -> list[str]:
+    """v_critical and its extrapolation as the sweep prints them, their difference (the t_max
+    bias) and each one's distance above the published 0.2598."""
+    out = _output(jobs[0])
+    vc, ex = (float(x) for x in re.search(r"v_critical (\S+) c .*extrapolation (\S+) c", out).groups())
+    want = {"v_critical = ": vc, "strict value at ": ex, "t_max bias is +": vc - ex,
+            "this is\n  ": vc - PHI4_PUBLISHED, "above for v_critical and ": ex - PHI4_PUBLISHED}
+    bad = []
+    for before, value in want.items():
+        m = re.search(re.escape(before) + r"([\d.e-]+)", text)
+        if not m or not _close(m.group(1), value):
+            bad.append(f"{before.strip()!r} {m and m.group(1)} against {value:.6g}")
+    return bad
+
+
+#: NAME -> check(passage, jobs) -> list of figures that are not what the derivation gives
+DERIVATIONS = {"paper-against-lab": _paper_against_lab, "paper-summary": _paper_summary,
+               "phi4-against-published": _phi4_against_published}
+
+
+# ---------------------------------------------------------------------------------------------
+
+def test_every_number_in_the_docs_is_classified():
+    bad = []
+    total = 0
+    for doc in DOCS:
+        for line, numbers in unclassified(doc.read_text()):
+            total += 1
+            bad.append(f"{doc.relative_to(ROOT)}:{line}: {' '.join(numbers[:8])}")
+    assert not bad, (f"{total} passages give numbers outside any mark (mark them <!-- numbers: JOB --> or "
+                     "<!-- figures: KIND -->, tests/test_doc_figures.py):\n" + "\n".join(bad))
+
+
+def mark_problems(docs) -> list[str]:
+    """What is wrong with the figures marks of these docs: an unknown kind, a benchmark without
+    its command, a derivation that does not give the figures quoted."""
+    jobs = _regenerate().JOBS_BY_NAME
+    bad = []
+    for doc in docs:
+        name = doc.relative_to(ROOT).as_posix() if doc.is_relative_to(ROOT) else doc.name
+        for line, kinds, text in marks(doc.read_text()):
+            where = f"{name}:{line}"
+            if not (decimals(text) or whole_numbers(text)):
+                bad.append(f"{where}: a figures mark around no number")
+            for kind, args in kinds:
+                if kind not in KINDS:
+                    bad.append(f"{where}: unknown kind {kind!r} (one of {', '.join(KINDS)})")
+                elif kind in ("benchmark", "test"):
+                    folder = "benchmarks" if kind == "benchmark" else "tests"
+                    if not args:
+                        bad.append(f"{where}: {kind} names no script")
+                    for script in args:
+                        if not script.startswith(folder + "/") or not (ROOT / script).is_file():
+                            bad.append(f"{where}: {script} is not a file under {folder}/")
+                        elif kind == "benchmark" and not re.search(
+                                rf"python3? {re.escape(script)}(?![\w/])", text):
+                            bad.append(f"{where}: the passage does not give the command python {script}")
+                        elif kind == "test" and script not in text:
+                            bad.append(f"{where}: the passage does not name {script}")
+                elif kind == "derived":
+                    if len(args) < 3 or args[1] != "from":
+                        bad.append(f"{where}: derived NAME from JOB[ JOB]")
+                        continue
+                    if args[0] not in DERIVATIONS:
+                        bad.append(f"{where}: no derivation {args[0]!r} in DERIVATIONS")
+                    unknown = [j for j in args[2:] if j not in jobs]
+                    if unknown:
+                        bad.append(f"{where}: unknown job(s) {unknown}")
+                    else:
+                        bad += [f"{where}: {b}" for b in DERIVATIONS[args[0]](text, args[2:])]
+                elif args:
+                    bad.append(f"{where}: {kind} takes no arguments ({' '.join(args)})")
+    return bad
+
+
+def test_each_mark_is_a_known_kind_with_its_source():
+    bad = mark_problems(DOCS)
+    assert not bad, "\n".join(bad)
+
+
+def test_the_rules_leave_out_names_and_keep_figures():
+    text = ("## 3 Section 4\n\nissue 39, wave 4, grbl 1.1h, Python 3.11.7, T_5, DOP853, x86_64, G64 P0.01, "
+            "$110 and [docs](docs/x2.md), `--v-in 20 90 200`, `surface.top: 2.0`, y^2, MPEG-4, 3-D\n\n"
+            "1. first\n\n"
+            "    fabkit sweep specs/surface.yaml --v-in 10 90 5\n\n"
+            "the sweep finds 9 windows\n\n"
+            "    $ fabkit check specs/surface.yaml\n    check: v_critical 59.2241\n\n"
+            "`check: 400 release heights 0.2..4.5 cm`\n\n"
+            "<!-- figures: history -->was 12.5 s<!-- /figures --> and <!-- numbers: check -->9<!-- /numbers -->\n")
+    got = unclassified(text)
+    assert [line for line, _ in got] == [9, 11, 14], got
+    assert got[0][1] == ["9"] and got[1][1] == ["59.2241"] and got[2][1] == ["0.2", "4.5", "400"]
+
+
+def test_a_derivation_fails_a_figure_it_does_not_give():
+    row = "| full, cm | 0.643 n + 0.370 | 3-14 | 2.259, 2.926, 3.587, 4.242 | {} | 51.743 cm/s |\n"
+    good = "| h | h | h | h | h | h |\n|---|---|---|---|---|---|\n" + row.format("-38 %, -36 %, -35 %, -35 %") * 5
+    assert _paper_against_lab(good, []) == []
+    drifted = good.replace("-36 %", "-37 %", 1)
+    assert _paper_against_lab(drifted, []) == ["-37 % against the lab at n = 4 (T_n 2.926)"]
+
+
+@pytest.mark.parametrize("kind", ["benchmark benchmarks/bench_time.py", "test tests/test_doc_numbers.py"])
+def test_a_benchmark_mark_without_its_command_fails(kind, tmp_path):
+    doc = tmp_path / "x.md"
+    doc.write_text(f"<!-- figures: {kind} -->\n100 000 lines take 1.00 s\n<!-- /figures -->\n")
+    assert [b.split(": ", 1)[1] for b in mark_problems([doc])] == \
+        [f"the passage does not {'give the command python' if 'bench' in kind else 'name'} {kind.split()[1]}"]
+    doc.write_text(f"<!-- figures: {kind} -->\n`python {kind.split()[1]}`: 100 000 lines take 1.00 s\n"
+                   "<!-- /figures -->\n<!-- figures: measured -->\n3 s\n<!-- /figures -->\n")
+    assert [b.split(": ", 1)[1] for b in mark_problems([doc])] == \
+        ["unknown kind 'measured' (one of benchmark, test, reference, history, input, timing, closed-form, derived, unchecked)"]
+
+
+def test_each_output_names_exactly_the_docs_that_quote_it():
+    """docs/outputs/JOB.txt's last line, "quoted by ...", is the job's doc list, and that list is
+    the docs whose marks (numbers: or derived ... from) name the job: no more, no fewer."""
+    jobs = _regenerate().JOBS_BY_NAME
+    quoting: dict[str, set[str]] = {j: set() for j in jobs}
+    for doc in DOCS:
+        name, text = doc.relative_to(ROOT).as_posix(), doc.read_text()
+        for m in re.finditer(r"<!-- numbers: ([\w\-., ]+?)\s*(?:;[^>]*)?-->", text):
+            for j in m.group(1).split(","):
+                quoting.setdefault(j.strip(), set()).add(name)
+        for _, kinds, _ in marks(text):
+            for kind, args in kinds:
+                if kind == "derived":
+                    for j in args[2:]:
+                        quoting.setdefault(j, set()).add(name)
+    bad = []
+    for j, job in jobs.items():
+        listed = {d.strip() for d in job.doc.split(",")}
+        if listed != quoting[j]:
+            bad.append(f"{j}: regenerate lists {sorted(listed)}, the docs that quote it are {sorted(quoting[j])}")
+        out = OUT / f"{j}.txt"
+        if not out.is_file():
+            bad.append(f"{j}: no docs/outputs/{j}.txt")
+            continue
+        last = out.read_text().rstrip("\n").rsplit("\n", 1)[-1]
+        said = {d.strip() for d in last.rsplit("quoted by ", 1)[-1].rstrip("]").split(",")}
+        if said != listed:
+            bad.append(f"docs/outputs/{j}.txt says quoted by {sorted(said)}, regenerate lists {sorted(listed)}")
+    stray = sorted(p.stem for p in OUT.glob("*.txt") if p.stem not in jobs)
+    assert not bad and not stray, "\n".join(bad + [f"docs/outputs/{s}.txt: no such job" for s in stray])
