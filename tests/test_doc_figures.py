@@ -236,9 +236,29 @@ def _phi4_against_published(text: str, jobs: list[str]) -> list[str]:
     return bad
 
 
+def _percent_of_previous_cell(text: str, jobs: list[str]) -> list[str]:
+    """In each table row, a cell "X (+p %)" states X against the cell before it:
+    p = 100 (X / previous - 1), to the digits quoted."""
+    bad = []
+    for line in re.sub(r"<!--.*?-->", "", text).splitlines():
+        cells = [c.replace(" ", "").replace("\u2212", "-") for c in line.split("|")[1:-1]]
+        for prev, cell in zip(cells, cells[1:]):
+            m = re.fullmatch(r"([\d.]+)\(([-+][\d.]+)%\)", cell)
+            if m:
+                xq, p, rq = m.group(1), m.group(2), re.match(r"[\d.]+", prev).group(0)
+                # the two figures are rounded: p may be any value they round from
+                x, hx, ref, hr = float(xq), float(_half(xq)), float(rq), float(_half(rq))
+                lo, hi = 100 * ((x - hx) / (ref + hr) - 1), 100 * ((x + hx) / (ref - hr) - 1)
+                hp = float(_half(p))
+                if not (lo - hp <= float(p) <= hi + hp):
+                    bad.append(f"{cell} against {prev}: {lo:+.4f}..{hi:+.4f} %")
+    return bad
+
+
 #: NAME -> check(passage, jobs) -> list of figures that are not what the derivation gives
 DERIVATIONS = {"paper-against-lab": _paper_against_lab, "paper-summary": _paper_summary,
-               "phi4-against-published": _phi4_against_published}
+               "phi4-against-published": _phi4_against_published,
+               "percent-of-previous-cell": _percent_of_previous_cell}
 
 
 # ---------------------------------------------------------------------------------------------
