@@ -168,12 +168,12 @@ def _paper_rows(text: str) -> list[tuple[list[str], list[str]]]:
     rows = []
     for line in text.splitlines():
         cells = [c for c in line.split("|")][1:-1]
-        if len(cells) == 6 and re.search(r"\d", cells[3]):
+        if len(cells) == 6 and re.search(r"\d\.\d", cells[3]):
             rows.append((re.findall(r"\d+\.\d+", cells[3]), re.findall(r"[-+]?\d+(?:\.\d+)?(?= %)", cells[4])))
     return rows
 
 
-def _paper_against_lab(text: str, jobs: list[str]) -> list[str]:
+def _paper_against_lab(text: str, jobs: list[str], doc: str = "") -> list[str]:
     """Each percentage is 100 (T_n / lab's T_n - 1), from the row's own checked T_n."""
     bad, rows = [], _paper_rows(text)
     assert len(rows) == 5
@@ -190,16 +190,28 @@ def _slope(tns: list[str]) -> float:
     return sum((n - 4.5) * float(t) for n, t in zip(ns, tns)) / sum((n - 4.5) ** 2 for n in ns)
 
 
-def _paper_summary(text: str, jobs: list[str]) -> list[str]:
-    """The prose under docs/paper.md's table: slopes over the lab's n (least squares through the
-    table's T_n at n = 3..6), the ranges of the fits' slopes and of the percentages."""
-    rows = _paper_rows(text)
-    slopes = [_slope(tns) for tns, _ in rows]          # full cm, ball cm, full in, ball in, ball in 2.5 cm
-    bad = []
+def _table_slopes(doc: str) -> list[float]:
+    """The fits' slopes in docs/paper.md's table (its second column, "T n + delta")."""
+    return [float(re.search(r"(\d+\.\d+) n \+", line.split("|")[2]).group(1))
+            for line in doc.splitlines() if line.count("|") == 7 and re.search(r"\d n \+", line)]
+
+
+def _paper_slopes(text: str, jobs: list[str], doc: str = "") -> list[str]:
+    """The slopes over the lab's n alone: least squares through the table's T_n at n = 3..6."""
+    slopes = [_slope(tns) for tns, _ in _paper_rows(doc)]   # full cm, ball cm, full in, ball in, ball in 2.5 cm
     m = re.search(r"the slopes are (\S+) and (\S+) s \(full and ball, cm\) and (\S+), (\S+) and\s+(\S+) s", text)
-    for q, s in zip(m.groups(), slopes):
-        if not _close(q.rstrip(","), s):
-            bad.append(f"slope over n = 3..6: {q} against {s:.4f}")
+    return [f"slope over n = 3..6: {q} against {s:.4f}" for q, s in zip(m.groups(), slopes)
+            if not _close(q.rstrip(","), s)]
+
+
+def _paper_ranges(text: str, jobs: list[str], doc: str = "") -> list[str]:
+    """The ranges the prose gives: the fits' slopes in cm and in inches, and the percentages
+    against the lab at n = 3..6 (the table's)."""
+    rows, slopes, bad = _paper_rows(doc), _table_slopes(doc), []
+    m = re.search(r"fabkit gives (\S+)-(\S+) s\s+in cm and (\S+)-(\S+) s in inches", text)
+    for q, v in zip(m.groups(), (min(slopes[:2]), max(slopes[:2]), min(slopes[2:]), max(slopes[2:]))):
+        if not _close(q, v):
+            bad.append(f"slope range: {q} against {v}")
     pct = [[abs(float(p)) for p in ps] for _, ps in rows]
     m = re.search(r"within (\S+) % at n = 3..6 \(point model\) and within (\S+) %", text)
     for q, row in zip(m.groups(), (pct[2], pct[4])):
@@ -207,8 +219,22 @@ def _paper_summary(text: str, jobs: list[str]) -> list[str]:
             bad.append(f"within {q} % against {max(row)}")
     m = re.search(r"centimetre reading is (\d+)-(\d+) % short", text)
     cm = pct[0] + pct[1]
-    if (int(m.group(1)), int(m.group(2))) != (round(min(cm)), round(max(cm))):
+    if not (_close(m.group(1), min(cm)) and _close(m.group(2), max(cm))):
         bad.append(f"centimetre reading {m.group(1)}-{m.group(2)} % against {min(cm)}-{max(cm)}")
+    return bad
+
+
+def _paper_flat(text: str, jobs: list[str], doc: str = "") -> list[str]:
+    """The flattened reading against the lab (its T_n at n = 3..6), and v_critical in inches
+    per second written in cm/s."""
+    plain = re.sub(r"<!--.*?-->", "", text)
+    tns = re.search(r"s: (\S+), (\S+), (\S+), (\S+) at n = 3..6", plain).groups()
+    pcts = [100 * (float(t.rstrip(",")) / _lab_line(n) - 1) for n, t in zip(range(3, 7), tns)]
+    m = re.search(r"(-?[\d.]+) % to (-?[\d.]+) %", plain)
+    bad = [f"{q} % against {v:+.3f}" for q, v in zip(m.groups(), (min(pcts), max(pcts))) if not _close(q, v)]
+    m = re.search(r"v_critical is (\S+) in/s = (\S+) cm/s", plain)
+    if not _close(m.group(2), float(m.group(1)) * 2.54):
+        bad.append(f"{m.group(1)} in/s is not {m.group(2)} cm/s")
     return bad
 
 
@@ -221,7 +247,7 @@ def _output(job: str) -> str:
 PHI4_PUBLISHED = 0.2598
 
 
-def _phi4_against_published(text: str, jobs: list[str]) -> list[str]:
+def _phi4_against_published(text: str, jobs: list[str], doc: str = "") -> list[str]:
     """v_critical and its extrapolation as the sweep prints them, their difference (the t_max
     bias) and each one's distance above the published 0.2598."""
     out = _output(jobs[0])
@@ -236,7 +262,7 @@ def _phi4_against_published(text: str, jobs: list[str]) -> list[str]:
     return bad
 
 
-def _percent_of_previous_cell(text: str, jobs: list[str]) -> list[str]:
+def _percent_of_previous_cell(text: str, jobs: list[str], doc: str = "") -> list[str]:
     """In each table row, a cell "X (+p %)" states X against the cell before it:
     p = 100 (X / previous - 1), to the digits quoted."""
     bad = []
@@ -256,7 +282,8 @@ def _percent_of_previous_cell(text: str, jobs: list[str]) -> list[str]:
 
 
 #: NAME -> check(passage, jobs) -> list of figures that are not what the derivation gives
-DERIVATIONS = {"paper-against-lab": _paper_against_lab, "paper-summary": _paper_summary,
+DERIVATIONS = {"paper-against-lab": _paper_against_lab, "paper-slopes": _paper_slopes,
+               "paper-ranges": _paper_ranges, "paper-flat": _paper_flat,
                "phi4-against-published": _phi4_against_published,
                "percent-of-previous-cell": _percent_of_previous_cell}
 
@@ -281,7 +308,8 @@ def mark_problems(docs) -> list[str]:
     bad = []
     for doc in docs:
         name = doc.relative_to(ROOT).as_posix() if doc.is_relative_to(ROOT) else doc.name
-        for line, kinds, text in marks(doc.read_text()):
+        whole = doc.read_text()
+        for line, kinds, text in marks(whole):
             where = f"{name}:{line}"
             if not (decimals(text) or whole_numbers(text)):
                 bad.append(f"{where}: a figures mark around no number")
@@ -310,7 +338,7 @@ def mark_problems(docs) -> list[str]:
                     if unknown:
                         bad.append(f"{where}: unknown job(s) {unknown}")
                     else:
-                        bad += [f"{where}: {b}" for b in DERIVATIONS[args[0]](text, args[2:])]
+                        bad += [f"{where}: {b}" for b in DERIVATIONS[args[0]](text, args[2:], whole)]
                 elif args:
                     bad.append(f"{where}: {kind} takes no arguments ({' '.join(args)})")
     return bad
