@@ -58,7 +58,7 @@ JOBS = (
     Job("calibrate", "docs/simulator.md", ("calibrate", "specs/surface.yaml", "--height", "1", "4.5",
                                            "--v-in", "50")),
     Job("calibrate-range", "README.md", ("calibrate", "specs/surface.yaml", "--height", "0.2", "4.5")),
-    Job("sweep", "docs/sweep_check.md, docs/explore.md, docs/paper.md",
+    Job("sweep", "docs/sweep_check.md, docs/explore.md, docs/paper.md, README.md",
         ("sweep", "specs/surface.yaml", "--plot", "docs/sweep.png")),
     # the paper's spec undamped on the two point models (docs/sweep_check.md's table; about 10 s each)
     Job("sweep-undamped-full", "docs/sweep_check.md", ("sweep", "tests/fixtures/sweep/undamped_full.yaml")),
@@ -77,6 +77,12 @@ JOBS = (
     Job("gcode-bowl", "docs/gcode.md", ("gcode", "specs/bowl.yaml", "--no-progress")),
     Job("gcode-router", "docs/machine.md, README.md", ("gcode", "specs/surface.yaml", "--machine", "grbl-router", "-o",
                                              "toolpaths/surface_grbl.ngc", "--no-progress")),
+    # the roughing job (README.md's roughing table): alone, and written for and timed on two shipped machines
+    Job("gcode-roughing", "README.md", ("gcode", "specs/surface_roughing.yaml", "--no-progress")),
+    Job("gcode-roughing-router", "README.md", ("gcode", "specs/surface_roughing.yaml", "--machine", "grbl-router",
+                                                "-o", "toolpaths/surface_roughing_grbl.ngc", "--no-progress")),
+    Job("gcode-roughing-mill", "README.md", ("gcode", "specs/surface_roughing.yaml", "--machine", "linuxcnc-mill",
+                                              "-o", "toolpaths/surface_roughing_mill.ngc", "--no-progress")),
     # the program gcode-router writes, timed on two profiles (cheap: under 1 s each)
     Job("time-router", "docs/machine.md", ("time", "toolpaths/surface_grbl.ngc", "--machine", "grbl-router")),
     Job("time-defaults", "docs/machine.md, README.md", ("time", "toolpaths/surface_grbl.ngc", "--machine", "grbl")),

@@ -281,11 +281,22 @@ def _percent_of_previous_cell(text: str, jobs: list[str], doc: str = "") -> list
     return bad
 
 
+def _ball_against_full(text: str, jobs: list[str], doc: str = "") -> list[str]:
+    """The finite ball's v_critical and release height against the point model's, in per cent,
+    from benchmarks/ball_compare.py's table (the job ball-compare)."""
+    rows = {m.group(1): (float(m.group(2)), float(m.group(3)))
+            for m in re.finditer(r"^\| (\w+) \| ([\d.]+) \| ([\d.]+) \|", _output(jobs[0]), re.M)}
+    m = re.search(r"v_critical is (\S+) % above the paper's `full` model, and (\S+) % above it in\s+release height",
+                  text)
+    want = (100 * (rows["ball"][0] / rows["full"][0] - 1), 100 * (rows["ball"][1] / rows["full"][1] - 1))
+    return [f"{q} % against {w:.3f} %" for q, w in zip(m.groups(), want) if not _close(q, w)]
+
+
 #: NAME -> check(passage, jobs) -> list of figures that are not what the derivation gives
 DERIVATIONS = {"paper-against-lab": _paper_against_lab, "paper-slopes": _paper_slopes,
                "paper-ranges": _paper_ranges, "paper-flat": _paper_flat,
                "phi4-against-published": _phi4_against_published,
-               "percent-of-previous-cell": _percent_of_previous_cell}
+               "percent-of-previous-cell": _percent_of_previous_cell, "ball-against-full": _ball_against_full}
 
 
 # ---------------------------------------------------------------------------------------------
