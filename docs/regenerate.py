@@ -54,7 +54,7 @@ JOBS = (
     Job("check", "README.md, docs/ball.md, docs/design.md, docs/sweep_check.md", ("check", "specs/surface.yaml")),
     Job("check-as-built", "README.md", ("check", "specs/surface_as_built.yaml")),
     Job("check-clipped-top2", "docs/sweep_check.md", ("check", "tests/fixtures/check/clipped_top2.yaml")),
-    Job("ball-compare", "README.md, docs/ball.md, docs/sweep_check.md", (), script="benchmarks/ball_compare.py"),
+    Job("ball-compare", "README.md, docs/ball.md, docs/sweep_check.md, docs/lab.md", (), script="benchmarks/ball_compare.py"),
     Job("calibrate", "docs/simulator.md", ("calibrate", "specs/surface.yaml", "--height", "1", "4.5",
                                            "--v-in", "50")),
     Job("calibrate-range", "README.md", ("calibrate", "specs/surface.yaml", "--height", "0.2", "4.5")),
@@ -77,12 +77,14 @@ JOBS = (
     Job("gcode-bowl", "docs/gcode.md", ("gcode", "specs/bowl.yaml", "--no-progress")),
     Job("gcode-router", "docs/machine.md, README.md", ("gcode", "specs/surface.yaml", "--machine", "grbl-router", "-o",
                                              "toolpaths/surface_grbl.ngc", "--no-progress")),
-    # the roughing job (README.md's roughing table): alone, and written for and timed on two shipped machines
-    Job("gcode-roughing", "README.md", ("gcode", "specs/surface_roughing.yaml", "--no-progress")),
-    Job("gcode-roughing-router", "README.md", ("gcode", "specs/surface_roughing.yaml", "--machine", "grbl-router",
-                                                "-o", "toolpaths/surface_roughing_grbl.ngc", "--no-progress")),
-    Job("gcode-roughing-mill", "README.md", ("gcode", "specs/surface_roughing.yaml", "--machine", "linuxcnc-mill",
-                                              "-o", "toolpaths/surface_roughing_mill.ngc", "--no-progress")),
+    # README.md's roughing table, as JSON (each operation's seconds): the roughing job and the single-ball
+    # stepdown job, each alone (length/feed) and written for and timed on two shipped machines
+    *(Job(f"gcode-{name}{suffix}", "README.md", ("gcode", spec, *machine, "-o", f"toolpaths/{name}{suffix}.ngc",
+                                                "--no-progress", "--json"))
+      for name, spec in (("roughing", "specs/surface_roughing.yaml"),
+                         ("ball-stepdown", "tests/fixtures/roughing/ball_stepdown.yaml"))
+      for suffix, machine in (("", ()), ("-router", ("--machine", "grbl-router")),
+                              ("-mill", ("--machine", "linuxcnc-mill")))),
     # the program gcode-router writes, timed on two profiles (cheap: under 1 s each)
     Job("time-router", "docs/machine.md", ("time", "toolpaths/surface_grbl.ngc", "--machine", "grbl-router")),
     Job("time-defaults", "docs/machine.md, README.md", ("time", "toolpaths/surface_grbl.ngc", "--machine", "grbl")),

@@ -292,11 +292,24 @@ def _ball_against_full(text: str, jobs: list[str], doc: str = "") -> list[str]:
     return [f"{q} % against {w:.3f} %" for q, w in zip(m.groups(), want) if not _close(q, w)]
 
 
+def _ramp_lanes(text: str, jobs: list[str], doc: str = "") -> list[str]:
+    """How far apart along the ramp two windows' marks are: the difference of their places
+    along it, as `fabkit ramp` prints them."""
+    along = {int(m.group(1)): float(m.group(2)) for m in re.finditer(
+        r"^2-bounce window (\d+) centre .*\s([\d.]+)$", _output(jobs[0]), re.M)}
+    m = re.search(r"windows (\d+) and (\d+) are (\S+) mm apart", text)
+    a, b, q = int(m.group(1)), int(m.group(2)), m.group(3)
+    # both places are printed to 0.01 mm: their difference is good to 0.01
+    d = along[b] - along[a]
+    return [] if abs(float(q) - d) <= 0.01 + float(_half(q)) else [f"{q} mm against {d:.2f} mm"]
+
+
 #: NAME -> check(passage, jobs) -> list of figures that are not what the derivation gives
 DERIVATIONS = {"paper-against-lab": _paper_against_lab, "paper-slopes": _paper_slopes,
                "paper-ranges": _paper_ranges, "paper-flat": _paper_flat,
                "phi4-against-published": _phi4_against_published,
-               "percent-of-previous-cell": _percent_of_previous_cell, "ball-against-full": _ball_against_full}
+               "percent-of-previous-cell": _percent_of_previous_cell, "ball-against-full": _ball_against_full,
+               "ramp-lanes": _ramp_lanes}
 
 
 # ---------------------------------------------------------------------------------------------
