@@ -304,12 +304,78 @@ def _ramp_lanes(text: str, jobs: list[str], doc: str = "") -> list[str]:
     return [] if abs(float(q) - d) <= 0.01 + float(_half(q)) else [f"{q} mm against {d:.2f} mm"]
 
 
+def _json_output(job: str) -> dict:
+    import json
+
+    text = _output(job)
+    return json.loads(text[text.index("\n") + 1:])
+
+
+def _roughing_times(job: str) -> tuple[float, list[float], int]:
+    """(the whole job's seconds, each operation's seconds, lines) of a ``gcode --json`` job: by the
+    machine's planner when it has one, else by length/feed."""
+    d = _json_output(job)
+    ops = [o.get("machine_s") or o["time_s"] for o in d.get("operations") or []]
+    total = sum(ops) if ops else (d["run_time"]["total_s"] if d.get("run_time") else d["estimated_time_s"])
+    return total, ops, d["lines"]
+
+
+def _hours_minutes(q: str) -> int:
+    h, m = re.fullmatch(r"(\d+) h (\d+) min", q).groups()
+    return 60 * int(h) + int(m)
+
+
+def _roughing_table(text: str, jobs: list[str], doc: str = "") -> list[str]:
+    """README.md's roughing table and the ratios under it, from ``fabkit gcode --json`` on each
+    job (length/feed, grbl-router, linuxcnc-mill): lines, the whole job's time in h and min,
+    each operation's in minutes, and the planner's time over length/feed."""
+    plain, bad = re.sub(r"<!--.*?-->|\*\*", "", text), []
+    names = {"one ball": "gcode-ball-stepdown", "`specs/surface_roughing.yaml`": "gcode-roughing"}
+    times = {}
+    for line in plain.splitlines():
+        cells = [c.strip() for c in line.split("|")[1:-1]]
+        job = next((j for k, j in names.items() if cells and cells[0].startswith(k)), None)
+        if job is None:
+            continue
+        runs = [_roughing_times(job + suffix) for suffix in ("", "-router", "-mill")]
+        times[job] = runs
+        lines = [int(x.replace(" ", "")) for x in re.findall(r"\d[\d ]*\d", cells[3])]
+        if lines[0] != runs[0][2] or (len(lines) > 1 and lines[1] != runs[1][2]):
+            bad.append(f"{cells[0]}: lines {cells[3]} against {runs[0][2]} (grbl {runs[1][2]})")
+        for cell, (total, ops, _) in zip(cells[4:7], runs):
+            hm = re.match(r"\d+ h \d+ min", cell).group(0)
+            if _hours_minutes(hm) != round(total / 60):
+                bad.append(f"{cells[0]}: {hm} against {total / 60:.2f} min")
+            per = re.search(r"\(([\d. +]+?)(?: min)?\)", cell)
+            if per:
+                for q, sec in zip(per.group(1).split(" + "), ops):
+                    if not _close(q, sec / 60):
+                        bad.append(f"{cells[0]}: {q} min against {sec / 60:.3f}")
+    rough = [_json_output(f"gcode-roughing{s}")["operations"] for s in ("-router", "-mill")]
+    ratio = [[o["machine_s"] / o["length_over_feed_s"] for o in ops] for ops in rough]
+    m = re.search(r"rough at (\S+)x \(grbl-router\) and (\S+)x \(linuxcnc-mill\) its length/feed time,\s+"
+                  r"against (\S+)x and (\S+)x for the finish", plain)
+    for q, v in zip(m.groups(), (ratio[0][0], ratio[1][0], ratio[0][-1], ratio[1][-1])):
+        if not _close(q, v):
+            bad.append(f"planner over length/feed {q}x against {v:.4f}")
+    m = re.search(r"run\s+time is (\S+)x the finishing program's by length/feed, (\S+)x on grbl-router, "
+                  r"(\S+)x on linuxcnc-mill", plain)
+    whole = times["gcode-roughing"]
+    for q, (total, ops, _) in zip(m.groups(), whole):
+        if not _close(q, total / ops[-1]):
+            bad.append(f"whole job over the finish {q}x against {total / ops[-1]:.4f}")
+    m = re.search(r"The roughing program has (\d[\d ]*) lines", plain)
+    if int(m.group(1).replace(" ", "")) != _json_output("gcode-roughing")["operations"][0]["lines"]:
+        bad.append(f"the roughing program's {m.group(1)} lines")
+    return bad
+
+
 #: NAME -> check(passage, jobs) -> list of figures that are not what the derivation gives
 DERIVATIONS = {"paper-against-lab": _paper_against_lab, "paper-slopes": _paper_slopes,
                "paper-ranges": _paper_ranges, "paper-flat": _paper_flat,
                "phi4-against-published": _phi4_against_published,
                "percent-of-previous-cell": _percent_of_previous_cell, "ball-against-full": _ball_against_full,
-               "ramp-lanes": _ramp_lanes}
+               "ramp-lanes": _ramp_lanes, "roughing-table": _roughing_table}
 
 
 # ---------------------------------------------------------------------------------------------
@@ -348,7 +414,7 @@ def mark_problems(docs) -> list[str]:
                         if not script.startswith(folder + "/") or not (ROOT / script).is_file():
                             bad.append(f"{where}: {script} is not a file under {folder}/")
                         elif kind == "benchmark" and not re.search(
-                                rf"python3? {re.escape(script)}(?![\w/])", text):
+                                rf"python3?\s+{re.escape(script)}(?![\w/])", text):
                             bad.append(f"{where}: the passage does not give the command python {script}")
                         elif kind == "test" and script not in text:
                             bad.append(f"{where}: the passage does not name {script}")
