@@ -65,7 +65,7 @@ JOBS = (
     Job("sweep-undamped-simplified", "docs/sweep_check.md",
         ("sweep", "tests/fixtures/sweep/undamped_simplified.yaml")),
     # docs/paper.md's table: the point model in cm, and both models in inches (about 10 s each)
-    Job("sweep-full", "docs/paper.md", ("sweep", "tests/fixtures/paper_full.yaml")),
+    Job("sweep-full", "docs/paper.md, docs/sweep_check.md", ("sweep", "tests/fixtures/paper_full.yaml")),
     Job("sweep-full-in", "docs/paper.md", ("sweep", "tests/fixtures/sweep/paper_full_in.yaml")),
     Job("sweep-ball-in", "docs/paper.md", ("sweep", "tests/fixtures/sweep/paper_ball_in.yaml")),
     Job("sweep-ball-in-2p5cm", "docs/paper.md", ("sweep", "tests/fixtures/sweep/paper_ball_in_2p5cm.yaml")),
