@@ -22,10 +22,11 @@ The kinds (``KINDS`` below):
 * ``timing`` -- wall or CPU times, memory and load averages measured by hand: they depend on
   the machine, not on the command.
 * ``closed-form`` -- worked by hand from a formula or a derivation the passage gives.
-* ``derived NAME from JOB[ JOB]`` -- computed by hand from the quoted outputs of the jobs
-  named (a percentage, a fit, a ratio): ``DERIVATIONS[NAME]`` recomputes each such figure
-  from the jobs' printed numbers (or from the passage's own checked numbers) and fails when
-  one differs.
+* ``derived NAME [from JOB[ JOB]]`` -- computed by hand from the quoted outputs of the jobs
+  named (a percentage, a fit, a ratio), or written by a script from the repository itself
+  (docs/architecture.py's line counts): ``DERIVATIONS[NAME]`` recomputes each such figure
+  from the jobs' printed numbers, the passage's own checked numbers or the files, and fails
+  when one differs.
 * ``unchecked`` -- said plainly: a figure read by hand from a command's output (its JSON, a
   fit through its numbers) that nothing here checks yet. Each is a debt, counted by
   ``test_unchecked_figures_do_not_grow``.
@@ -370,12 +371,25 @@ def _roughing_table(text: str, jobs: list[str], doc: str = "") -> list[str]:
     return bad
 
 
+def _architecture_lines(text: str, jobs: list[str], doc: str = "") -> list[str]:
+    """docs/architecture.py's table of modules: each one's line count is the file's today
+    (rerun ``python docs/architecture.py --write`` when it is not)."""
+    bad, rows = [], 0
+    for m in re.finditer(r"\[`([\w/.]+\.py)`\]\([^)]*\) \| (\d+) \|", text):
+        rows += 1
+        n = (ROOT / m.group(1)).read_text().count("\n")
+        if n != int(m.group(2)):
+            bad.append(f"{m.group(1)} has {n} lines, the page says {m.group(2)} (python docs/architecture.py --write)")
+    return bad if rows else ["no module rows found"]
+
+
 #: NAME -> check(passage, jobs) -> list of figures that are not what the derivation gives
 DERIVATIONS = {"paper-against-lab": _paper_against_lab, "paper-slopes": _paper_slopes,
                "paper-ranges": _paper_ranges, "paper-flat": _paper_flat,
                "phi4-against-published": _phi4_against_published,
                "percent-of-previous-cell": _percent_of_previous_cell, "ball-against-full": _ball_against_full,
-               "ramp-lanes": _ramp_lanes, "roughing-table": _roughing_table}
+               "ramp-lanes": _ramp_lanes, "roughing-table": _roughing_table,
+               "architecture-lines": _architecture_lines}
 
 
 # ---------------------------------------------------------------------------------------------
@@ -419,8 +433,8 @@ def mark_problems(docs) -> list[str]:
                         elif kind == "test" and script not in text:
                             bad.append(f"{where}: the passage does not name {script}")
                 elif kind == "derived":
-                    if len(args) < 3 or args[1] != "from":
-                        bad.append(f"{where}: derived NAME from JOB[ JOB]")
+                    if not args or (len(args) > 1 and (args[1] != "from" or len(args) < 3)):
+                        bad.append(f"{where}: derived NAME [from JOB[ JOB]]")
                         continue
                     if args[0] not in DERIVATIONS:
                         bad.append(f"{where}: no derivation {args[0]!r} in DERIVATIONS")
