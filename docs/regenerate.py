@@ -54,10 +54,10 @@ JOBS = (
     Job("check", "README.md, docs/ball.md, docs/design.md, docs/sweep_check.md", ("check", "specs/surface.yaml")),
     Job("check-as-built", "README.md", ("check", "specs/surface_as_built.yaml")),
     Job("check-clipped-top2", "docs/sweep_check.md", ("check", "tests/fixtures/check/clipped_top2.yaml")),
-    Job("ball-compare", "README.md, docs/ball.md, docs/sweep_check.md, docs/lab.md", (), script="benchmarks/ball_compare.py"),
+    Job("ball-compare", "README.md, docs/ball.md, docs/sweep_check.md, docs/lab.md, docs/simulator.md", (), script="benchmarks/ball_compare.py"),
     Job("calibrate", "docs/simulator.md", ("calibrate", "specs/surface.yaml", "--height", "1", "4.5",
                                            "--v-in", "50")),
-    Job("calibrate-range", "README.md", ("calibrate", "specs/surface.yaml", "--height", "0.2", "4.5")),
+    Job("calibrate-range", "README.md, docs/simulator.md", ("calibrate", "specs/surface.yaml", "--height", "0.2", "4.5")),
     Job("sweep", "docs/sweep_check.md, docs/explore.md, docs/paper.md, README.md",
         ("sweep", "specs/surface.yaml", "--plot", "docs/sweep.png")),
     # the paper's spec undamped on the two point models (docs/sweep_check.md's table; about 10 s each)

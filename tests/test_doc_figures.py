@@ -391,13 +391,25 @@ def _architecture_lines(text: str, jobs: list[str], doc: str = "") -> list[str]:
     return bad if rows else ["no module rows found"]
 
 
+def _lossless_calibration(text: str, jobs: list[str], doc: str = "") -> list[str]:
+    """The closed form v_in = sqrt(2 g H / (1 + k)) at the heights and speed the calibrate job
+    was given, with the g and k it prints."""
+    out = _output(jobs[0])
+    g, k = (float(x) for x in re.search(r"g = ([\d.]+) cm/s\^2, k = ([\d.]+)", out).groups())
+    heights = [float(h) for h in re.search(r"--height (\S+) (\S+)", out).groups()]
+    v = float(re.search(r"--v-in (\S+)", out).group(1))
+    m = re.search(r"the same heights give (\S+) and (\S+) cm/s, and (\S+) cm/s comes from (\S+) cm", text)
+    want = [(2 * g * h / (1 + k)) ** 0.5 for h in heights] + [v, (1 + k) * v * v / (2 * g)]
+    return [f"{q} against {w:.7g}" for q, w in zip(m.groups(), want) if not _close(q, w)]
+
+
 #: NAME -> check(passage, jobs) -> list of figures that are not what the derivation gives
 DERIVATIONS = {"paper-against-lab": _paper_against_lab, "paper-slopes": _paper_slopes,
                "paper-ranges": _paper_ranges, "paper-flat": _paper_flat,
                "phi4-against-published": _phi4_against_published,
                "percent-of-previous-cell": _percent_of_previous_cell, "ball-against-full": _ball_against_full,
                "ramp-lanes": _ramp_lanes, "roughing-table": _roughing_table,
-               "architecture-lines": _architecture_lines}
+               "architecture-lines": _architecture_lines, "lossless-calibration": _lossless_calibration}
 
 
 # ---------------------------------------------------------------------------------------------
