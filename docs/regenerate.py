@@ -54,7 +54,7 @@ JOBS = (
     Job("check", "README.md, docs/ball.md, docs/design.md, docs/sweep_check.md", ("check", "specs/surface.yaml")),
     Job("check-as-built", "README.md", ("check", "specs/surface_as_built.yaml")),
     Job("check-clipped-top2", "docs/sweep_check.md", ("check", "tests/fixtures/check/clipped_top2.yaml")),
-    Job("ball-compare", "README.md, docs/ball.md, docs/sweep_check.md, docs/lab.md, docs/simulator.md", (), script="benchmarks/ball_compare.py"),
+    Job("ball-compare", "README.md, docs/ball.md, docs/sweep_check.md, docs/lab.md, docs/simulator.md, docs/numerics.md", (), script="benchmarks/ball_compare.py"),
     Job("calibrate", "docs/simulator.md", ("calibrate", "specs/surface.yaml", "--height", "1", "4.5",
                                            "--v-in", "50")),
     Job("calibrate-range", "README.md, docs/simulator.md", ("calibrate", "specs/surface.yaml", "--height", "0.2", "4.5")),
@@ -95,7 +95,8 @@ JOBS = (
                                             "tests/fixtures/machine/unequal.grbl.txt")),
     # the same three as JSON: the feed cap's cost to 0.1 s (the summary gives whole seconds)
     *(Job(f"{name}-json", "docs/machine.md", ("time", "toolpaths/surface_grbl.ngc", "--machine", profile, "--json"))
-      for name, profile in (("time-defaults", "grbl"), ("time-fast", "tests/fixtures/machine/router.grbl.txt"),
+      for name, profile in (("time-defaults", "grbl"), ("time-router", "grbl-router"),
+                            ("time-fast", "tests/fixtures/machine/router.grbl.txt"),
                             ("time-unequal", "tests/fixtures/machine/unequal.grbl.txt"))),
     Job("ramp", "docs/lab.md", ("ramp", "specs/surface.yaml")),
     Job("precision", "docs/numerics.md", ("precision", "specs/surface.yaml", "--plot", "docs/precision.png",

@@ -507,6 +507,41 @@ def test_a_benchmark_mark_without_its_command_fails(kind, tmp_path):
         ["unknown kind 'measured' (one of benchmark, test, reference, history, input, timing, closed-form, derived, unchecked)"]
 
 
+#: figures of five or more significant digits, outside a numbers mark, that an output happens to
+#: print too: (doc, figure) -> why it is not that output
+COINCIDENCES = {
+    ("docs/simulator.md", "980.665"): "g, the standard gravity: an input calibrate prints back",
+    ("docs/machine.md", "4.5725"): "LinuxCNC's arc speed in a benchmark (a sweep prints the same digits)",
+    ("docs/paper.md", "1.0112"): "the issue's old fit, history (precision prints the same digits)",
+    ("docs/phi4.md", "0.25132"): "a window edge at dt = 1/10, history (unchanged at dt = 1/20)",
+    ("docs/phi4.md", "0.25377"): "a window edge at dt = 1/10, history (unchanged at dt = 1/20)",
+    ("docs/sweep_check.md", "50.484"): "the merged run before the windows were resolved, history: its ends "
+                                       "are today's first and last windows' ends",
+    ("docs/sweep_check.md", "50.930"): "the merged run before the windows were resolved, history",
+}
+
+
+def test_a_figure_an_output_prints_is_in_a_numbers_mark():
+    """Any figure of five or more significant digits that sits in a figures mark (a benchmark,
+    history, an input ...) and that some regenerated output prints is that output's, unless it is
+    a known coincidence: quote it in a numbers mark so that it is checked."""
+    printed: dict[str, set[str]] = {}
+    for p in OUT.glob("*.txt"):
+        for m in re.findall(r"\d+\.\d+", _output(p.stem)):
+            printed.setdefault(m, set()).add(p.stem)
+    bad = []
+    for doc in DOCS:
+        name = doc.relative_to(ROOT).as_posix()
+        for line, kinds, text in marks(doc.read_text()):
+            if any(k == "derived" for k, _ in kinds):
+                continue
+            for q in decimals(NUMBERS.sub(" ", text)):
+                q = q.lstrip("+-")
+                if len(q.replace(".", "").lstrip("0")) >= 5 and q in printed and (name, q) not in COINCIDENCES:
+                    bad.append(f"{name}:{line}: {q} is printed by {', '.join(sorted(printed[q]))}")
+    assert not bad, "\n".join(bad)
+
+
 def test_each_output_names_exactly_the_docs_that_quote_it():
     """docs/outputs/JOB.txt's last line, "quoted by ...", is the job's doc list, and that list is
     the docs whose marks (numbers: or derived ... from) name the job: no more, no fewer."""
