@@ -17,7 +17,12 @@ every decimal number inside it against those outputs (to the digits quoted), and
 number (a count) against the whole numbers they print, so a number
 that drifts from what the command prints fails the suite. A time or load inside such a
 passage depends on the machine and is named in the mark, ``<!-- numbers: JOB; timings: 65.4 0.7 -->``,
-and not checked; so is a spec's input or a year the passage names, ``; inputs: 25``. Jobs
+and not checked; so is a spec's input or a year the passage names, ``; inputs: 25``. Every
+other number of those pages sits in a passage marked with its kind, ``<!-- figures: benchmark
+benchmarks/X.py -->``, ``history``, ``reference``, ``input``, ``derived NAME from JOB`` (a figure
+computed from the outputs, recomputed by the test) ...: tests/test_doc_figures.py fails on a
+number outside every mark, and on an output whose last line ("quoted by") does not name exactly
+the docs that quote it. Jobs
 run in this order: ``time-router``, ``time-defaults``, ``time-fast`` and ``time-unequal`` time the
 program ``gcode-router`` writes.
 """
