@@ -103,7 +103,7 @@ JOBS = (
       for name, profile in (("time-defaults", "grbl"), ("time-router", "grbl-router"),
                             ("time-fast", "tests/fixtures/machine/router.grbl.txt"),
                             ("time-unequal", "tests/fixtures/machine/unequal.grbl.txt"))),
-    Job("ramp", "docs/lab.md", ("ramp", "specs/surface.yaml")),
+    Job("ramp", "docs/lab.md, docs/ball.md", ("ramp", "specs/surface.yaml")),
     Job("precision", "docs/numerics.md", ("precision", "specs/surface.yaml", "--plot", "docs/precision.png",
                                           "--no-progress")),
     Job("phi4", "docs/phi4.md, README.md", ("phi4", "--v-in", "0.2236", "--plot", "docs/phi4_three_bounce.png")),
@@ -111,7 +111,8 @@ JOBS = (
     # halving) and at dt = 1/80 (the converged column), and the sweep over the one-bounce threshold
     # (about a minute of CPU)
     *(Job(f"phi4-{v}", "docs/phi4.md", ("phi4", "--v-in", v)) for v in ("0.184", "0.1988", "0.2269", "0.27")),
-    *(Job(f"phi4-{v}-dt80", "docs/phi4.md", ("phi4", "--v-in", v, "--dt", "0.0125"))
+    *(Job(f"phi4-{v}-dt80", "docs/phi4.md" + (", README.md, docs/numerics.md" if v == "0.2236" else ""),
+          ("phi4", "--v-in", v, "--dt", "0.0125"))
       for v in ("0.1988", "0.2236", "0.2269", "0.27")),
     Job("phi4-sweep", "docs/phi4.md", ("phi4", "--v-in", "0.25", "0.27", "21")),
     Job("compare", "docs/phi4.md, docs/paper.md", ("compare", "specs/surface.yaml", "--plot", "docs/compare.png",

@@ -525,10 +525,11 @@ def test_a_figure_an_output_prints_is_in_a_numbers_mark():
     """Any figure of five or more significant digits that sits in a figures mark (a benchmark,
     history, an input ...) and that some regenerated output prints is that output's, unless it is
     a known coincidence: quote it in a numbers mark so that it is checked."""
-    printed: dict[str, set[str]] = {}
-    for p in OUT.glob("*.txt"):
-        for m in re.findall(r"\d+\.\d+", _output(p.stem)):
-            printed.setdefault(m, set()).add(p.stem)
+    import bisect
+
+    values = sorted((Decimal(m), p.stem) for p in OUT.glob("*.txt")
+                    for m in re.findall(r"\d+\.\d+", _output(p.stem)))
+    keys = [v for v, _ in values]
     bad = []
     for doc in DOCS:
         name = doc.relative_to(ROOT).as_posix()
@@ -537,8 +538,12 @@ def test_a_figure_an_output_prints_is_in_a_numbers_mark():
                 continue
             for q in decimals(NUMBERS.sub(" ", text)):
                 q = q.lstrip("+-")
-                if len(q.replace(".", "").lstrip("0")) >= 5 and q in printed and (name, q) not in COINCIDENCES:
-                    bad.append(f"{name}:{line}: {q} is printed by {', '.join(sorted(printed[q]))}")
+                if len(re.split("[eE]", q)[0].replace(".", "").lstrip("0")) < 5 or (name, q) in COINCIDENCES:
+                    continue
+                half = _half(q)      # printed to more digits, quoted rounded: the same figure
+                lo, hi = bisect.bisect_left(keys, Decimal(q) - half), bisect.bisect_right(keys, Decimal(q) + half)
+                if hi > lo:
+                    bad.append(f"{name}:{line}: {q} is printed by {', '.join(sorted({s for _, s in values[lo:hi]}))}")
     assert not bad, "\n".join(bad)
 
 
