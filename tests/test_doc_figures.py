@@ -58,7 +58,7 @@ KINDS = ("benchmark", "test", "reference", "history", "input", "timing", "closed
 _COMMAND = re.compile(r"^\s*(\$ )?(fabkit|python3?|pip|pytest|nice|dask|sed|git|cd|\.|apt-get|"
                       r"PYTHONPATH=|GRBLTIME=|LCNCTIME=|FABKIT_\w+=|export)\b")
 _VERSIONED = re.compile(r"\b(grbl|Python|numpy|scipy|numba|LinuxCNC|linuxcnc|Debian|Chromium|trimesh|PyAV|"
-                        r"matplotlib|manifold3d|OpenCV|x264|grbl-sim|Dask|dask|pytest)(\s+v?\d[\d.]*\w*)")
+                        r"matplotlib|manifold3d|OpenCV|x264|grbl-sim|Dask|dask)(\s+v?\d[\d.]*\w*)")
 
 
 def _blank(m: re.Match) -> str:
@@ -77,6 +77,8 @@ def _commands_only(lines: list[str]) -> bool:
 def _code_span(m: re.Match) -> str:
     """A code span that is a name, an option, a command, a spec key or G-code holds no figure."""
     s = m.group(1)
+    if re.fullmatch(r"\s*[-+]?\d[\d.,]*(?:[eE][-+]?\d+)?\s*", s):
+        return m.group(0)                    # a bare number is a figure, in a code span too
     if (not re.search(r"\s", s.strip()) or _COMMAND.match(s) or s.lstrip().startswith("-")
             or re.fullmatch(r"[\w.\[\]]+:\s+\S+(\s\w+)?", s)
             or re.fullmatch(r"(\s*[A-Z$#]-?[\d.]+)+\s*", s)):
@@ -481,10 +483,12 @@ def test_the_rules_leave_out_names_and_keep_figures():
             "the sweep finds 9 windows\n\n"
             "    $ fabkit check specs/surface.yaml\n    check: v_critical 59.2241\n\n"
             "`check: 400 release heights 0.2..4.5 cm`\n\n"
+            "the ratio is `0.7232`\n\n"
             "<!-- figures: history -->was 12.5 s<!-- /figures --> and <!-- numbers: check -->9<!-- /numbers -->\n")
     got = unclassified(text)
-    assert [line for line, _ in got] == [9, 11, 14], got
+    assert [line for line, _ in got] == [9, 11, 14, 16], got
     assert got[0][1] == ["9"] and got[1][1] == ["59.2241"] and got[2][1] == ["0.2", "4.5", "400"]
+    assert got[3][1] == ["0.7232"]
 
 
 def test_a_derivation_fails_a_figure_it_does_not_give():
