@@ -57,7 +57,7 @@ def cold_kernels(spec) -> dict:
             if not batch.is_compiled(problem):
                 tpl = batch.codegen.template_of(problem.model)
                 cold_engine = not batch._cached(batch.codegen.write_engine(tpl), "run_batch")
-                out["simulator"] = batch.compile_estimate() + 2.0 if cold_engine else 2.0
+                out["simulator"] = batch.compile_estimate() if cold_engine else 2.0
                 out["simulator_install"] = cold_engine
     if spec.has("tool") and spec.has("stock"):
         from .surface import Surface

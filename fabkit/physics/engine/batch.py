@@ -21,9 +21,11 @@ from . import codegen
 
 #: launches per block between progress reports (results do not depend on it)
 BLOCK = 2048
-#: the first compile of a formula, measured on the 2-core machine (replaced by the
-#: last measured figure, stored in the cache)
-COMPILE_GUESS_S = 20.0
+#: CPU seconds of the first compile of an engine with its formula, measured on the 2-core
+#: machine from a fresh clone with an empty cache (the finite ball's 12.5-12.7 s, the point
+#: model's 10.6 s: ``python benchmarks/bench_first_run.py``); replaced by the last measured
+#: figure, stored in the cache
+COMPILE_GUESS_S = 12.5
 
 _LOADED: dict = {}          # module path -> module
 _BY_FNS: dict = {}          # id(fns) -> (fns, Formula, surface module path)
@@ -114,7 +116,8 @@ def is_compiled(problem) -> bool:
 
 
 def compile_estimate() -> float:
-    """Seconds the last first-time compile took here (a guess before any)."""
+    """CPU seconds the last first-time compile of an engine and its formula took here (a
+    measured guess before any)."""
     try:
         return float((codegen.cache_dir() / "compile_seconds").read_text())
     except (OSError, ValueError):
@@ -140,7 +143,7 @@ def engine(problem, notify=None) -> Engine:
         if (cold_e or cold_s) and notify is not None:
             est = compile_estimate() if cold_e else 2.0
             notify(f"compiling the simulator for this surface (once, about {max(1, round(est))} s)")
-        t0 = time.perf_counter()
+        t0 = time.process_time()      # CPU, as the estimate is stated: the load does not inflate it
         smod = _LOADED.get(str(spath)) or _import(spath)
         emod = _LOADED.get(str(epath))
         eng = Engine(emod, smod, f, tpl)
@@ -149,7 +152,7 @@ def engine(problem, notify=None) -> Engine:
             eng = Engine(emod, smod, f, tpl)
             _warm(eng)
             if cold_e:
-                _store_estimate(time.perf_counter() - t0)
+                _store_estimate(time.process_time() - t0)
         _LOADED[str(spath)] = smod
         _LOADED[str(epath)] = emod
     return eng

@@ -164,14 +164,17 @@ def _warm(k: Kernel) -> None:
            np.zeros(1, dtype=np.int8), np.zeros(1, dtype=bool), np.zeros(1, dtype=bool), (z,) * 7)
 
 
-# CPU seconds of a first-time build on the 2-core reference machine (the time guard adds
-# them to its estimate when the cache lacks the compiled code; measured with an empty
-# cache, benchmarks/notes_gcode_profile.md, "The first run")
-BUILD_KERNEL_S = 16.0     # the drop cutter's kernel (dropcut.py), once per installation
+# CPU seconds of a first-time build on the 2-core reference machine, each part measured in
+# one process from a fresh clone with an empty cache, in either order (the time guard adds
+# them to its estimate when the cache lacks the compiled code; ``python
+# benchmarks/bench_first_run.py``; they were 16, 6 and 2.7 s before numba's cached start-up
+# and the kernels' split, which over-stated a first run by 1.7x)
+BUILD_KERNEL_S = 7.2      # the drop cutter's kernel (dropcut.py: 6.1-6.9 s) and the verification's
+                          # lowest-ball batch in it (0.4 s), once per installation
 BUILD_FORMULA_S = 1.7     # a new formula's surface functions (jet, height, heights: 0.2 s more than
                           # jet and height alone, benchmarks/notes_gcode_dropcut.md, "Third pass")
-BUILD_MATERIAL_S = 6.0    # the material bound's loops (scallop_kernels), once per installation
-BUILD_SPACING_S = 2.7     # the point spacing's simplification (spacing_kernels), once per installation
+BUILD_MATERIAL_S = 2.0    # the material bound's loops (scallop_kernels: 1.8-2.0 s), once per installation
+BUILD_SPACING_S = 0.6     # the point spacing's simplification (spacing_kernels: 0.5 s), once per installation
 
 
 def _static_cached(dispatcher) -> bool:
