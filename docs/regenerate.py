@@ -60,7 +60,7 @@ JOBS = (
     Job("check-as-built", "README.md", ("check", "specs/surface_as_built.yaml")),
     Job("check-clipped-top2", "docs/sweep_check.md", ("check", "tests/fixtures/check/clipped_top2.yaml")),
     Job("ball-compare", "README.md, docs/ball.md, docs/sweep_check.md, docs/lab.md, docs/simulator.md, docs/numerics.md", (), script="benchmarks/ball_compare.py"),
-    Job("calibrate", "docs/simulator.md", ("calibrate", "specs/surface.yaml", "--height", "1", "4.5",
+    Job("calibrate", "docs/simulator.md, README.md, docs/ball.md, docs/lab.md", ("calibrate", "specs/surface.yaml", "--height", "1", "4.5",
                                            "--v-in", "50")),
     Job("calibrate-range", "README.md, docs/simulator.md", ("calibrate", "specs/surface.yaml", "--height", "0.2", "4.5")),
     Job("sweep", "docs/sweep_check.md, docs/explore.md, docs/paper.md, README.md",
