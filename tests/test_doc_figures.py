@@ -542,6 +542,28 @@ def test_a_derivation_fails_a_figure_it_does_not_give():
     assert _paper_against_lab(drifted, []) == ["-37 % against the lab at n = 4 (T_n 2.926)"]
 
 
+def test_the_derivations_fail_a_drifted_figure():
+    # a percentage against the cell before it, both rounded: +0.06 % (and +0.07 %, within their
+    # rounding) holds for 941.0 against 940.4, +0.09 % does not
+    assert _percent_of_previous_cell("| unequal | 940.4 | 941.0 (+0.06 %) |", []) == []
+    assert _percent_of_previous_cell("| unequal | 940.4 | 941.0 (+0.09 %) |", []) != []
+    # the lossless heights from ball-compare and calibrate's g and k
+    good = "stands 0.8 mm higher for the point model and 1.0 mm higher for the ball"
+    assert _lossless_heights(good, []) == []
+    assert _lossless_heights(good.replace("1.0 mm", "1.2 mm"), []) != []
+    # a module's line count on the architecture page
+    row = "| spec | [`fabkit/spec.py`](../fabkit/spec.py) | {} | The spec |"
+    n = (ROOT / "fabkit" / "spec.py").read_text().count("\n")
+    assert _architecture_lines(row.format(n), []) == [] and _architecture_lines(row.format(n + 1), []) != []
+    # the roughing table: the linuxcnc-mill total the page had (1 h 15 min) is not the job's
+    readme = (ROOT / "README.md").read_text()
+    table, jobs = next((t, a[2:]) for _, k, t in marks(readme) for _, a in k if a and a[0] == "roughing-table")
+    assert _roughing_table(table, jobs) == []
+    m = re.search(r"\*\*1 h (\d+) min\*\* \(28", table)
+    drifted = table.replace(m.group(0), f"**1 h {int(m.group(1)) - 1:02d} min** (28")
+    assert any("against" in b for b in _roughing_table(drifted, jobs))
+
+
 @pytest.mark.parametrize("kind", ["benchmark benchmarks/bench_time.py", "test tests/test_doc_numbers.py"])
 def test_a_benchmark_mark_without_its_command_fails(kind, tmp_path):
     doc = tmp_path / "x.md"
