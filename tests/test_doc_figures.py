@@ -663,3 +663,29 @@ def test_each_output_names_exactly_the_docs_that_quote_it():
             bad.append(f"docs/outputs/{j}.txt says quoted by {sorted(said)}, regenerate lists {sorted(listed)}")
     stray = sorted(p.stem for p in OUT.glob("*.txt") if p.stem not in jobs)
     assert not bad and not stray, "\n".join(bad + [f"docs/outputs/{s}.txt: no such job" for s in stray])
+
+
+def test_the_new_variant_specs_differ_from_their_sources_only_where_they_say():
+    """docs/paper.md's flattened reading and README.md's single-ball stepdown row run on specs
+    that are not shipped: each is its source with only the keys its header names changed."""
+    import yaml
+
+    point = yaml.safe_load((ROOT / "tests" / "fixtures" / "paper_full.yaml").read_text())
+    flat = yaml.safe_load((ROOT / "tests" / "fixtures" / "sweep" / "paper_full_flat.yaml").read_text())
+    want = {**point, "name": "paper_full_flat"}
+    scaled = {("surface", "top"), ("simulation", "margin")}
+    for section, key in scaled:
+        assert flat[section][key] == pytest.approx(point[section][key] / 2.54, rel=2e-6)
+    for key in ("eta", "c", "eps"):
+        assert flat["surface"]["params"][key] == pytest.approx(point["surface"]["params"][key] / 2.54, rel=2e-6)
+    assert flat["ramp"]["heights"] == pytest.approx([h / 2.54 for h in point["ramp"]["heights"]], rel=2e-6)
+    want["surface"] = {**point["surface"], "top": flat["surface"]["top"],
+                       "params": {**point["surface"]["params"],
+                                  **{k: flat["surface"]["params"][k] for k in ("eta", "c", "eps")}}}
+    want["ramp"] = {**point["ramp"], "heights": flat["ramp"]["heights"]}
+    want["simulation"] = {**point["simulation"], "margin": flat["simulation"]["margin"]}
+    assert flat == want
+    shipped = yaml.safe_load((ROOT / "specs" / "surface.yaml").read_text())
+    ball = yaml.safe_load((ROOT / "tests" / "fixtures" / "roughing" / "ball_stepdown.yaml").read_text())
+    assert ball == {**shipped, "name": "surface_ball_stepdown",
+                    "machining": {**shipped["machining"], "stepdown": 6.35, "leave": 0.5}}
