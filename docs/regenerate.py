@@ -127,6 +127,32 @@ JOBS = (
          "--vary", "surface.params.c=0.04:0.12", "--vary", "surface.params.eta=2:5",
          "--seed", "1", "--plot", "docs/design.png", "-o",
          "toolpaths/surface_eps015.design.yaml", "--no-progress")),
+    # docs/errors.md's examples: each a bad input (a fixture, a shipped spec with a bad option) given to
+    # the command, which refuses it with one line on stderr and exit 2 (the output records both)
+    *(Job(f"error-{name}", "docs/errors.md" + (", docs/toolpath.md" if name == "edge-too-deep" else ""), argv)
+      for name, argv in (
+        ("diameter", ("check", "tests/fixtures/bad/negative_tool_diameter.yaml")),
+        ("footprint", ("check", "tests/fixtures/bad/reversed_footprint.yaml")),
+        ("exponent", ("check", "tests/fixtures/errors/big_exponent.yaml")),
+        ("not-finite", ("check", "tests/fixtures/errors/not_finite.yaml")),
+        ("too-deep", ("gcode", "tests/fixtures/errors/too_deep.yaml", "-o", "toolpaths/too_deep.ngc",
+                      "--no-progress")),
+        ("edge-too-deep", ("gcode", "tests/fixtures/errors/edge_too_deep.yaml", "-o",
+                           "toolpaths/edge_too_deep.ngc", "--no-progress")),
+        ("scallop", ("gcode", "tests/fixtures/errors/scallop_1e-4.yaml", "-o", "toolpaths/scallop_1e-4.ngc",
+                     "--no-progress")),
+        ("tolerance", ("stl", "specs/surface.yaml", "--tolerance", "1e-9", "-o", "toolpaths/tolerance.stl")),
+        ("alias", ("check", "tests/fixtures/bad/yaml_alias.yaml")),
+        ("base60", ("check", "tests/fixtures/errors/base60_thickness.yaml")),
+        ("spindle", ("check", "tests/fixtures/errors/spindle_0p4.yaml")),
+        ("ramp-height", ("check", "tests/fixtures/bad/negative_ramp_height.yaml")),
+        ("not-text", ("check", "tests/fixtures/bad/binary_junk.yaml")),
+        ("launches", ("sweep", "specs/surface.yaml", "--v-in", "40", "50", "1000000000")),
+        ("nan", ("sweep", "specs/surface.yaml", "--v-in", "40", "50", "nan")),
+        ("scheduler", ("robustness", "specs/surface.yaml", "--v-in", "43", "52", "2", "--sigma-y", "0.1",
+                       "--sigma-vy", "0.5", "--samples", "2", "--scheduler", "tcp://127.0.0.1:1", "--no-progress")),
+        ("arguments", ("sweep", "specs/surface.yaml", "--v-in", "40")),
+    )),
 )
 
 
