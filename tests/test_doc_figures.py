@@ -447,6 +447,31 @@ def _speed_ranges(text: str, jobs: list[str], doc: str = "") -> list[str]:
     return [f"{q} against {w:.4f}" for q, w in zip(m.groups(), want) if abs(float(q) - w) > float(_half(q)) + 2e-4]
 
 
+def _constant(path: str, name: str) -> float:
+    """A module-level constant ``NAME = 1.5`` read from a source file's text (nothing imported)."""
+    return float(re.search(rf"^{name} = ([\d.]+)", (ROOT / path).read_text(), re.M).group(1))
+
+
+def _first_run_estimate(text: str, jobs: list[str], doc: str = "") -> list[str]:
+    """The first run's message on a fresh clone (every kernel cold), as fabkit.first_run.prepare
+    writes it: the simulator's part is the engine's measured guess (physics/engine/batch.py
+    COMPILE_GUESS_S), the toolpath's the sum of the cold builds kernels.cold_build_seconds
+    adds (toolpath/finish/kernels.py BUILD_*_S), each rounded by Python's round(), the total
+    too (at least 1)."""
+    simulator = _constant("fabkit/physics/engine/batch.py", "COMPILE_GUESS_S")
+    toolpath = sum(_constant("fabkit/toolpath/finish/kernels.py", f"BUILD_{part}_S")
+                   for part in ("KERNEL", "FORMULA", "MATERIAL", "SPACING"))
+    source = (ROOT / "fabkit" / "first_run.py").read_text()
+    if ('f"compiling fabkit\'s kernels for this surface (once, about {max(1, round(total))} s of CPU in all: "'
+            not in source or 'f"{name} about {round(cold[p])} s"' not in source):
+        return ["fabkit/first_run.py's message is not the one this derivation rebuilds"]
+    want = (f"compiling fabkit's kernels for this surface (once, about {max(1, round(simulator + toolpath))} s "
+            f"of CPU in all: the simulator about {round(simulator)} s, the toolpath's kernels about "
+            f"{round(toolpath)} s; then gcode, check and report load them)")
+    plain = " ".join(re.sub(r"<!--.*?-->", "", text).split())
+    return [] if want in plain else [f"the first run's message is {want!r}"]
+
+
 #: NAME -> check(passage, jobs) -> list of figures that are not what the derivation gives
 DERIVATIONS = {"paper-against-lab": _paper_against_lab, "paper-slopes": _paper_slopes,
                "paper-ranges": _paper_ranges, "paper-flat": _paper_flat,
@@ -454,7 +479,8 @@ DERIVATIONS = {"paper-against-lab": _paper_against_lab, "paper-slopes": _paper_s
                "percent-of-previous-cell": _percent_of_previous_cell, "ball-against-full": _ball_against_full,
                "ramp-lanes": _ramp_lanes, "roughing-table": _roughing_table,
                "architecture-lines": _architecture_lines, "lossless-calibration": _lossless_calibration,
-               "lossless-heights": _lossless_heights, "speed-ranges": _speed_ranges}
+               "lossless-heights": _lossless_heights, "speed-ranges": _speed_ranges,
+               "first-run-estimate": _first_run_estimate}
 
 
 # ---------------------------------------------------------------------------------------------
@@ -555,6 +581,11 @@ def test_the_derivations_fail_a_drifted_figure():
     row = "| spec | [`fabkit/spec.py`](../fabkit/spec.py) | {} | The spec |"
     n = (ROOT / "fabkit" / "spec.py").read_text().count("\n")
     assert _architecture_lines(row.format(n), []) == [] and _architecture_lines(row.format(n + 1), []) != []
+    # the first run's message, from the compile estimates' constants
+    msg = ("(`compiling fabkit's kernels for this surface (once, about 24 s of CPU in all: the simulator about\n"
+           "12 s, the toolpath's kernels about 12 s; then gcode, check and report load them)`")
+    assert _first_run_estimate(msg, []) == []
+    assert _first_run_estimate(msg.replace("about 24 s", "about 26 s"), []) != []
     # the roughing table: the linuxcnc-mill total the page had (1 h 15 min) is not the job's
     readme = (ROOT / "README.md").read_text()
     table, jobs = next((t, a[2:]) for _, k, t in marks(readme) for _, a in k if a and a[0] == "roughing-table")
