@@ -80,6 +80,9 @@ JOBS = (
     Job("gcode-surface", "docs/gcode.md, README.md, docs/toolpath.md",
         ("gcode", "specs/surface.yaml", "--no-progress")),
     Job("gcode-bowl", "docs/gcode.md", ("gcode", "specs/bowl.yaml", "--no-progress")),
+    # the steep wall meeting the top face the drop cutter once missed (benchmarks/specs/steep.yaml)
+    Job("gcode-steep", "README.md", ("gcode", "benchmarks/specs/steep.yaml", "-o", "toolpaths/steep.ngc",
+                                     "--no-progress")),
     Job("gcode-router", "docs/machine.md, README.md", ("gcode", "specs/surface.yaml", "--machine", "grbl-router", "-o",
                                              "toolpaths/surface_grbl.ngc", "--no-progress")),
     # README.md's roughing table, as JSON (each operation's seconds): the roughing job and the single-ball
