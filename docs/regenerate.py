@@ -107,6 +107,10 @@ JOBS = (
                             ("time-fast", "tests/fixtures/machine/router.grbl.txt"),
                             ("time-unequal", "tests/fixtures/machine/unequal.grbl.txt"))),
     Job("ramp", "docs/lab.md, docs/ball.md", ("ramp", "specs/surface.yaml")),
+    # where the markers go on the paper's block, and a marker given over the milled surface refused
+    Job("markers", "docs/track.md", ("markers", "specs/surface.yaml", "-o", "toolpaths/surface.markers.pdf")),
+    Job("error-marker", "docs/track.md", ("markers", "tests/fixtures/errors/marker_over_cut.yaml", "-o",
+                                          "toolpaths/marker_over_cut.markers.pdf")),
     Job("precision", "docs/numerics.md", ("precision", "specs/surface.yaml", "--plot", "docs/precision.png",
                                           "--no-progress")),
     Job("phi4", "docs/phi4.md, README.md", ("phi4", "--v-in", "0.2236", "--plot", "docs/phi4_three_bounce.png")),
