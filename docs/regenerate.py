@@ -76,6 +76,8 @@ JOBS = (
     Job("sweep-ball-in-2p5cm", "docs/paper.md", ("sweep", "tests/fixtures/sweep/paper_ball_in_2p5cm.yaml")),
     # and the point model with every height 2.54 times lower, lengths in cm (docs/paper.md's last part)
     Job("sweep-full-flat", "docs/paper.md", ("sweep", "tests/fixtures/sweep/paper_full_flat.yaml")),
+    # docs/ball.md's formula in mm with a 25 mm ball (tests/fixtures/ball/mm_formula.yaml; about 5 s of CPU)
+    Job("sweep-ball-mm", "docs/ball.md", ("sweep", "tests/fixtures/ball/mm_formula.yaml")),
     Job("stl", "docs/stl.md, README.md", ("stl", "specs/surface.yaml")),
     Job("gcode-surface", "docs/gcode.md, README.md, docs/toolpath.md",
         ("gcode", "specs/surface.yaml", "--no-progress")),
