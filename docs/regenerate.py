@@ -82,6 +82,9 @@ JOBS = (
     Job("gcode-surface", "docs/gcode.md, README.md, docs/toolpath.md",
         ("gcode", "specs/surface.yaml", "--no-progress")),
     Job("gcode-bowl", "docs/gcode.md", ("gcode", "specs/bowl.yaml", "--no-progress")),
+    # two V creases crossing (tests/fixtures/precision/crossing_v.yaml): gcode adds passes after verifying
+    Job("gcode-crossing-v", "docs/gcode.md", ("gcode", "tests/fixtures/precision/crossing_v.yaml", "-o",
+                                              "toolpaths/crossing_v.ngc", "--no-progress", "--json")),
     # the steep wall meeting the top face the drop cutter once missed (benchmarks/specs/steep.yaml)
     Job("gcode-steep", "README.md", ("gcode", "benchmarks/specs/steep.yaml", "-o", "toolpaths/steep.ngc",
                                      "--no-progress")),
