@@ -75,6 +75,8 @@ JOBS = (
     Job("sweep-ball-in", "docs/paper.md", ("sweep", "tests/fixtures/sweep/paper_ball_in.yaml")),
     Job("sweep-ball-in-2p5cm", "docs/paper.md", ("sweep", "tests/fixtures/sweep/paper_ball_in_2p5cm.yaml")),
     # and the point model with every height 2.54 times lower, lengths in cm (docs/paper.md's last part)
+    # the inch spec's check: UNMACHINABLE on the cm stock (about 3 s)
+    Job("check-full-in", "docs/paper.md", ("check", "tests/fixtures/sweep/paper_full_in.yaml")),
     Job("sweep-full-flat", "docs/paper.md", ("sweep", "tests/fixtures/sweep/paper_full_flat.yaml")),
     # docs/ball.md's formula in mm with a 25 mm ball (tests/fixtures/ball/mm_formula.yaml; about 5 s of CPU)
     Job("sweep-ball-mm", "docs/ball.md", ("sweep", "tests/fixtures/ball/mm_formula.yaml")),
