@@ -77,6 +77,8 @@ JOBS = (
     # and the point model with every height 2.54 times lower, lengths in cm (docs/paper.md's last part)
     # the inch spec's check: UNMACHINABLE on the cm stock (about 3 s)
     Job("check-full-in", "docs/paper.md", ("check", "tests/fixtures/sweep/paper_full_in.yaml")),
+    # specs/bowl.yaml with top 0: no v_critical in the range, and the sweep says why (about 2 s)
+    Job("sweep-bowl-top0", "docs/sweep_check.md", ("sweep", "tests/fixtures/sweep/bowl_top0.yaml")),
     Job("sweep-full-flat", "docs/paper.md", ("sweep", "tests/fixtures/sweep/paper_full_flat.yaml")),
     # docs/ball.md's formula in mm with a 25 mm ball (tests/fixtures/ball/mm_formula.yaml; about 5 s of CPU)
     Job("sweep-ball-mm", "docs/ball.md", ("sweep", "tests/fixtures/ball/mm_formula.yaml")),
@@ -87,6 +89,13 @@ JOBS = (
     # two V creases crossing (tests/fixtures/precision/crossing_v.yaml): gcode adds passes after verifying
     Job("gcode-crossing-v", "docs/gcode.md", ("gcode", "tests/fixtures/precision/crossing_v.yaml", "-o",
                                               "toolpaths/crossing_v.ngc", "--no-progress", "--json")),
+    # grooves tighter than the ball running off the stock edges across the passes: the comb of passes
+    # hanging off the edges (tests/fixtures/toolpath/; docs/toolpath.md)
+        # (the V's program is in inches: its summary gives mm; the groove's JSON gives the passes added)
+    Job("gcode-v-groove", "docs/toolpath.md", ("gcode", "tests/fixtures/toolpath/v_groove.yaml", "-o",
+                                               "toolpaths/v_groove.ngc", "--no-progress")),
+    Job("gcode-groove-2mm", "docs/toolpath.md", ("gcode", "tests/fixtures/toolpath/groove_2mm.yaml", "-o",
+                                                 "toolpaths/groove_2mm.ngc", "--no-progress", "--json")),
     # the steep wall meeting the top face the drop cutter once missed (benchmarks/specs/steep.yaml)
     Job("gcode-steep", "README.md", ("gcode", "benchmarks/specs/steep.yaml", "-o", "toolpaths/steep.ngc",
                                      "--no-progress")),
@@ -118,7 +127,7 @@ JOBS = (
     Job("markers", "docs/track.md", ("markers", "specs/surface.yaml", "-o", "toolpaths/surface.markers.pdf")),
     Job("error-marker", "docs/track.md", ("markers", "tests/fixtures/errors/marker_over_cut.yaml", "-o",
                                           "toolpaths/marker_over_cut.markers.pdf")),
-    Job("precision", "docs/numerics.md", ("precision", "specs/surface.yaml", "--plot", "docs/precision.png",
+    Job("precision", "docs/numerics.md, docs/simulator.md", ("precision", "specs/surface.yaml", "--plot", "docs/precision.png",
                                           "--no-progress")),
     Job("phi4", "docs/phi4.md, README.md", ("phi4", "--v-in", "0.2236", "--plot", "docs/phi4_three_bounce.png")),
     # docs/phi4.md's table of the paper's Fig. 3 speeds: each at the default step (its error by step
