@@ -103,8 +103,8 @@ JOBS = (
                                              "toolpaths/surface_grbl.ngc", "--no-progress")),
     # README.md's roughing table, as JSON (each operation's seconds): the roughing job and the single-ball
     # stepdown job, each alone (length/feed) and written for and timed on two shipped machines
-    *(Job(f"gcode-{name}{suffix}", "README.md", ("gcode", spec, *machine, "-o", f"toolpaths/{name}{suffix}.ngc",
-                                                "--no-progress", "--json"))
+        *(Job(f"gcode-{name}{suffix}", "README.md" + (", docs/toolpath.md" if (name, suffix) == ("roughing", "") else ""),
+          ("gcode", spec, *machine, "-o", f"toolpaths/{name}{suffix}.ngc", "--no-progress", "--json"))
       for name, spec in (("roughing", "specs/surface_roughing.yaml"),
                          ("ball-stepdown", "tests/fixtures/roughing/ball_stepdown.yaml"))
       for suffix, machine in (("", ()), ("-router", ("--machine", "grbl-router")),
