@@ -722,3 +722,17 @@ def test_the_new_variant_specs_differ_from_their_sources_only_where_they_say():
     ball = yaml.safe_load((ROOT / "tests" / "fixtures" / "roughing" / "ball_stepdown.yaml").read_text())
     assert ball == {**shipped, "name": "surface_ball_stepdown",
                     "machining": {**shipped["machining"], "stepdown": 6.35, "leave": 0.5}}
+
+
+def test_the_error_examples_are_one_line_and_exit_2():
+    """docs/errors.md's examples (the error-* jobs) are what the commands printed on bad input:
+    nothing on stdout, exactly one line on stderr naming the file or the option, and exit 2."""
+    jobs = [j for j in _regenerate().JOBS_BY_NAME if j.startswith("error-")]
+    assert len(jobs) >= 15
+    bad = []
+    for job in jobs:
+        text = (OUT / f"{job}.txt").read_text()
+        m = re.fullmatch(r"\$ [^\n]*\n\[stderr\]\n([^\n]+)\n\[exit (\d+);[^\n]*\]\n", text)
+        if not m or m.group(2) != "2" or "Traceback" in text:
+            bad.append(f"{job}: not one stderr line and exit 2")
+    assert not bad, "\n".join(bad)
