@@ -24,7 +24,8 @@ computed from the outputs, recomputed by the test) ...: tests/test_doc_figures.p
 number outside every mark, and on an output whose last line ("quoted by") does not name exactly
 the docs that quote it. Jobs
 run in this order: ``time-router``, ``time-defaults``, ``time-fast`` and ``time-unequal`` time the
-program ``gcode-router`` writes.
+program ``gcode-router`` writes, ``time-bowl-*`` the one ``gcode-bowl`` writes. The ``error-*`` jobs
+give a command bad input (docs/errors.md): their output records the one line on stderr and exit 2.
 """
 
 from __future__ import annotations
@@ -122,6 +123,9 @@ JOBS = (
       for name, profile in (("time-defaults", "grbl"), ("time-router", "grbl-router"),
                             ("time-fast", "tests/fixtures/machine/router.grbl.txt"),
                             ("time-unequal", "tests/fixtures/machine/unequal.grbl.txt"))),
+        # the bowl's program (gcode-bowl writes it, in inches, grbl dialect) timed on grbl's defaults and the router
+    *(Job(f"time-bowl-{name}-json", "docs/machine.md", ("time", "toolpaths/bowl.ngc", "--machine", profile, "--json"))
+      for name, profile in (("defaults", "grbl"), ("router", "grbl-router"))),
     Job("ramp", "docs/lab.md, docs/ball.md", ("ramp", "specs/surface.yaml")),
     # where the markers go on the paper's block, and a marker given over the milled surface refused
     Job("markers", "docs/track.md", ("markers", "specs/surface.yaml", "-o", "toolpaths/surface.markers.pdf")),
