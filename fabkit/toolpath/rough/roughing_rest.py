@@ -288,11 +288,21 @@ def plan_rest(spec, surface, rough: Operation, finish: Toolpath, *, ws=None) -> 
                                                     (lambda px, py, t=tool: _tool_on_design(rough, px, py, t))))
         fig_low = 0
         zlink = _link_heights(S, x, y, runs, tool, clr)
+        fed = _feed_links(ws, runs, tool, leave, lim, S, x, y, doc, tolerance,
+                          drop=(lambda px, py: compensate(ws, px, py, Rr)) if ball else
+                          (fine if fine is not None else (lambda px, py, t=tool: _tool_on_design(rough, px, py, t))))
         path = _Path()
         for n, (q, sb) in enumerate(runs):
             start = q[0]
             above = min(max(float(sb[0]), float(start[2])) + clr, safe_z)
             zl = zlink[n]
+            if fed[n]:
+                # the tool stays down: the straight link is proven clear of the allowance and
+                # within the tool's depth of cut of the roughed stock (_feed_links)
+                path.add(tuple(start), CUT)
+                for p in q[1:]:
+                    path.add(tuple(p), CUT)
+                continue
             if path.at is not None and zl is not None and zl < safe_z:
                 fig_low += 1
                 path.add((path.at[0], path.at[1], max(zl, path.at[2])), RAPID)
@@ -314,16 +324,16 @@ def plan_rest(spec, surface, rough: Operation, finish: Toolpath, *, ws=None) -> 
         levels_cut = len(levels_cut)
         info.update({
             "tool": tool.describe(), "levels": levels_cut, "stepdown_mm": step_r, "stepover_mm": spacing,
-            "leave_mm": leave, "cusp_mm": cusp, "runs": len(runs),
+            "leave_mm": leave, "cusp_mm": cusp, "runs": len(runs) - int(sum(fed)), "runs_linked": int(sum(fed)),
             "passes": len({(round(float(q[0, 0]), 6), round(float(q[0, 1]), 6)) for q, _ in runs}),
             "entry": "plunge (into ground the rest ball's drop shows clear above the cut)",
-            "links": {"low": fig_low, "safe_height": len(runs) - 1 - fig_low},
+            "links": {"fed": int(sum(fed)), "low": fig_low, "safe_height": len(runs) - 1 - fig_low - int(sum(fed))},
             "zone_threshold_mm": threshold, "zone_positions": int(zone.sum()),
             "depth_of_cut_mm": doc, "finish_depth_of_cut_mm": doc_f, "stock_grid_step_mm": float(max(x[1] - x[0], y[1] - y[0])),
             "plan_seconds": time.process_time() - t0,
         })
         tp.info = info
-        ops.append(Operation("rest", tool, tp, leave=leave, levels=levels_cut, passes=len(runs), info=info))
+        ops.append(Operation("rest", tool, tp, leave=leave, levels=levels_cut, passes=info["runs"], info=info))
     return ops
 
 
@@ -534,6 +544,50 @@ def _refine_runs(ws, runs, Rr, leave, lim, tolerance, rounds=10, drop=None):
             k += len(q) - 1
         runs = new_runs
     return runs
+
+
+#: _feed_links: runs at most this many tool radii apart are linked by a feed when clear,
+#: and the link is proven at points at most FEED_LINK_STEP mm apart
+FEED_LINK_RADII = 2.0
+FEED_LINK_STEP = 0.05
+
+
+def _feed_links(ws, runs, tool: Tool, leave, lim, S, x, y, doc, tolerance, drop) -> list[bool]:
+    """Per run, whether the tool feeds straight from the end of the run before to its
+    start, staying down (the runs merged into one pass): the runs are at most
+    FEED_LINK_RADII x R apart and along the straight link, at points FEED_LINK_STEP mm
+    apart, the tip (linear between the two ends) stands at or above the tool's drop onto
+    the design (``drop``: the exact ball's, or a flat end mill's or bull nose's upper
+    bound) + ``leave`` and above the reach limit ``lim``, and at most the tool's depth of
+    cut less the tolerance below its drop onto the roughed stock S (an upper bound of
+    the stock there: the rest passes only lower it). Else False: lift, across, plunge."""
+    out = [False] * len(runs)
+    R = tool.radius
+    cand, XS, YS, ZS, own = [], [], [], [], []
+    for n in range(1, len(runs)):
+        a, b = runs[n - 1][0][-1], runs[n][0][0]
+        d = math.hypot(b[0] - a[0], b[1] - a[1])
+        if d > FEED_LINK_RADII * R:
+            continue
+        k = max(2, int(math.ceil(d / FEED_LINK_STEP)) + 1)
+        t = np.linspace(0.0, 1.0, k)
+        XS.append(a[0] + t * (b[0] - a[0]))
+        YS.append(a[1] + t * (b[1] - a[1]))
+        ZS.append(a[2] + t * (b[2] - a[2]))
+        own.append(np.full(k, len(cand)))
+        cand.append(n)
+    if not cand:
+        return out
+    X, Y, Z, own = (np.ascontiguousarray(np.concatenate(v)) for v in (XS, YS, ZS, own))
+    with np.errstate(invalid="ignore"):
+        need = np.maximum(np.asarray(drop(X, Y), float) + leave, -lim)
+        stock = drop_on_grid(S, x, y, X, Y, tool)
+        bad = ~np.isfinite(need) | (Z < need - 1e-9) | (np.isfinite(stock) & (stock - Z > doc - tolerance))
+    worst = np.zeros(len(cand), bool)
+    np.logical_or.at(worst, own, bad)
+    for j, n in enumerate(cand):
+        out[n] = not worst[j]
+    return out
 
 
 def _link_heights(S, x, y, runs, tool, clr, step=1.0):
