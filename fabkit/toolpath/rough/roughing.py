@@ -283,13 +283,21 @@ def plan_rough(spec, surface, tool: Tool | None = None, *, ws=None, sets=None, t
     step_eff = step - max(0.0, excess - tolerance - 1e-12)
     if step_eff < 0.5 * step:
         step_eff = 0.5 * step     # (a wall steeper than the guards' slope cap: the check states the rest)
+    # a bull nose's or ball's corner standing beyond the stock's edge (its flat clear of
+    # it) cuts the edge's allowance from a tip up to the corner radius below the lowest
+    # allowance: a groove or basin running out through the edge is reached only so. The
+    # levels go on to there (the last within a step of it), so that wherever the tool
+    # reaches, a level lies within a step above the tip that reaches (a 10 mm bull nose,
+    # corner 2, left a groove's end 0.2 mm above leave + stepdown when they stopped at the
+    # lowest allowance); below the lowest allowance the allowed centres lie beyond the edge
+    low = bottom - float(tool.corner_radius)
     levels = []
     k = 1
     while True:
         z = -k * step_eff
-        if z <= bottom - 1e-9 or z < -lim - 1e-9:
+        if z <= low - 1e-9 or z < -lim - 1e-9:
             z = max(z, -lim)
-            if z <= bottom + 1e-9 or (levels and z >= levels[-1] - 1e-9):
+            if z <= low + 1e-9 or (levels and z >= levels[-1] - 1e-9):
                 break
             levels.append(z)
             break

@@ -159,6 +159,7 @@ def plan_rest(spec, surface, rough: Operation, finish: Toolpath, *, ws=None) -> 
     doc_f = float(spec.tool.depth_of_cut)
     threshold = min(step_rough, doc_f - leave) + tolerance
     S = stock_after(rough)
+    S_nodes = _stock_at_nodes(rough, S, leave, threshold)
     x, y = rough.sets.x, rough.sets.y
     safe_z = float(m.safe_height)
     clr = min(LINK_CLEARANCE, safe_z)
@@ -170,15 +171,19 @@ def plan_rest(spec, surface, rough: Operation, finish: Toolpath, *, ws=None) -> 
         Rr = tool.radius
         doc = depth_of_cut(spec, n)
         lim = min(float(spec.stock.depth_limit), float(tool.reach))
-        # passes at most Rr apart
+        # passes at most Rr apart (a flat end mill or bull nose: Rr / 2; beside a steep
+        # wall the pass nearer it stands high on the wall, and a node between two passes
+        # Rr apart lies beyond the other's reach: a 4 mm bull nose left 0.8 mm above its
+        # bound at a slot's end)
+        ball = tool.corner_radius >= Rr - 1e-12
+        apart = Rr if ball else 0.5 * Rr
         V = np.array([p.v for p in plan.passes])
         sel = [0]
         while sel[-1] < len(V) - 1:
             i = sel[-1]
-            j = int(np.searchsorted(V, V[i] + Rr, side="right")) - 1
+            j = int(np.searchsorted(V, V[i] + apart, side="right")) - 1
             sel.append(max(j, i + 1))
         spacing = float(np.diff(V[sel]).max()) if len(sel) > 1 else 0.0
-        ball = tool.corner_radius >= Rr - 1e-12
         if ball:
             cusp = Rr - math.sqrt(max(Rr * Rr - 0.25 * spacing * spacing, 0.0))
         else:
@@ -200,6 +205,14 @@ def plan_rest(spec, surface, rough: Operation, finish: Toolpath, *, ws=None) -> 
         else:
             Z = _tool_on_design(rough, X, Y, tool) if not ball else compensate(ws, X, Y, Rr)
         keep = np.vstack([plan.passes[i].keep for i in sel]) if is_fin else np.isfinite(Z)
+        if not ball:
+            # beside the nodes left over the threshold the design grid's bound stands the
+            # tool up to the slope x two cells' diagonals too high (4 mm on a slope-4 wall):
+            # there, the bound from a fine lattice with the design's exact gradient
+            near = np.isfinite(drop_on_grid(S_nodes, x, y, X, Y, tool)) & np.isfinite(Z)
+            fine = _FineDesign(rough, ws, X[near], Y[near], tool) if near.any() else None
+            if fine is not None:
+                Z[near] = np.minimum(Z[near], fine(X[near], Y[near]))
         Sb = drop_on_grid(S, x, y, X, Y, tool)
         floor = np.maximum(Z + leave, -lim)
         with np.errstate(invalid="ignore"):
@@ -215,6 +228,12 @@ def plan_rest(spec, surface, rough: Operation, finish: Toolpath, *, ws=None) -> 
                 hit = d - (Z + leave)[zone] > threshold
             Sb[zone] = np.where(hit, d, Sb[zone])
             zone[zone] = hit
+        # the nodes the roughing (and the rest tools before) left more than the threshold
+        # above the allowance: wherever this tool, standing at its own target, cuts into
+        # one of them, it runs (its drop at the same centre can be within the threshold
+        # while a node beside it, which it reaches from another centre, is not: a flat or
+        # bull nose between an island and a wall left 5.2 mm where the check asks 3.01)
+        zone |= keep & np.isfinite(Z) & _over_zone(rough, S_nodes, X, Y, tool, floor, leave, threshold, tolerance)
         if is_fin and len(sel) < len(V):
             # the passes between: where the finishing ball would engage more than its depth of cut
             zone |= keep & np.isfinite(Z) & np.isfinite(Sb) & _between_zone(
@@ -265,14 +284,25 @@ def plan_rest(spec, surface, rough: Operation, finish: Toolpath, *, ws=None) -> 
         if not runs:
             continue
         runs = _refine_runs(ws, runs, Rr, leave, lim, 0.5 * tolerance,
-                            drop=None if ball else (lambda px, py, t=tool: _tool_on_design(rough, px, py, t)))
+                            drop=None if ball else (fine if fine is not None else
+                                                    (lambda px, py, t=tool: _tool_on_design(rough, px, py, t))))
         fig_low = 0
         zlink = _link_heights(S, x, y, runs, tool, clr)
+        fed = _feed_links(ws, runs, tool, leave, lim, S, x, y, doc, tolerance,
+                          drop=(lambda px, py: compensate(ws, px, py, Rr)) if ball else
+                          (fine if fine is not None else (lambda px, py, t=tool: _tool_on_design(rough, px, py, t))))
         path = _Path()
         for n, (q, sb) in enumerate(runs):
             start = q[0]
             above = min(max(float(sb[0]), float(start[2])) + clr, safe_z)
             zl = zlink[n]
+            if fed[n]:
+                # the tool stays down: the straight link is proven clear of the allowance and
+                # within the tool's depth of cut of the roughed stock (_feed_links)
+                path.add(tuple(start), CUT)
+                for p in q[1:]:
+                    path.add(tuple(p), CUT)
+                continue
             if path.at is not None and zl is not None and zl < safe_z:
                 fig_low += 1
                 path.add((path.at[0], path.at[1], max(zl, path.at[2])), RAPID)
@@ -294,17 +324,55 @@ def plan_rest(spec, surface, rough: Operation, finish: Toolpath, *, ws=None) -> 
         levels_cut = len(levels_cut)
         info.update({
             "tool": tool.describe(), "levels": levels_cut, "stepdown_mm": step_r, "stepover_mm": spacing,
-            "leave_mm": leave, "cusp_mm": cusp, "runs": len(runs),
+            "leave_mm": leave, "cusp_mm": cusp, "runs": len(runs) - int(sum(fed)), "runs_linked": int(sum(fed)),
             "passes": len({(round(float(q[0, 0]), 6), round(float(q[0, 1]), 6)) for q, _ in runs}),
             "entry": "plunge (into ground the rest ball's drop shows clear above the cut)",
-            "links": {"low": fig_low, "safe_height": len(runs) - 1 - fig_low},
+            "links": {"fed": int(sum(fed)), "low": fig_low, "safe_height": len(runs) - 1 - fig_low - int(sum(fed))},
             "zone_threshold_mm": threshold, "zone_positions": int(zone.sum()),
             "depth_of_cut_mm": doc, "finish_depth_of_cut_mm": doc_f, "stock_grid_step_mm": float(max(x[1] - x[0], y[1] - y[0])),
             "plan_seconds": time.process_time() - t0,
         })
         tp.info = info
-        ops.append(Operation("rest", tool, tp, leave=leave, levels=levels_cut, passes=len(runs), info=info))
+        ops.append(Operation("rest", tool, tp, leave=leave, levels=levels_cut, passes=info["runs"], info=info))
     return ops
+
+
+def _stock_at_nodes(rough: Operation, S: np.ndarray, leave: float, threshold: float) -> np.ndarray:
+    """The stock the roughing left at the design grid's nodes where it stands more than
+    ``threshold`` above the allowance min(design + leave, 0), -inf elsewhere: candidates
+    from the grid's upper bound S (:func:`stock_after`), then each candidate's height from
+    the levels' polygons (the lowest level whose cleared region holds it)."""
+    import shapely
+
+    sets = rough.sets
+    T = np.minimum(np.minimum(sets.H, 0.0) + leave, 0.0)
+    out = np.full(S.shape, -np.inf)
+    cand = S - T > threshold
+    if not cand.any():
+        return out
+    iy, ix = np.nonzero(cand)
+    px, py = sets.x[ix], sets.y[iy]
+    z = np.zeros(len(ix))
+    for lev in rough.cleared:
+        if lev.cleared.is_empty:
+            continue
+        shapely.prepare(lev.cleared)
+        z = np.where(shapely.contains_xy(lev.cleared, px, py), np.minimum(z, lev.z), z)
+    over = z - T[iy, ix] > threshold
+    out[iy[over], ix[over]] = z[over]
+    return out
+
+
+def _over_zone(rough, S_nodes, X, Y, tool: Tool, floor, leave, threshold, tolerance) -> np.ndarray:
+    """Where ``tool`` with its tip at ``floor`` (its target) would cut more than the
+    tolerance into a node left over the threshold (``S_nodes``, :func:`_stock_at_nodes`):
+    its drop onto those nodes alone (:func:`drop_on_grid`, an upper bound) above its tip."""
+    if not np.isfinite(S_nodes).any():
+        return np.zeros(np.shape(X), bool)
+    sets = rough.sets
+    d = drop_on_grid(S_nodes, sets.x, sets.y, X, Y, tool)
+    with np.errstate(invalid="ignore"):
+        return np.isfinite(d) & np.isfinite(floor) & (d > floor + tolerance)
 
 
 def _between_zone(plan, fr, sel, V, ug, S, x, y, tool, rough, ws, leave, threshold):
@@ -358,6 +426,76 @@ def _tool_on_design(rough: Operation, X, Y, tool: Tool) -> np.ndarray:
     return drop_on_grid(S, sets.x, sets.y, X, Y, tool)
 
 
+#: _tool_on_design_fine: lattice nodes, and position-offset pairs, at most
+FINE_NODES = 4_000_000
+FINE_PAIRS = 200_000_000
+
+
+class _FineDesign:
+    """An upper bound of the tip height at which a flat end mill or bull nose at (X, Y)
+    first touches the design clipped at the top face, tighter than :func:`_tool_on_design`
+    on steep walls, over the box round the positions it is made for (elsewhere that bound):
+    on a lattice of step d (as fine as FINE_NODES and FINE_PAIRS allow, at most the design
+    grid's) each node q stands for the points within half its cell's diagonal c of it, with
+    min(H(q) + |grad H(q)| c + C c^2 / 2, 0) (the exact gradient; C the larger of the level
+    sets' curvature bound and the node's own), and the tool's lift taken one diagonal nearer
+    its axis (the position lies within half a diagonal of its nearest node): max over the
+    nodes within R + diagonal of that minus lift. Within about (slope + the lift's slope at
+    the contact) x d of the exact drop."""
+
+    def __init__(self, rough: Operation, ws, X, Y, tool: Tool):
+        sets = rough.sets
+        self.rough, self.tool = rough, tool
+        X, Y = np.asarray(X, float).ravel(), np.asarray(Y, float).ravel()
+        R = tool.radius
+        pad = R + 2.0
+        x0, x1 = max(0.0, float(X.min()) - pad), min(ws.L, float(X.max()) + pad)
+        y0, y1 = max(0.0, float(Y.min()) - pad), min(ws.W, float(Y.max()) + pad)
+        self.box = (float(X.min()) - 1.0, float(X.max()) + 1.0, float(Y.min()) - 1.0, float(Y.max()) + 1.0)
+        h0 = max(sets.hx, sets.hy)
+        # the positions asked: these and about 3 x as many midpoints (the runs' refinement)
+        d = max(math.sqrt(max(x1 - x0, 1e-9) * max(y1 - y0, 1e-9) / FINE_NODES),
+                (R + 2.0 * h0) * math.sqrt(math.pi * 4 * X.size / FINE_PAIRS), 0.02)
+        d = min(d, h0)
+        nx, ny = max(2, int(math.ceil((x1 - x0) / d)) + 1), max(2, int(math.ceil((y1 - y0) / d)) + 1)
+        gx, gy = np.linspace(x0, x1, nx), np.linspace(y0, y1, ny)
+        hx, hy = gx[1] - gx[0], gy[1] - gy[0]
+        GX, GY = np.meshgrid(gx, gy)
+        H, Hx, Hy, Hxx, Hxy, Hyy = ws.all(GX, GY)
+        c = 0.5 * math.hypot(hx, hy)
+        C = np.maximum(np.abs(Hxx) + 2.0 * np.abs(Hxy) + np.abs(Hyy), sets.curv)
+        with np.errstate(invalid="ignore"):
+            U = np.minimum(H + np.hypot(Hx, Hy) * c + 0.5 * C * c * c, 0.0)
+        self.U = np.ascontiguousarray(np.where(np.isfinite(U), U, 0.0), float)   # unreadable: material
+        diag = 2.0 * c
+        ni, nj = int(math.ceil((R + diag) / hy)), int(math.ceil((R + diag) / hx))
+        di, dj = np.meshgrid(np.arange(-ni, ni + 1), np.arange(-nj, nj + 1), indexing="ij")
+        rho = np.hypot(di * hy, dj * hx)
+        ok = rho - diag <= R
+        self.lift = np.ascontiguousarray(tool.lift(np.clip(rho[ok] - diag, 0.0, R)), float)
+        self.di, self.dj = np.ascontiguousarray(di[ok], np.int64), np.ascontiguousarray(dj[ok], np.int64)
+        self.x0, self.y0, self.hx, self.hy, self.step = x0, y0, hx, hy, d
+
+    def __call__(self, X, Y) -> np.ndarray:
+        """The bound at (X, Y): this lattice's inside the box, :func:`_tool_on_design` everywhere."""
+        from ..cut.stock_kernels import drop_grid
+
+        X, Y = np.asarray(X, float), np.asarray(Y, float)
+        out = _tool_on_design(self.rough, X, Y, self.tool).ravel()
+        xs, ys = X.ravel(), Y.ravel()
+        bx0, bx1, by0, by1 = self.box
+        inb = (xs >= bx0) & (xs <= bx1) & (ys >= by0) & (ys <= by1)
+        if inb.any():
+            Xs, Ys = np.ascontiguousarray(xs[inb] - self.x0), np.ascontiguousarray(ys[inb] - self.y0)
+            fine = np.full(Xs.size, -np.inf)
+            step = max(1, int(DROP_CHUNK_PAIRS / max(len(self.di), 1)))
+            for a in range(0, Xs.size, step):
+                drop_grid(self.U, self.hx, self.hy, Xs[a:a + step], Ys[a:a + step], self.di, self.dj, self.lift,
+                          fine[a:a + step])
+            out[inb] = np.minimum(out[inb], fine)
+        return out.reshape(X.shape)
+
+
 def _refine_runs(ws, runs, Rr, leave, lim, tolerance, rounds=10, drop=None):
     """Midpoints inserted where a run's chord passes more than ``tolerance`` below
     the tip the exact drop cutter asks there (max(level, Z + leave)), asked at a
@@ -406,6 +544,50 @@ def _refine_runs(ws, runs, Rr, leave, lim, tolerance, rounds=10, drop=None):
             k += len(q) - 1
         runs = new_runs
     return runs
+
+
+#: _feed_links: runs at most this many tool radii apart are linked by a feed when clear,
+#: and the link is proven at points at most FEED_LINK_STEP mm apart
+FEED_LINK_RADII = 2.0
+FEED_LINK_STEP = 0.05
+
+
+def _feed_links(ws, runs, tool: Tool, leave, lim, S, x, y, doc, tolerance, drop) -> list[bool]:
+    """Per run, whether the tool feeds straight from the end of the run before to its
+    start, staying down (the runs merged into one pass): the runs are at most
+    FEED_LINK_RADII x R apart and along the straight link, at points FEED_LINK_STEP mm
+    apart, the tip (linear between the two ends) stands at or above the tool's drop onto
+    the design (``drop``: the exact ball's, or a flat end mill's or bull nose's upper
+    bound) + ``leave`` and above the reach limit ``lim``, and at most the tool's depth of
+    cut less the tolerance below its drop onto the roughed stock S (an upper bound of
+    the stock there: the rest passes only lower it). Else False: lift, across, plunge."""
+    out = [False] * len(runs)
+    R = tool.radius
+    cand, XS, YS, ZS, own = [], [], [], [], []
+    for n in range(1, len(runs)):
+        a, b = runs[n - 1][0][-1], runs[n][0][0]
+        d = math.hypot(b[0] - a[0], b[1] - a[1])
+        if d > FEED_LINK_RADII * R:
+            continue
+        k = max(2, int(math.ceil(d / FEED_LINK_STEP)) + 1)
+        t = np.linspace(0.0, 1.0, k)
+        XS.append(a[0] + t * (b[0] - a[0]))
+        YS.append(a[1] + t * (b[1] - a[1]))
+        ZS.append(a[2] + t * (b[2] - a[2]))
+        own.append(np.full(k, len(cand)))
+        cand.append(n)
+    if not cand:
+        return out
+    X, Y, Z, own = (np.ascontiguousarray(np.concatenate(v)) for v in (XS, YS, ZS, own))
+    with np.errstate(invalid="ignore"):
+        need = np.maximum(np.asarray(drop(X, Y), float) + leave, -lim)
+        stock = drop_on_grid(S, x, y, X, Y, tool)
+        bad = ~np.isfinite(need) | (Z < need - 1e-9) | (np.isfinite(stock) & (stock - Z > doc - tolerance))
+    worst = np.zeros(len(cand), bool)
+    np.logical_or.at(worst, own, bad)
+    for j, n in enumerate(cand):
+        out[n] = not worst[j]
+    return out
 
 
 def _link_heights(S, x, y, runs, tool, clr, step=1.0):
