@@ -27,19 +27,19 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 
 SPEC = """name: {name}
-units: {units}
+units: mm
 surface:
   height: {h}
   x: {x}
   y: {y}
   top: 0
 stock:
-  thickness: 20
-  depth_limit: 15
+  thickness: {thick}
+  depth_limit: {limit}
 tool:
   shape: ball
   diameter: {d}
-  reach: 30
+  reach: {reach}
   number: 2
   depth_of_cut: {doc}
 {rough}machining:
@@ -47,6 +47,7 @@ tool:
   tolerance: {tol}
   direction: {dir}
   dialect: {dialect}
+  units: {munits}
   feed: {feed}
   plunge: {plunge}
   spindle: 16000
@@ -56,8 +57,8 @@ ROUGH = """tools:
   - number: 1
     shape: flat
     diameter: {rd}
-    reach: 30
-    depth_of_cut: 8
+    reach: {reach}
+    depth_of_cut: {rdoc}
     feed: {feed}
     plunge: {plunge}
     spindle: 12000
@@ -80,8 +81,9 @@ def vee(theta_deg, slope=20.0, depth=8.0):
 
 def cases():
     mm = dict(units="mm", x="[-10, 10]", y="[-10, 10]", d=3, doc=3, scallop=0.05, tol=0.01, dir="x",
-              dialect="linuxcnc", feed=2000, plunge=600, rough="")
-    rough = ROUGH.format(rd=8, feed=2000, plunge=600, sd=3, so=3.5, leave=0.5)
+              dialect="linuxcnc", feed=2000, plunge=600, rough="", thick=20, limit=15, reach=30, munits="mm")
+    rough = ROUGH.format(rd=8, feed=2000, plunge=600, sd=3, so=3.5, leave=0.5, reach=30, rdoc=8)
+    inch = dict(munits="in", feed=80, plunge=24)       # the program in inches (feeds in/min)
     out = []
     for th in (10, 30, 45, 60, 80):
         out.append((f"v{th}", f"slope-20 V at {th} deg to the passes (narrower than the ball)",
@@ -101,13 +103,11 @@ def cases():
         ("cone", "a cone 12*sqrt(x^2 + y^2) - 10 (its rim a circle)", dict(mm, h="12*sqrt(x**2 + y**2) - 10")),
         ("ring_off", "the ring's rims running off the stock's edge (x [0, 12])",
          dict(mm, h="6*abs(x**2 + y**2 - 36)/6 - 6", x="[0, 12]", y="[-4, 8]")),
-        ("v20_in", "slope-20 V at 20 deg, inch program (3/32 in ball)",
-         dict(mm, units="in", x="[-0.4, 0.4]", y="[-0.4, 0.4]", h=vee(20, 20.0, 0.3), d=0.09375,
-              doc=0.1, scallop=0.002, tol=0.0004, feed=80, plunge=24)),
-        ("w45_in_grbl_rough", "slope-3 V at 45 deg, inch, grbl, 1/4 in flat roughing",
-         dict(mm, units="in", x="[-0.4, 0.4]", y="[-0.4, 0.4]", h=vee(45, 3.0, 0.25), d=0.125, doc=0.1,
-              scallop=0.002, tol=0.0004, feed=80, plunge=24, dialect="grbl",
-              rough=ROUGH.format(rd=0.25, feed=80, plunge=24, sd=0.1, so=0.12, leave=0.02))),
+        ("v20_in", "slope-20 V at 20 deg, inch program, 3/32 in ball",
+         dict(mm, **inch, h=vee(20), d=2.38125, doc=3)),
+        ("w45_in_grbl_rough", "slope-3 V at 45 deg, inch program, grbl, 1/8 in ball, 1/4 in flat roughing",
+         dict(mm, **inch, h=vee(45, 3.0, 6.0), d=3.175, doc=3, dialect="grbl",
+              rough=ROUGH.format(rd=6.35, feed=80, plunge=24, sd=3, so=3, leave=0.5, reach=30, rdoc=8))),
     ]
     return [(n, w, dict(k, name=n)) for n, w, k in out]
 
