@@ -9,7 +9,7 @@ move and at points 2^-6 .. 2^-29 of its length from either end) above the progra
 feed moves as written (4 decimals, read back by the parser of tests/test_steep_rim.py):
 the vertical gouge any material point can see from a chord is at most that
 (benchmarks/notes_steep_rim.md). ``--cut`` also runs benchmarks/roughing_acceptance.py
-(rs274's moves cut by brute force with each tool's shape) on each program.
+(rs274's moves cut by brute force with each tool's shape) on each job with roughing.
 """
 
 from __future__ import annotations
@@ -173,11 +173,22 @@ def main(argv):
         print(f"| {name} | {what} | {r.returncode} | {j['max_gouge']:.4f} {u} | {j['max_material_left']:.4f} {u} | "
               f"{j['lines']} | {'ok' if j['ok'] else 'FAIL' + why} | {rise:.4f} at X{at[0]:.3f} Y{at[1]:.3f} |",
               flush=True)
-        if "--cut" in argv:
+        if "--cut" in argv and keys["rough"]:          # (the script needs a roughing section)
             prog = out / f"{name}.ngc"
-            if len(progs) > 1:
+            if len(progs) > 1:           # grbl: one program per tool, changed by hand
+                import re
+
                 prog = progs[0].with_name(f"{name}.all.ngc")
-                prog.write_text("".join(p.read_text() for p in progs))
+                parts = []
+                progs = [p for p in progs if re.search(r"\.\d+-\w+\.nc$", p.name)]
+                for i, p in enumerate(progs, start=1):
+                    t = p.read_text()
+                    tool = re.search(r"load T(\d+) by hand", t).group(1)
+                    kind = re.search(r"\.\d+-(\w+)\.nc$", p.name).group(1)
+                    body = [ln for ln in t.splitlines() if ln.strip() not in ("M2", "M30", "%")]
+                    parts.append(f"T{tool} M6\n(operation: {i} of {len(progs)}, {kind}, T{tool})\n"
+                                 + "\n".join(body) + "\n")
+                prog.write_text("".join(parts) + "M2\n")
             c = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "roughing_acceptance.py"), str(spec),
                                 str(prog), "--h", "0.1", "--step", "0.05"], capture_output=True, text=True, env=env)
             for line in (c.stdout + c.stderr).strip().splitlines():
