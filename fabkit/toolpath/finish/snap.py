@@ -90,7 +90,7 @@ def refine_moves(ws, R: float, planned: np.ndarray, points: np.ndarray, kinds: n
     half's tent bound (:func:`~fabkit.toolpath.finish.spacing.tent_bound`) exceeds
     ``ttol``; the added points' Z is their exact tip height rounded up to the grid.
     Returns (points, kinds)."""
-    from .spacing import tent_bound
+    from .spacing import tent_bound, tip_slope
 
     n = len(points)
     if n < 2:
@@ -110,11 +110,7 @@ def refine_moves(ws, R: float, planned: np.ndarray, points: np.ndarray, kinds: n
     def exact(u, v, ax):
         X, Y = np.where(ax, u, v), np.where(ax, v, u)
         z, ci = compensate(ws, X, Y, R, return_info=True)
-        pu = np.where(ax, ci.contact_x, ci.contact_y)
-        with np.errstate(all="ignore"):
-            q = np.sqrt(np.maximum(R * R - (ci.contact_x - X) ** 2 - (ci.contact_y - Y) ** 2, 0.0))
-            s = np.nan_to_num((pu - u) / q)
-        return z, np.where(np.isfinite(z), s, 0.0)
+        return z, np.where(np.isfinite(z), tip_slope(ci, X, Y, u, R, ax), 0.0)
 
     za_x, sa = exact(ua, v, ax)
     zb_x, sb = exact(ub, v, ax)

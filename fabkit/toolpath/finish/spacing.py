@@ -31,6 +31,17 @@ TENT_BOUND_SHARE = 0.9
 AIR_CUT_FRACTION = 0.05
 
 
+def tip_slope(ci, X, Y, u, R, along_x):
+    """dZ/du of the exact tip path at the positions (X, Y) (u: their coordinate along
+    the pass; ``along_x``: the pass runs along X, a bool or an array of them) from the
+    contact points of :func:`~.compensate.compensate` (``ci``): the derivative of the
+    contact's own sphere, (q_u - u) / sqrt(R^2 - |q - c|^2); unclipped, 0 where undefined."""
+    pu = np.where(along_x, ci.contact_x, ci.contact_y)
+    with np.errstate(all="ignore"):
+        q = np.sqrt(np.maximum(R * R - (ci.contact_x - X) ** 2 - (ci.contact_y - Y) ** 2, 0.0))
+        return np.nan_to_num((pu - u) / q)
+
+
 def tent_bound(ua, za, da, ub, zb, db):
     """Largest rise above the chord (ua, za) - (ub, zb) of a CONCAVE path with these
     end values and slopes: the tangents at the ends bound it from above, so its rise is
@@ -88,11 +99,8 @@ def space_points(ws, fr, R, V, ug, Z, dZ, keep, tolerance, max_points, spec_path
         zm, ci = compensate(ws, X, Y, R, return_info=True)
         fin = np.isfinite(zm)           # never -inf between kept nodes; if so, not refined
         zm = np.where(fin, zm, np.maximum(za, zb))
-        pu = ci.contact_x if fr.direction == "x" else ci.contact_y
-        with np.errstate(all="ignore"):
-            q = np.sqrt(np.maximum(R * R - (ci.contact_x - X) ** 2 - (ci.contact_y - Y) ** 2, 0.0))
-            sm = np.nan_to_num((pu - um) / q)
-            dm = np.clip(sm, -20, 20)
+        sm = tip_slope(ci, X, Y, um, R, fr.direction == "x")
+        dm = np.clip(sm, -20, 20)
         err = np.abs(zm - 0.5 * (za + zb))
         # and the deviation of the Hermite cubic (exact end values and slopes) from the
         # chord: catches a sharp rise between a midpoint and an end
