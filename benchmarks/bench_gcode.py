@@ -41,14 +41,14 @@ FLOOR = "import numpy, scipy.integrate, sympy"
 CHILD = """
 import json, sys, time
 time.perf_counter = time.process_time
-from fabkit.toolpath import guards
+from fabkit.toolpath.finish import guards
 _estimate = guards.estimate
 def estimate(*a, **k):
     est = _estimate(*a, **k)
     print("ESTIMATE " + json.dumps({k: v for k, v in est.items() if isinstance(v, (int, float))}), file=sys.stderr)
     return est
 guards.estimate = estimate
-from fabkit.toolpath import raster
+from fabkit.toolpath.finish import raster
 raster.estimate = estimate
 from fabkit.cli import main
 sys.exit(main(sys.argv[1:]))

@@ -204,6 +204,11 @@ class FlatFloor:
     def height(self, x, y):
         return np.full(np.broadcast(x, y).shape, -self.depth)
 
+    def derivatives(self, x, y):
+        """h and its exact first and second derivatives (a flat floor: zero)."""
+        h = self.height(x, y)
+        return (h,) + tuple(np.zeros_like(h) for _ in range(5))
+
 
 def raster(tool, z, step, L=40.0, W=30.0):
     """Passes along x at tip height z, every ``step`` mm across y, overhanging the

@@ -435,6 +435,52 @@ def _at(stock, flat_index):
     return (float(i * stock.hx), float(j * stock.hy))
 
 
+#: nodes over their bound after the finish whose reach is computed exactly (the worst first;
+#: beyond them the grid's reach stands, which only ever reports more material)
+MAX_EXACT_REACH_NODES = 2000
+
+
+def _finish_along(points, kinds) -> str:
+    """The finish's pass direction read from its feed moves: "x" when more of their
+    length runs along X than along Y."""
+    P = np.asarray(points, dtype=float).reshape(-1, 3)
+    if len(P) < 2:
+        return "x"
+    d = np.abs(np.diff(P[:, :2], axis=0))
+    feed = (np.asarray(kinds)[1:] != RAPID) & np.isfinite(d).all(axis=1)
+    return "x" if d[feed, 0].sum() >= d[feed, 1].sum() else "y"
+
+
+def _finish_reach_exact(ws, stock, op, z, dz, scale_f, slack, reach) -> int:
+    """Replace, in ``reach`` (in place), the grid's reach at the nodes the finish leaves
+    over their bound by the exact one (:func:`~fabkit.toolpath.cut.reach.reachable_height`:
+    exact drop-cutter heights of the ball on the clipped design, its centres up to the
+    finish verification's overhang beyond the footprint, every centre a real position).
+    The grid's opening (:func:`reach_height`) takes the design at the nodes only: on a V
+    whose walls are steeper than a cell resolves (``20*abs(x - y) - 8`` at 0.25 mm: the
+    rim lies between the nodes at -3 mm and 0) it lets a ball down 0.12 mm below any real
+    position. Returns the number of nodes recomputed (the worst
+    :data:`MAX_EXACT_REACH_NODES`)."""
+    from .reach import OVERHANG, OVERHANG_ALONG, reachable_height
+
+    R = float(op.tool.radius)
+    zf, dzf, rf = z.ravel(), dz.ravel(), reach.ravel()
+    with np.errstate(invalid="ignore"):
+        m = np.where(np.isfinite(rf), np.maximum(np.minimum(dzf, 0.0), rf), np.minimum(dzf, 0.0))
+        ex = (zf - m) * scale_f - slack
+    k = np.nonzero(ex > 0.0)[0]
+    if not k.size:
+        return 0
+    k = k[np.argsort(-ex[k], kind="stable")[:MAX_EXACT_REACH_NODES]]
+    i, j = np.unravel_index(k, z.shape)
+    along = _finish_along(op.toolpath.points, op.toolpath.kinds)
+    hang = (OVERHANG_ALONG * R if along == "x" else OVERHANG * R,
+            OVERHANG_ALONG * R if along == "y" else OVERHANG * R)
+    exact, _ = reachable_height(ws, i * stock.hx, j * stock.hy, R, overhang=hang)
+    rf[k] = exact
+    return int(k.size)
+
+
 def verify_job(surface, operations, tolerance: float, *, spacing: float | None = None,
                scallop: float | None = None, depth_of_cut: dict | None = None,
                design: np.ndarray | None = None, measure: str = "normal") -> JobCut:
@@ -543,9 +589,17 @@ def verify_job(surface, operations, tolerance: float, *, spacing: float | None =
                 reach = np.where(reach > target + tol, np.inf, reach)
         else:
             reach = reach_height(target, stock, op.tool, high)
+        verdicts = node_verdicts(zf, dzf, scale_f, finish, slope_k, extra_h, slack, leave, tol, reach.ravel(),
+                                 -1.0 if finish else math.hypot(stock.hx, stock.hy), high.ravel())
+        if finish and verdicts[0]:
+            # the grid's reach sees the design at the nodes only: beside a wall steeper than
+            # the grid resolves (a rim between nodes) it lets the ball down too far. The
+            # nodes it finds over their bound are judged again against the exact reach
+            if _finish_reach_exact(ws, stock, op, z, dz, scale_f, slack, reach):
+                verdicts = node_verdicts(zf, dzf, scale_f, finish, slope_k, extra_h, slack, leave, tol,
+                                         reach.ravel(), -1.0, high.ravel())
         (n_over, over_max, over_k, n_unre, unre_max, unre_k, low_k, _low, min_left, max_left,
-         il) = node_verdicts(zf, dzf, scale_f, finish, slope_k, extra_h, slack, leave, tol, reach.ravel(),
-                             -1.0 if finish else math.hypot(stock.hx, stock.hy), high.ravel())
+         il) = verdicts
         if il < 0:
             il, min_left, max_left = 0, 0.0, 0.0
         limit = None

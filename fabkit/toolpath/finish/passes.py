@@ -88,8 +88,10 @@ class _Pass:
         pu = ci.contact_x if fr.direction == "x" else ci.contact_y
         d2 = (ci.contact_x - X) ** 2 + (ci.contact_y - Y) ** 2
         with np.errstate(all="ignore"):
-            dZ = np.clip(np.nan_to_num((pu - ug) / np.sqrt(np.maximum(R * R - d2, 0.0))), -20, 20)
+            slope = np.nan_to_num((pu - ug) / np.sqrt(np.maximum(R * R - d2, 0.0)))
+        dZ = np.clip(slope, -20, 20)
         self.v, self.Z, self.dZ, self.bridged = v, Z, dZ, ci.bridged
+        self.slope = slope          # dZ/du unclipped (the point spacing's chord bound)
         # the contact curve where it crosses each cross-section u (contacts lie up to
         # R along the pass from their ball's centre on steep ground)
         cv = ci.contact_y if fr.direction == "x" else ci.contact_x

@@ -32,7 +32,7 @@ from .passes import (SCALLOP_SAFETY, Frame, PassPlan, compensate_passes, flat_st
                      place_passes, sweep_material, tilted_plane_cusp)
 from ..path import RAPID, Toolpath
 from ..rough.ball_levels import rough_runs
-from .spacing import AIR_CUT_FRACTION, CHORD_SAFETY, cut_runs, space_points
+from .spacing import AIR_CUT_FRACTION, CHORD_SAFETY, TENT_SHARE, cut_runs, space_points
 
 LINK_CLEARANCE = 1.0    # mm above material for short links and approaches (<= safe_height)
 
@@ -83,6 +83,23 @@ def _on_readback_grid(spec, ws, R, points, kinds):
         return snap_points(ws, R, points, kinds, 10.0 ** -dec * k, k,
                            slack_mm=float(m.tolerance) / ROUNDING_SHARE)
     return snap_points(ws, R, points, kinds, step, k)
+
+
+def _refine_snapped(spec, ws, R, planned, points, kinds):
+    """Stage 6c: where the grid moved a point up by more than the tolerance's rounding
+    share (the exact path along the written across coordinate is not the planned one),
+    its moves are refined at the written coordinates (:func:`.snap.refine_moves`)."""
+    from ..program.gcode import UNITS, MachineProfile
+    from ...units import ROUNDING_SHARE
+    from .snap import readback_step, refine_moves
+
+    m = spec.machining
+    k = UNITS[m.units].mm_per_unit
+    dec = MachineProfile(units=m.units, tolerance=float(m.tolerance)).decimals
+    step = readback_step(k, dec) or 10.0 ** -dec * k
+    tol = float(m.tolerance)
+    return refine_moves(ws, R, planned, points, kinds, step, tol / ROUNDING_SHARE,
+                        CHORD_SAFETY * tol, TENT_SHARE * tol)
 
 
 def order_runs(fr, m, V, runs, passes_cut):
@@ -291,8 +308,9 @@ def _program(spec, ws, fr, plan, est, tol):
     Z = np.vstack([p.Z for p in passes])
     dZ = np.vstack([p.dZ for p in passes])
     keep = np.vstack([p.keep for p in passes])
+    slope = np.vstack([p.slope for p in passes])
     sp, su, sz, nodes = space_points(ws, fr, R, V, plan.ug, Z, dZ, keep, tolerance,
-                                     tol.max_program_points, spec.path)
+                                     tol.max_program_points, spec.path, slope=slope)
     runs = cut_runs(sp, su, sz, nodes, AIR_CUT_FRACTION * tolerance)   # per pass: (k, 2) [u, z]
     passes_cut = [p for p in range(len(V)) if runs[p]]
     finish = order_runs(fr, m, V, runs, passes_cut)
@@ -301,7 +319,9 @@ def _program(spec, ws, fr, plan, est, tol):
     all_runs = rough + [(("f", p), r) for p, r in finish]
     points, kinds = link_runs(ws, R, all_runs, max(4 * R, 4 * plan.s_flat), m.pattern != "zigzag",
                               safe_z, min(LINK_CLEARANCE, safe_z))
+    planned = points
     points = _on_readback_grid(spec, ws, R, points, kinds)
+    points, kinds = _refine_snapped(spec, ws, R, planned, points, kinds)
     if len(points) > tol.max_program_points:
         raise SpecError(f"{len(points)} program points (limit {tol.max_program_points}); raise "
                         "the tolerance", file=spec.path, key="machining.tolerance")

@@ -29,6 +29,22 @@ def _chord_err(u, z, ua, za, ub, zb):
 
 
 @jit
+def _chord_rise(u, z, ua, za, ub, zb):
+    """spacing._chord_rise of one sample."""
+    t = (u - ua) / (ub - ua) if ub > ua else 0.0
+    return z - (za + t * (zb - za))
+
+
+@jit
+def _tent_over(su, sz, i, ua, za, ub, zb, tent, bound):
+    """The interval (i, i + 1): the larger rise of its samples above the chord
+    (ua, za) - (ub, zb), at least 0, plus its tent bound exceeds ``bound`` (NaN: yes)."""
+    r = max(_chord_rise(su[i], sz[i], ua, za, ub, zb), _chord_rise(su[i + 1], sz[i + 1], ua, za, ub, zb))
+    r = max(r, 0.0)
+    return not (r + tent[i] <= bound)
+
+
+@jit
 def _nanmax(w, e):
     """np.maximum: NaN if either is NaN."""
     if w != w:
@@ -39,17 +55,21 @@ def _nanmax(w, e):
 
 
 @jit
-def simplify(sp, su, sz, nodes, air, etol, rounds):
+def simplify(sp, su, sz, nodes, air, etol, rounds, tent, bound):
     """spacing._simplify's rounds on ``nodes`` (bool, modified in place): node k (by
     its rank among the current nodes) is dropped in round r if k and r have the same
     parity, its neighbours are of its pass, every sample between them is within
-    ``etol`` of their chord (NaN: not) and no sample of its two segments, nor the
+    ``etol`` of their chord (NaN: not), every interval (i, i + 1) between them whose
+    tent bound ``tent[i]`` exceeds bound - etol has its samples' larger rise above the
+    chord plus that bound within ``bound``, and no sample of its two segments, nor the
     nodes closing them, is in air (``air``)."""
     n = su.size
     ni = np.empty(n, dtype=np.int64)
     seg = np.empty(n, dtype=np.int64)
     worst = np.empty(n)
     airseg = np.empty(n, dtype=np.bool_)
+    over = np.empty(n, dtype=np.bool_)
+    sharp = bound - etol
     idle = 0
     for r in range(rounds):
         m = 0
@@ -68,6 +88,7 @@ def simplify(sp, su, sz, nodes, air, etol, rounds):
         for j in range(m):
             worst[j] = 0.0
             airseg[j] = False
+            over[j] = False
         for i in range(n):
             s = seg[i]
             # candidate s: the chord (s - 1, s + 1) over its segment s
@@ -82,6 +103,11 @@ def simplify(sp, su, sz, nodes, air, etol, rounds):
             worst[s1] = _nanmax(worst[s1], eb)
             if air[i]:
                 airseg[s] = True
+            if tent[i] > sharp:
+                if _tent_over(su, sz, i, su[ni[kl]], sz[ni[kl]], su[ni[kr]], sz[ni[kr]], tent, bound):
+                    over[s] = True
+                if _tent_over(su, sz, i, su[ni[s]], sz[ni[s]], su[ni[k2]], sz[ni[k2]], tent, bound):
+                    over[s1] = True
         for j in range(m - 1):
             if air[ni[j + 1]]:
                 airseg[j] = True
@@ -92,7 +118,7 @@ def simplify(sp, su, sz, nodes, air, etol, rounds):
                 continue
             if not (sp[ni[j]] == sp[ni[j - 1]] and sp[ni[j]] == sp[ni[j + 1]]):
                 continue
-            if not (worst[j] <= etol) or airseg[j - 1] or airseg[j]:
+            if not (worst[j] <= etol) or over[j] or airseg[j - 1] or airseg[j]:
                 continue
             nodes[ni[j]] = False
             any_ok = True
