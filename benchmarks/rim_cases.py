@@ -174,21 +174,7 @@ def main(argv):
               f"{j['lines']} | {'ok' if j['ok'] else 'FAIL' + why} | {rise:.4f} at X{at[0]:.3f} Y{at[1]:.3f} |",
               flush=True)
         if "--cut" in argv and keys["rough"]:          # (the script needs a roughing section)
-            prog = out / f"{name}.ngc"
-            if len(progs) > 1:           # grbl: one program per tool, changed by hand
-                import re
-
-                prog = progs[0].with_name(f"{name}.all.ngc")
-                parts = []
-                progs = [p for p in progs if re.search(r"\.\d+-\w+\.nc$", p.name)]
-                for i, p in enumerate(progs, start=1):
-                    t = p.read_text()
-                    tool = re.search(r"load T(\d+) by hand", t).group(1)
-                    kind = re.search(r"\.\d+-(\w+)\.nc$", p.name).group(1)
-                    body = [ln for ln in t.splitlines() if ln.strip() not in ("M2", "M30", "%")]
-                    parts.append(f"T{tool} M6\n(operation: {i} of {len(progs)}, {kind}, T{tool})\n"
-                                 + "\n".join(body) + "\n")
-                prog.write_text("".join(parts) + "M2\n")
+            prog = out / f"{name}.ngc"    # a grbl job: its -o path (the script reads one program a tool)
             c = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "roughing_acceptance.py"), str(spec),
                                 str(prog), "--h", "0.1", "--step", "0.05"], capture_output=True, text=True, env=env)
             for line in (c.stdout + c.stderr).strip().splitlines():

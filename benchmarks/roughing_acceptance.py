@@ -55,8 +55,10 @@ def programs_of(path: Path) -> list[Path]:
     """The programs of a job: the one given, or a grbl job's ``<stem>.K-kind.nc`` in order."""
     if path.exists():
         return [path]
-    found = sorted(path.parent.glob(f"{path.stem}.[0-9]*-*{path.suffix}"),
-                   key=lambda p: int(p.name[len(path.stem) + 1:].split("-")[0]))
+    found = []
+    for suffix in dict.fromkeys((path.suffix, ".nc")):      # grbl's programs are written .nc
+        found = found or sorted(path.parent.glob(f"{path.stem}.[0-9]*-*{suffix}"),
+                                key=lambda p: int(p.name[len(path.stem) + 1:].split("-")[0]))
     if not found:
         raise SystemExit(f"{path}: no such program (nor {path.stem}.1-rough{path.suffix} ...)")
     return found
