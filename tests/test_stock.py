@@ -484,7 +484,7 @@ def test_window_filters_equal_scipy_ndimage_to_the_bit(size):
     with a brute-force window over the edge-padded array."""
     from scipy.ndimage import maximum_filter, minimum_filter, uniform_filter
 
-    from fabkit.toolpath.cut.stock_kernels import window_mean, window_minmax
+    from fabkit.toolpath.cut.stock_kernels import window_max, window_mean, window_minmax
 
     rng = np.random.default_rng(7)
     for a in (rng.normal(size=(41, 23)).cumsum(axis=0) * 0.37, -np.abs(rng.normal(size=(5, 4))) * 1e3):
@@ -492,6 +492,7 @@ def test_window_filters_equal_scipy_ndimage_to_the_bit(size):
         assert np.array_equal(lo, minimum_filter(a, size=size, mode="nearest"))
         assert np.array_equal(hi, maximum_filter(a, size=size, mode="nearest"))
         assert np.array_equal(hi, maximum_filter(a, size=size, mode="constant", cval=-np.inf))
+        assert np.array_equal(window_max(a, size), hi)
         assert np.array_equal(window_mean(a, size), uniform_filter(a, size=size, mode="nearest"))
         s0, s1 = size[0] // 2, size[1] // 2
         p = np.pad(a, ((s0, s0), (s1, s1)), mode="edge")

@@ -425,9 +425,9 @@ class JobCut:
 def _max3(a: np.ndarray) -> np.ndarray:
     """The 3 x 3 maximum of ``a`` at every node, the edges repeated (scipy.ndimage's
     maximum_filter(a, size=3, mode="nearest"), without its import)."""
-    from .stock_kernels import window_minmax
+    from .stock_kernels import window_max
 
-    return window_minmax(a, (3, 3))[1]
+    return window_max(a, (3, 3))
 
 
 def _at(stock, flat_index):

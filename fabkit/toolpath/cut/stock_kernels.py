@@ -411,6 +411,45 @@ def _minmax_rows(a_lo, a_hi, size, lo, hi):
 
 
 @jit
+def _minmax_cols(a_lo, a_hi, size, lo, hi, want_lo):
+    """:func:`_minmax_rows` along axis 0 (the window over rows, each row's nodes in
+    turn: contiguous, no transposed copy); the same comparisons, so the same values.
+    ``want_lo`` False: the maximum alone (``lo`` untouched)."""
+    n, n1 = a_lo.shape
+    s1 = size // 2
+    for t in range(n):
+        for j in range(n1):
+            hi[t, j] = -np.inf
+        if want_lo:
+            for j in range(n1):
+                lo[t, j] = np.inf
+        for u in range(t - s1, t - s1 + size):
+            q = min(max(u, 0), n - 1)
+            for j in range(n1):
+                if a_hi[q, j] > hi[t, j]:
+                    hi[t, j] = a_hi[q, j]
+            if want_lo:
+                for j in range(n1):
+                    if a_lo[q, j] < lo[t, j]:
+                        lo[t, j] = a_lo[q, j]
+
+
+@jit
+def _max_rows(a, size, hi):
+    """:func:`_minmax_rows`'s maximum alone."""
+    n0, n = a.shape
+    s1 = size // 2
+    for i in range(n0):
+        for t in range(n):
+            M = -np.inf
+            for u in range(t - s1, t - s1 + size):
+                q = min(max(u, 0), n - 1)
+                if a[i, q] > M:
+                    M = a[i, q]
+            hi[i, t] = M
+
+
+@jit
 def _mean_rows(a, size, out):
     n0, n = a.shape
     s1 = size // 2
@@ -424,6 +463,27 @@ def _mean_rows(a, size, out):
             out[i, t] = tmp / size
 
 
+@jit
+def _mean_cols(a, size, out, tmp):
+    """:func:`_mean_rows` along axis 0: each column's running sum (``tmp``, one per
+    column) takes the same terms in the same order, so the same bits."""
+    n, n1 = a.shape
+    s1 = size // 2
+    for j in range(n1):
+        tmp[j] = 0.0
+    for u in range(-s1, size - s1):
+        q = min(max(u, 0), n - 1)
+        for j in range(n1):
+            tmp[j] += a[q, j]
+    for j in range(n1):
+        out[0, j] = tmp[j] / size
+    for t in range(1, n):
+        qa, qb = min(t + size - 1 - s1, n - 1), max(t - 1 - s1, 0)
+        for j in range(n1):
+            tmp[j] += a[qa, j] - a[qb, j]
+            out[t, j] = tmp[j] / size
+
+
 def window_minmax(a, size):
     """(min, max) of ``a`` (2-D, float) over windows of ``size`` = (s0, s1) nodes (odd)
     centred on each node, the edges repeated: scipy.ndimage.minimum_filter and
@@ -431,28 +491,41 @@ def window_minmax(a, size):
     same with mode "constant", cval -inf)."""
     lo = np.ascontiguousarray(a, dtype=float)
     hi = lo
-    for axis, s in ((0, size[0]), (1, size[1])):
-        if s <= 1:
-            continue
-        if axis == 0:
-            lo_t, hi_t = np.ascontiguousarray(lo.T), np.ascontiguousarray(hi.T)
-        else:
-            lo_t, hi_t = lo, hi
-        l2, h2 = np.empty_like(lo_t), np.empty_like(hi_t)
-        _minmax_rows(lo_t, hi_t, int(s), l2, h2)
-        lo, hi = (np.ascontiguousarray(l2.T), np.ascontiguousarray(h2.T)) if axis == 0 else (l2, h2)
+    if size[0] > 1:
+        l2, h2 = np.empty_like(lo), np.empty_like(hi)
+        _minmax_cols(lo, hi, int(size[0]), l2, h2, True)
+        lo, hi = l2, h2
+    if size[1] > 1:
+        l2, h2 = np.empty_like(lo), np.empty_like(hi)
+        _minmax_rows(lo, hi, int(size[1]), l2, h2)
+        lo, hi = l2, h2
     return lo, hi
+
+
+def window_max(a, size):
+    """The maximum of :func:`window_minmax` alone (half the work)."""
+    hi = np.ascontiguousarray(a, dtype=float)
+    if size[0] > 1:
+        h2 = np.empty_like(hi)
+        _minmax_cols(hi, hi, int(size[0]), np.empty((0, 0)), h2, False)
+        hi = h2
+    if size[1] > 1:
+        h2 = np.empty_like(hi)
+        _max_rows(hi, int(size[1]), h2)
+        hi = h2
+    return hi
 
 
 def window_mean(a, size):
     """scipy.ndimage.uniform_filter(a, size, mode="nearest") (2-D, float64; axes of size
     1 untouched, as there), to the last bit."""
     out = np.ascontiguousarray(a, dtype=float)
-    for axis, s in ((0, size[0]), (1, size[1])):
-        if s <= 1:
-            continue
-        src = np.ascontiguousarray(out.T) if axis == 0 else out
-        res = np.empty_like(src)
-        _mean_rows(src, int(s), res)
-        out = np.ascontiguousarray(res.T) if axis == 0 else res
+    if size[0] > 1:
+        res = np.empty_like(out)
+        _mean_cols(out, int(size[0]), res, np.empty(out.shape[1]))
+        out = res
+    if size[1] > 1:
+        res = np.empty_like(out)
+        _mean_rows(out, int(size[1]), res)
+        out = res
     return out

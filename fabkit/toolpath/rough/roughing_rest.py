@@ -42,7 +42,7 @@ def stock_after(rough: Operation) -> np.ndarray:
     bound of the material a cell holds."""
     import cv2
 
-    from ..cut.stock_kernels import window_minmax
+    from ..cut.stock_kernels import window_max
 
     sets = rough.sets
     ny, nx = len(sets.y), len(sets.x)
@@ -58,7 +58,7 @@ def stock_after(rough: Operation) -> np.ndarray:
             if len(rings) > 1:
                 cv2.fillPoly(mask, rings[1:], 0, lineType=cv2.LINE_8, shift=shift)
         S = np.where(mask.astype(bool), np.minimum(S, lev.z), S)
-    return window_minmax(S, (3, 3))[1]
+    return window_max(S, (3, 3))
 
 
 def drop_on_grid(S, x, y, X, Y, tool: Tool, slack: float = 0.0) -> np.ndarray:
@@ -76,9 +76,9 @@ def drop_on_grid(S, x, y, X, Y, tool: Tool, slack: float = 0.0) -> np.ndarray:
     R = tool.radius
     k = int(R / DROP_CELLS_PER_R / max(hx, hy))
     if k >= 2:
-        from ..cut.stock_kernels import window_minmax
+        from ..cut.stock_kernels import window_max
 
-        Sp = window_minmax(S, (2 * k + 1, 2 * k + 1))[1][::k, ::k]
+        Sp = window_max(S, (2 * k + 1, 2 * k + 1))[::k, ::k]
         return drop_on_grid(Sp, x[::k], y[::k], X, Y, tool, slack + math.hypot(hx, hy))
     diag = math.hypot(hx, hy) + slack
     ni, nj = int(math.ceil((R + diag) / hy)), int(math.ceil((R + diag) / hx))
@@ -347,13 +347,13 @@ def _tool_on_design(rough: Operation, X, Y, tool: Tool) -> np.ndarray:
     (an upper bound of the design over its cell), so an upper bound of the exact drop: the
     tool never enters the allowance; it stands at most the slope x a cell's diagonal + 2 e
     higher than it could."""
-    from ..cut.stock_kernels import window_minmax
+    from ..cut.stock_kernels import window_max
 
     sets = rough.sets
     key = "_design_upper"
     S = getattr(sets, key, None)
     if S is None:
-        S = window_minmax(np.minimum(sets.H, 0.0), (3, 3))[1] + sets.err
+        S = window_max(np.minimum(sets.H, 0.0), (3, 3)) + sets.err
         setattr(sets, key, S)
     return drop_on_grid(S, sets.x, sets.y, X, Y, tool)
 
