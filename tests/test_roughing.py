@@ -637,3 +637,47 @@ def test_last_rest_tool_larger_than_the_finish_refused(tmp_path):
     raw["roughing"]["rest"] = [3, 2]
     spec, _ = load(tmp_path, raw)
     assert spec.roughing.rest == (3, 2)
+
+
+def test_rest_drop_asks_the_exact_distance_of_every_point_within_reach():
+    """The rest passes' drop onto the levels asks shapely's exact distance only of the
+    points within the tool's radius of the uncut region (inside it or near its edges):
+    every point at distance <= R (shapely's own distance, the reference) is among them,
+    on a polygon with a hole and a second part, points inside, outside, on the edges and
+    at distance R exactly."""
+    import shapely
+    from shapely.geometry import MultiPolygon, Polygon
+
+    from fabkit.toolpath.rough.roughing_rest import _within
+
+    U = MultiPolygon([Polygon([(0, 0), (10, 0), (10, 6), (0, 6)], [[(3, 2), (7, 2), (7, 4), (3, 4)]]),
+                      Polygon([(20, 0), (24, 3), (20, 6)])])
+    R = 1.5
+    rng = np.random.default_rng(3)
+    xy = np.vstack([rng.uniform(-4, 28, size=(3000, 2)),
+                    [[5, 3], [5, 2], [-R, 3], [10 + R, 3], [5, 2 + R], [24 + R * 0.6, 3 + R * 0.8], [22, 3]]])
+    pts = shapely.points(xy)
+    d = shapely.distance(pts, U)
+    near = _within(pts, U, R)
+    assert near[d <= R].all()
+    assert not near[d > R + 1e-5].any()          # and little more (the margin)
+    assert near[-7:-1].all() and near[-1]
+
+
+def test_cut_lines_added_at_once_equal_point_by_point():
+    """A level's cut lines added as arrays give the points and kinds that adding them
+    one by one gives (a point repeating the one before it within 1e-9 mm dropped)."""
+    from fabkit.toolpath.rough.roughing_loops import _Path
+
+    rng = np.random.default_rng(5)
+    lines = [rng.normal(size=(7, 2)), np.array([[0.0, 0.0], [0.0, 5e-10], [1.0, 1.0]]),
+             np.array([[1.0, 1.0], [2.0, 2.0]]), np.array([[2.0, 2.0 + 1e-10]]), rng.normal(size=(3, 2))]
+    a, b = _Path(), _Path()
+    a.add((9.0, 9.0, -1.0), RAPID)
+    b.add((9.0, 9.0, -1.0), RAPID)
+    for ln in lines:
+        a.cut_xy(ln, -1.0)
+        for q in ln:
+            b.add((q[0], q[1], -1.0), CUT)
+    assert a.pts == b.pts and a.kinds == b.kinds
+    assert len(a.level_lines) == 4

@@ -398,15 +398,17 @@ def plan_rough(spec, surface, tool: Tool | None = None, *, ws=None, sets=None, t
             fig["pockets"] += 1
             n0 = len(path.level_lines)
             open_ = not P.difference(F.buffer(0.25 * e_out, join_style=2)).is_empty if e_out > 0 else False
+            inset = None
             if rg.strategy == "raster":
                 _raster_pocket(P, z, z_above, s, R, spec, path, enter, link_to, fig, F, open_, simp)
             else:
                 tree = _erosion_tree(P, s, simp)
+                inset = tree.inset         # P eroded and simplified: its loops' region too
                 if open_:
                     _cut_outside_in(tree, P, z, z_above, path, enter, link_to, fig, F, R, e_out)
                 else:
                     _cut_inside_out(tree, P, z, z_above, path, enter, link_to, fig, R, rg.entry, polylabel, s)
-            done.append((_ring_region(P, simp), path.level_lines[n0:]))
+            done.append((_ring_region(P, simp, inset), path.level_lines[n0:]))
             del path.level_lines[n0:]
         tg = time.process_time()
         above = _Level(z, path.level_lines, tool, outside, tolerance, clr, done, s, simp)

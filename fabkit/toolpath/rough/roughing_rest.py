@@ -133,11 +133,40 @@ def drop_on_levels(rough: Operation, ws, X, Y, tool: Tool, need=None) -> np.ndar
                 continue
             shapely.prepare(U)
             d = np.full(len(pts), np.inf)
+            # the exact distance only where the tool can touch U (beyond R lift is inf: no term)
+            sel = sel & _within(pts, U, tool.radius)
             d[sel] = shapely.distance(pts[sel], U)
             with np.errstate(invalid="ignore"):
                 term = z_prev - tool.lift(np.minimum(d, 1e9))
             out = np.maximum(out, np.where(np.isfinite(term), term, -np.inf))
         z_prev = lev.z
+    return out
+
+
+#: :func:`_within`'s margin beyond the radius asked (mm): GEOS's distance to a polygon
+#: and to one of its edges may differ in the last bits
+WITHIN_MARGIN = 1e-6
+
+
+def _within(pts, U, radius: float) -> np.ndarray:
+    """Which of the points (shapely) lie inside the polygon(s) U or within ``radius``
+    (+ WITHIN_MARGIN) of its boundary: a superset of those at distance <= radius from U
+    (a search tree over U's edges; the exact distance is then asked of these alone)."""
+    import shapely
+
+    segs = []
+    for poly in _polys(U):
+        for ring in (poly.exterior, *poly.interiors):
+            c = np.asarray(ring.coords)[:, :2]
+            if len(c) >= 2:
+                segs.append(np.stack([c[:-1], c[1:]], axis=1))
+    out = np.zeros(len(pts), bool)
+    if not segs:
+        return out
+    tree = shapely.STRtree(shapely.linestrings(np.concatenate(segs)))
+    hit = tree.query(pts, predicate="dwithin", distance=radius + WITHIN_MARGIN)[0]
+    out[hit] = True
+    out |= shapely.contains(U, pts)
     return out
 
 
