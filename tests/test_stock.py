@@ -499,3 +499,49 @@ def test_window_filters_equal_scipy_ndimage_to_the_bit(size):
         ref = np.array([[p[i:i + size[0], j:j + size[1]].max() for j in range(a.shape[1])]
                         for i in range(a.shape[0])])
         assert np.array_equal(hi, ref)
+
+
+@pytest.mark.parametrize("tool", [Tool("flat", 4.0, 0.0), Tool("bull", 4.0, 0.7), Tool.ball(4.0)])
+def test_cut_skipping_nodes_a_move_cannot_change_equals_every_node_visited(tool):
+    """The sweep skips the nodes a move cannot lower (within the flat of the last level
+    feed, for a move no lower than it; beyond the move's capsule). The stock, each
+    move's engagement and the rapids' depths equal, to the bit, those of every move
+    evaluated at every node (the kernel's closed-form lowest point, node by node):
+    level loops at two depths, ramps, a diagonal, a plunge, rapids across the cut."""
+    from fabkit.toolpath.cut.stock_kernels import lowest
+
+    rng = np.random.default_rng(11)
+    pts, kinds = [[2.0, 2.0, 3.0]], [RAPID]
+    for z in (-1.0, -2.5):
+        ring = np.array([[2, 2], [11, 2.3], [12.4, 8], [7, 9.7], [2.2, 8.8], [2, 2]], float)
+        ring += rng.normal(scale=0.05, size=ring.shape)
+        pts += [[ring[0, 0], ring[0, 1], z + 1.0], [ring[0, 0], ring[0, 1], z]]
+        kinds += [RAPID, PLUNGE]
+        for q in ring[1:]:
+            pts.append([q[0], q[1], z])
+            kinds.append(CUT)
+        pts += [[6.0, 6.0, z], [6.5, 6.2, z - 0.1], [8.0, 4.0, z - 0.8], [3.0, 5.5, z - 0.8], [3.0, 5.5, 1.0]]
+        kinds += [CUT, CUT, CUT, CUT, RAPID]
+    pts += [[13.0, 9.0, -0.5], [1.0, 1.0, -0.2], [5.0, 5.0, -3.0]]
+    kinds += [RAPID, RAPID, PLUNGE]
+    P, K = np.array(pts), np.array(kinds)
+    stock = make_stock(14.0, 10.0, 0.25)
+    res = cut(stock, tool, P, K, start=P[0])
+    # every node, every move
+    Z = np.zeros(stock.z.shape)
+    X, Y = stock.grid()
+    R, r = tool.radius, tool.corner_radius
+    eng, rap = np.zeros(len(P)), np.zeros(len(P))
+    for m in range(len(P)):
+        a, b = (P[0] if m == 0 else P[m - 1]), P[m]
+        g = np.array([lowest(x, y, *a, *b, R, r, R - r) for x, y in zip(X.ravel(), Y.ravel())]).reshape(Z.shape)
+        d = np.where(g < Z, Z - g, 0.0)
+        if K[m] == RAPID:
+            rap[m] = d.max() if d.max() > 1e-6 else 0.0
+        else:
+            eng[m] = d.max()
+            Z = np.minimum(Z, g)
+    assert np.array_equal(stock.z, Z)
+    assert np.array_equal(res.engagement, eng)
+    assert res.rapid_depth == rap.max() and res.rapids_into_stock == int((rap > 1e-6).sum())
+    assert res.rapids_into_stock >= 1 and eng.max() > 0.5

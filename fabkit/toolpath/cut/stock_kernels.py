@@ -137,23 +137,78 @@ def _lowest_on(qx, qy, ux, uy, Ln, az, bz, k, R, r, f):
     return va if va < vb else vb
 
 
+#: :func:`cut_moves`: the skipped band's margin inside the flat's reach (mm): nodes
+#: nearer the band's edge than this are evaluated (floating point of the band's bounds)
+SKIP_MARGIN = 1e-7
+
+
+@jit
+def _band_in_column(x, px, py, qx, qy, d):
+    """The y interval [lo, hi] of the vertical line X = x within distance d of the
+    segment p-q (XY) (a capsule: convex, so an interval; lo > hi: none), from its two
+    discs and its band."""
+    lo, hi = np.inf, -np.inf
+    for cx, cy in ((px, py), (qx, qy)):
+        u = x - cx
+        if u * u <= d * d:
+            h = math.sqrt(d * d - u * u)
+            lo = min(lo, cy - h)
+            hi = max(hi, cy + h)
+    dx, dy = qx - px, qy - py
+    Ln = math.sqrt(dx * dx + dy * dy)
+    if Ln > 1e-12:
+        ux, uy = dx / Ln, dy / Ln
+        # |(X - p) . n| <= d with n = (-uy, ux), and 0 <= (X - p) . u <= Ln, linear in y
+        a, b = -np.inf, np.inf
+        if abs(ux) > 1e-12:
+            c0 = (x - px) * (-uy)
+            y1, y2 = py + (-d - c0) / ux, py + (d - c0) / ux
+            a, b = max(a, min(y1, y2)), min(b, max(y1, y2))
+        elif abs((x - px) * uy) > d:
+            a, b = np.inf, -np.inf
+        if abs(uy) > 1e-12:
+            c1 = (x - px) * ux
+            y1, y2 = py + (0.0 - c1) / uy, py + (Ln - c1) / uy
+            a, b = max(a, min(y1, y2)), min(b, max(y1, y2))
+        else:
+            t = (x - px) * ux
+            if t < 0.0 or t > Ln:
+                a, b = np.inf, -np.inf
+        if a <= b:
+            lo = min(lo, a)
+            hi = max(hi, b)
+    return lo, hi
+
+
 @jit
 def cut_moves(Z, hx, hy, A, B, feed, R, r, f, rapid_tol, engage, rapid_depth, rapid_node):
     """Sweep the tool along the moves A[m] -> B[m] in order over the stock height field
     Z (nx, ny; node (i, j) at (i hx, j hy)). Feed moves (feed[m]) lower Z to the tool's
     lowest point; ``engage[m]`` gets the largest thickness the move removes at a node.
     Rapids do not cut: ``rapid_depth[m]`` gets the deepest the tool would go into the
-    stock present then (0 if it stays clear by ``rapid_tol``), at node rapid_node[m]."""
+    stock present then (0 if it stays clear by ``rapid_tol``), at node rapid_node[m].
+
+    Nodes a move cannot change are not visited: after a level feed move at height z0
+    every node within the flat radius f of its XY segment is at most z0 (the flat
+    bottom passes over it at z0; Z never rises), and a later move whose lowest tip is at
+    or above z0 cuts nothing there, nor does a rapid pass into it (its tool is nowhere
+    below its lowest tip). Such nodes of the last level feed's band (less SKIP_MARGIN)
+    are skipped: the same stock and figures, to the bit, with the roughing's loops
+    visiting a fraction of their nodes."""
     nx, ny = Z.shape
     top = -np.inf
     for i in range(nx):
         for j in range(ny):
             if Z[i, j] > top:
                 top = Z[i, j]
+    band = False              # the last level feed: its segment and height
+    pax = pay = pbx = pby = pz = 0.0
+    dband = f - SKIP_MARGIN
     for m in range(A.shape[0]):
         ax, ay, az = A[m, 0], A[m, 1], A[m, 2]
         bx, by, bz = B[m, 0], B[m, 1], B[m, 2]
         zlo = min(az, bz)
+        skip = band and zlo >= pz
         if zlo >= top:
             continue
         x0, x1 = min(ax, bx) - R, max(ax, bx) + R
@@ -186,25 +241,43 @@ def cut_moves(Z, hx, hy, A, B, feed, R, r, f, rapid_tol, engage, rapid_depth, ra
             else:
                 ya, yb = ay, by
             y0, y1 = min(ya, yb) - R, max(ya, yb) + R
+            # within the move's capsule of radius R (+ SKIP_MARGIN): beyond, the tool misses the node
+            clo, chi = _band_in_column(x, ax, ay, bx, by, R + SKIP_MARGIN)
+            if not clo <= chi:
+                continue
+            y0, y1 = max(y0, clo - SKIP_MARGIN), min(y1, chi + SKIP_MARGIN)
             j0 = max(0, int(math.ceil(y0 / hy)))
             j1 = min(ny - 1, int(math.floor(y1 / hy)))
-            for j in range(j0, j1 + 1):
-                zc = Z[i, j]
-                if zlo >= zc:
-                    continue
-                g = _lowest_on(x - ax, j * hy - ay, ux, uy, Ln, az, bz, k, R, r, f)
-                if g < zc:
-                    d = zc - g
-                    if is_feed:
-                        Z[i, j] = g
-                        if d > worst:
+            k0, k1 = 1, 0             # nodes j in [k0, k1]: in the last level feed's band
+            if skip:
+                slo, shi = _band_in_column(x, pax, pay, pbx, pby, dband)
+                if slo <= shi:
+                    k0 = int(math.ceil((slo + SKIP_MARGIN) / hy))
+                    k1 = int(math.floor((shi - SKIP_MARGIN) / hy))
+            # the nodes below the band, then above it (the whole range without one)
+            ja1 = j1 if k0 > k1 else min(j1, k0 - 1)
+            jb0 = j1 + 1 if k0 > k1 else max(j0, k1 + 1)
+            for part in range(2):
+                for j in range(j0 if part == 0 else jb0, (ja1 if part == 0 else j1) + 1):
+                    zc = Z[i, j]
+                    if zlo >= zc:
+                        continue
+                    g = _lowest_on(x - ax, j * hy - ay, ux, uy, Ln, az, bz, k, R, r, f)
+                    if g < zc:
+                        d = zc - g
+                        if is_feed:
+                            Z[i, j] = g
+                            if d > worst:
+                                worst = d
+                        elif d > rapid_tol and d > worst:
                             worst = d
-                    elif d > rapid_tol and d > worst:
-                        worst = d
-                        rapid_node[m, 0] = i
-                        rapid_node[m, 1] = j
+                            rapid_node[m, 0] = i
+                            rapid_node[m, 1] = j
         if is_feed:
             engage[m] = worst
+            if az == bz and dband > 0.0:
+                band = True
+                pax, pay, pbx, pby, pz = ax, ay, bx, by, az
         else:
             rapid_depth[m] = worst
 
