@@ -545,3 +545,29 @@ def test_cut_skipping_nodes_a_move_cannot_change_equals_every_node_visited(tool)
     assert np.array_equal(res.engagement, eng)
     assert res.rapid_depth == rap.max() and res.rapids_into_stock == int((rap > 1e-6).sum())
     assert res.rapids_into_stock >= 1 and eng.max() > 0.5
+
+
+def test_picture_pooling_equals_numpy_block_reductions():
+    """The picture's k x k pooling: the envelope of largest magnitude of each block and
+    the block means, against numpy's reductions over the blocks (the extremes to the
+    bit, a nan propagated; the means to 1e-13)."""
+    from fabkit.toolpath.cut.stock_kernels import pool_envelope, pool_mean
+
+    rng = np.random.default_rng(2)
+    for k, shape in ((2, (9, 7)), (3, (40, 31)), (4, (13, 26))):
+        lo = rng.normal(size=shape)
+        hi = lo + np.abs(rng.normal(size=shape))
+        hi[3, 2] = np.nan
+        env = np.where(-lo > hi, lo, hi)
+        mx, my = shape[0] // k * k, shape[1] // k * k
+        b = env[:mx, :my].reshape(mx // k, k, my // k, k)
+        bmax, bmin = b.max(axis=(1, 3)), b.min(axis=(1, 3))
+        want = np.where(-bmin > bmax, bmin, bmax)
+        got = np.empty((shape[0] // k, shape[1] // k))
+        pool_envelope(lo, hi, k, got)
+        assert np.array_equal(got, want, equal_nan=True) and np.isnan(got[3 // k, 2 // k])
+        a = rng.normal(size=shape) * 10.0 ** rng.uniform(-3, 3, size=shape)
+        mean = np.empty_like(got)
+        pool_mean(a, k, mean)
+        np.testing.assert_allclose(mean, a[:mx, :my].reshape(mx // k, k, my // k, k).mean(axis=(1, 3)),
+                                   rtol=1e-13, atol=1e-13 * np.abs(a).max())

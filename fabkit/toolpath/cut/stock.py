@@ -643,13 +643,17 @@ def stock_png(stock: Stock, design: np.ndarray, *, title: str = "", tolerance: f
     # finer than a pixel would alias into stripes): the highest material and the deepest
     # gouge within it, whichever is larger
     w = (max(1, int(round(envelope / stock.hx))) | 1, max(1, int(round(envelope / stock.hy))) | 1)
-    if w == (1, 1):
-        env = dev
-    else:
-        lo_env, hi_env = window_minmax(dev, w)
-        env = np.where(-lo_env > hi_env, lo_env, hi_env)
-    dv = _pool(env, k, True)
-    zz = _pool(z if w == (1, 1) else window_mean(z, w), k, False)
+    lo_env, hi_env = (dev, dev) if w == (1, 1) else window_minmax(dev, w)
+    zm = z if w == (1, 1) else window_mean(z, w)
+    if k == 1:
+        dv = np.where(-lo_env > hi_env, lo_env, hi_env)
+        zz = zm
+    else:                     # compiled: the blocks' extremes and means (_pool's, to the bit)
+        from .stock_kernels import pool_envelope, pool_mean
+
+        dv, zz = np.empty((nx // k, ny // k)), np.empty((nx // k, ny // k))
+        pool_envelope(np.ascontiguousarray(lo_env), np.ascontiguousarray(hi_env), k, dv)
+        pool_mean(np.ascontiguousarray(zm, dtype=float), k, zz)
     hx, hy = stock.hx * k, stock.hy * k
     up = max(1, min(width // nx, int(0.75 * width) // ny)) if k == 1 else 1   # small grids: enlarged
     if up > 1:

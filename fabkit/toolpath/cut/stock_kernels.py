@@ -602,3 +602,50 @@ def window_mean(a, size):
         _mean_rows(out, int(size[1]), res)
         out = res
     return out
+
+
+# ----------------------------------------------------------------------------
+# the picture's pooling (stock.stock_png): k x k blocks of nodes to one pixel
+# ----------------------------------------------------------------------------
+@jit
+def pool_envelope(lo, hi, k, out):
+    """Per block of k x k nodes (the last partial rows and columns dropped): the node
+    envelopes env = lo where -lo > hi, else hi, and of those the one of largest
+    magnitude, the minimum where -min > max, else the maximum (nan if any is nan, as
+    numpy's max and min give)."""
+    n0, n1 = out.shape
+    for I in range(n0):
+        for J in range(n1):
+            M, m = -np.inf, np.inf
+            nan = False
+            for u in range(I * k, I * k + k):
+                for v in range(J * k, J * k + k):
+                    a, b = lo[u, v], hi[u, v]
+                    e = a if -a > b else b
+                    if e != e:
+                        nan = True
+                    if e > M:
+                        M = e
+                    if e < m:
+                        m = e
+            if nan:
+                out[I, J] = np.nan
+            else:
+                out[I, J] = m if -m > M else M
+
+
+@jit
+def pool_mean(a, k, out):
+    """Per block of k x k nodes (the last partial rows and columns dropped) the mean:
+    each of its rows summed, the row sums added, over k^2 (numpy's mean over the block
+    axes adds in this order)."""
+    n0, n1 = out.shape
+    for I in range(n0):
+        for J in range(n1):
+            s = 0.0
+            for u in range(I * k, I * k + k):
+                t = 0.0
+                for v in range(J * k, J * k + k):
+                    t += a[u, v]
+                s += t
+            out[I, J] = s / (k * k)
