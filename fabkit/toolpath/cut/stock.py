@@ -487,7 +487,7 @@ def verify_job(surface, operations, tolerance: float, *, spacing: float | None =
             # the first point is reached by a rapid from the safe height (path.Toolpath)
             start = np.array([tp.points[0, 0], tp.points[0, 1], max(float(tp.safe_z), tp.points[0, 2])])
         res = cut(stock, op.tool, tp.points, tp.kinds, start=start)
-        snaps.append(stock.copy())
+        snaps.append(stock.copy() if n < len(operations) else stock)   # the last: nothing cuts it after
         z = stock.z
         extra_v = extra_h = 0.0
         fin_doc = (depth_of_cut or {}).get("finish", op.info.get("finish_depth_of_cut_mm"))

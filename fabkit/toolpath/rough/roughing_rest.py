@@ -57,7 +57,7 @@ def stock_after(rough: Operation) -> np.ndarray:
             cv2.fillPoly(mask, rings[:1], 1, lineType=cv2.LINE_8, shift=shift)
             if len(rings) > 1:
                 cv2.fillPoly(mask, rings[1:], 0, lineType=cv2.LINE_8, shift=shift)
-        S = np.where(mask.astype(bool), np.minimum(S, lev.z), S)
+        np.minimum(S, lev.z, out=S, where=mask.astype(bool))
     return window_max(S, (3, 3))
 
 
