@@ -471,12 +471,23 @@ def verify_job(surface, operations, tolerance: float, *, spacing: float | None =
     if measure not in ("normal", "vertical"):
         raise ValueError(f"measure {measure!r}: normal or vertical")
     gx, gy = np.gradient(dz, stock.hx, stock.hy)
-    normal_scale = 1.0 / np.sqrt(1.0 + gx * gx + gy * gy) if measure == "normal" else np.ones_like(dz)
+    if measure == "normal":
+        # 1 / sqrt(1 + gx^2 + gy^2), in place (the same operations in the same order)
+        normal_scale = gx * gx
+        np.add(1.0, normal_scale, out=normal_scale)
+        normal_scale += gy * gy
+        np.sqrt(normal_scale, out=normal_scale)
+        np.divide(1.0, normal_scale, out=normal_scale)
+    else:
+        normal_scale = np.ones_like(dz)
     from .stock_kernels import node_bounds, node_verdicts
 
     dz = np.ascontiguousarray(dz, dtype=float)
     dzf, scale_f = dz.ravel(), np.ascontiguousarray(normal_scale, dtype=float).ravel()
-    slope, empty = None, np.empty(0)        # the design's slope: once, for the operations that use it
+    empty = np.empty(0)
+    # the design's slope (3 x 3 maximum of its gradient's norm), for all but the finish
+    slope = _max3(np.hypot(gx, gy)) if any(op.kind != "finish" for op in operations) else None
+    del gx, gy
     reports, snaps, failures = [], [], []
     for n, op in enumerate(operations, start=1):
         name = f"operation {n} ({op.kind}, {op.tool.describe()})"
@@ -521,15 +532,14 @@ def verify_job(surface, operations, tolerance: float, *, spacing: float | None =
         # end EDGE_NODES[-1] x R beyond the stock (passes.u_grid), as its own verification
         # judges it.
         finish = op.kind == "finish"
-        if not finish and slope is None:
-            slope = _max3(np.hypot(gx, gy))
         slope_k = empty if finish else slope.ravel()
         high = np.empty(z.shape, dtype=np.bool_)
         zf, bf = z.ravel(), before.ravel()
         ig, gouge, irm, removed_max = node_bounds(zf, dzf, bf, scale_f, finish, slope_k, extra_h, slack, leave,
                                                   tol, high.ravel())
         gouge = float(gouge)
-        target = np.minimum(dz + leave, 0.0)
+        target = dz + leave
+        np.minimum(target, 0.0, out=target)
         if finish:
             from ..finish.scallop import EDGE_NODES
 
