@@ -639,29 +639,32 @@ def test_last_rest_tool_larger_than_the_finish_refused(tmp_path):
     assert spec.roughing.rest == (3, 2)
 
 
-def test_rest_drop_asks_the_exact_distance_of_every_point_within_reach():
-    """The rest passes' drop onto the levels asks shapely's exact distance only of the
-    points within the tool's radius of the uncut region (inside it or near its edges):
-    every point at distance <= R (shapely's own distance, the reference) is among them,
-    on a polygon with a hole and a second part, points inside, outside, on the edges and
-    at distance R exactly."""
+def test_rest_drop_distance_near_the_levels_equals_shapely_to_the_bit():
+    """The rest passes' drop onto the levels takes the distance to the uncut region from
+    a compiled kernel over the edges near each point: it equals shapely's (GEOS's)
+    distance to the bit wherever that is within the cap, and is +inf beyond, on a
+    polygon with a hole and a second part, points inside, outside, on edges and
+    vertices, at the cap exactly, and on a fine polygon of many edges."""
     import shapely
-    from shapely.geometry import MultiPolygon, Polygon
+    from shapely.geometry import MultiPolygon, Point, Polygon
 
-    from fabkit.toolpath.rough.roughing_rest import _within
+    from fabkit.toolpath.rough.roughing_rest import _distance_near
 
-    U = MultiPolygon([Polygon([(0, 0), (10, 0), (10, 6), (0, 6)], [[(3, 2), (7, 2), (7, 4), (3, 4)]]),
-                      Polygon([(20, 0), (24, 3), (20, 6)])])
-    R = 1.5
     rng = np.random.default_rng(3)
-    xy = np.vstack([rng.uniform(-4, 28, size=(3000, 2)),
-                    [[5, 3], [5, 2], [-R, 3], [10 + R, 3], [5, 2 + R], [24 + R * 0.6, 3 + R * 0.8], [22, 3]]])
-    pts = shapely.points(xy)
-    d = shapely.distance(pts, U)
-    near = _within(pts, U, R)
-    assert near[d <= R].all()
-    assert not near[d > R + 1e-5].any()          # and little more (the margin)
-    assert near[-7:-1].all() and near[-1]
+    U1 = MultiPolygon([Polygon([(0, 0), (10, 0), (10, 6), (0, 6)], [[(3, 2), (7, 2), (7, 4), (3, 4)]]),
+                       Polygon([(20, 0), (24, 3), (20, 6)])])
+    U2 = Point(5.3, 4.1).buffer(3.7, quad_segs=64).difference(Point(6.1, 4.4).buffer(1.2, quad_segs=32))
+    cap = 1.5
+    for U in (U1, U2):
+        lo, hi = np.array(U.bounds[:2]) - 4, np.array(U.bounds[2:]) + 4
+        xy = np.vstack([rng.uniform(lo, hi, size=(4000, 2)), np.asarray(U.boundary.geoms[0].coords)[:5],
+                        [[5, 3], [5, 2], [-cap, 3], [10 + cap, 3], [5, 2 + cap], [22, 3]]])
+        ref = shapely.distance(shapely.points(xy), U)
+        got = _distance_near(U, xy[:, 0], xy[:, 1], cap)
+        near = ref <= cap
+        assert near.sum() > 500 and (~near).sum() > 500
+        assert np.array_equal(got[near], ref[near])
+        assert np.isinf(got[~near]).all()
 
 
 def test_cut_lines_added_at_once_equal_point_by_point():

@@ -133,9 +133,7 @@ def drop_on_levels(rough: Operation, ws, X, Y, tool: Tool, need=None) -> np.ndar
                 continue
             shapely.prepare(U)
             d = np.full(len(pts), np.inf)
-            # the exact distance only where the tool can touch U (beyond R lift is inf: no term)
-            sel = sel & _within(pts, U, tool.radius)
-            d[sel] = shapely.distance(pts[sel], U)
+            d[sel] = _distance_near(U, X[sel], Y[sel], tool.radius + WITHIN_MARGIN)
             with np.errstate(invalid="ignore"):
                 term = z_prev - tool.lift(np.minimum(d, 1e9))
             out = np.maximum(out, np.where(np.isfinite(term), term, -np.inf))
@@ -143,30 +141,36 @@ def drop_on_levels(rough: Operation, ws, X, Y, tool: Tool, need=None) -> np.ndar
     return out
 
 
-#: :func:`_within`'s margin beyond the radius asked (mm): GEOS's distance to a polygon
-#: and to one of its edges may differ in the last bits
+#: :func:`_distance_near`'s margin beyond the tool's radius (mm): a point this little
+#: farther has its distance too (its term is -inf either way)
 WITHIN_MARGIN = 1e-6
 
 
-def _within(pts, U, radius: float) -> np.ndarray:
-    """Which of the points (shapely) lie inside the polygon(s) U or within ``radius``
-    (+ WITHIN_MARGIN) of its boundary: a superset of those at distance <= radius from U
-    (a search tree over U's edges; the exact distance is then asked of these alone)."""
+def _distance_near(U, X, Y, cap: float) -> np.ndarray:
+    """shapely.distance of the points (X, Y) to the polygon(s) U, to the bit, where it is
+    at most ``cap``; +inf beyond (the drop's term is -inf there either way): 0 inside or
+    on U, else the nearest edge's distance by the compiled kernel (GEOS's point-to-segment
+    distance over the edges near the point, :mod:`~fabkit.toolpath.rough.distance_kernels`)."""
     import shapely
 
-    segs = []
+    from .distance_kernels import edge_distance
+
+    X = np.ascontiguousarray(X, dtype=float)
+    Y = np.ascontiguousarray(Y, dtype=float)
+    A, B = [], []
     for poly in _polys(U):
         for ring in (poly.exterior, *poly.interiors):
             c = np.asarray(ring.coords)[:, :2]
             if len(c) >= 2:
-                segs.append(np.stack([c[:-1], c[1:]], axis=1))
-    out = np.zeros(len(pts), bool)
-    if not segs:
+                A.append(c[:-1])
+                B.append(c[1:])
+    out = np.empty(X.size)
+    if not X.size:
         return out
-    tree = shapely.STRtree(shapely.linestrings(np.concatenate(segs)))
-    hit = tree.query(pts, predicate="dwithin", distance=radius + WITHIN_MARGIN)[0]
-    out[hit] = True
-    out |= shapely.contains(U, pts)
+    A = np.ascontiguousarray(np.concatenate(A) if A else np.empty((0, 2)))
+    B = np.ascontiguousarray(np.concatenate(B) if B else np.empty((0, 2)))
+    edge_distance(X, Y, A, B, float(cap), out)
+    out[shapely.intersects_xy(U, X, Y)] = 0.0
     return out
 
 
