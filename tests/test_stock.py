@@ -493,6 +493,8 @@ def test_window_filters_equal_scipy_ndimage_to_the_bit(size):
         assert np.array_equal(hi, maximum_filter(a, size=size, mode="nearest"))
         assert np.array_equal(hi, maximum_filter(a, size=size, mode="constant", cval=-np.inf))
         assert np.array_equal(window_max(a, size), hi)
+        b = a.copy()
+        assert window_max(b, size, out=b) is b and np.array_equal(b, hi)
         assert np.array_equal(window_mean(a, size), uniform_filter(a, size=size, mode="nearest"))
         s0, s1 = size[0] // 2, size[1] // 2
         p = np.pad(a, ((s0, s0), (s1, s1)), mode="edge")

@@ -70,6 +70,8 @@ MAX_REACH_NODES = 200_000
 KERNEL_CHUNK_WORK = 5e7
 #: grid spacing bounds, mm
 SPACING_MIN, SPACING_MAX = 0.05, 0.25
+#: design_heights: points evaluated at a time
+DESIGN_BLOCK = 1 << 18
 
 
 # ----------------------------------------------------------------------------
@@ -134,9 +136,16 @@ def design_heights(surface, stock: Stock) -> np.ndarray:
     from ..finish.compensate import WorkSurface
 
     ws = surface if isinstance(surface, WorkSurface) else WorkSurface(surface)
-    X, Y = stock.grid()
-    return np.minimum(ws.H(np.ascontiguousarray(X.ravel()), np.ascontiguousarray(Y.ravel())),
-                      0.0).reshape(X.shape)
+    x, y = stock.x, stock.y
+    out = np.empty((len(x), len(y)))
+    # in blocks of rows (the design is evaluated point by point: the same values; no
+    # full-grid coordinate arrays)
+    rows = max(1, DESIGN_BLOCK // max(len(y), 1))
+    for i in range(0, len(x), rows):
+        X, Y = np.meshgrid(x[i:i + rows], y, indexing="ij")
+        np.minimum(ws.H(np.ascontiguousarray(X.ravel()), np.ascontiguousarray(Y.ravel())), 0.0,
+                   out=out[i:i + rows].reshape(-1))
+    return out
 
 
 # ----------------------------------------------------------------------------
@@ -422,12 +431,13 @@ class JobCut:
                 "operations": [o.to_json() for o in self.operations]}
 
 
-def _max3(a: np.ndarray) -> np.ndarray:
+def _max3(a: np.ndarray, overwrite: bool = False) -> np.ndarray:
     """The 3 x 3 maximum of ``a`` at every node, the edges repeated (scipy.ndimage's
-    maximum_filter(a, size=3, mode="nearest"), without its import)."""
+    maximum_filter(a, size=3, mode="nearest"), without its import); ``overwrite``: into
+    ``a`` itself (C-contiguous float)."""
     from .stock_kernels import window_max
 
-    return window_max(a, (3, 3))
+    return window_max(a, (3, 3), out=a if overwrite else None)
 
 
 def _at(stock, flat_index):
@@ -486,7 +496,8 @@ def verify_job(surface, operations, tolerance: float, *, spacing: float | None =
     dzf, scale_f = dz.ravel(), np.ascontiguousarray(normal_scale, dtype=float).ravel()
     empty = np.empty(0)
     # the design's slope (3 x 3 maximum of its gradient's norm), for all but the finish
-    slope = _max3(np.hypot(gx, gy)) if any(op.kind != "finish" for op in operations) else None
+    slope = _max3(np.hypot(gx, gy, out=gx), overwrite=True) if any(op.kind != "finish" for op in operations) \
+        else None
     del gx, gy
     reports, snaps, failures = [], [], []
     for n, op in enumerate(operations, start=1):

@@ -575,17 +575,21 @@ def window_minmax(a, size):
     return lo, hi
 
 
-def window_max(a, size):
-    """The maximum of :func:`window_minmax` alone (half the work)."""
+def window_max(a, size, out=None):
+    """The maximum of :func:`window_minmax` alone (half the work); ``out``: the array
+    to write it to (C-contiguous float, ``a`` itself allowed), else a new one."""
     hi = np.ascontiguousarray(a, dtype=float)
     if size[0] > 1:
         h2 = np.empty_like(hi)
         _minmax_cols(hi, hi, int(size[0]), np.empty((0, 0)), h2, False)
         hi = h2
     if size[1] > 1:
-        h2 = np.empty_like(hi)
+        h2 = np.empty_like(hi) if out is None or out is hi else out
         _max_rows(hi, int(size[1]), h2)
         hi = h2
+    if out is not None and out is not hi:
+        out[...] = hi
+        hi = out
     return hi
 
 
