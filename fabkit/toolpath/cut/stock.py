@@ -274,7 +274,9 @@ def reach_height(target: np.ndarray, stock: Stock, tool: Tool, mask: np.ndarray,
     T = np.ascontiguousarray(target, dtype=float)
     nx, ny = T.shape
     ci, cj = int(math.ceil(R / stock.hx)), int(math.ceil(R / stock.hy))
-    D = np.full((nx + 2 * ci, ny + 2 * cj), np.nan)       # the drops, shared by the chunks
+    i0, j0 = int(pi.min()), int(pj.min())
+    # the drops, shared by the chunks: the centres within R of the nodes' bounding box
+    D = np.full((int(pi.max()) - i0 + 1 + 2 * ci, int(pj.max()) - j0 + 1 + 2 * cj), np.nan)
     # chunks of about KERNEL_CHUNK_WORK node-offset pairs (a drop not yet known costs as
     # many again): the kernel returns between them, so Ctrl-C is honoured within a chunk
     # (in the nodes' row order a node adds about 2 R / h + 2 centres to the drops known)
@@ -283,7 +285,7 @@ def reach_height(target: np.ndarray, stock: Stock, tool: Tool, mask: np.ndarray,
     vals = np.empty(len(pi))
     for a in range(0, len(pi), step):
         vals[a:a + step] = reach_at(T, stock.hx, stock.hy, R, r, f, pi[a:a + step], pj[a:a + step], D,
-                                    float(R if beyond is None else min(beyond, R)))
+                                    float(R if beyond is None else min(beyond, R)), i0, j0)
     out[pi, pj] = vals
     if sub is not mask:
         from scipy.ndimage import distance_transform_edt

@@ -283,14 +283,16 @@ def cut_moves(Z, hx, hy, A, B, feed, R, r, f, rapid_tol, engage, rapid_depth, ra
 
 
 @jit
-def reach_at(S, hx, hy, R, r, f, pi, pj, D, beyond):
+def reach_at(S, hx, hy, R, r, f, pi, pj, D, beyond, d_i0=0, d_j0=0):
     """Lowest height the tool can cut at the nodes (pi[k], pj[k]) without cutting below
     S anywhere on the grid: the grey-scale opening of S by the tool, min over tool
     positions c on the grid nodes (and up to R beyond the edges, where there is no
     material) within R of p of drop(c) + lift(|p - c|), drop(c) = max over nodes q
     within R of c of S(q) - lift(|q - c|). The drops are computed once per centre and
     kept in ``D`` ((nx + 2 ceil(R / hx), ny + 2 ceil(R / hy)), nan: not yet), so that the
-    nodes can be given in chunks (the caller stays interruptible between them)."""
+    nodes can be given in chunks (the caller stays interruptible between them). ``D`` may
+    cover the nodes' bounding box only: its row 0 is then centre row d_i0 - ceil(R / hx)
+    (column 0 centre column d_j0 - ceil(R / hy))."""
     nx, ny = S.shape
     pi_ = int(math.ceil(R / hx))
     pj_ = int(math.ceil(R / hy))
@@ -322,7 +324,7 @@ def reach_at(S, hx, hy, R, r, f, pi, pj, D, beyond):
             ey = max(0.0, -cj * hy, (cj - (ny - 1)) * hy)
             if ex * ex + ey * ey > beyond * beyond:
                 continue
-            dd = D[ci + pi_, cj + pj_]
+            dd = D[ci - d_i0 + pi_, cj - d_j0 + pj_]
             if dd != dd:
                 dd = -np.inf
                 for b in range(n_off):
@@ -331,7 +333,7 @@ def reach_at(S, hx, hy, R, r, f, pi, pj, D, beyond):
                         v = S[qi, qj] - ol[b]
                         if v > dd:
                             dd = v
-                D[ci + pi_, cj + pj_] = dd
+                D[ci - d_i0 + pi_, cj - d_j0 + pj_] = dd
             v = dd + ol[a]
             if v < best:
                 best = v
