@@ -47,7 +47,9 @@ def _point_to_segment(x, y, ax, ay, bx, by):
 @jit
 def _bins(A, B, x0, y0, cell, nxc, nyc):
     """CSR of the edges (A[e] -> B[e]) per cell: (start (nxc * nyc + 1), edges)."""
-    count = np.zeros(nxc * nyc + 1, np.int64)
+    count = np.empty(nxc * nyc + 1, np.int64)
+    for c in range(nxc * nyc + 1):
+        count[c] = 0
     for e in range(A.shape[0]):
         i0 = max(0, min(nxc - 1, int(math.floor((min(A[e, 0], B[e, 0]) - x0) / cell))))
         i1 = max(0, min(nxc - 1, int(math.floor((max(A[e, 0], B[e, 0]) - x0) / cell))))
@@ -56,9 +58,15 @@ def _bins(A, B, x0, y0, cell, nxc, nyc):
         for i in range(i0, i1 + 1):
             for j in range(j0, j1 + 1):
                 count[i * nyc + j + 1] += 1
-    start = np.cumsum(count)
-    fill = start[:-1].copy()
-    edges = np.empty(start[-1], np.int64)
+    start = np.empty(nxc * nyc + 1, np.int64)     # running sums (loops: no array-math import)
+    fill = np.empty(nxc * nyc, np.int64)
+    acc = 0
+    for c in range(nxc * nyc + 1):
+        acc += count[c]
+        start[c] = acc
+        if c < nxc * nyc:
+            fill[c] = acc
+    edges = np.empty(acc, np.int64)
     for e in range(A.shape[0]):
         i0 = max(0, min(nxc - 1, int(math.floor((min(A[e, 0], B[e, 0]) - x0) / cell))))
         i1 = max(0, min(nxc - 1, int(math.floor((max(A[e, 0], B[e, 0]) - x0) / cell))))
@@ -81,10 +89,14 @@ def edge_distance(px, py, A, B, cap, out):
         for k in range(n):
             out[k] = np.inf
         return
-    x0 = min(A[:, 0].min(), B[:, 0].min()) - cap
-    y0 = min(A[:, 1].min(), B[:, 1].min()) - cap
-    x1 = max(A[:, 0].max(), B[:, 0].max()) + cap
-    y1 = max(A[:, 1].max(), B[:, 1].max()) + cap
+    x0 = y0 = np.inf
+    x1 = y1 = -np.inf
+    for e in range(A.shape[0]):
+        x0 = min(x0, A[e, 0], B[e, 0])
+        y0 = min(y0, A[e, 1], B[e, 1])
+        x1 = max(x1, A[e, 0], B[e, 0])
+        y1 = max(y1, A[e, 1], B[e, 1])
+    x0, y0, x1, y1 = x0 - cap, y0 - cap, x1 + cap, y1 + cap
     # cells at least cap wide, at most ~4 million of them
     cell = max(cap, math.sqrt((x1 - x0) * (y1 - y0) / 4e6), 1e-9)
     nxc = max(1, int(math.ceil((x1 - x0) / cell)))
