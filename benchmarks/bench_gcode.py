@@ -17,7 +17,9 @@ CPU seconds (the command's timers read time.process_time in the child) beside
 the time guard's estimate (toolpath.finish.guards; its ratio measured / estimated).
 ``--numpy`` adds a run of each SPEC without the compiled kernels (``FABKIT_NO_KERNELS=1``,
 the numpy code they transcribe) right after it, and checks the programs are the same
-bytes. The kernels' cache is ``FABKIT_CACHE_DIR`` (warm it with one run first: the
+bytes. With two SPECs or more the first's CPU time is also given as a ratio to the
+second's (``--floor specs/surface_roughing.yaml specs/surface.yaml``: the paper's whole
+job against its finishing program alone, README). The kernels' cache is ``FABKIT_CACHE_DIR`` (warm it with one run first: the
 cold build is not what this measures).
 """
 
@@ -131,6 +133,12 @@ def floor_main(a) -> int:
                   f"{best['cpu'] / est['seconds']:.2f} (time), {best['rss_mb'] * 1e6 / est['bytes']:.2f} (memory)")
     for s, ok in same.items():
         print(f"{Path(s).name}: programs with and without the kernels {'byte-identical' if ok else 'DIFFER'}")
+    if len(specs) >= 2:
+        # the first spec against the second (e.g. the paper's whole job against its finishing program)
+        a0, b0 = (min(r["cpu"] for r in rows[s]) for s in specs[:2])
+        loads = [r["load"] for s in specs[:2] for r in rows[s]]
+        print(f"{Path(specs[0]).name} / {Path(specs[1]).name}: {a0 / b0:.2f}x CPU (best of {a.repeat} each, "
+              f"alternated; load {min(loads):.1f}-{max(loads):.1f})")
     return 0
 
 

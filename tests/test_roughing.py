@@ -637,3 +637,50 @@ def test_last_rest_tool_larger_than_the_finish_refused(tmp_path):
     raw["roughing"]["rest"] = [3, 2]
     spec, _ = load(tmp_path, raw)
     assert spec.roughing.rest == (3, 2)
+
+
+def test_rest_drop_distance_near_the_levels_equals_shapely_to_the_bit():
+    """The rest passes' drop onto the levels takes the distance to the uncut region from
+    a compiled kernel over the edges near each point: it equals shapely's (GEOS's)
+    distance to the bit wherever that is within the cap, and is +inf beyond, on a
+    polygon with a hole and a second part, points inside, outside, on edges and
+    vertices, at the cap exactly, and on a fine polygon of many edges."""
+    import shapely
+    from shapely.geometry import MultiPolygon, Point, Polygon
+
+    from fabkit.toolpath.rough.roughing_rest import _distance_near
+
+    rng = np.random.default_rng(3)
+    U1 = MultiPolygon([Polygon([(0, 0), (10, 0), (10, 6), (0, 6)], [[(3, 2), (7, 2), (7, 4), (3, 4)]]),
+                       Polygon([(20, 0), (24, 3), (20, 6)])])
+    U2 = Point(5.3, 4.1).buffer(3.7, quad_segs=64).difference(Point(6.1, 4.4).buffer(1.2, quad_segs=32))
+    cap = 1.5
+    for U in (U1, U2):
+        lo, hi = np.array(U.bounds[:2]) - 4, np.array(U.bounds[2:]) + 4
+        xy = np.vstack([rng.uniform(lo, hi, size=(4000, 2)), np.asarray(U.boundary.geoms[0].coords)[:5],
+                        [[5, 3], [5, 2], [-cap, 3], [10 + cap, 3], [5, 2 + cap], [22, 3]]])
+        ref = shapely.distance(shapely.points(xy), U)
+        got = _distance_near(U, xy[:, 0], xy[:, 1], cap)
+        near = ref <= cap
+        assert near.sum() > 500 and (~near).sum() > 500
+        assert np.array_equal(got[near], ref[near])
+        assert np.isinf(got[~near]).all()
+
+
+def test_cut_lines_added_at_once_equal_point_by_point():
+    """A level's cut lines added as arrays give the points and kinds that adding them
+    one by one gives (a point repeating the one before it within 1e-9 mm dropped)."""
+    from fabkit.toolpath.rough.roughing_loops import _Path
+
+    rng = np.random.default_rng(5)
+    lines = [rng.normal(size=(7, 2)), np.array([[0.0, 0.0], [0.0, 5e-10], [1.0, 1.0]]),
+             np.array([[1.0, 1.0], [2.0, 2.0]]), np.array([[2.0, 2.0 + 1e-10]]), rng.normal(size=(3, 2))]
+    a, b = _Path(), _Path()
+    a.add((9.0, 9.0, -1.0), RAPID)
+    b.add((9.0, 9.0, -1.0), RAPID)
+    for ln in lines:
+        a.cut_xy(ln, -1.0)
+        for q in ln:
+            b.add((q[0], q[1], -1.0), CUT)
+    assert a.pts == b.pts and a.kinds == b.kinds
+    assert len(a.level_lines) == 4

@@ -489,7 +489,7 @@ def test_window_filters_equal_scipy_ndimage_to_the_bit(size):
     with a brute-force window over the edge-padded array."""
     from scipy.ndimage import maximum_filter, minimum_filter, uniform_filter
 
-    from fabkit.toolpath.cut.stock_kernels import window_mean, window_minmax
+    from fabkit.toolpath.cut.stock_kernels import window_max, window_mean, window_minmax
 
     rng = np.random.default_rng(7)
     for a in (rng.normal(size=(41, 23)).cumsum(axis=0) * 0.37, -np.abs(rng.normal(size=(5, 4))) * 1e3):
@@ -497,9 +497,84 @@ def test_window_filters_equal_scipy_ndimage_to_the_bit(size):
         assert np.array_equal(lo, minimum_filter(a, size=size, mode="nearest"))
         assert np.array_equal(hi, maximum_filter(a, size=size, mode="nearest"))
         assert np.array_equal(hi, maximum_filter(a, size=size, mode="constant", cval=-np.inf))
+        assert np.array_equal(window_max(a, size), hi)
+        b = a.copy()
+        assert window_max(b, size, out=b) is b and np.array_equal(b, hi)
         assert np.array_equal(window_mean(a, size), uniform_filter(a, size=size, mode="nearest"))
         s0, s1 = size[0] // 2, size[1] // 2
         p = np.pad(a, ((s0, s0), (s1, s1)), mode="edge")
         ref = np.array([[p[i:i + size[0], j:j + size[1]].max() for j in range(a.shape[1])]
                         for i in range(a.shape[0])])
         assert np.array_equal(hi, ref)
+
+
+@pytest.mark.parametrize("tool", [Tool("flat", 4.0, 0.0), Tool("bull", 4.0, 0.7), Tool.ball(4.0)])
+def test_cut_skipping_nodes_a_move_cannot_change_equals_every_node_visited(tool):
+    """The sweep skips the nodes a move cannot lower (within the flat of the last level
+    feed, for a move no lower than it; beyond the move's capsule). The stock, each
+    move's engagement and the rapids' depths equal, to the bit, those of every move
+    evaluated at every node (the kernel's closed-form lowest point, node by node):
+    level loops at two depths, ramps, a diagonal, a plunge, rapids across the cut."""
+    from fabkit.toolpath.cut.stock_kernels import lowest
+
+    rng = np.random.default_rng(11)
+    pts, kinds = [[2.0, 2.0, 3.0]], [RAPID]
+    for z in (-1.0, -2.5):
+        ring = np.array([[2, 2], [11, 2.3], [12.4, 8], [7, 9.7], [2.2, 8.8], [2, 2]], float)
+        ring += rng.normal(scale=0.05, size=ring.shape)
+        pts += [[ring[0, 0], ring[0, 1], z + 1.0], [ring[0, 0], ring[0, 1], z]]
+        kinds += [RAPID, PLUNGE]
+        for q in ring[1:]:
+            pts.append([q[0], q[1], z])
+            kinds.append(CUT)
+        pts += [[6.0, 6.0, z], [6.5, 6.2, z - 0.1], [8.0, 4.0, z - 0.8], [3.0, 5.5, z - 0.8], [3.0, 5.5, 1.0]]
+        kinds += [CUT, CUT, CUT, CUT, RAPID]
+    pts += [[13.0, 9.0, -0.5], [1.0, 1.0, -0.2], [5.0, 5.0, -3.0]]
+    kinds += [RAPID, RAPID, PLUNGE]
+    P, K = np.array(pts), np.array(kinds)
+    stock = make_stock(14.0, 10.0, 0.25)
+    res = cut(stock, tool, P, K, start=P[0])
+    # every node, every move
+    Z = np.zeros(stock.z.shape)
+    X, Y = stock.grid()
+    R, r = tool.radius, tool.corner_radius
+    eng, rap = np.zeros(len(P)), np.zeros(len(P))
+    for m in range(len(P)):
+        a, b = (P[0] if m == 0 else P[m - 1]), P[m]
+        g = np.array([lowest(x, y, *a, *b, R, r, R - r) for x, y in zip(X.ravel(), Y.ravel())]).reshape(Z.shape)
+        d = np.where(g < Z, Z - g, 0.0)
+        if K[m] == RAPID:
+            rap[m] = d.max() if d.max() > 1e-6 else 0.0
+        else:
+            eng[m] = d.max()
+            Z = np.minimum(Z, g)
+    assert np.array_equal(stock.z, Z)
+    assert np.array_equal(res.engagement, eng)
+    assert res.rapid_depth == rap.max() and res.rapids_into_stock == int((rap > 1e-6).sum())
+    assert res.rapids_into_stock >= 1 and eng.max() > 0.5
+
+
+def test_picture_pooling_equals_numpy_block_reductions():
+    """The picture's k x k pooling: the envelope of largest magnitude of each block and
+    the block means, against numpy's reductions over the blocks (the extremes to the
+    bit, a nan propagated; the means to 1e-13)."""
+    from fabkit.toolpath.cut.stock_kernels import pool_envelope, pool_mean
+
+    rng = np.random.default_rng(2)
+    for k, shape in ((2, (9, 7)), (3, (40, 31)), (4, (13, 26))):
+        lo = rng.normal(size=shape)
+        hi = lo + np.abs(rng.normal(size=shape))
+        hi[3, 2] = np.nan
+        env = np.where(-lo > hi, lo, hi)
+        mx, my = shape[0] // k * k, shape[1] // k * k
+        b = env[:mx, :my].reshape(mx // k, k, my // k, k)
+        bmax, bmin = b.max(axis=(1, 3)), b.min(axis=(1, 3))
+        want = np.where(-bmin > bmax, bmin, bmax)
+        got = np.empty((shape[0] // k, shape[1] // k))
+        pool_envelope(lo, hi, k, got)
+        assert np.array_equal(got, want, equal_nan=True) and np.isnan(got[3 // k, 2 // k])
+        a = rng.normal(size=shape) * 10.0 ** rng.uniform(-3, 3, size=shape)
+        mean = np.empty_like(got)
+        pool_mean(a, k, mean)
+        np.testing.assert_allclose(mean, a[:mx, :my].reshape(mx // k, k, my // k, k).mean(axis=(1, 3)),
+                                   rtol=1e-13, atol=1e-13 * np.abs(a).max())

@@ -70,6 +70,8 @@ MAX_REACH_NODES = 200_000
 KERNEL_CHUNK_WORK = 5e7
 #: grid spacing bounds, mm
 SPACING_MIN, SPACING_MAX = 0.05, 0.25
+#: design_heights: points evaluated at a time
+DESIGN_BLOCK = 1 << 18
 
 
 # ----------------------------------------------------------------------------
@@ -134,9 +136,16 @@ def design_heights(surface, stock: Stock) -> np.ndarray:
     from ..finish.compensate import WorkSurface
 
     ws = surface if isinstance(surface, WorkSurface) else WorkSurface(surface)
-    X, Y = stock.grid()
-    return np.minimum(ws.H(np.ascontiguousarray(X.ravel()), np.ascontiguousarray(Y.ravel())),
-                      0.0).reshape(X.shape)
+    x, y = stock.x, stock.y
+    out = np.empty((len(x), len(y)))
+    # in blocks of rows (the design is evaluated point by point: the same values; no
+    # full-grid coordinate arrays)
+    rows = max(1, DESIGN_BLOCK // max(len(y), 1))
+    for i in range(0, len(x), rows):
+        X, Y = np.meshgrid(x[i:i + rows], y, indexing="ij")
+        np.minimum(ws.H(np.ascontiguousarray(X.ravel()), np.ascontiguousarray(Y.ravel())), 0.0,
+                   out=out[i:i + rows].reshape(-1))
+    return out
 
 
 # ----------------------------------------------------------------------------
@@ -265,7 +274,9 @@ def reach_height(target: np.ndarray, stock: Stock, tool: Tool, mask: np.ndarray,
     T = np.ascontiguousarray(target, dtype=float)
     nx, ny = T.shape
     ci, cj = int(math.ceil(R / stock.hx)), int(math.ceil(R / stock.hy))
-    D = np.full((nx + 2 * ci, ny + 2 * cj), np.nan)       # the drops, shared by the chunks
+    i0, j0 = int(pi.min()), int(pj.min())
+    # the drops, shared by the chunks: the centres within R of the nodes' bounding box
+    D = np.full((int(pi.max()) - i0 + 1 + 2 * ci, int(pj.max()) - j0 + 1 + 2 * cj), np.nan)
     # chunks of about KERNEL_CHUNK_WORK node-offset pairs (a drop not yet known costs as
     # many again): the kernel returns between them, so Ctrl-C is honoured within a chunk
     # (in the nodes' row order a node adds about 2 R / h + 2 centres to the drops known)
@@ -274,7 +285,7 @@ def reach_height(target: np.ndarray, stock: Stock, tool: Tool, mask: np.ndarray,
     vals = np.empty(len(pi))
     for a in range(0, len(pi), step):
         vals[a:a + step] = reach_at(T, stock.hx, stock.hy, R, r, f, pi[a:a + step], pj[a:a + step], D,
-                                    float(R if beyond is None else min(beyond, R)))
+                                    float(R if beyond is None else min(beyond, R)), i0, j0)
     out[pi, pj] = vals
     if sub is not mask:
         from scipy.ndimage import distance_transform_edt
@@ -422,12 +433,13 @@ class JobCut:
                 "operations": [o.to_json() for o in self.operations]}
 
 
-def _max3(a: np.ndarray) -> np.ndarray:
+def _max3(a: np.ndarray, overwrite: bool = False) -> np.ndarray:
     """The 3 x 3 maximum of ``a`` at every node, the edges repeated (scipy.ndimage's
-    maximum_filter(a, size=3, mode="nearest"), without its import)."""
-    from .stock_kernels import window_minmax
+    maximum_filter(a, size=3, mode="nearest"), without its import); ``overwrite``: into
+    ``a`` itself (C-contiguous float)."""
+    from .stock_kernels import window_max
 
-    return window_minmax(a, (3, 3))[1]
+    return window_max(a, (3, 3), out=a if overwrite else None)
 
 
 def _at(stock, flat_index):
@@ -517,12 +529,24 @@ def verify_job(surface, operations, tolerance: float, *, spacing: float | None =
     if measure not in ("normal", "vertical"):
         raise ValueError(f"measure {measure!r}: normal or vertical")
     gx, gy = np.gradient(dz, stock.hx, stock.hy)
-    normal_scale = 1.0 / np.sqrt(1.0 + gx * gx + gy * gy) if measure == "normal" else np.ones_like(dz)
+    if measure == "normal":
+        # 1 / sqrt(1 + gx^2 + gy^2), in place (the same operations in the same order)
+        normal_scale = gx * gx
+        np.add(1.0, normal_scale, out=normal_scale)
+        normal_scale += gy * gy
+        np.sqrt(normal_scale, out=normal_scale)
+        np.divide(1.0, normal_scale, out=normal_scale)
+    else:
+        normal_scale = np.ones_like(dz)
     from .stock_kernels import node_bounds, node_verdicts
 
     dz = np.ascontiguousarray(dz, dtype=float)
     dzf, scale_f = dz.ravel(), np.ascontiguousarray(normal_scale, dtype=float).ravel()
-    slope, empty = None, np.empty(0)        # the design's slope: once, for the operations that use it
+    empty = np.empty(0)
+    # the design's slope (3 x 3 maximum of its gradient's norm), for all but the finish
+    slope = _max3(np.hypot(gx, gy, out=gx), overwrite=True) if any(op.kind != "finish" for op in operations) \
+        else None
+    del gx, gy
     reports, snaps, failures = [], [], []
     for n, op in enumerate(operations, start=1):
         name = f"operation {n} ({op.kind}, {op.tool.describe()})"
@@ -533,7 +557,7 @@ def verify_job(surface, operations, tolerance: float, *, spacing: float | None =
             # the first point is reached by a rapid from the safe height (path.Toolpath)
             start = np.array([tp.points[0, 0], tp.points[0, 1], max(float(tp.safe_z), tp.points[0, 2])])
         res = cut(stock, op.tool, tp.points, tp.kinds, start=start)
-        snaps.append(stock.copy())
+        snaps.append(stock.copy() if n < len(operations) else stock)   # the last: nothing cuts it after
         z = stock.z
         extra_v = extra_h = 0.0
         fin_doc = (depth_of_cut or {}).get("finish", op.info.get("finish_depth_of_cut_mm"))
@@ -567,15 +591,14 @@ def verify_job(surface, operations, tolerance: float, *, spacing: float | None =
         # end EDGE_NODES[-1] x R beyond the stock (passes.u_grid), as its own verification
         # judges it.
         finish = op.kind == "finish"
-        if not finish and slope is None:
-            slope = _max3(np.hypot(gx, gy))
         slope_k = empty if finish else slope.ravel()
         high = np.empty(z.shape, dtype=np.bool_)
         zf, bf = z.ravel(), before.ravel()
         ig, gouge, irm, removed_max = node_bounds(zf, dzf, bf, scale_f, finish, slope_k, extra_h, slack, leave,
                                                   tol, high.ravel())
         gouge = float(gouge)
-        target = np.minimum(dz + leave, 0.0)
+        target = dz + leave
+        np.minimum(target, 0.0, out=target)
         if finish:
             from ..finish.scallop import EDGE_NODES
 
@@ -704,13 +727,17 @@ def stock_png(stock: Stock, design: np.ndarray, *, title: str = "", tolerance: f
     # finer than a pixel would alias into stripes): the highest material and the deepest
     # gouge within it, whichever is larger
     w = (max(1, int(round(envelope / stock.hx))) | 1, max(1, int(round(envelope / stock.hy))) | 1)
-    if w == (1, 1):
-        env = dev
-    else:
-        lo_env, hi_env = window_minmax(dev, w)
-        env = np.where(-lo_env > hi_env, lo_env, hi_env)
-    dv = _pool(env, k, True)
-    zz = _pool(z if w == (1, 1) else window_mean(z, w), k, False)
+    lo_env, hi_env = (dev, dev) if w == (1, 1) else window_minmax(dev, w)
+    zm = z if w == (1, 1) else window_mean(z, w)
+    if k == 1:
+        dv = np.where(-lo_env > hi_env, lo_env, hi_env)
+        zz = zm
+    else:                     # compiled: the blocks' extremes and means (_pool's, to the bit)
+        from .stock_kernels import pool_envelope, pool_mean
+
+        dv, zz = np.empty((nx // k, ny // k)), np.empty((nx // k, ny // k))
+        pool_envelope(np.ascontiguousarray(lo_env), np.ascontiguousarray(hi_env), k, dv)
+        pool_mean(np.ascontiguousarray(zm, dtype=float), k, zz)
     hx, hy = stock.hx * k, stock.hy * k
     up = max(1, min(width // nx, int(0.75 * width) // ny)) if k == 1 else 1   # small grids: enlarged
     if up > 1:

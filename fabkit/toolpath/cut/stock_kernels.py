@@ -137,23 +137,78 @@ def _lowest_on(qx, qy, ux, uy, Ln, az, bz, k, R, r, f):
     return va if va < vb else vb
 
 
+#: :func:`cut_moves`: the skipped band's margin inside the flat's reach (mm): nodes
+#: nearer the band's edge than this are evaluated (floating point of the band's bounds)
+SKIP_MARGIN = 1e-7
+
+
+@jit
+def _band_in_column(x, px, py, qx, qy, d):
+    """The y interval [lo, hi] of the vertical line X = x within distance d of the
+    segment p-q (XY) (a capsule: convex, so an interval; lo > hi: none), from its two
+    discs and its band."""
+    lo, hi = np.inf, -np.inf
+    for cx, cy in ((px, py), (qx, qy)):
+        u = x - cx
+        if u * u <= d * d:
+            h = math.sqrt(d * d - u * u)
+            lo = min(lo, cy - h)
+            hi = max(hi, cy + h)
+    dx, dy = qx - px, qy - py
+    Ln = math.sqrt(dx * dx + dy * dy)
+    if Ln > 1e-12:
+        ux, uy = dx / Ln, dy / Ln
+        # |(X - p) . n| <= d with n = (-uy, ux), and 0 <= (X - p) . u <= Ln, linear in y
+        a, b = -np.inf, np.inf
+        if abs(ux) > 1e-12:
+            c0 = (x - px) * (-uy)
+            y1, y2 = py + (-d - c0) / ux, py + (d - c0) / ux
+            a, b = max(a, min(y1, y2)), min(b, max(y1, y2))
+        elif abs((x - px) * uy) > d:
+            a, b = np.inf, -np.inf
+        if abs(uy) > 1e-12:
+            c1 = (x - px) * ux
+            y1, y2 = py + (0.0 - c1) / uy, py + (Ln - c1) / uy
+            a, b = max(a, min(y1, y2)), min(b, max(y1, y2))
+        else:
+            t = (x - px) * ux
+            if t < 0.0 or t > Ln:
+                a, b = np.inf, -np.inf
+        if a <= b:
+            lo = min(lo, a)
+            hi = max(hi, b)
+    return lo, hi
+
+
 @jit
 def cut_moves(Z, hx, hy, A, B, feed, R, r, f, rapid_tol, engage, rapid_depth, rapid_node):
     """Sweep the tool along the moves A[m] -> B[m] in order over the stock height field
     Z (nx, ny; node (i, j) at (i hx, j hy)). Feed moves (feed[m]) lower Z to the tool's
     lowest point; ``engage[m]`` gets the largest thickness the move removes at a node.
     Rapids do not cut: ``rapid_depth[m]`` gets the deepest the tool would go into the
-    stock present then (0 if it stays clear by ``rapid_tol``), at node rapid_node[m]."""
+    stock present then (0 if it stays clear by ``rapid_tol``), at node rapid_node[m].
+
+    Nodes a move cannot change are not visited: after a level feed move at height z0
+    every node within the flat radius f of its XY segment is at most z0 (the flat
+    bottom passes over it at z0; Z never rises), and a later move whose lowest tip is at
+    or above z0 cuts nothing there, nor does a rapid pass into it (its tool is nowhere
+    below its lowest tip). Such nodes of the last level feed's band (less SKIP_MARGIN)
+    are skipped: the same stock and figures, to the bit, with the roughing's loops
+    visiting a fraction of their nodes."""
     nx, ny = Z.shape
     top = -np.inf
     for i in range(nx):
         for j in range(ny):
             if Z[i, j] > top:
                 top = Z[i, j]
+    band = False              # the last level feed: its segment and height
+    pax = pay = pbx = pby = pz = 0.0
+    dband = f - SKIP_MARGIN
     for m in range(A.shape[0]):
         ax, ay, az = A[m, 0], A[m, 1], A[m, 2]
         bx, by, bz = B[m, 0], B[m, 1], B[m, 2]
         zlo = min(az, bz)
+        skip = band and zlo >= pz
         if zlo >= top:
             continue
         x0, x1 = min(ax, bx) - R, max(ax, bx) + R
@@ -186,38 +241,58 @@ def cut_moves(Z, hx, hy, A, B, feed, R, r, f, rapid_tol, engage, rapid_depth, ra
             else:
                 ya, yb = ay, by
             y0, y1 = min(ya, yb) - R, max(ya, yb) + R
+            # within the move's capsule of radius R (+ SKIP_MARGIN): beyond, the tool misses the node
+            clo, chi = _band_in_column(x, ax, ay, bx, by, R + SKIP_MARGIN)
+            if not clo <= chi:
+                continue
+            y0, y1 = max(y0, clo - SKIP_MARGIN), min(y1, chi + SKIP_MARGIN)
             j0 = max(0, int(math.ceil(y0 / hy)))
             j1 = min(ny - 1, int(math.floor(y1 / hy)))
-            for j in range(j0, j1 + 1):
-                zc = Z[i, j]
-                if zlo >= zc:
-                    continue
-                g = _lowest_on(x - ax, j * hy - ay, ux, uy, Ln, az, bz, k, R, r, f)
-                if g < zc:
-                    d = zc - g
-                    if is_feed:
-                        Z[i, j] = g
-                        if d > worst:
+            k0, k1 = 1, 0             # nodes j in [k0, k1]: in the last level feed's band
+            if skip:
+                slo, shi = _band_in_column(x, pax, pay, pbx, pby, dband)
+                if slo <= shi:
+                    k0 = int(math.ceil((slo + SKIP_MARGIN) / hy))
+                    k1 = int(math.floor((shi - SKIP_MARGIN) / hy))
+            # the nodes below the band, then above it (the whole range without one)
+            ja1 = j1 if k0 > k1 else min(j1, k0 - 1)
+            jb0 = j1 + 1 if k0 > k1 else max(j0, k1 + 1)
+            for part in range(2):
+                for j in range(j0 if part == 0 else jb0, (ja1 if part == 0 else j1) + 1):
+                    zc = Z[i, j]
+                    if zlo >= zc:
+                        continue
+                    g = _lowest_on(x - ax, j * hy - ay, ux, uy, Ln, az, bz, k, R, r, f)
+                    if g < zc:
+                        d = zc - g
+                        if is_feed:
+                            Z[i, j] = g
+                            if d > worst:
+                                worst = d
+                        elif d > rapid_tol and d > worst:
                             worst = d
-                    elif d > rapid_tol and d > worst:
-                        worst = d
-                        rapid_node[m, 0] = i
-                        rapid_node[m, 1] = j
+                            rapid_node[m, 0] = i
+                            rapid_node[m, 1] = j
         if is_feed:
             engage[m] = worst
+            if az == bz and dband > 0.0:
+                band = True
+                pax, pay, pbx, pby, pz = ax, ay, bx, by, az
         else:
             rapid_depth[m] = worst
 
 
 @jit
-def reach_at(S, hx, hy, R, r, f, pi, pj, D, beyond):
+def reach_at(S, hx, hy, R, r, f, pi, pj, D, beyond, d_i0=0, d_j0=0):
     """Lowest height the tool can cut at the nodes (pi[k], pj[k]) without cutting below
     S anywhere on the grid: the grey-scale opening of S by the tool, min over tool
     positions c on the grid nodes (and up to R beyond the edges, where there is no
     material) within R of p of drop(c) + lift(|p - c|), drop(c) = max over nodes q
     within R of c of S(q) - lift(|q - c|). The drops are computed once per centre and
     kept in ``D`` ((nx + 2 ceil(R / hx), ny + 2 ceil(R / hy)), nan: not yet), so that the
-    nodes can be given in chunks (the caller stays interruptible between them)."""
+    nodes can be given in chunks (the caller stays interruptible between them). ``D`` may
+    cover the nodes' bounding box only: its row 0 is then centre row d_i0 - ceil(R / hx)
+    (column 0 centre column d_j0 - ceil(R / hy))."""
     nx, ny = S.shape
     pi_ = int(math.ceil(R / hx))
     pj_ = int(math.ceil(R / hy))
@@ -249,7 +324,7 @@ def reach_at(S, hx, hy, R, r, f, pi, pj, D, beyond):
             ey = max(0.0, -cj * hy, (cj - (ny - 1)) * hy)
             if ex * ex + ey * ey > beyond * beyond:
                 continue
-            dd = D[ci + pi_, cj + pj_]
+            dd = D[ci - d_i0 + pi_, cj - d_j0 + pj_]
             if dd != dd:
                 dd = -np.inf
                 for b in range(n_off):
@@ -258,7 +333,7 @@ def reach_at(S, hx, hy, R, r, f, pi, pj, D, beyond):
                         v = S[qi, qj] - ol[b]
                         if v > dd:
                             dd = v
-                D[ci + pi_, cj + pj_] = dd
+                D[ci - d_i0 + pi_, cj - d_j0 + pj_] = dd
             v = dd + ol[a]
             if v < best:
                 best = v
@@ -411,6 +486,45 @@ def _minmax_rows(a_lo, a_hi, size, lo, hi):
 
 
 @jit
+def _minmax_cols(a_lo, a_hi, size, lo, hi, want_lo):
+    """:func:`_minmax_rows` along axis 0 (the window over rows, each row's nodes in
+    turn: contiguous, no transposed copy); the same comparisons, so the same values.
+    ``want_lo`` False: the maximum alone (``lo`` untouched)."""
+    n, n1 = a_lo.shape
+    s1 = size // 2
+    for t in range(n):
+        for j in range(n1):
+            hi[t, j] = -np.inf
+        if want_lo:
+            for j in range(n1):
+                lo[t, j] = np.inf
+        for u in range(t - s1, t - s1 + size):
+            q = min(max(u, 0), n - 1)
+            for j in range(n1):
+                if a_hi[q, j] > hi[t, j]:
+                    hi[t, j] = a_hi[q, j]
+            if want_lo:
+                for j in range(n1):
+                    if a_lo[q, j] < lo[t, j]:
+                        lo[t, j] = a_lo[q, j]
+
+
+@jit
+def _max_rows(a, size, hi):
+    """:func:`_minmax_rows`'s maximum alone."""
+    n0, n = a.shape
+    s1 = size // 2
+    for i in range(n0):
+        for t in range(n):
+            M = -np.inf
+            for u in range(t - s1, t - s1 + size):
+                q = min(max(u, 0), n - 1)
+                if a[i, q] > M:
+                    M = a[i, q]
+            hi[i, t] = M
+
+
+@jit
 def _mean_rows(a, size, out):
     n0, n = a.shape
     s1 = size // 2
@@ -424,6 +538,27 @@ def _mean_rows(a, size, out):
             out[i, t] = tmp / size
 
 
+@jit
+def _mean_cols(a, size, out, tmp):
+    """:func:`_mean_rows` along axis 0: each column's running sum (``tmp``, one per
+    column) takes the same terms in the same order, so the same bits."""
+    n, n1 = a.shape
+    s1 = size // 2
+    for j in range(n1):
+        tmp[j] = 0.0
+    for u in range(-s1, size - s1):
+        q = min(max(u, 0), n - 1)
+        for j in range(n1):
+            tmp[j] += a[q, j]
+    for j in range(n1):
+        out[0, j] = tmp[j] / size
+    for t in range(1, n):
+        qa, qb = min(t + size - 1 - s1, n - 1), max(t - 1 - s1, 0)
+        for j in range(n1):
+            tmp[j] += a[qa, j] - a[qb, j]
+            out[t, j] = tmp[j] / size
+
+
 def window_minmax(a, size):
     """(min, max) of ``a`` (2-D, float) over windows of ``size`` = (s0, s1) nodes (odd)
     centred on each node, the edges repeated: scipy.ndimage.minimum_filter and
@@ -431,28 +566,92 @@ def window_minmax(a, size):
     same with mode "constant", cval -inf)."""
     lo = np.ascontiguousarray(a, dtype=float)
     hi = lo
-    for axis, s in ((0, size[0]), (1, size[1])):
-        if s <= 1:
-            continue
-        if axis == 0:
-            lo_t, hi_t = np.ascontiguousarray(lo.T), np.ascontiguousarray(hi.T)
-        else:
-            lo_t, hi_t = lo, hi
-        l2, h2 = np.empty_like(lo_t), np.empty_like(hi_t)
-        _minmax_rows(lo_t, hi_t, int(s), l2, h2)
-        lo, hi = (np.ascontiguousarray(l2.T), np.ascontiguousarray(h2.T)) if axis == 0 else (l2, h2)
+    if size[0] > 1:
+        l2, h2 = np.empty_like(lo), np.empty_like(hi)
+        _minmax_cols(lo, hi, int(size[0]), l2, h2, True)
+        lo, hi = l2, h2
+    if size[1] > 1:
+        l2, h2 = np.empty_like(lo), np.empty_like(hi)
+        _minmax_rows(lo, hi, int(size[1]), l2, h2)
+        lo, hi = l2, h2
     return lo, hi
+
+
+def window_max(a, size, out=None):
+    """The maximum of :func:`window_minmax` alone (half the work); ``out``: the array
+    to write it to (C-contiguous float, ``a`` itself allowed), else a new one."""
+    hi = np.ascontiguousarray(a, dtype=float)
+    if size[0] > 1:
+        h2 = np.empty_like(hi)
+        _minmax_cols(hi, hi, int(size[0]), np.empty((0, 0)), h2, False)
+        hi = h2
+    if size[1] > 1:
+        h2 = np.empty_like(hi) if out is None or out is hi else out
+        _max_rows(hi, int(size[1]), h2)
+        hi = h2
+    if out is not None and out is not hi:
+        out[...] = hi
+        hi = out
+    return hi
 
 
 def window_mean(a, size):
     """scipy.ndimage.uniform_filter(a, size, mode="nearest") (2-D, float64; axes of size
     1 untouched, as there), to the last bit."""
     out = np.ascontiguousarray(a, dtype=float)
-    for axis, s in ((0, size[0]), (1, size[1])):
-        if s <= 1:
-            continue
-        src = np.ascontiguousarray(out.T) if axis == 0 else out
-        res = np.empty_like(src)
-        _mean_rows(src, int(s), res)
-        out = np.ascontiguousarray(res.T) if axis == 0 else res
+    if size[0] > 1:
+        res = np.empty_like(out)
+        _mean_cols(out, int(size[0]), res, np.empty(out.shape[1]))
+        out = res
+    if size[1] > 1:
+        res = np.empty_like(out)
+        _mean_rows(out, int(size[1]), res)
+        out = res
     return out
+
+
+# ----------------------------------------------------------------------------
+# the picture's pooling (stock.stock_png): k x k blocks of nodes to one pixel
+# ----------------------------------------------------------------------------
+@jit
+def pool_envelope(lo, hi, k, out):
+    """Per block of k x k nodes (the last partial rows and columns dropped): the node
+    envelopes env = lo where -lo > hi, else hi, and of those the one of largest
+    magnitude, the minimum where -min > max, else the maximum (nan if any is nan, as
+    numpy's max and min give)."""
+    n0, n1 = out.shape
+    for I in range(n0):
+        for J in range(n1):
+            M, m = -np.inf, np.inf
+            nan = False
+            for u in range(I * k, I * k + k):
+                for v in range(J * k, J * k + k):
+                    a, b = lo[u, v], hi[u, v]
+                    e = a if -a > b else b
+                    if e != e:
+                        nan = True
+                    if e > M:
+                        M = e
+                    if e < m:
+                        m = e
+            if nan:
+                out[I, J] = np.nan
+            else:
+                out[I, J] = m if -m > M else M
+
+
+@jit
+def pool_mean(a, k, out):
+    """Per block of k x k nodes (the last partial rows and columns dropped) the mean:
+    each of its rows summed, the row sums added, over k^2 (numpy's mean over the block
+    axes adds in this order)."""
+    n0, n1 = out.shape
+    for I in range(n0):
+        for J in range(n1):
+            s = 0.0
+            for u in range(I * k, I * k + k):
+                t = 0.0
+                for v in range(J * k, J * k + k):
+                    t += a[u, v]
+                s += t
+            out[I, J] = s / (k * k)

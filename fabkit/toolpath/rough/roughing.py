@@ -69,6 +69,7 @@ ENTRY_ANGLE_DEG = 5.0       # helix and ramp descent angle (foam and wood: 3-10 
 LADDER_MAX = 24             # lift steps of a bull nose / ball allowance
 GRID_MAX_NODES = 1_500_000  # the design grid of the level sets
 LOOP_INSET = 1.0            # x machining.tolerance: loops eroded by it and simplified within it
+LEVEL_BLOCK = 1 << 16       # LevelSets: grid nodes evaluated at a time
 
 
 # ----------------------------------------------------------------------------
@@ -107,18 +108,42 @@ class LevelSets:
         nx, ny = max(3, int(math.ceil(L / step)) + 1), max(3, int(math.ceil(W / step)) + 1)
         self.x, self.y = np.linspace(0.0, L, nx), np.linspace(0.0, W, ny)
         self.hx, self.hy = self.x[1] - self.x[0], self.y[1] - self.y[0]
-        X, Y = np.meshgrid(self.x, self.y)
-        H = ws.H(X, Y)
-        H = np.where(np.isfinite(H), H, 1e9)          # unreadable: kept (material)
+        # the design and its second differences in blocks of rows (the same values as on
+        # the whole grid at once, without its full-size temporaries)
+        H = np.empty((ny, nx))
+        rows = max(3, LEVEL_BLOCK // nx)
+        for a in range(0, ny, rows):
+            X, Y = np.meshgrid(self.x, self.y[a:a + rows])
+            H[a:a + rows] = ws.H(X, Y)
+        H[~np.isfinite(H)] = 1e9                     # unreadable: kept (material)
         self.H = H
         lo, hi = band
-        rel = (H >= lo - 1.0) & (H <= hi + 1.0)
-        hxx = np.abs(H[:, 2:] - 2 * H[:, 1:-1] + H[:, :-2]) / self.hx ** 2
-        hyy = np.abs(H[2:, :] - 2 * H[1:-1, :] + H[:-2, :]) / self.hy ** 2
-        hxy = np.abs(H[1:, 1:] - H[1:, :-1] - H[:-1, 1:] + H[:-1, :-1]) / (self.hx * self.hy)
-        cxx = float(hxx[rel[:, 1:-1]].max()) if rel[:, 1:-1].any() else 0.0
-        cyy = float(hyy[rel[1:-1, :]].max()) if rel[1:-1, :].any() else 0.0
-        cxy = float(hxy[rel[1:, 1:]].max()) if rel[1:, 1:].any() else 0.0
+        cxx = cyy = cxy = None
+        for a in range(0, ny, rows):
+            b = min(a + rows, ny)
+            Hb = H[a:b]
+            rel = (Hb >= lo - 1.0) & (Hb <= hi + 1.0)
+            if rel[:, 1:-1].any():
+                hxx = np.abs(Hb[:, 2:] - 2 * Hb[:, 1:-1] + Hb[:, :-2]) / self.hx ** 2
+                v = float(hxx[rel[:, 1:-1]].max())
+                cxx = v if cxx is None else max(cxx, v)
+            # rows a..b-1 of H[1:-1] (centred second differences) and of H[1:] (mixed)
+            c0, c1 = max(a, 1), min(b, ny - 1)
+            if c1 > c0:
+                relc = (H[c0:c1] >= lo - 1.0) & (H[c0:c1] <= hi + 1.0)
+                if relc.any():
+                    hyy = np.abs(H[c0 + 1:c1 + 1, :] - 2 * H[c0:c1, :] + H[c0 - 1:c1 - 1, :]) / self.hy ** 2
+                    v = float(hyy[relc].max())
+                    cyy = v if cyy is None else max(cyy, v)
+            m0 = max(a, 1)
+            if b > m0:
+                relm = (H[m0:b, 1:] >= lo - 1.0) & (H[m0:b, 1:] <= hi + 1.0)
+                if relm.any():
+                    hxy = np.abs(H[m0:b, 1:] - H[m0:b, :-1] - H[m0 - 1:b - 1, 1:] + H[m0 - 1:b - 1, :-1]) \
+                        / (self.hx * self.hy)
+                    v = float(hxy[relm].max())
+                    cxy = v if cxy is None else max(cxy, v)
+        cxx, cyy, cxy = (0.0 if c is None else c for c in (cxx, cyy, cxy))
         # the contour's vertices (linear on the cell edges) err by <= h^2/8 max|H''| along an
         # edge, its chords across a cell by <= d^2/8 max|H_dd| more (d the cell diagonal,
         # |H_dd| <= |H_xx| + 2|H_xy| + |H_yy|): the polygon is within err of the level set
@@ -406,15 +431,17 @@ def plan_rough(spec, surface, tool: Tool | None = None, *, ws=None, sets=None, t
             fig["pockets"] += 1
             n0 = len(path.level_lines)
             open_ = not P.difference(F.buffer(0.25 * e_out, join_style=2)).is_empty if e_out > 0 else False
+            inset = None
             if rg.strategy == "raster":
                 _raster_pocket(P, z, z_above, s, R, spec, path, enter, link_to, fig, F, open_, simp)
             else:
                 tree = _erosion_tree(P, s, simp)
+                inset = tree.inset         # P eroded and simplified: its loops' region too
                 if open_:
                     _cut_outside_in(tree, P, z, z_above, path, enter, link_to, fig, F, R, e_out)
                 else:
                     _cut_inside_out(tree, P, z, z_above, path, enter, link_to, fig, R, rg.entry, polylabel, s)
-            done.append((_ring_region(P, simp), path.level_lines[n0:]))
+            done.append((_ring_region(P, simp, inset), path.level_lines[n0:]))
             del path.level_lines[n0:]
         tg = time.process_time()
         above = _Level(z, path.level_lines, tool, outside, tolerance, clr, done, s, simp)

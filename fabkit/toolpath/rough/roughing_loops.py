@@ -57,8 +57,23 @@ class _Path:
         self.kinds.append(kind)
 
     def cut_xy(self, xy, z):
-        for q in xy:
-            self.add((q[0], q[1], z), CUT)
+        P = np.asarray(xy, float)
+        if P.ndim == 2 and len(P) and P.shape[1] >= 2:
+            P = np.column_stack([P[:, 0], P[:, 1], np.full(len(P), float(z))])
+            prev = np.vstack([self.pts[-1] if self.pts else P[0] + 1.0, P[:-1]])
+            close = np.max(np.abs(P - prev), axis=1) < 1e-9
+            if np.isfinite(P).all() and np.isfinite(prev).all() and not close[1:].any():
+                # no point repeats the one before it: :meth:`add` would keep each (the first
+                # unless it repeats the current point)
+                P = P[1:] if close[0] else P
+                self.pts.extend(map(tuple, P.tolist()))
+                self.kinds.extend([CUT] * len(P))
+            else:
+                for q in xy:
+                    self.add((q[0], q[1], z), CUT)
+        else:
+            for q in xy:
+                self.add((q[0], q[1], z), CUT)
         if len(xy) >= 2:
             self.level_lines.append(np.asarray(xy, float))
 
@@ -119,11 +134,12 @@ def _figures(pts, kinds, feed, plunge) -> dict:
 
 
 class _Node:
-    __slots__ = ("poly", "depth", "children", "rings")
+    __slots__ = ("poly", "depth", "children", "rings", "inset")
 
     def __init__(self, poly, depth, simp=0.0):
         self.poly, self.depth, self.children = poly, depth, []
-        self.rings = _rings(poly, simp)
+        self.inset = _inset(poly, simp)
+        self.rings = _rings(poly, simp, self.inset)
 
 
 def _erosion_tree(P, s, simp=0.0):
@@ -142,14 +158,24 @@ def _erosion_tree(P, s, simp=0.0):
     return root
 
 
-def _rings(poly, simp=0.0):
+def _inset(poly, simp=0.0):
+    """The polygon eroded by ``simp`` and simplified within it (Douglas-Peucker, 0.99
+    simp), as a list of polygons (None for ``simp`` <= 0): what :func:`_rings` and
+    :func:`_ring_region` are made of, computed once per polygon."""
+    if simp <= 0:
+        return None
+    return [q.simplify(0.99 * simp, preserve_topology=True)
+            for q in _polys(poly.buffer(-simp, quad_segs=QUAD_SEGS))]
+
+
+def _rings(poly, simp=0.0, inset=None):
     """The loops of a polygon (exterior first). ``simp`` > 0: of the polygon eroded by
     ``simp`` and simplified within it (Douglas-Peucker, 0.99 simp): inside the polygon,
-    at most 2 simp inside its boundary, with far fewer points than the contour's grid."""
+    at most 2 simp inside its boundary, with far fewer points than the contour's grid.
+    ``inset``: :func:`_inset` (poly, simp) when known."""
     if simp > 0:
         out = []
-        for q in _polys(poly.buffer(-simp, quad_segs=QUAD_SEGS)):
-            q = q.simplify(0.99 * simp, preserve_topology=True)
+        for q in (_inset(poly, simp) if inset is None else inset):
             out += [np.asarray(q.exterior.coords)] + [np.asarray(r.coords) for r in q.interiors]
         out = [r for r in out if len(r) >= 4]
         if out:
@@ -159,14 +185,14 @@ def _rings(poly, simp=0.0):
     return [r for r in out if len(r) >= 3]
 
 
-def _ring_region(poly, simp=0.0):
-    """The region the loops of :func:`_rings` (poly, simp) bound: their polygons."""
+def _ring_region(poly, simp=0.0, inset=None):
+    """The region the loops of :func:`_rings` (poly, simp) bound: their polygons.
+    ``inset``: :func:`_inset` (poly, simp) when known."""
     from shapely.ops import unary_union
 
     if simp > 0:
         out = []
-        for q in _polys(poly.buffer(-simp, quad_segs=QUAD_SEGS)):
-            q = q.simplify(0.99 * simp, preserve_topology=True)
+        for q in (_inset(poly, simp) if inset is None else inset):
             if len(q.exterior.coords) >= 4:
                 out.append(q)
         if out:

@@ -42,7 +42,7 @@ def stock_after(rough: Operation) -> np.ndarray:
     bound of the material a cell holds."""
     import cv2
 
-    from ..cut.stock_kernels import window_minmax
+    from ..cut.stock_kernels import window_max
 
     sets = rough.sets
     ny, nx = len(sets.y), len(sets.x)
@@ -57,8 +57,8 @@ def stock_after(rough: Operation) -> np.ndarray:
             cv2.fillPoly(mask, rings[:1], 1, lineType=cv2.LINE_8, shift=shift)
             if len(rings) > 1:
                 cv2.fillPoly(mask, rings[1:], 0, lineType=cv2.LINE_8, shift=shift)
-        S = np.where(mask.astype(bool), np.minimum(S, lev.z), S)
-    return window_minmax(S, (3, 3))[1]
+        np.minimum(S, lev.z, out=S, where=mask.astype(bool))
+    return window_max(S, (3, 3))
 
 
 def drop_on_grid(S, x, y, X, Y, tool: Tool, slack: float = 0.0) -> np.ndarray:
@@ -76,9 +76,9 @@ def drop_on_grid(S, x, y, X, Y, tool: Tool, slack: float = 0.0) -> np.ndarray:
     R = tool.radius
     k = int(R / DROP_CELLS_PER_R / max(hx, hy))
     if k >= 2:
-        from ..cut.stock_kernels import window_minmax
+        from ..cut.stock_kernels import window_max
 
-        Sp = window_minmax(S, (2 * k + 1, 2 * k + 1))[1][::k, ::k]
+        Sp = window_max(S, (2 * k + 1, 2 * k + 1))[::k, ::k]
         return drop_on_grid(Sp, x[::k], y[::k], X, Y, tool, slack + math.hypot(hx, hy))
     diag = math.hypot(hx, hy) + slack
     ni, nj = int(math.ceil((R + diag) / hy)), int(math.ceil((R + diag) / hx))
@@ -133,11 +133,44 @@ def drop_on_levels(rough: Operation, ws, X, Y, tool: Tool, need=None) -> np.ndar
                 continue
             shapely.prepare(U)
             d = np.full(len(pts), np.inf)
-            d[sel] = shapely.distance(pts[sel], U)
+            d[sel] = _distance_near(U, X[sel], Y[sel], tool.radius + WITHIN_MARGIN)
             with np.errstate(invalid="ignore"):
                 term = z_prev - tool.lift(np.minimum(d, 1e9))
             out = np.maximum(out, np.where(np.isfinite(term), term, -np.inf))
         z_prev = lev.z
+    return out
+
+
+#: :func:`_distance_near`'s margin beyond the tool's radius (mm): a point this little
+#: farther has its distance too (its term is -inf either way)
+WITHIN_MARGIN = 1e-6
+
+
+def _distance_near(U, X, Y, cap: float) -> np.ndarray:
+    """shapely.distance of the points (X, Y) to the polygon(s) U, to the bit, where it is
+    at most ``cap``; +inf beyond (the drop's term is -inf there either way): 0 inside or
+    on U, else the nearest edge's distance by the compiled kernel (GEOS's point-to-segment
+    distance over the edges near the point, :mod:`~fabkit.toolpath.rough.distance_kernels`)."""
+    import shapely
+
+    from .distance_kernels import edge_distance
+
+    X = np.ascontiguousarray(X, dtype=float)
+    Y = np.ascontiguousarray(Y, dtype=float)
+    A, B = [], []
+    for poly in _polys(U):
+        for ring in (poly.exterior, *poly.interiors):
+            c = np.asarray(ring.coords)[:, :2]
+            if len(c) >= 2:
+                A.append(c[:-1])
+                B.append(c[1:])
+    out = np.empty(X.size)
+    if not X.size:
+        return out
+    A = np.ascontiguousarray(np.concatenate(A) if A else np.empty((0, 2)))
+    B = np.ascontiguousarray(np.concatenate(B) if B else np.empty((0, 2)))
+    edge_distance(X, Y, A, B, float(cap), out)
+    out[shapely.intersects_xy(U, X, Y)] = 0.0
     return out
 
 
@@ -415,13 +448,13 @@ def _tool_on_design(rough: Operation, X, Y, tool: Tool) -> np.ndarray:
     (an upper bound of the design over its cell), so an upper bound of the exact drop: the
     tool never enters the allowance; it stands at most the slope x a cell's diagonal + 2 e
     higher than it could."""
-    from ..cut.stock_kernels import window_minmax
+    from ..cut.stock_kernels import window_max
 
     sets = rough.sets
     key = "_design_upper"
     S = getattr(sets, key, None)
     if S is None:
-        S = window_minmax(np.minimum(sets.H, 0.0), (3, 3))[1] + sets.err
+        S = window_max(np.minimum(sets.H, 0.0), (3, 3)) + sets.err
         setattr(sets, key, S)
     return drop_on_grid(S, sets.x, sets.y, X, Y, tool)
 
