@@ -771,6 +771,63 @@ def _tables(R, rings, angles):
     return out           # (writeable: the kernel's one compiled signature takes writeable arrays)
 
 
+#: more Newton starts per position from the samples with the highest tangent-plane drop (i')
+WALL_STARTS = 2
+#: points of the disk's rim scored with them of the disk's rim scored with them (a wall steeper than the outer ring's
+#: slope whose foot cuts a cap off the disk beyond every sample)
+RIM_POINTS = 36
+
+
+@functools.lru_cache(maxsize=8)
+def _rim(R: float) -> np.ndarray:
+    ph = 2 * np.pi * np.arange(RIM_POINTS) / RIM_POINTS
+    out = np.column_stack([R * np.cos(ph), R * np.sin(ph)])
+    out.flags.writeable = False
+    return out
+
+
+def _wall_scores(ws, tx, ty, R, PX, PY, inF, HS):
+    """T(s): the tip's F on the plane tangent to the surface at each point below the
+    top face (-inf elsewhere), and the start of Newton it gives: the plane's own contact
+    point c + R g / sqrt(1 + |g|^2)."""
+    H, gx, gy = ws.all(PX, PY)[:3]
+    m = np.sqrt(1.0 + gx * gx + gy * gy)
+    T = H + gx * (tx[:, None] - PX) + gy * (ty[:, None] - PY) + R * m
+    ok = inF & (HS < 0) & np.isfinite(T)
+    return np.where(ok, T, -np.inf), tx[:, None] + R * gx / m, ty[:, None] + R * gy / m
+
+
+def _wall_starts(ws, tx, ty, R, PX, PY, inF, HS, order, best, bridged, converged, todo, iters):
+    """(i'): Newton from the WALL_STARTS points (samples not already starts, and the
+    rim's points) of highest T(s) where T(s) exceeds the best value so far, started at
+    the tangent plane's contact point; a point found replaces the best only when
+    higher by more than SEED_MARGIN (then the contact problem has two maxima: bridged)."""
+    T, SX, SY = _wall_scores(ws, tx, ty, R, PX, PY, inF, HS)
+    np.put_along_axis(T, order, -np.inf, axis=1)            # the best-F starts ran already
+    rim = _rim(R)
+    RX, RY = tx[:, None] + rim[:, 0], ty[:, None] + rim[:, 1]
+    rin = ws.inside(RX, RY)
+    Tr, SXr, SYr = _wall_scores(ws, tx, ty, R, RX, RY, rin, np.where(rin, ws.H(RX, RY), np.nan))
+    T, SX, SY = np.hstack([T, Tr]), np.hstack([SX, SXr]), np.hstack([SY, SYr])
+    vb = best.val[todo]
+    r = np.arange(T.shape[0])
+    for _ in range(WALL_STARTS):
+        j = np.argmax(T, axis=1)
+        tj = T[r, j]
+        go = np.nonzero(tj > vb + SEED_MARGIN)[0]
+        T[r, j] = -np.inf
+        if go.size == 0:
+            break
+        x, y, conv = _newton_interior(ws, tx[go], ty[go], R, SX[go, j[go]], SY[go, j[go]],
+                                      iters + 8)
+        v = _value(ws, tx[go], ty[go], R, x, y)
+        up = v > best.val[todo[go]] + SEED_MARGIN
+        g = go[up]
+        best.offer(todo[g], v[up], x[up], y[up], INTERIOR)
+        bridged[todo[g]] = True
+        converged[todo[g]] |= conv[up]
+
+
 def _candidates(ws, cx, cy, R, rings, angles, starts, iters):
     """Candidates (i)-(iv) over all positions in numpy: (best, bridged, converged, todo)."""
     n = cx.size
@@ -820,6 +877,18 @@ def _candidates(ws, cx, cy, R, rings, angles, starts, iters):
             fy = np.where(lm2 & (qx == fx[:, None]), qy, np.inf).min(axis=1)
             far = lm2 & (np.hypot(qx - fx[:, None], qy - fy[:, None]) > 1e-4 * R)
             bridged[todo[far.any(axis=1)]] = True
+
+        # (i') a wall rising into the disk: more starts, from the samples whose tangent plane
+        # holds the ball highest. Where the disk holds a floor and the foot of a steep wall,
+        # the floor's samples have the best F while the wall's contact (a thin band at the
+        # disk's rim, or between the rings) is higher still; the best-F starts all climb to
+        # the floor's maximum (a ball of 6 mm beside a wall of slope 15: the tip 0.34 mm low;
+        # a 4 mm ball in the concave foot of a slope-5 step: 0.036 mm low). The drop on the
+        # plane tangent at s, T(s) = H(s) + grad H(s) . (c - s) + R sqrt(1 + |grad H(s)|^2),
+        # is exact for a plane; samples with T above the best value so far start Newton, and
+        # what they find replaces the best only when higher by more than SEED_MARGIN (elsewhere
+        # the heights are unchanged to the bit)
+        _wall_starts(ws, tx, ty, R, PX, PY, inF, HS, order, best, bridged, converged, todo, iters)
 
         # (ii) crease: seeds = the nearest top-region sample in each quadrant around c
         # and the best sample. One seed is not enough where the crease itself has a kink

@@ -42,6 +42,8 @@ RIDGE_ITERS = 34
 KINK_ITERS = 24
 XTOL = 1e-10
 SEED_MARGIN = 1e-9      # compensate.SEED_MARGIN
+WALL_STARTS = 2         # compensate.WALL_STARTS
+NRIM = 36               # compensate.RIM_POINTS
 BIG = 1.7976931348623157e308
 
 
@@ -632,6 +634,15 @@ def drop_batch(CX, CY, R, G, P, OFFX, OFFY, SQ, R2, QUAD, U, EOFF, starts, iters
     WF = np.empty((8, U.size + EOFF.size))
     WB = np.empty(U.size + EOFF.size, dtype=np.bool_)
     XD = np.empty(K)
+    TS = np.empty(K + NRIM)
+    SXS = np.empty(K + NRIM)
+    SYS = np.empty(K + NRIM)
+    RIMX = np.empty(NRIM)
+    RIMY = np.empty(NRIM)
+    for m_ in range(NRIM):
+        ph_ = 2 * np.pi * m_ / NRIM
+        RIMX[m_] = R * math.cos(ph_)
+        RIMY[m_] = R * math.sin(ph_)
     YD = np.empty(K)
     s = G[0]
     x0 = G[1]
@@ -699,7 +710,6 @@ def drop_batch(CX, CY, R, G, P, OFFX, OFFY, SQ, R2, QUAD, U, EOFF, starts, iters
             if cv and _fin(v):
                 conv_any = True
             _offer(i, v, x, y, K_INTERIOR, VAL, PX, PY, KIND)
-        CONV[i] = conv_any
         fx = math.inf
         for r in range(k):
             if lmk[r] and qx[r] < fx:
@@ -711,6 +721,47 @@ def drop_batch(CX, CY, R, G, P, OFFX, OFFY, SQ, R2, QUAD, U, EOFF, starts, iters
         for r in range(k):
             if lmk[r] and math.hypot(qx[r] - fx, qy[r] - fy) > 1e-4 * R:
                 BRIDGED[i] = True
+        # (i') a wall rising into the disk (compensate._wall_starts): Newton from the
+        # WALL_STARTS points (samples not already starts, the rim's points) of highest
+        # tangent-plane drop T above the best so far, started at the plane's contact point
+        for j in range(K + NRIM):
+            TS[j] = -math.inf
+            if j < K:
+                ok = INF[j] and HS[j] < 0
+                ux = cx + OFFX[j]
+                uy = cy + OFFY[j]
+            else:
+                ux = cx + RIMX[j - K]
+                uy = cy + RIMY[j - K]
+                ok = _inside(ux, uy, G)
+            if ok:
+                H0, gx0, gy0, _a, _b, _c = _all(ux, uy, G, P)
+                m = math.sqrt(1.0 + gx0 * gx0 + gy0 * gy0)
+                t = H0 + gx0 * (cx - ux) + gy0 * (cy - uy) + R * m
+                if H0 < 0 and _fin(t):
+                    TS[j] = t
+                    SXS[j] = cx + R * gx0 / m
+                    SYS[j] = cy + R * gy0 / m
+        for r in range(k):
+            TS[order[r]] = -math.inf
+        vb = VAL[i]
+        for r in range(WALL_STARTS):
+            bj = 0
+            for j in range(1, K + NRIM):
+                if TS[j] > TS[bj]:
+                    bj = j
+            tj = TS[bj]
+            TS[bj] = -math.inf
+            if not (tj > vb + SEED_MARGIN):
+                break
+            x, y, cv = _newton_interior(cx, cy, R, SXS[bj], SYS[bj], iters + 8, G, P)
+            v, _h = _value(cx, cy, R, x, y, G, P)
+            if v > VAL[i] + SEED_MARGIN:
+                _offer(i, v, x, y, K_INTERIOR, VAL, PX, PY, KIND)
+                BRIDGED[i] = True
+                if cv:
+                    conv_any = True
+        CONV[i] = conv_any
         # (ii) crease: the nearest top-region sample in each quadrant, and the best sample
         has_top = False
         hmax = -math.inf
