@@ -693,9 +693,10 @@ def _compensate(surface, X, Y, R, return_info, rings, angles, starts, iters):
         G = np.array([ws.s, ws.x0, ws.y0, ws.top, ws.L, ws.W], dtype=float)
         _entry(kern)(cx, cy, R, G, kern.P, *tab[:7], int(starts), int(iters), best.val, best.px,
                      best.py, best.kind, bridged, converged, tab[7])
-        todo = np.zeros(0, dtype=np.intp)          # (v) is done too
+        todo = np.zeros(0, dtype=np.intp)          # (v) and (i')'s offer are done too
+        walls = None
     else:
-        best, bridged, converged, todo = _candidates(ws, cx, cy, R, rings, angles, starts, iters)
+        best, bridged, converged, todo, walls = _candidates(ws, cx, cy, R, rings, angles, starts, iters)
 
     # (v) a ridge: where no start converged to a strict maximum and the best point is
     # neither on the crease nor the top (the crease is a convex kink too, with its own
@@ -716,6 +717,9 @@ def _compensate(surface, X, Y, R, return_info, rings, angles, starts, iters):
             g = todo[stuck]
             v, qx, qy = _ridge(ws, cx[g], cy[g], R, best.px[g], best.py[g])
             best.offer(g, v, qx, qy, RIDGE)
+    # (i')'s points, last: only where higher than every other candidate
+    if walls is not None:
+        _offer_walls(best, bridged, *walls)
 
     Z = (best.val - R).reshape(shape)
     if not return_info:
@@ -797,11 +801,12 @@ def _wall_scores(ws, tx, ty, R, PX, PY, inF, HS):
     return np.where(ok, T, -np.inf), tx[:, None] + R * gx / m, ty[:, None] + R * gy / m
 
 
-def _wall_starts(ws, tx, ty, R, PX, PY, inF, HS, order, best, bridged, converged, todo, iters):
+def _wall_starts(ws, tx, ty, R, PX, PY, inF, HS, order, vb, iters):
     """(i'): Newton from the WALL_STARTS points (samples not already starts, and the
-    rim's points) of highest T(s) where T(s) exceeds the best value so far, started at
-    the tangent plane's contact point; a point found replaces the best only when
-    higher by more than SEED_MARGIN (then the contact problem has two maxima: bridged)."""
+    rim's points) of highest T(s) where T(s) exceeds ``vb`` (the best value after (i)),
+    started at the tangent plane's contact point. Returns (rows, value, x, y): the
+    best point found per row of the samples (rows into tx); :func:`_offer_walls` offers
+    them once every other candidate is in."""
     T, SX, SY = _wall_scores(ws, tx, ty, R, PX, PY, inF, HS)
     np.put_along_axis(T, order, -np.inf, axis=1)            # the best-F starts ran already
     rim = _rim(R)
@@ -809,8 +814,9 @@ def _wall_starts(ws, tx, ty, R, PX, PY, inF, HS, order, best, bridged, converged
     rin = ws.inside(RX, RY)
     Tr, SXr, SYr = _wall_scores(ws, tx, ty, R, RX, RY, rin, np.where(rin, ws.H(RX, RY), np.nan))
     T, SX, SY = np.hstack([T, Tr]), np.hstack([SX, SXr]), np.hstack([SY, SYr])
-    vb = best.val[todo]
-    r = np.arange(T.shape[0])
+    n = T.shape[0]
+    r = np.arange(n)
+    wv, wx, wy = np.full(n, -np.inf), np.full(n, np.nan), np.full(n, np.nan)
     for _ in range(WALL_STARTS):
         j = np.argmax(T, axis=1)
         tj = T[r, j]
@@ -818,14 +824,22 @@ def _wall_starts(ws, tx, ty, R, PX, PY, inF, HS, order, best, bridged, converged
         T[r, j] = -np.inf
         if go.size == 0:
             break
-        x, y, conv = _newton_interior(ws, tx[go], ty[go], R, SX[go, j[go]], SY[go, j[go]],
-                                      iters + 8)
+        x, y, _ = _newton_interior(ws, tx[go], ty[go], R, SX[go, j[go]], SY[go, j[go]], iters + 8)
         v = _value(ws, tx[go], ty[go], R, x, y)
-        up = v > best.val[todo[go]] + SEED_MARGIN
+        up = v > wv[go]
         g = go[up]
-        best.offer(todo[g], v[up], x[up], y[up], INTERIOR)
-        bridged[todo[g]] = True
-        converged[todo[g]] |= conv[up]
+        wv[g], wx[g], wy[g] = v[up], x[up], y[up]
+    k = np.nonzero(np.isfinite(wv))[0]
+    return k, wv[k], wx[k], wy[k]
+
+
+def _offer_walls(best, bridged, idx, v, x, y):
+    """The points of (i') where higher than every other candidate by more than SEED_MARGIN
+    (elsewhere the heights are unchanged to the bit); then the contact problem has two
+    maxima (bridged)."""
+    up = v > best.val[idx] + SEED_MARGIN
+    best.offer(idx[up], v[up], x[up], y[up], INTERIOR)
+    bridged[idx[up]] = True
 
 
 def _candidates(ws, cx, cy, R, rings, angles, starts, iters):
@@ -834,6 +848,7 @@ def _candidates(ws, cx, cy, R, rings, angles, starts, iters):
     best = _Best(n)
     bridged = np.zeros(n, dtype=bool)
     converged = np.zeros(n, dtype=bool)
+    walls = None
 
     # (ii) c on the top face: nothing can be higher
     Hc = ws.H(cx, cy)
@@ -888,7 +903,8 @@ def _candidates(ws, cx, cy, R, rings, angles, starts, iters):
         # is exact for a plane; samples with T above the best value so far start Newton, and
         # what they find replaces the best only when higher by more than SEED_MARGIN (elsewhere
         # the heights are unchanged to the bit)
-        _wall_starts(ws, tx, ty, R, PX, PY, inF, HS, order, best, bridged, converged, todo, iters)
+        wk, wv, wx, wy = _wall_starts(ws, tx, ty, R, PX, PY, inF, HS, order, best.val[todo], iters)
+        walls = (todo[wk], wv, wx, wy)
 
         # (ii) crease: seeds = the nearest top-region sample in each quadrant around c
         # and the best sample. One seed is not enough where the crease itself has a kink
@@ -954,4 +970,4 @@ def _candidates(ws, cx, cy, R, rings, angles, starts, iters):
     ei = np.nonzero(edge)[0]
     if ei.size:
         _edges(ws, cx[ei], cy[ei], R, best, ei, nsamp=17, iters=iters)
-    return best, bridged, converged, todo
+    return best, bridged, converged, todo, walls

@@ -635,6 +635,9 @@ def drop_batch(CX, CY, R, G, P, OFFX, OFFY, SQ, R2, QUAD, U, EOFF, starts, iters
     WB = np.empty(U.size + EOFF.size, dtype=np.bool_)
     XD = np.empty(K)
     TS = np.empty(K + NRIM)
+    WV = np.empty(CX.size)      # (i')'s best point per position, offered last
+    WX = np.empty(CX.size)
+    WY = np.empty(CX.size)
     SXS = np.empty(K + NRIM)
     SYS = np.empty(K + NRIM)
     RIMX = np.empty(NRIM)
@@ -660,6 +663,9 @@ def drop_batch(CX, CY, R, G, P, OFFX, OFFY, SQ, R2, QUAD, U, EOFF, starts, iters
         KIND[i] = K_NONE
         BRIDGED[i] = False
         CONV[i] = True
+        WV[i] = -math.inf
+        WX[i] = math.nan
+        WY[i] = math.nan
         Hc = _H(cx, cy, G, P)
         ontop = _inside(cx, cy, G) and Hc >= 0
         if ontop:
@@ -756,11 +762,10 @@ def drop_batch(CX, CY, R, G, P, OFFX, OFFY, SQ, R2, QUAD, U, EOFF, starts, iters
                 break
             x, y, cv = _newton_interior(cx, cy, R, SXS[bj], SYS[bj], iters + 8, G, P)
             v, _h = _value(cx, cy, R, x, y, G, P)
-            if v > VAL[i] + SEED_MARGIN:
-                _offer(i, v, x, y, K_INTERIOR, VAL, PX, PY, KIND)
-                BRIDGED[i] = True
-                if cv:
-                    conv_any = True
+            if v > WV[i]:
+                WV[i] = v
+                WX[i] = x
+                WY[i] = y
         CONV[i] = conv_any
         # (ii) crease: the nearest top-region sample in each quadrant, and the best sample
         has_top = False
@@ -842,6 +847,11 @@ def drop_batch(CX, CY, R, G, P, OFFX, OFFY, SQ, R2, QUAD, U, EOFF, starts, iters
         if stuck:
             v, x, y = _ridge(CX[i], CY[i], R, PX[i], PY[i], G, P, V5)
             _offer(i, v, x, y, K_RIDGE, VAL, PX, PY, KIND)
+    # (i')'s points, last: only where higher than every other candidate by SEED_MARGIN
+    for i in range(CX.size):
+        if KIND[i] != K_TOP and WV[i] > VAL[i] + SEED_MARGIN:
+            _offer(i, WV[i], WX[i], WY[i], K_INTERIOR, VAL, PX, PY, KIND)
+            BRIDGED[i] = True
 
 
 # ----------------------------------------------------------------------------
