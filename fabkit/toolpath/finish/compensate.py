@@ -777,6 +777,8 @@ def _tables(R, rings, angles):
 
 #: more Newton starts per position from the samples with the highest tangent-plane drop (i')
 WALL_STARTS = 2
+#: ... scored where their own F is within this many R of the best after (i)
+WALL_GATE = 0.25
 #: points of the disk's rim scored with them of the disk's rim scored with them (a wall steeper than the outer ring's
 #: slope whose foot cuts a cap off the disk beyond every sample)
 RIM_POINTS = 36
@@ -790,29 +792,37 @@ def _rim(R: float) -> np.ndarray:
     return out
 
 
-def _wall_scores(ws, tx, ty, R, PX, PY, inF, HS):
-    """T(s): the tip's F on the plane tangent to the surface at each point below the
-    top face (-inf elsewhere), and the start of Newton it gives: the plane's own contact
-    point c + R g / sqrt(1 + |g|^2)."""
-    H, gx, gy = ws.all(PX, PY)[:3]
-    m = np.sqrt(1.0 + gx * gx + gy * gy)
-    T = H + gx * (tx[:, None] - PX) + gy * (ty[:, None] - PY) + R * m
-    ok = inF & (HS < 0) & np.isfinite(T)
-    return np.where(ok, T, -np.inf), tx[:, None] + R * gx / m, ty[:, None] + R * gy / m
+def _wall_scores(ws, tx, ty, R, PX, PY, F, vb):
+    """T(s): the tip's F on the plane tangent to the surface at each point whose own
+    F is within WALL_GATE R of ``vb`` (-inf elsewhere: no point of the disk near it rises
+    above the best unless the surface there turns up by that much), and the start of
+    Newton it gives: the plane's own contact point c + R g / sqrt(1 + |g|^2)."""
+    T = np.full(PX.shape, -np.inf)
+    SX, SY = np.full(PX.shape, np.nan), np.full(PX.shape, np.nan)
+    ok = F > (vb - WALL_GATE * R)[:, None]
+    if ok.any():
+        px, py = PX[ok], PY[ok]
+        cx, cy = np.broadcast_to(tx[:, None], PX.shape)[ok], np.broadcast_to(ty[:, None], PX.shape)[ok]
+        H, gx, gy = ws.all(px, py)[:3]
+        m = np.sqrt(1.0 + gx * gx + gy * gy)
+        t = H + gx * (cx - px) + gy * (cy - py) + R * m
+        T[ok] = np.where((H < 0) & np.isfinite(t), t, -np.inf)
+        SX[ok], SY[ok] = cx + R * gx / m, cy + R * gy / m
+    return T, SX, SY
 
 
-def _wall_starts(ws, tx, ty, R, PX, PY, inF, HS, order, vb, iters):
+def _wall_starts(ws, tx, ty, R, PX, PY, FS, order, vb, iters):
     """(i'): Newton from the WALL_STARTS points (samples not already starts, and the
     rim's points) of highest T(s) where T(s) exceeds ``vb`` (the best value after (i)),
     started at the tangent plane's contact point. Returns (rows, value, x, y): the
     best point found per row of the samples (rows into tx); :func:`_offer_walls` offers
     them once every other candidate is in."""
-    T, SX, SY = _wall_scores(ws, tx, ty, R, PX, PY, inF, HS)
+    T, SX, SY = _wall_scores(ws, tx, ty, R, PX, PY, FS, vb)
     np.put_along_axis(T, order, -np.inf, axis=1)            # the best-F starts ran already
     rim = _rim(R)
     RX, RY = tx[:, None] + rim[:, 0], ty[:, None] + rim[:, 1]
-    rin = ws.inside(RX, RY)
-    Tr, SXr, SYr = _wall_scores(ws, tx, ty, R, RX, RY, rin, np.where(rin, ws.H(RX, RY), np.nan))
+    FR = np.where(ws.inside(RX, RY), np.minimum(ws.H(RX, RY), 0.0), -np.inf)    # sqrt(R^2 - R^2) = 0
+    Tr, SXr, SYr = _wall_scores(ws, tx, ty, R, RX, RY, FR, vb)
     T, SX, SY = np.hstack([T, Tr]), np.hstack([SX, SXr]), np.hstack([SY, SYr])
     n = T.shape[0]
     r = np.arange(n)
@@ -903,7 +913,7 @@ def _candidates(ws, cx, cy, R, rings, angles, starts, iters):
         # is exact for a plane; samples with T above the best value so far start Newton, and
         # what they find replaces the best only when higher by more than SEED_MARGIN (elsewhere
         # the heights are unchanged to the bit)
-        wk, wv, wx, wy = _wall_starts(ws, tx, ty, R, PX, PY, inF, HS, order, best.val[todo], iters)
+        wk, wv, wx, wy = _wall_starts(ws, tx, ty, R, PX, PY, FS, order, best.val[todo], iters)
         walls = (todo[wk], wv, wx, wy)
 
         # (ii) crease: seeds = the nearest top-region sample in each quadrant around c

@@ -44,6 +44,7 @@ XTOL = 1e-10
 SEED_MARGIN = 1e-9      # compensate.SEED_MARGIN
 WALL_STARTS = 2         # compensate.WALL_STARTS
 NRIM = 36               # compensate.RIM_POINTS
+WALL_GATE = 0.25        # compensate.WALL_GATE
 BIG = 1.7976931348623157e308
 
 
@@ -641,6 +642,10 @@ def drop_batch(CX, CY, R, G, P, OFFX, OFFY, SQ, R2, QUAD, U, EOFF, starts, iters
     SXS = np.empty(K + NRIM)
     SYS = np.empty(K + NRIM)
     RIMX = np.empty(NRIM)
+    RIN = np.empty(NRIM, dtype=np.bool_)
+    XR = np.empty(NRIM)
+    YR = np.empty(NRIM)
+    HR = np.empty(NRIM)
     RIMY = np.empty(NRIM)
     for m_ in range(NRIM):
         ph_ = 2 * np.pi * m_ / NRIM
@@ -730,17 +735,26 @@ def drop_batch(CX, CY, R, G, P, OFFX, OFFY, SQ, R2, QUAD, U, EOFF, starts, iters
         # (i') a wall rising into the disk (compensate._wall_starts): Newton from the
         # WALL_STARTS points (samples not already starts, the rim's points) of highest
         # tangent-plane drop T above the best so far, started at the plane's contact point
+        # the rim's F (= min(H, 0)): its heights in one call, as the samples'
+        for m_ in range(NRIM):
+            x = cx + RIMX[m_]
+            y = cy + RIMY[m_]
+            RIN[m_] = (x >= 0.0) & (x <= L) & (y >= 0.0) & (y <= W)
+            XR[m_] = x / s + x0
+            YR[m_] = y / s + y0
+        P[3](NRIM, XR.ctypes, YR.ctypes, HR.ctypes, Pa)
+        gate = VAL[i] - WALL_GATE * R
         for j in range(K + NRIM):
             TS[j] = -math.inf
             if j < K:
-                ok = INF[j] and HS[j] < 0
+                fj = FS[j]
                 ux = cx + OFFX[j]
                 uy = cy + OFFY[j]
             else:
+                fj = _fmin(s * (HR[j - K] - top), 0.0) if RIN[j - K] else -math.inf
                 ux = cx + RIMX[j - K]
                 uy = cy + RIMY[j - K]
-                ok = _inside(ux, uy, G)
-            if ok:
+            if fj > gate:
                 H0, gx0, gy0, _a, _b, _c = _all(ux, uy, G, P)
                 m = math.sqrt(1.0 + gx0 * gx0 + gy0 * gy0)
                 t = H0 + gx0 * (cx - ux) + gy0 * (cy - uy) + R * m
