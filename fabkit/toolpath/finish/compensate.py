@@ -779,6 +779,8 @@ def _tables(R, rings, angles):
 WALL_STARTS = 2
 #: ... scored where their own F is within this many R of the best after (i)
 WALL_GATE = 0.25
+#: ... and started only where the plane's contact point is this many R from the best point
+WALL_NEAR = 0.0625
 #: points of the disk's rim scored with them of the disk's rim scored with them (a wall steeper than the outer ring's
 #: slope whose foot cuts a cap off the disk beyond every sample)
 RIM_POINTS = 36
@@ -811,7 +813,7 @@ def _wall_scores(ws, tx, ty, R, PX, PY, F, vb):
     return T, SX, SY
 
 
-def _wall_starts(ws, tx, ty, R, PX, PY, FS, order, vb, iters):
+def _wall_starts(ws, tx, ty, R, PX, PY, FS, order, vb, bx, by, iters):
     """(i'): Newton from the WALL_STARTS points (samples not already starts, and the
     rim's points) of highest T(s) where T(s) exceeds ``vb`` (the best value after (i)),
     started at the tangent plane's contact point. Returns (rows, value, x, y): the
@@ -830,7 +832,9 @@ def _wall_starts(ws, tx, ty, R, PX, PY, FS, order, vb, iters):
     for _ in range(WALL_STARTS):
         j = np.argmax(T, axis=1)
         tj = T[r, j]
-        go = np.nonzero(tj > vb + SEED_MARGIN)[0]
+        # (a start on the best point's own slope climbs back to it: not run)
+        near = np.hypot(SX[r, j] - bx, SY[r, j] - by) < WALL_NEAR * R
+        go = np.nonzero((tj > vb + SEED_MARGIN) & ~near)[0]
         T[r, j] = -np.inf
         if go.size == 0:
             break
@@ -913,7 +917,8 @@ def _candidates(ws, cx, cy, R, rings, angles, starts, iters):
         # is exact for a plane; samples with T above the best value so far start Newton, and
         # what they find replaces the best only when higher by more than SEED_MARGIN (elsewhere
         # the heights are unchanged to the bit)
-        wk, wv, wx, wy = _wall_starts(ws, tx, ty, R, PX, PY, FS, order, best.val[todo], iters)
+        wk, wv, wx, wy = _wall_starts(ws, tx, ty, R, PX, PY, FS, order, best.val[todo], best.px[todo],
+                                      best.py[todo], iters)
         walls = (todo[wk], wv, wx, wy)
 
         # (ii) crease: seeds = the nearest top-region sample in each quadrant around c

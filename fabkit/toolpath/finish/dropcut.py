@@ -45,6 +45,7 @@ SEED_MARGIN = 1e-9      # compensate.SEED_MARGIN
 WALL_STARTS = 2         # compensate.WALL_STARTS
 NRIM = 36               # compensate.RIM_POINTS
 WALL_GATE = 0.25        # compensate.WALL_GATE
+WALL_NEAR = 0.0625      # compensate.WALL_NEAR
 BIG = 1.7976931348623157e308
 
 
@@ -765,6 +766,8 @@ def drop_batch(CX, CY, R, G, P, OFFX, OFFY, SQ, R2, QUAD, U, EOFF, starts, iters
         for r in range(k):
             TS[order[r]] = -math.inf
         vb = VAL[i]
+        bpx = PX[i]
+        bpy = PY[i]
         for r in range(WALL_STARTS):
             bj = 0
             for j in range(1, K + NRIM):
@@ -774,6 +777,8 @@ def drop_batch(CX, CY, R, G, P, OFFX, OFFY, SQ, R2, QUAD, U, EOFF, starts, iters
             TS[bj] = -math.inf
             if not (tj > vb + SEED_MARGIN):
                 break
+            if math.hypot(SXS[bj] - bpx, SYS[bj] - bpy) < WALL_NEAR * R:
+                continue        # on the best point's own slope: it climbs back to it
             x, y, cv = _newton_interior(cx, cy, R, SXS[bj], SYS[bj], iters + 8, G, P)
             v, _h = _value(cx, cy, R, x, y, G, P)
             if v > WV[i]:
