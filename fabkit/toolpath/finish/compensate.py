@@ -15,6 +15,9 @@ largest is the maximum once the true maximiser is among them):
       solved by Newton with the exact Hessian, started from the best points of a
       small polar sample of the disk (several starts: concave regions tighter than
       the tool have several local maxima);
+(i')  the same from the samples and points of the disk's rim whose tangent plane holds
+      the ball highest (a wall's foot beside a floor: the floor's samples are the best,
+      the wall's contact lies between the rings or beyond them; see _wall_starts);
 (ii)  the flat top (H >= 0): value sqrt(R^2 - dmin^2), dmin = distance from c to the
       top region: 0 if c is in it, else the nearest point of the crease H = 0
       (Lagrange conditions p - c = lambda grad H, H = 0, solved by Newton from several
