@@ -636,22 +636,12 @@ def drop_batch(CX, CY, R, G, P, OFFX, OFFY, SQ, R2, QUAD, U, EOFF, starts, iters
     WF = np.empty((8, U.size + EOFF.size))
     WB = np.empty(U.size + EOFF.size, dtype=np.bool_)
     XD = np.empty(K)
-    TS = np.empty(K + NRIM)
-    WV = np.empty(CX.size)      # (i')'s best point per position, offered last
-    WX = np.empty(CX.size)
-    WY = np.empty(CX.size)
-    SXS = np.empty(K + NRIM)
-    SYS = np.empty(K + NRIM)
-    RIMX = np.empty(NRIM)
+    TS, SXS, SYS = np.empty(K + NRIM), np.empty(K + NRIM), np.empty(K + NRIM)
+    WV, WX, WY = np.empty(CX.size), np.empty(CX.size), np.empty(CX.size)   # (i'), offered last
+    RIMX, RIMY, XR, YR, HR = np.empty(NRIM), np.empty(NRIM), np.empty(NRIM), np.empty(NRIM), np.empty(NRIM)
     RIN = np.empty(NRIM, dtype=np.bool_)
-    XR = np.empty(NRIM)
-    YR = np.empty(NRIM)
-    HR = np.empty(NRIM)
-    RIMY = np.empty(NRIM)
     for m_ in range(NRIM):
-        ph_ = 2 * np.pi * m_ / NRIM
-        RIMX[m_] = R * math.cos(ph_)
-        RIMY[m_] = R * math.sin(ph_)
+        RIMX[m_], RIMY[m_] = R * math.cos(2 * np.pi * m_ / NRIM), R * math.sin(2 * np.pi * m_ / NRIM)
     YD = np.empty(K)
     s = G[0]
     x0 = G[1]
@@ -670,8 +660,6 @@ def drop_batch(CX, CY, R, G, P, OFFX, OFFY, SQ, R2, QUAD, U, EOFF, starts, iters
         BRIDGED[i] = False
         CONV[i] = True
         WV[i] = -math.inf
-        WX[i] = math.nan
-        WY[i] = math.nan
         Hc = _H(cx, cy, G, P)
         ontop = _inside(cx, cy, G) and Hc >= 0
         if ontop:
@@ -733,41 +721,29 @@ def drop_batch(CX, CY, R, G, P, OFFX, OFFY, SQ, R2, QUAD, U, EOFF, starts, iters
         for r in range(k):
             if lmk[r] and math.hypot(qx[r] - fx, qy[r] - fy) > 1e-4 * R:
                 BRIDGED[i] = True
-        # (i') a wall rising into the disk (compensate._wall_starts): Newton from the
-        # WALL_STARTS points (samples not already starts, the rim's points) of highest
-        # tangent-plane drop T above the best so far, started at the plane's contact point
-        # the rim's F (= min(H, 0)): its heights in one call, as the samples'
+        # (i') a wall rising into the disk (compensate._wall_starts); the rim's heights in one call
         for m_ in range(NRIM):
-            x = cx + RIMX[m_]
-            y = cy + RIMY[m_]
+            x, y = cx + RIMX[m_], cy + RIMY[m_]
             RIN[m_] = (x >= 0.0) & (x <= L) & (y >= 0.0) & (y <= W)
-            XR[m_] = x / s + x0
-            YR[m_] = y / s + y0
+            XR[m_], YR[m_] = x / s + x0, y / s + y0
         P[3](NRIM, XR.ctypes, YR.ctypes, HR.ctypes, Pa)
         gate = VAL[i] - WALL_GATE * R
         for j in range(K + NRIM):
             TS[j] = -math.inf
             if j < K:
-                fj = FS[j]
-                ux = cx + OFFX[j]
-                uy = cy + OFFY[j]
+                fj, ux, uy = FS[j], cx + OFFX[j], cy + OFFY[j]
             else:
                 fj = _fmin(s * (HR[j - K] - top), 0.0) if RIN[j - K] else -math.inf
-                ux = cx + RIMX[j - K]
-                uy = cy + RIMY[j - K]
+                ux, uy = cx + RIMX[j - K], cy + RIMY[j - K]
             if fj > gate:
                 H0, gx0, gy0, _a, _b, _c = _all(ux, uy, G, P)
                 m = math.sqrt(1.0 + gx0 * gx0 + gy0 * gy0)
                 t = H0 + gx0 * (cx - ux) + gy0 * (cy - uy) + R * m
                 if H0 < 0 and _fin(t):
-                    TS[j] = t
-                    SXS[j] = cx + R * gx0 / m
-                    SYS[j] = cy + R * gy0 / m
+                    TS[j], SXS[j], SYS[j] = t, cx + R * gx0 / m, cy + R * gy0 / m
         for r in range(k):
             TS[order[r]] = -math.inf
-        vb = VAL[i]
-        bpx = PX[i]
-        bpy = PY[i]
+        vb, bpx, bpy = VAL[i], PX[i], PY[i]
         for r in range(WALL_STARTS):
             bj = 0
             for j in range(1, K + NRIM):
@@ -782,9 +758,7 @@ def drop_batch(CX, CY, R, G, P, OFFX, OFFY, SQ, R2, QUAD, U, EOFF, starts, iters
             x, y, cv = _newton_interior(cx, cy, R, SXS[bj], SYS[bj], iters + 8, G, P)
             v, _h = _value(cx, cy, R, x, y, G, P)
             if v > WV[i]:
-                WV[i] = v
-                WX[i] = x
-                WY[i] = y
+                WV[i], WX[i], WY[i] = v, x, y
         CONV[i] = conv_any
         # (ii) crease: the nearest top-region sample in each quadrant, and the best sample
         has_top = False
