@@ -832,16 +832,22 @@ def _wall_starts(ws, tx, ty, R, PX, PY, FS, order, vb, bx, by, iters):
     n = T.shape[0]
     r = np.arange(n)
     wv, wx, wy = np.full(n, -np.inf), np.full(n, np.nan), np.full(n, np.nan)
-    for _ in range(WALL_STARTS):
+    left = np.full(n, WALL_STARTS)
+    while True:
         j = np.argmax(T, axis=1)
         tj = T[r, j]
-        # (a start on the best point's own slope climbs back to it: not run)
-        near = np.hypot(SX[r, j] - bx, SY[r, j] - by) < WALL_NEAR * R
-        go = np.nonzero((tj > vb + SEED_MARGIN) & ~near)[0]
-        T[r, j] = -np.inf
-        if go.size == 0:
+        live = np.nonzero((left > 0) & (tj > vb + SEED_MARGIN))[0]
+        if live.size == 0:
             break
-        x, y, _ = _newton_interior(ws, tx[go], ty[go], R, SX[go, j[go]], SY[go, j[go]], iters + 8)
+        jl = j[live]
+        T[live, jl] = -np.inf
+        # a start on the best point's own slope climbs back to it: not run, nor counted
+        far = np.hypot(SX[live, jl] - bx[live], SY[live, jl] - by[live]) >= WALL_NEAR * R
+        go, jg = live[far], jl[far]
+        if go.size == 0:
+            continue
+        left[go] -= 1
+        x, y, _ = _newton_interior(ws, tx[go], ty[go], R, SX[go, jg], SY[go, jg], iters + 8)
         v = _value(ws, tx[go], ty[go], R, x, y)
         up = v > wv[go]
         g = go[up]

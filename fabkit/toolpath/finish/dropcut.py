@@ -744,7 +744,8 @@ def drop_batch(CX, CY, R, G, P, OFFX, OFFY, SQ, R2, QUAD, U, EOFF, starts, iters
         for r in range(k):
             TS[order[r]] = -math.inf
         vb, bpx, bpy = VAL[i], PX[i], PY[i]
-        for r in range(WALL_STARTS):
+        r = 0
+        while r < WALL_STARTS:
             bj = 0
             for j in range(1, K + NRIM):
                 if TS[j] > TS[bj]:
@@ -754,7 +755,8 @@ def drop_batch(CX, CY, R, G, P, OFFX, OFFY, SQ, R2, QUAD, U, EOFF, starts, iters
             if not (tj > vb + SEED_MARGIN):
                 break
             if math.hypot(SXS[bj] - bpx, SYS[bj] - bpy) < WALL_NEAR * R:
-                continue        # on the best point's own slope: it climbs back to it
+                continue        # on the best point's own slope: it climbs back to it (not counted)
+            r += 1
             x, y, cv = _newton_interior(cx, cy, R, SXS[bj], SYS[bj], iters + 8, G, P)
             v, _h = _value(cx, cy, R, x, y, G, P)
             if v > WV[i]:
