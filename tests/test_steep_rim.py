@@ -530,3 +530,74 @@ def test_job_check_takes_the_exact_reach_at_a_v_end():
     assert min(grid) < closed - 0.1
     brute = _reach_brute(ws, ends[0], hang)       # no centre within R (or hanging off) goes lower
     assert closed - brute < 3e-3                  # (the disk search: a lower bound of each drop)
+
+# a wall's foot beside a floor: the floor's samples best, the wall's contact higher
+# --------------------------------------------------------------------------
+def _disk_brute(ws, X, Y, R_, nt=300, nph=720):
+    """Best of a dense polar sample of the disk (radii R sin(theta): crowded at the rim):
+    every sample is material the ball clears, so a lower bound of the tip at any resolution."""
+    th = np.linspace(0.0, np.pi / 2, nt)
+    ph = np.linspace(0.0, 2 * np.pi, nph, endpoint=False)
+    ox = (R_ * np.sin(th)[:, None] * np.cos(ph)[None]).ravel()
+    oy = (R_ * np.sin(th)[:, None] * np.sin(ph)[None]).ravel()
+    sq = np.sqrt(np.maximum(R_ * R_ - ox * ox - oy * oy, 0.0))
+    out = np.empty(len(X))
+    for i in range(len(X)):
+        px, py = X[i] + ox, Y[i] + oy
+        out[i] = np.max(np.where(ws.inside(px, py), np.minimum(ws.H(px, py), 0.0) + sq,
+                                 -np.inf)) - R_
+    return out
+
+
+@pytest.mark.parametrize("kernel", [True, False])
+@pytest.mark.parametrize("slope,angle", [(5, 0), (10, 17), (20, 45), (40, 45), (40, 100), (30, 210)])
+def test_drop_cutter_finds_a_wall_beyond_the_floor(kernel, slope, angle):
+    """A step H = -6 - 6 tanh(u / w) (u along ``angle``, largest slope 6 / w = ``slope``),
+    the centre on the floor with the wall's foot cutting a cap off the disk: the best-F
+    samples lie on the floor and their starts all climb to the floor's maximum, while
+    the wall (at the rim, beyond or between the samples) holds the ball higher. Before:
+    up to 0.14 mm below the brute-force disk search (slope 40 at 45 degrees)."""
+    a = math.radians(angle)
+    w = 6.0 / slope
+    u = f"(x*{math.cos(a):.9f} + y*{math.sin(a):.9f})"
+    ws = C.WorkSurface(Surface.from_spec(validate(
+        _raw(f"-6 - 6*tanh({u}/{w:.9f})", (-10, 10), (-10, 10), 0), "wall.yaml")))
+    if kernel and ws.kernel() is None:
+        pytest.skip("numba kernels off")
+    if not kernel:
+        ws._kernel = None
+    # the centre's distance d from the wall's middle: across the foot, and densely where
+    # the foot cuts a thin cap off the disk (d - R about w: the slope-40 failures)
+    d = np.r_[np.linspace(R - w, R + 3 * w, 24), np.linspace(R + 0.5 * w, R + 1.5 * w, 40)]
+    t = np.linspace(-3.0, 3.0, d.size)           # along the wall
+    X = 10 + d * math.cos(a) - t * math.sin(a)
+    Y = 10 + d * math.sin(a) + t * math.cos(a)
+    Z = C.compensate(ws, X, Y, R)
+    brute = _disk_brute(ws, X, Y, R, nt=150, nph=360)
+    assert np.max(brute - Z) <= 1e-9
+    assert np.median(Z - brute) < 0.01
+
+
+@pytest.mark.parametrize("kernel", [True, False])
+@pytest.mark.parametrize("name,X,Y,R_,low", [
+    # the concave foot of a slope-5 step (the tip was -10.4115, 0.036 mm low)
+    ("h03_edge_wall", 23.1037, 14.8063, 2.0, -10.4115),
+    # the foot of a boss's slope-15 wall in the disk's outer band (the tip was the floor, -12)
+    ("h11_vertical_wall", 15.7546, 8.5987, 3.0, -12.0),
+])
+def test_drop_cutter_at_the_hidden_jobs_wall_contacts(kernel, name, X, Y, R_, low):
+    import pathlib
+
+    import yaml
+
+    path = pathlib.Path(__file__).resolve().parents[1] / "benchmarks" / "specs" / "hidden37"
+    spec = next(path.glob(f"{name}.yaml"))
+    ws = C.WorkSurface(Surface.from_spec(validate(yaml.safe_load(spec.read_text()), str(spec))))
+    if kernel and ws.kernel() is None:
+        pytest.skip("numba kernels off")
+    if not kernel:
+        ws._kernel = None
+    Z = C.compensate(ws, np.array([X]), np.array([Y]), R_)[0]
+    brute = _disk_brute(ws, np.array([X]), np.array([Y]), R_, nt=600, nph=2880)[0]
+    assert brute > low + 0.03                      # the case is a real one
+    assert brute - 1e-9 <= Z <= brute + 2e-3       # never below; the sample is fine enough to tell

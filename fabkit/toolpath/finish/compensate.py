@@ -15,6 +15,9 @@ largest is the maximum once the true maximiser is among them):
       solved by Newton with the exact Hessian, started from the best points of a
       small polar sample of the disk (several starts: concave regions tighter than
       the tool have several local maxima);
+(i')  the same from the samples and points of the disk's rim whose tangent plane holds
+      the ball highest (a wall's foot beside a floor: the floor's samples are the best,
+      the wall's contact lies between the rings or beyond them; see _wall_starts);
 (ii)  the flat top (H >= 0): value sqrt(R^2 - dmin^2), dmin = distance from c to the
       top region: 0 if c is in it, else the nearest point of the crease H = 0
       (Lagrange conditions p - c = lambda grad H, H = 0, solved by Newton from several
@@ -693,9 +696,10 @@ def _compensate(surface, X, Y, R, return_info, rings, angles, starts, iters):
         G = np.array([ws.s, ws.x0, ws.y0, ws.top, ws.L, ws.W], dtype=float)
         _entry(kern)(cx, cy, R, G, kern.P, *tab[:7], int(starts), int(iters), best.val, best.px,
                      best.py, best.kind, bridged, converged, tab[7])
-        todo = np.zeros(0, dtype=np.intp)          # (v) is done too
+        todo = np.zeros(0, dtype=np.intp)          # (v) and (i')'s offer are done too
+        walls = None
     else:
-        best, bridged, converged, todo = _candidates(ws, cx, cy, R, rings, angles, starts, iters)
+        best, bridged, converged, todo, walls = _candidates(ws, cx, cy, R, rings, angles, starts, iters)
 
     # (v) a ridge: where no start converged to a strict maximum and the best point is
     # neither on the crease nor the top (the crease is a convex kink too, with its own
@@ -716,6 +720,9 @@ def _compensate(surface, X, Y, R, return_info, rings, angles, starts, iters):
             g = todo[stuck]
             v, qx, qy = _ridge(ws, cx[g], cy[g], R, best.px[g], best.py[g])
             best.offer(g, v, qx, qy, RIDGE)
+    # (i')'s points, last: only where higher than every other candidate
+    if walls is not None:
+        _offer_walls(best, bridged, *walls)
 
     Z = (best.val - R).reshape(shape)
     if not return_info:
@@ -771,12 +778,100 @@ def _tables(R, rings, angles):
     return out           # (writeable: the kernel's one compiled signature takes writeable arrays)
 
 
+#: more Newton starts per position from the samples with the highest tangent-plane drop (i')
+WALL_STARTS = 2
+#: ... scored where their own F is within this many R of the best after (i)
+WALL_GATE = 0.25
+#: ... and started only where the plane's contact point is this many R from the best point
+WALL_NEAR = 0.0625
+#: points of the disk's rim scored with them of the disk's rim scored with them (a wall steeper than the outer ring's
+#: slope whose foot cuts a cap off the disk beyond every sample)
+RIM_POINTS = 36
+
+
+@functools.lru_cache(maxsize=8)
+def _rim(R: float) -> np.ndarray:
+    ph = 2 * np.pi * np.arange(RIM_POINTS) / RIM_POINTS
+    out = np.column_stack([R * np.cos(ph), R * np.sin(ph)])
+    out.flags.writeable = False
+    return out
+
+
+def _wall_scores(ws, tx, ty, R, PX, PY, F, vb):
+    """T(s): the tip's F on the plane tangent to the surface at each point whose own
+    F is within WALL_GATE R of ``vb`` (-inf elsewhere: no point of the disk near it rises
+    above the best unless the surface there turns up by that much), and the start of
+    Newton it gives: the plane's own contact point c + R g / sqrt(1 + |g|^2)."""
+    T = np.full(PX.shape, -np.inf)
+    SX, SY = np.full(PX.shape, np.nan), np.full(PX.shape, np.nan)
+    ok = F > (vb - WALL_GATE * R)[:, None]
+    if ok.any():
+        px, py = PX[ok], PY[ok]
+        cx, cy = np.broadcast_to(tx[:, None], PX.shape)[ok], np.broadcast_to(ty[:, None], PX.shape)[ok]
+        H, gx, gy = ws.all(px, py)[:3]
+        m = np.sqrt(1.0 + gx * gx + gy * gy)
+        t = H + gx * (cx - px) + gy * (cy - py) + R * m
+        T[ok] = np.where((H < 0) & np.isfinite(t), t, -np.inf)
+        SX[ok], SY[ok] = cx + R * gx / m, cy + R * gy / m
+    return T, SX, SY
+
+
+def _wall_starts(ws, tx, ty, R, PX, PY, FS, order, vb, bx, by, iters):
+    """(i'): Newton from the WALL_STARTS points (samples not already starts, and the
+    rim's points) of highest T(s) where T(s) exceeds ``vb`` (the best value after (i)),
+    started at the tangent plane's contact point. Returns (rows, value, x, y): the
+    best point found per row of the samples (rows into tx); :func:`_offer_walls` offers
+    them once every other candidate is in."""
+    T, SX, SY = _wall_scores(ws, tx, ty, R, PX, PY, FS, vb)
+    np.put_along_axis(T, order, -np.inf, axis=1)            # the best-F starts ran already
+    rim = _rim(R)
+    RX, RY = tx[:, None] + rim[:, 0], ty[:, None] + rim[:, 1]
+    FR = np.where(ws.inside(RX, RY), np.minimum(ws.H(RX, RY), 0.0), -np.inf)    # sqrt(R^2 - R^2) = 0
+    Tr, SXr, SYr = _wall_scores(ws, tx, ty, R, RX, RY, FR, vb)
+    T, SX, SY = np.hstack([T, Tr]), np.hstack([SX, SXr]), np.hstack([SY, SYr])
+    n = T.shape[0]
+    r = np.arange(n)
+    wv, wx, wy = np.full(n, -np.inf), np.full(n, np.nan), np.full(n, np.nan)
+    left = np.full(n, WALL_STARTS)
+    while True:
+        j = np.argmax(T, axis=1)
+        tj = T[r, j]
+        live = np.nonzero((left > 0) & (tj > vb + SEED_MARGIN))[0]
+        if live.size == 0:
+            break
+        jl = j[live]
+        T[live, jl] = -np.inf
+        # a start on the best point's own slope climbs back to it: not run, nor counted
+        far = np.hypot(SX[live, jl] - bx[live], SY[live, jl] - by[live]) >= WALL_NEAR * R
+        go, jg = live[far], jl[far]
+        if go.size == 0:
+            continue
+        left[go] -= 1
+        x, y, _ = _newton_interior(ws, tx[go], ty[go], R, SX[go, jg], SY[go, jg], iters + 8)
+        v = _value(ws, tx[go], ty[go], R, x, y)
+        up = v > wv[go]
+        g = go[up]
+        wv[g], wx[g], wy[g] = v[up], x[up], y[up]
+    k = np.nonzero(np.isfinite(wv))[0]
+    return k, wv[k], wx[k], wy[k]
+
+
+def _offer_walls(best, bridged, idx, v, x, y):
+    """The points of (i') where higher than every other candidate by more than SEED_MARGIN
+    (elsewhere the heights are unchanged to the bit); then the contact problem has two
+    maxima (bridged)."""
+    up = v > best.val[idx] + SEED_MARGIN
+    best.offer(idx[up], v[up], x[up], y[up], INTERIOR)
+    bridged[idx[up]] = True
+
+
 def _candidates(ws, cx, cy, R, rings, angles, starts, iters):
     """Candidates (i)-(iv) over all positions in numpy: (best, bridged, converged, todo)."""
     n = cx.size
     best = _Best(n)
     bridged = np.zeros(n, dtype=bool)
     converged = np.zeros(n, dtype=bool)
+    walls = None
 
     # (ii) c on the top face: nothing can be higher
     Hc = ws.H(cx, cy)
@@ -820,6 +915,20 @@ def _candidates(ws, cx, cy, R, rings, angles, starts, iters):
             fy = np.where(lm2 & (qx == fx[:, None]), qy, np.inf).min(axis=1)
             far = lm2 & (np.hypot(qx - fx[:, None], qy - fy[:, None]) > 1e-4 * R)
             bridged[todo[far.any(axis=1)]] = True
+
+        # (i') a wall rising into the disk: more starts, from the samples whose tangent plane
+        # holds the ball highest. Where the disk holds a floor and the foot of a steep wall,
+        # the floor's samples have the best F while the wall's contact (a thin band at the
+        # disk's rim, or between the rings) is higher still; the best-F starts all climb to
+        # the floor's maximum (a ball of 6 mm beside a wall of slope 15: the tip 0.34 mm low;
+        # a 4 mm ball in the concave foot of a slope-5 step: 0.036 mm low). The drop on the
+        # plane tangent at s, T(s) = H(s) + grad H(s) . (c - s) + R sqrt(1 + |grad H(s)|^2),
+        # is exact for a plane; samples with T above the best value so far start Newton, and
+        # what they find replaces the best only when higher by more than SEED_MARGIN (elsewhere
+        # the heights are unchanged to the bit)
+        wk, wv, wx, wy = _wall_starts(ws, tx, ty, R, PX, PY, FS, order, best.val[todo], best.px[todo],
+                                      best.py[todo], iters)
+        walls = (todo[wk], wv, wx, wy)
 
         # (ii) crease: seeds = the nearest top-region sample in each quadrant around c
         # and the best sample. One seed is not enough where the crease itself has a kink
@@ -885,4 +994,4 @@ def _candidates(ws, cx, cy, R, rings, angles, starts, iters):
     ei = np.nonzero(edge)[0]
     if ei.size:
         _edges(ws, cx[ei], cy[ei], R, best, ei, nsamp=17, iters=iters)
-    return best, bridged, converged, todo
+    return best, bridged, converged, todo, walls

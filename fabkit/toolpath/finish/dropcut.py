@@ -42,6 +42,10 @@ RIDGE_ITERS = 34
 KINK_ITERS = 24
 XTOL = 1e-10
 SEED_MARGIN = 1e-9      # compensate.SEED_MARGIN
+WALL_STARTS = 2         # compensate.WALL_STARTS
+NRIM = 36               # compensate.RIM_POINTS
+WALL_GATE = 0.25        # compensate.WALL_GATE
+WALL_NEAR = 0.0625      # compensate.WALL_NEAR
 BIG = 1.7976931348623157e308
 
 
@@ -632,6 +636,12 @@ def drop_batch(CX, CY, R, G, P, OFFX, OFFY, SQ, R2, QUAD, U, EOFF, starts, iters
     WF = np.empty((8, U.size + EOFF.size))
     WB = np.empty(U.size + EOFF.size, dtype=np.bool_)
     XD = np.empty(K)
+    TS, SXS, SYS = np.empty(K + NRIM), np.empty(K + NRIM), np.empty(K + NRIM)
+    WV, WX, WY = np.empty(CX.size), np.empty(CX.size), np.empty(CX.size)   # (i'), offered last
+    RIMX, RIMY, XR, YR, HR = np.empty(NRIM), np.empty(NRIM), np.empty(NRIM), np.empty(NRIM), np.empty(NRIM)
+    RIN = np.empty(NRIM, dtype=np.bool_)
+    for m_ in range(NRIM):
+        RIMX[m_], RIMY[m_] = R * math.cos(2 * np.pi * m_ / NRIM), R * math.sin(2 * np.pi * m_ / NRIM)
     YD = np.empty(K)
     s = G[0]
     x0 = G[1]
@@ -649,6 +659,7 @@ def drop_batch(CX, CY, R, G, P, OFFX, OFFY, SQ, R2, QUAD, U, EOFF, starts, iters
         KIND[i] = K_NONE
         BRIDGED[i] = False
         CONV[i] = True
+        WV[i] = -math.inf
         Hc = _H(cx, cy, G, P)
         ontop = _inside(cx, cy, G) and Hc >= 0
         if ontop:
@@ -699,7 +710,6 @@ def drop_batch(CX, CY, R, G, P, OFFX, OFFY, SQ, R2, QUAD, U, EOFF, starts, iters
             if cv and _fin(v):
                 conv_any = True
             _offer(i, v, x, y, K_INTERIOR, VAL, PX, PY, KIND)
-        CONV[i] = conv_any
         fx = math.inf
         for r in range(k):
             if lmk[r] and qx[r] < fx:
@@ -711,6 +721,47 @@ def drop_batch(CX, CY, R, G, P, OFFX, OFFY, SQ, R2, QUAD, U, EOFF, starts, iters
         for r in range(k):
             if lmk[r] and math.hypot(qx[r] - fx, qy[r] - fy) > 1e-4 * R:
                 BRIDGED[i] = True
+        # (i') a wall rising into the disk (compensate._wall_starts); the rim's heights in one call
+        for m_ in range(NRIM):
+            x, y = cx + RIMX[m_], cy + RIMY[m_]
+            RIN[m_] = (x >= 0.0) & (x <= L) & (y >= 0.0) & (y <= W)
+            XR[m_], YR[m_] = x / s + x0, y / s + y0
+        P[3](NRIM, XR.ctypes, YR.ctypes, HR.ctypes, Pa)
+        gate = VAL[i] - WALL_GATE * R
+        for j in range(K + NRIM):
+            TS[j] = -math.inf
+            if j < K:
+                fj, ux, uy = FS[j], cx + OFFX[j], cy + OFFY[j]
+            else:
+                fj = _fmin(s * (HR[j - K] - top), 0.0) if RIN[j - K] else -math.inf
+                ux, uy = cx + RIMX[j - K], cy + RIMY[j - K]
+            if fj > gate:
+                H0, gx0, gy0, _a, _b, _c = _all(ux, uy, G, P)
+                m = math.sqrt(1.0 + gx0 * gx0 + gy0 * gy0)
+                t = H0 + gx0 * (cx - ux) + gy0 * (cy - uy) + R * m
+                if H0 < 0 and _fin(t):
+                    TS[j], SXS[j], SYS[j] = t, cx + R * gx0 / m, cy + R * gy0 / m
+        for r in range(k):
+            TS[order[r]] = -math.inf
+        vb, bpx, bpy = VAL[i], PX[i], PY[i]
+        r = 0
+        while r < WALL_STARTS:
+            bj = 0
+            for j in range(1, K + NRIM):
+                if TS[j] > TS[bj]:
+                    bj = j
+            tj = TS[bj]
+            TS[bj] = -math.inf
+            if not (tj > vb + SEED_MARGIN):
+                break
+            if math.hypot(SXS[bj] - bpx, SYS[bj] - bpy) < WALL_NEAR * R:
+                continue        # on the best point's own slope: it climbs back to it (not counted)
+            r += 1
+            x, y, cv = _newton_interior(cx, cy, R, SXS[bj], SYS[bj], iters + 8, G, P)
+            v, _h = _value(cx, cy, R, x, y, G, P)
+            if v > WV[i]:
+                WV[i], WX[i], WY[i] = v, x, y
+        CONV[i] = conv_any
         # (ii) crease: the nearest top-region sample in each quadrant, and the best sample
         has_top = False
         hmax = -math.inf
@@ -791,6 +842,11 @@ def drop_batch(CX, CY, R, G, P, OFFX, OFFY, SQ, R2, QUAD, U, EOFF, starts, iters
         if stuck:
             v, x, y = _ridge(CX[i], CY[i], R, PX[i], PY[i], G, P, V5)
             _offer(i, v, x, y, K_RIDGE, VAL, PX, PY, KIND)
+    # (i')'s points, last: only where higher than every other candidate by SEED_MARGIN
+    for i in range(CX.size):
+        if KIND[i] != K_TOP and WV[i] > VAL[i] + SEED_MARGIN:
+            _offer(i, WV[i], WX[i], WY[i], K_INTERIOR, VAL, PX, PY, KIND)
+            BRIDGED[i] = True
 
 
 # ----------------------------------------------------------------------------
