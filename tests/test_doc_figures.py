@@ -620,6 +620,10 @@ COINCIDENCES = {
     ("docs/sweep_check.md", "50.484"): "the merged run before the windows were resolved, history: its ends "
                                        "are today's first and last windows' ends",
     ("docs/sweep_check.md", "50.930"): "the merged run before the windows were resolved, history",
+    ("README.md", "5.4958"): "roughing_acceptance.py's independent cut of rs274's moves; the whole job's own "
+                             "check (max_left) agrees with it to these digits",
+    ("docs/toolpath.md", "5.4960"): "roughing_acceptance.py's figure when the bound was made strict, history "
+                                    "(the sheet's own largest left rounds to the same digits)",
 }
 
 
