@@ -211,11 +211,14 @@ def plan_rest(spec, surface, rough: Operation, finish: Toolpath, *, ws=None) -> 
         ball = tool.corner_radius >= Rr - 1e-12
         apart = Rr if ball else 0.5 * Rr
         V = np.array([p.v for p in plan.passes])
-        sel = [0]
-        while sel[-1] < len(V) - 1:
-            i = sel[-1]
-            j = int(np.searchsorted(V, V[i] + apart, side="right")) - 1
-            sel.append(max(j, i + 1))
+        if is_fin:
+            sel = _ball_passes(plan, fr, ws, V, Rr, apart, leave, doc_f - 2.0 * tolerance, rough, S)
+        else:
+            sel = [0]
+            while sel[-1] < len(V) - 1:
+                i = sel[-1]
+                j = int(np.searchsorted(V, V[i] + apart, side="right")) - 1
+                sel.append(max(j, i + 1))
         spacing = float(np.diff(V[sel]).max()) if len(sel) > 1 else 0.0
         if ball:
             cusp = Rr - math.sqrt(max(Rr * Rr - 0.25 * spacing * spacing, 0.0))
@@ -408,6 +411,85 @@ def _over_zone(rough, S_nodes, X, Y, tool: Tool, floor, leave, threshold, tolera
         return np.isfinite(d) & np.isfinite(floor) & (d > floor + tolerance)
 
 
+def _ball_passes(plan, fr, ws, V, R: float, apart: float, leave: float, limit: float, rough, S) -> list[int]:
+    """The finishing passes a rest ball runs on: each next one the farthest within ``apart``
+    (its radius) whose rib with the last leaves the finish at most ``limit`` to remove.
+    Across a steep wall parallel to the passes two balls ``apart`` on flat ground stand
+    far apart along the wall, and the rib between them is left for the finish (a moat's
+    wall with rest passes 1.59 mm apart: the finish removed 3.28 mm at a node, its depth
+    of cut 3 mm). Per node of the passes' common grid and per finishing pass between two
+    candidates (and the midpoints between them): the rest-cut stock there is at most the
+    lower of the two balls' cross-sections through their centres (each ball sweeps through
+    that section) lifted by ``leave``, and at most the roughed stock ``S`` (an upper bound,
+    :func:`stock_after`, at the nearest node of its grid); the finish cuts it to the design
+    (exact, clipped at the top face). Passes where the roughed stock stands within the
+    limit of the design everywhere constrain nothing (the paper's job: none)."""
+    n = len(V)
+    sets = rough.sets
+    x, y = sets.x, sets.y
+    hx, hy = float(x[1] - x[0]), float(y[1] - y[0])
+    ug = plan.ug
+
+    def sample(v):
+        """(stock bound S, design clipped at the top face) at (ug, v) for each v."""
+        v = np.atleast_1d(np.asarray(v, float))
+        U = np.broadcast_to(ug, (len(v), len(ug)))
+        X, Y = fr.xy(U, np.broadcast_to(v[:, None], U.shape))
+        X, Y = np.ascontiguousarray(X, float), np.ascontiguousarray(Y, float)
+        ix = np.clip(np.rint((X - x[0]) / hx).astype(np.int64), 0, len(x) - 1)
+        iy = np.clip(np.rint((Y - y[0]) / hy).astype(np.int64), 0, len(y) - 1)
+        return S[iy, ix], np.minimum(ws.H(X, Y), 0.0)
+
+    def next_apart(i: int) -> int:
+        return max(int(np.searchsorted(V, V[i] + apart, side="right")) - 1, i + 1)
+
+    Sk, Dk = sample(V)
+    with np.errstate(invalid="ignore"):
+        tall2 = np.nan_to_num(Sk - Dk, nan=0.0, posinf=0.0, neginf=0.0) > limit
+    tall = tall2.any(axis=1)
+    Zs = np.vstack([np.where(p.keep & np.isfinite(p.Z), p.Z, np.inf) for p in plan.passes])
+
+    def ok(sel: list[int], j: int) -> bool:
+        """The rib at the finishing passes (and their midpoints) from one radius before the
+        last chosen pass to the candidate j, under the sections of the chosen passes, j, and
+        every finishing pass after j (those a later choice can still take: their best case;
+        the nodes beyond one radius before j are checked again at the next choice)."""
+        i = sel[-1]
+        lo = int(np.searchsorted(V, V[i] - R, side="left"))
+        if not tall[lo:j + 1].any():
+            return True
+        cols = tall2[lo:j + 1].any(axis=0)
+        vs = np.union1d(V[lo:j + 1], 0.5 * (V[lo:j] + V[lo + 1:j + 1]))
+        vs = vs[vs < V[j]]
+        if not len(vs):
+            return True
+        hi = int(np.searchsorted(V, V[j] + R, side="right"))
+        balls = np.array([e for e in sel if V[e] > V[lo] - R] + [j] + list(range(j + 1, hi)), dtype=np.int64)
+        Sv, Dv = sample(vs)
+        Sv, Dv = Sv[:, cols], Dv[:, cols]
+        cap = np.full(Sv.shape, np.inf)
+        Zb = Zs[balls][:, cols]
+        for e, ze in zip(balls, Zb):
+            d = np.abs(vs - V[e])
+            near = d < R
+            if not near.any():
+                continue
+            low = ze[None, :] + (R - np.sqrt(np.maximum(R * R - d[near] * d[near], 0.0)))[:, None] + leave
+            cap[near] = np.minimum(cap[near], low)
+        with np.errstate(invalid="ignore"):
+            rib = np.minimum(cap, Sv) - Dv
+        return not np.any(np.isfinite(rib) & (rib > limit))
+
+    sel = [0]
+    while sel[-1] < n - 1:
+        i = sel[-1]
+        j = next_apart(i)
+        while j > i + 1 and not ok(sel, j):
+            j -= 1
+        sel.append(j)
+    return sel
+
+
 def _between_zone(plan, fr, sel, V, ug, S, x, y, tool, rough, ws, leave, threshold):
     """The zone asked by the finishing passes between the selected ones (sel): the
     finishing ball's drop at a position is not continuous across a steep wall, so a pass
@@ -535,7 +617,7 @@ def _refine_runs(ws, runs, Rr, leave, lim, tolerance, rounds=10, drop=None):
     quarter, half and three quarters of each chord: the nodes are up to 1 mm apart, a
     valley narrower than the ball bends the path sharply, and over a steep wall's
     convex rim the chord dips between its midpoint and its ends."""
-    fr = np.array([0.25, 0.5, 0.75])
+    fr = np.arange(1, 8) / 8.0
     for _ in range(rounds):
         segs = [(q[:-1], q[1:]) for q, _ in runs if len(q) >= 2]
         if not segs:
@@ -549,8 +631,8 @@ def _refine_runs(ws, runs, Rr, leave, lim, tolerance, rounds=10, drop=None):
         Zp = (compensate(ws, px, py, Rr) if drop is None else drop(px, py)).reshape(P.shape[:2])
         needs = np.maximum(np.maximum(lev[None, :], Zp + leave), -lim)
         bad = (needs > P[..., 2] + tolerance).any(axis=0)
-        M = P[1]
-        need = needs[1]
+        M = P[3]
+        need = needs[3]
         if not bad.any():
             break
         new_runs = []
