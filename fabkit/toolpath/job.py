@@ -556,13 +556,19 @@ def _merged(programs):
 
 
 def _machine_checks(programs, readback, machine, finish_check):
-    """The machine's checks over every program of the job, merged into one verdict."""
+    """The machine's checks over every program of the job, merged into one verdict.
+
+    ``readback``: :func:`job_figures`' programs read back. With one program per operation
+    each is :func:`read_program` of that very text (job_figures read it): used as it is,
+    not parsed again; a one-program job's are sections of it, and the whole is read."""
     from ..machine.limits import MachineCheck, check_program
     from .program.reader import read_program
 
     merged = MachineCheck(machine=finish_check.machine, travel=dict(finish_check.travel))
-    for suffix, text in programs:
-        chk = check_program(read_program(text), text, machine, name=suffix if len(programs) > 1 else None)
+    per_program = len(readback) == len(programs)
+    for i, (suffix, text) in enumerate(programs):
+        prog = readback[i] if per_program else read_program(text)
+        chk = check_program(prog, text, machine, name=suffix if len(programs) > 1 else None)
         merged.refusals += [r for r in chk.refusals if r not in merged.refusals]
         merged.warnings += [w for w in chk.warnings if w not in merged.warnings]
         for ax, (span, avail) in chk.travel.items():
