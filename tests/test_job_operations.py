@@ -190,9 +190,9 @@ def test_programs_read_back_to_the_operations(finish):
 
 
 def test_per_program_readback_is_the_parse_of_its_text(finish):
-    """A job of one program per operation (grbl): job_figures' read-back of each is, field
-    for field, the reader's parse of that text (the machine's checks use it, not a second
-    parse)."""
+    """job_figures' parse of each program (one per operation for grbl, one for LinuxCNC)
+    is, field for field, the reader's parse of that text (the machine's checks use it, not
+    a second parse)."""
     import dataclasses
 
     from fabkit.toolpath.job import job_figures
@@ -201,18 +201,20 @@ def test_per_program_readback_is_the_parse_of_its_text(finish):
 
     spec, surface, tp = finish
     ops = _job(tp)
-    profile = profile_from_spec(_spec(dialect="grbl"), surface)
-    programs = write_job(ops, profile)
-    _, back = job_figures(ops, programs, profile)
-    assert len(programs) == len(back) == len(ops)
-    for (_, text), got in zip(programs, back):
-        want = read_program(text)
-        for f in dataclasses.fields(want):
-            a, b = getattr(got, f.name), getattr(want, f.name)
-            if isinstance(b, np.ndarray):
-                assert a.dtype == b.dtype and np.array_equal(a, b, equal_nan=True), f.name
-            else:
-                assert a == b, f.name
+    for sp, count in ((_spec(dialect="grbl"), len(ops)), (spec, 1)):
+        profile = profile_from_spec(sp, surface)
+        programs = write_job(ops, profile)
+        parsed: list = []
+        _, back = job_figures(ops, programs, profile, parsed=parsed)
+        assert len(programs) == len(parsed) == count and len(back) == len(ops)
+        for (_, text), got in zip(programs, parsed):
+            want = read_program(text)
+            for f in dataclasses.fields(want):
+                a, b = getattr(got, f.name), getattr(want, f.name)
+                if isinstance(b, np.ndarray):
+                    assert a.dtype == b.dtype and np.array_equal(a, b, equal_nan=True), f.name
+                else:
+                    assert a == b, f.name
 
 
 def test_operation_time_is_length_over_feed(finish):

@@ -354,12 +354,15 @@ def plan_job_operations(spec, surface, finish_toolpath) -> list:
     return ops
 
 
-def job_figures(operations, programs, profile, machine=None, raster_axis: int | None = None) -> tuple:
+def job_figures(operations, programs, profile, machine=None, raster_axis: int | None = None,
+                parsed: list | None = None) -> tuple:
     """Per operation :class:`OperationFigures` and the programs read back.
 
     ``programs``: :func:`fabkit.toolpath.program.gcode.write_job`'s [(suffix, text)]: one per
     operation, or one for all. Returns (figures, readback) with ``readback`` one
-    Program per operation (its moves read back from the written text)."""
+    Program per operation (its moves read back from the written text). ``parsed``: a
+    list given is filled with the reader's parse of each program's text, in order (one
+    per program: for a one-program job, the whole before it is split)."""
     from .program.gcode import operation_profile, write_program
     from .program.reader import estimate_time, read_program
 
@@ -369,9 +372,13 @@ def job_figures(operations, programs, profile, machine=None, raster_axis: int | 
         readback = [p for _, _, p in parts]
         lines = [text.count("\n") for _, text, _ in parts]
         names = [suffix for suffix, _, _ in parts]
+        if parsed is not None:
+            parsed.extend(readback)
     else:
         (suffix, text), = programs
         whole = read_program(text)
+        if parsed is not None:
+            parsed.append(whole)
         ranges = _op_line_ranges(text, n)
         readback = [_section(whole, lo, hi) for lo, hi in ranges]
         lines = [hi - lo + 1 for lo, hi in ranges]
@@ -477,7 +484,7 @@ def run_job(spec, surface, *, machine=None, verify: bool = True,
         extra = _operations(spec, surface, toolpath, profile, text, program, machine, verify, axis, say)
         est = sum(f.estimate_s for f in extra["figures"])
         if machine is not None:
-            mcheck = _machine_checks(extra["programs"], extra["readback_programs"], machine, mcheck)
+            mcheck = _machine_checks(extra["programs"], extra["parsed_programs"], machine, mcheck)
         t_plan += extra.pop("plan_seconds")         # the rough and rest operations' planning
         t_verify += extra.pop("seconds")            # writing, reading back, the whole job simulated
 
@@ -527,7 +534,8 @@ def _operations(spec, surface, toolpath, profile, text, program, machine, verify
             raise SpecError(f"a {profile.dialect} job with roughing changes tools with M6: every tool needs a "
                             f"number (none for the {', '.join(missing)} tool)", file=spec.path, key="tools")
     programs = write_job(ops, profile)
-    figures, readback = job_figures(ops, programs, profile, machine, raster_axis=axis)
+    parsed: list = []
+    figures, readback = job_figures(ops, programs, profile, machine, raster_axis=axis, parsed=parsed)
     fin = readback[-1]
     # from the rapid across on: the first move (G0 Z<safe>) starts where the tool change left the tool
     if not (np.array_equal(fin.points[1:], program.points[1:], equal_nan=True)
@@ -539,7 +547,7 @@ def _operations(spec, surface, toolpath, profile, text, program, machine, verify
         say("verifying the whole job")
         job_check, pictures = _stock_verification(spec, surface, ops, readback)
     return {"operations": ops, "programs": programs, "figures": figures, "readback_programs": readback,
-            "job_check": job_check, "stock_pictures": pictures, "plan_seconds": t_plan,
+            "parsed_programs": parsed, "job_check": job_check, "stock_pictures": pictures, "plan_seconds": t_plan,
             "seconds": time.perf_counter() - t0 - t_plan}
 
 
@@ -555,19 +563,18 @@ def _merged(programs):
                    lines=sum(p.lines for p in programs))
 
 
-def _machine_checks(programs, readback, machine, finish_check):
+def _machine_checks(programs, parsed, machine, finish_check):
     """The machine's checks over every program of the job, merged into one verdict.
 
-    ``readback``: :func:`job_figures`' programs read back. With one program per operation
-    each is :func:`read_program` of that very text (job_figures read it): used as it is,
-    not parsed again; a one-program job's are sections of it, and the whole is read."""
+    ``parsed``: :func:`job_figures`' parse of each program's very text (its ``parsed``),
+    used as it is, not parsed again (read here when not one per program)."""
     from ..machine.limits import MachineCheck, check_program
     from .program.reader import read_program
 
     merged = MachineCheck(machine=finish_check.machine, travel=dict(finish_check.travel))
-    per_program = len(readback) == len(programs)
+    known = parsed is not None and len(parsed) == len(programs)
     for i, (suffix, text) in enumerate(programs):
-        prog = readback[i] if per_program else read_program(text)
+        prog = parsed[i] if known else read_program(text)
         chk = check_program(prog, text, machine, name=suffix if len(programs) > 1 else None)
         merged.refusals += [r for r in chk.refusals if r not in merged.refusals]
         merged.warnings += [w for w in chk.warnings if w not in merged.warnings]
