@@ -29,7 +29,7 @@ def _toolpath_signatures():
                                           A(f8, 2), A(f8, 2), f8)),
            (scallop_kernels.rim_cut, (A(f8, 1), A(f8, 2), A(f8, 1, True), A(f8, 2), A(f8, 2), A(b1, 2),
                                       A(f8, 1), A(f8, 1), A(f8, 1), f8, A(f8, 1), f8, f8, i8)),
-           (spacing_kernels.simplify, (A(i8, 1), A(f8, 1), A(f8, 1), A(b1, 1), A(b1, 1), f8, i8))]
+           (spacing_kernels.simplify, (A(i8, 1), A(f8, 1), A(f8, 1), A(b1, 1), A(b1, 1), f8, i8, A(f8, 1), f8))]
     mod = kernels.module()
     if mod is not None:
         out.append((mod.lowest_batch_sorted, (A(f8, 1), A(f8, 1), A(i8, 1), A(i8, 1), A(i8, 1), A(f8, 2),

@@ -39,13 +39,22 @@ def _samples(rng, passes=7, n=400, air_frac=0.1, bad=False):
 def test_compiled_rounds_drop_the_same_nodes(seed, etol):
     rng = np.random.default_rng(seed)
     sp, su, sz, sn = _samples(rng, bad=seed % 2 == 1)
+    no_tent = np.zeros(len(su))
     ref = spacing._simplify_numpy(sp, su, sz, sn, etol)
-    got = kern.simplify(sp, su, sz, sn.copy(), sz >= -AIR_EPS, etol, 64)
+    got = kern.simplify(sp, su, sz, sn.copy(), sz >= -AIR_EPS, etol, 64, no_tent, np.inf)
     assert got.sum() < sn.sum()                                  # something was dropped
     np.testing.assert_array_equal(got, ref)
     for rounds in (1, 2, 5):                                     # round by round too
-        np.testing.assert_array_equal(kern.simplify(sp, su, sz, sn.copy(), sz >= -AIR_EPS, etol, rounds),
-                                      spacing._simplify_numpy(sp, su, sz, sn, etol, rounds))
+        np.testing.assert_array_equal(
+            kern.simplify(sp, su, sz, sn.copy(), sz >= -AIR_EPS, etol, rounds, no_tent, np.inf),
+            spacing._simplify_numpy(sp, su, sz, sn, etol, rounds))
+    # with tent bounds (a concave tip path's rise above a chord, spacing.tent_bound): the
+    # compiled rounds keep the same nodes as numpy's
+    tent = rng.uniform(0.0, 3.0 * etol, len(su))
+    bound = 2.5 * etol
+    np.testing.assert_array_equal(
+        kern.simplify(sp, su, sz, sn.copy(), sz >= -AIR_EPS, etol, 64, tent, bound),
+        spacing._simplify_numpy(sp, su, sz, sn, etol, 64, tent, bound))
 
 
 def test_survivors_hold_every_sample_within_tolerance():
