@@ -45,16 +45,23 @@ def _point_to_segment(x, y, ax, ay, bx, by):
 
 
 @jit
+def _cells_of(A, B, e, x0, y0, cell, nxc, nyc):
+    """The cells (i0..i1, j0..j1) the bounding box of edge A[e] -> B[e] meets."""
+    i0 = max(0, min(nxc - 1, int(math.floor((min(A[e, 0], B[e, 0]) - x0) / cell))))
+    i1 = max(0, min(nxc - 1, int(math.floor((max(A[e, 0], B[e, 0]) - x0) / cell))))
+    j0 = max(0, min(nyc - 1, int(math.floor((min(A[e, 1], B[e, 1]) - y0) / cell))))
+    j1 = max(0, min(nyc - 1, int(math.floor((max(A[e, 1], B[e, 1]) - y0) / cell))))
+    return i0, i1, j0, j1
+
+
+@jit
 def _bins(A, B, x0, y0, cell, nxc, nyc):
     """CSR of the edges (A[e] -> B[e]) per cell: (start (nxc * nyc + 1), edges)."""
     count = np.empty(nxc * nyc + 1, np.int64)
     for c in range(nxc * nyc + 1):
         count[c] = 0
     for e in range(A.shape[0]):
-        i0 = max(0, min(nxc - 1, int(math.floor((min(A[e, 0], B[e, 0]) - x0) / cell))))
-        i1 = max(0, min(nxc - 1, int(math.floor((max(A[e, 0], B[e, 0]) - x0) / cell))))
-        j0 = max(0, min(nyc - 1, int(math.floor((min(A[e, 1], B[e, 1]) - y0) / cell))))
-        j1 = max(0, min(nyc - 1, int(math.floor((max(A[e, 1], B[e, 1]) - y0) / cell))))
+        i0, i1, j0, j1 = _cells_of(A, B, e, x0, y0, cell, nxc, nyc)
         for i in range(i0, i1 + 1):
             for j in range(j0, j1 + 1):
                 count[i * nyc + j + 1] += 1
@@ -68,10 +75,7 @@ def _bins(A, B, x0, y0, cell, nxc, nyc):
             fill[c] = acc
     edges = np.empty(acc, np.int64)
     for e in range(A.shape[0]):
-        i0 = max(0, min(nxc - 1, int(math.floor((min(A[e, 0], B[e, 0]) - x0) / cell))))
-        i1 = max(0, min(nxc - 1, int(math.floor((max(A[e, 0], B[e, 0]) - x0) / cell))))
-        j0 = max(0, min(nyc - 1, int(math.floor((min(A[e, 1], B[e, 1]) - y0) / cell))))
-        j1 = max(0, min(nyc - 1, int(math.floor((max(A[e, 1], B[e, 1]) - y0) / cell))))
+        i0, i1, j0, j1 = _cells_of(A, B, e, x0, y0, cell, nxc, nyc)
         for i in range(i0, i1 + 1):
             for j in range(j0, j1 + 1):
                 c = i * nyc + j

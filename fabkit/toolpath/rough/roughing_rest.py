@@ -211,14 +211,8 @@ def plan_rest(spec, surface, rough: Operation, finish: Toolpath, *, ws=None) -> 
         ball = tool.corner_radius >= Rr - 1e-12
         apart = Rr if ball else 0.5 * Rr
         V = np.array([p.v for p in plan.passes])
-        if is_fin:
-            sel = _ball_passes(plan, fr, ws, V, Rr, apart, leave, doc_f - 2.0 * tolerance, rough, S)
-        else:
-            sel = [0]
-            while sel[-1] < len(V) - 1:
-                i = sel[-1]
-                j = int(np.searchsorted(V, V[i] + apart, side="right")) - 1
-                sel.append(max(j, i + 1))
+        sel = (_ball_passes(plan, fr, ws, V, Rr, apart, leave, doc_f - 2.0 * tolerance, rough, S) if is_fin
+               else _passes_apart(V, apart))
         spacing = float(np.diff(V[sel]).max()) if len(sel) > 1 else 0.0
         if ball:
             cusp = Rr - math.sqrt(max(Rr * Rr - 0.25 * spacing * spacing, 0.0))
@@ -417,14 +411,15 @@ def _ball_passes(plan, fr, ws, V, R: float, apart: float, leave: float, limit: f
     Across a steep wall parallel to the passes two balls ``apart`` on flat ground stand
     far apart along the wall, and the rib between them is left for the finish (a moat's
     wall with rest passes 1.59 mm apart: the finish removed 3.28 mm at a node, its depth
-    of cut 3 mm). Per node of the passes' common grid and per finishing pass between two
-    candidates (and the midpoints between them): the rest-cut stock there is at most the
-    lower of the two balls' cross-sections through their centres (each ball sweeps through
-    that section) lifted by ``leave``, and at most the roughed stock ``S`` (an upper bound,
+    of cut 3 mm). Per node of the passes' common grid and per finishing pass from one
+    radius before the last chosen pass to the candidate (and the midpoints between them):
+    the rest-cut stock there is at most the lowest cross-section through its centre (each
+    ball sweeps through that section) of the chosen passes, the candidate and every later
+    finishing pass within a radius (their best case: a later choice checks again), lifted by
+    ``leave``, and at most the roughed stock ``S`` (an upper bound,
     :func:`stock_after`, at the nearest node of its grid); the finish cuts it to the design
     (exact, clipped at the top face). Passes where the roughed stock stands within the
     limit of the design everywhere constrain nothing (the paper's job: none)."""
-    n = len(V)
     sets = rough.sets
     x, y = sets.x, sets.y
     hx, hy = float(x[1] - x[0]), float(y[1] - y[0])
@@ -439,9 +434,6 @@ def _ball_passes(plan, fr, ws, V, R: float, apart: float, leave: float, limit: f
         ix = np.clip(np.rint((X - x[0]) / hx).astype(np.int64), 0, len(x) - 1)
         iy = np.clip(np.rint((Y - y[0]) / hy).astype(np.int64), 0, len(y) - 1)
         return S[iy, ix], np.minimum(ws.H(X, Y), 0.0)
-
-    def next_apart(i: int) -> int:
-        return max(int(np.searchsorted(V, V[i] + apart, side="right")) - 1, i + 1)
 
     Sk, Dk = sample(V)
     with np.errstate(invalid="ignore"):
@@ -480,11 +472,18 @@ def _ball_passes(plan, fr, ws, V, R: float, apart: float, leave: float, limit: f
             rib = np.minimum(cap, Sv) - Dv
         return not np.any(np.isfinite(rib) & (rib > limit))
 
+    return _passes_apart(V, apart, ok)
+
+
+def _passes_apart(V, apart: float, ok=None) -> list[int]:
+    """Indices of the passes at offsets ``V`` (ascending) a rest tool runs on: from the
+    first, each next the farthest within ``apart`` of the last that ``ok(sel, j)`` accepts
+    (always the very next one if none)."""
     sel = [0]
-    while sel[-1] < n - 1:
+    while sel[-1] < len(V) - 1:
         i = sel[-1]
-        j = next_apart(i)
-        while j > i + 1 and not ok(sel, j):
+        j = max(int(np.searchsorted(V, V[i] + apart, side="right")) - 1, i + 1)
+        while ok is not None and j > i + 1 and not ok(sel, j):
             j -= 1
         sel.append(j)
     return sel
