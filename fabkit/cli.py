@@ -328,6 +328,9 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     RUN.command, RUN.phase = args.command, "run"
     try:
+        from . import process_memory
+
+        process_memory.tune()           # freed memory kept for reuse (fabkit/process_memory.py)
         module = importlib.import_module(f"fabkit.commands.{args.command}")
         return int(module.run(args))
     except FabkitError as exc:
