@@ -321,6 +321,41 @@ def test_rounded_program_points_clear_the_rim_at_an_edge_pass():
     assert np.max(_tip_brute(ws, got[:, 0], got[:, 1]) - got[:, 2]) <= budget + 1e-9
 
 
+
+def test_rest_run_points_as_written_hold_the_allowance_at_an_edge_pass():
+    """The same edge pass cut by a rest ball (roughing_rest._refine_runs): its tips stand at
+    the drop + the leave at Y-1.49604502, where vee45's rest pass ran; written Y-1.496
+    they sat 0.0124 mm under the ask at the written position, and the whole job's check
+    found the rest 0.4876 mm above the design against its bound 0.49. Put on the
+    program's grid with the rest's ask, no written point is below the brute-force tip
+    height + leave at its written X, Y by more than the tolerance's rounding share, and
+    every chord's eighths stay within half the tolerance of it."""
+    from fabkit.toolpath.finish.snap import program_grid
+    from fabkit.toolpath.rough.roughing_rest import _refine_runs
+    from fabkit.units import ROUNDING_SHARE
+
+    spec = validate(_raw("20*abs(x - y) - 8", (-15, 15), (-15, 15), 0), "rim.yaml")
+    ws = C.WorkSurface(Surface.from_spec(spec))
+    leave, lim, tol = 0.5, 30.0, 0.01
+    X = np.array([0.0, 0.1875, 0.28125, 0.2871, 0.29, 0.2915, 0.293, 0.3047, 0.3281, 0.375, 0.75])
+    Y = np.full_like(X, -1.49604502)
+    run = np.column_stack([X, Y, np.maximum(C.compensate(ws, X, Y, R) + leave, -lim)])
+    budget = tol / ROUNDING_SHARE
+
+    def short(q):       # how far each written point lies below the ask at its written X, Y
+        w = np.round(q, 4)
+        return np.max(_tip_brute(ws, w[:, 0], w[:, 1]) + leave - w[:, 2])
+
+    plain = _refine_runs(ws, [(run, np.zeros(len(run)))], R, leave, lim, 0.5 * tol)
+    assert short(plain[0][0]) > 10 * budget               # the case is a real one
+    (got, _), = _refine_runs(ws, [(run, np.zeros(len(run)))], R, leave, lim, 0.5 * tol,
+                             grid=program_grid(spec.machining))
+    assert short(got) <= budget + 1e-9
+    w = np.round(got, 4)
+    t = np.arange(1, 8) / 8.0
+    P = (w[:-1, None, :] + t[None, :, None] * (w[1:, None, :] - w[:-1, None, :])).reshape(-1, 3)
+    assert np.max(_tip_brute(ws, P[:, 0], P[:, 1]) + leave - P[:, 2]) <= 0.5 * tol + budget
+
 # --------------------------------------------------------------------------
 # the point spacing's chord bound (finish/spacing.py: tent_bound)
 # --------------------------------------------------------------------------

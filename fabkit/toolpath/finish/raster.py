@@ -71,32 +71,21 @@ def _on_readback_grid(spec, ws, R, points, kinds):
     the program's decimals are finer than it (inch programs); elsewhere on the program's
     own grid where the X, Y rounding alone would put the ball more than the tolerance's
     rounding share into the material (the ball's flank at an edge pass)."""
-    from ..program.gcode import UNITS, MachineProfile
-    from .snap import readback_step, snap_points
+    from .snap import program_grid, snap_points
 
-    m = spec.machining
-    k = UNITS[m.units].mm_per_unit
-    dec = MachineProfile(units=m.units, tolerance=float(m.tolerance)).decimals
-    step = readback_step(k, dec)
-    if step is None:
-        from ...units import ROUNDING_SHARE
-        return snap_points(ws, R, points, kinds, 10.0 ** -dec * k, k,
-                           slack_mm=float(m.tolerance) / ROUNDING_SHARE)
-    return snap_points(ws, R, points, kinds, step, k)
+    step, k, slack = program_grid(spec.machining)
+    return snap_points(ws, R, points, kinds, step, k, slack_mm=slack)
 
 
 def _refine_snapped(spec, ws, R, planned, points, kinds):
     """Stage 6c: where the grid moved a point up by more than the tolerance's rounding
     share (the exact path along the written across coordinate is not the planned one),
     its moves are refined at the written coordinates (:func:`.snap.refine_moves`)."""
-    from ..program.gcode import UNITS, MachineProfile
     from ...units import ROUNDING_SHARE
-    from .snap import readback_step, refine_moves
+    from .snap import program_grid, refine_moves
 
     m = spec.machining
-    k = UNITS[m.units].mm_per_unit
-    dec = MachineProfile(units=m.units, tolerance=float(m.tolerance)).decimals
-    step = readback_step(k, dec) or 10.0 ** -dec * k
+    step = program_grid(m)[0]
     tol = float(m.tolerance)
     return refine_moves(ws, R, planned, points, kinds, step, tol / ROUNDING_SHARE,
                         CHORD_SAFETY * tol, TENT_SHARE * tol)

@@ -32,8 +32,25 @@ def readback_step(units_mm: float, decimals: int) -> float | None:
     return 10.0 ** -READBACK_DECIMALS * units_mm
 
 
+def program_grid(machining) -> tuple[float, float, float | None]:
+    """(step mm, mm per program unit, slack mm or None): the grid a program's feed points
+    are put on (:func:`snap_points`' ``step``, ``units_mm`` and ``slack_mm``) for a spec's
+    ``machining`` section: the read-back grid where the program's decimals are finer
+    than it (every point on it), else the program's own grid, a point put on it only
+    where rounding costs more than tolerance / ROUNDING_SHARE."""
+    from ..program.gcode import UNITS, MachineProfile
+    from ...units import ROUNDING_SHARE
+
+    k = UNITS[machining.units].mm_per_unit
+    dec = MachineProfile(units=machining.units, tolerance=float(machining.tolerance)).decimals
+    step = readback_step(k, dec)
+    if step is None:
+        return 10.0 ** -dec * k, k, float(machining.tolerance) / ROUNDING_SHARE
+    return step, k, None
+
+
 def snap_points(ws, R: float, points: np.ndarray, kinds: np.ndarray, step: float,
-                units_mm: float, slack_mm: float | None = None) -> np.ndarray:
+                units_mm: float, slack_mm: float | None = None, height=None) -> np.ndarray:
     """(n, 3) tip points (work mm) with every feed move's end point on the read-back
     grid of ``step`` mm: X, Y rounded, Z = the larger of the rounded Z and the exact tip
     height at the rounded X, Y rounded up (links above the material keep their height;
@@ -48,7 +65,11 @@ def snap_points(ws, R: float, points: np.ndarray, kinds: np.ndarray, step: float
     the tolerance given to rounding (units.ROUNDING_SHARE). That happens on the ball's
     steep flank at an edge pass (the disk overhangs the stock but for a sliver: slope
     ~270 on a slope-20 wall, so 0.05 um across is 0.013 mm down); elsewhere every point
-    is written as before."""
+    is written as before.
+
+    ``height``: callable(X, Y) -> the lowest tip height allowed at (X, Y), work mm
+    (default: the ball's exact tip height on the design, :func:`.compensate.compensate`
+    of ``ws`` and ``R``): a rest pass's ask (its drop plus the allowance)."""
     out = points.copy()
     feed = kinds != RAPID
     if not feed.any():
@@ -57,7 +78,8 @@ def snap_points(ws, R: float, points: np.ndarray, kinds: np.ndarray, step: float
     q = step / k                                          # program units (1e-4)
     P = points[feed] / k
     XY = np.round(P[:, :2] / q) * q
-    Zx = compensate(ws, XY[:, 0] * k, XY[:, 1] * k, R) / k
+    X, Y = np.ascontiguousarray(XY[:, 0] * k), np.ascontiguousarray(XY[:, 1] * k)
+    Zx = (compensate(ws, X, Y, R) if height is None else np.asarray(height(X, Y), float)) / k
     z_round = np.round(P[:, 2] / q) * q
     with np.errstate(invalid="ignore"):
         z_up = np.ceil(np.where(np.isfinite(Zx), Zx, -np.inf) / q - 1e-9) * q

@@ -26,6 +26,7 @@ import numpy as np
 
 from ...errors import SpecError
 from ..finish.compensate import WorkSurface, compensate
+from ..finish.snap import program_grid
 from ..operations import Operation
 from ..finish.passes import AIR_EPS, Frame
 from ..path import CUT, PLUNGE, RAPID, Toolpath
@@ -315,7 +316,8 @@ def plan_rest(spec, surface, rough: Operation, finish: Toolpath, *, ws=None) -> 
             continue
         runs = _refine_runs(ws, runs, Rr, leave, lim, 0.5 * tolerance,
                             drop=None if ball else (fine if fine is not None else
-                                                    (lambda px, py, t=tool: _tool_on_design(rough, px, py, t))))
+                                                    (lambda px, py, t=tool: _tool_on_design(rough, px, py, t))),
+                            grid=program_grid(m))
         fig_low = 0
         zlink = _link_heights(S, x, y, runs, tool, clr)
         fed = _feed_links(ws, runs, tool, leave, lim, S, x, y, doc, tolerance,
@@ -610,14 +612,44 @@ class _FineDesign:
         return out.reshape(X.shape)
 
 
-def _refine_runs(ws, runs, Rr, leave, lim, tolerance, rounds=10, drop=None):
+def _refine_runs(ws, runs, Rr, leave, lim, tolerance, rounds=10, drop=None, grid=None):
     """Midpoints inserted where a run's chord passes more than ``tolerance`` below
-    the tip the exact drop cutter asks there (max(level, Z + leave)), asked at a
-    quarter, half and three quarters of each chord: the nodes are up to 1 mm apart, a
-    valley narrower than the ball bends the path sharply, and over a steep wall's
-    convex rim the chord dips between its midpoint and its ends."""
+    the tip the exact drop cutter asks there (max(level, Z + leave)), asked at the
+    eighths of each chord: the nodes are up to 1 mm apart, a valley narrower than the
+    ball bends the path sharply, and over a steep wall's convex rim the chord dips
+    between its midpoint and its ends.
+
+    ``grid``: :func:`fabkit.toolpath.finish.snap.program_grid`'s (step, units_mm, slack):
+    before each round the runs' points are put where the program writes them, as the
+    finish's are (:func:`~fabkit.toolpath.finish.snap.snap_points` with the rest's ask,
+    max(drop + leave, -lim), for height): beside a steep wall at the stock's edge, the
+    ball touching it with its rim only, rounding Y by 4.5e-5 mm raised the ask by 0.0124
+    mm (vee45: a rest pass at Y-1.49604502 written Y-1.496)."""
     fr = np.arange(1, 8) / 8.0
+
+    def ask(px, py):
+        z = compensate(ws, px, py, Rr) if drop is None else drop(px, py)
+        return np.maximum(np.asarray(z, float) + leave, -lim)
+
+    def on_grid(runs):
+        if grid is None or not runs:
+            return runs
+        from ..finish.snap import snap_points
+
+        step, k, slack = grid
+        Q = np.vstack([q for q, _ in runs])
+        Q2 = snap_points(ws, Rr, Q, np.ones(len(Q), np.int8), step, k, slack_mm=slack, height=ask)
+        moved = np.any(Q2 != Q, axis=1)
+        if not moved.any():
+            return runs
+        out, a = [], 0
+        for q, sb in runs:
+            out.append((Q2[a:a + len(q)] if moved[a:a + len(q)].any() else q, sb))
+            a += len(q)
+        return out
+
     for _ in range(rounds):
+        runs = on_grid(runs)
         segs = [(q[:-1], q[1:]) for q, _ in runs if len(q) >= 2]
         if not segs:
             break
@@ -657,7 +689,7 @@ def _refine_runs(ws, runs, Rr, leave, lim, tolerance, rounds=10, drop=None):
                 new_runs.append((q, sb))
             k += len(q) - 1
         runs = new_runs
-    return runs
+    return on_grid(runs)
 
 
 #: _feed_links: runs at most this many tool radii apart are linked by a feed when clear,
