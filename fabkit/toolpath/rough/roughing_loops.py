@@ -164,8 +164,34 @@ def _inset(poly, simp=0.0):
     :func:`_ring_region` are made of, computed once per polygon."""
     if simp <= 0:
         return None
-    return [q.simplify(0.99 * simp, preserve_topology=True)
-            for q in _polys(poly.buffer(-simp, quad_segs=QUAD_SEGS))]
+    return [_simplify(q, 0.99 * simp) for q in _polys(poly.buffer(-simp, quad_segs=QUAD_SEGS))]
+
+
+def _simplify(q, tol: float):
+    """Polygon ``q`` simplified within ``tol`` (Douglas-Peucker). GEOS's plain simplifier
+    (about ten times faster than its topology-preserving one: 0.015 against 0.15 s of CPU
+    on the paper's 83 loops) is kept where its result is a valid polygon with every ring
+    of ``q``; each ring then starts where the topology-preserving simplifier starts it (at
+    the ring's first point when kept, else at the last point kept before it), so that both
+    give the same loops to the bit where neither has to repair a crossing (the paper's 83
+    polygons, tests/test_roughing.py). Otherwise (a ring lost, a crossing, a split) the
+    topology-preserving simplification."""
+    import shapely
+    from shapely.geometry import Polygon
+
+    b = q.simplify(tol, preserve_topology=False)
+    if b.geom_type != "Polygon" or b.is_empty or len(b.interiors) != len(q.interiors) or not b.is_valid:
+        return q.simplify(tol, preserve_topology=True)
+    rings = []
+    for rb, rq in zip([b.exterior, *b.interiors], [q.exterior, *q.interiors]):
+        c = shapely.get_coordinates(rb)[:-1]
+        if len(c) < 3:
+            return q.simplify(tol, preserve_topology=True)
+        k = np.nonzero((c == shapely.get_coordinates(rq)[0]).all(axis=1))[0]
+        # GEOS's plain simplifier starts a ring whose first point it dropped at the next kept
+        c = np.roll(c, -int(k[0]), axis=0) if len(k) else np.roll(c, 1, axis=0)
+        rings.append(np.vstack([c, c[:1]]))
+    return Polygon(rings[0], rings[1:])
 
 
 def _rings(poly, simp=0.0, inset=None):
