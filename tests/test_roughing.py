@@ -740,3 +740,26 @@ def test_loop_simplification_falls_back_where_a_chord_would_cross_an_island():
     b = _simplify(q, 0.5)
     assert b.is_valid and len(b.interiors) == 1
     assert b.equals_exact(q.simplify(0.5, preserve_topology=True), 0.0)
+
+
+def test_band_slope_is_numpys_gradient_to_the_bit():
+    """roughing._band_slope's compiled pass against numpy.gradient + hypot over the band
+    (the expression it replaces), on rough random grids with non-finite nodes, both
+    spacings unequal, grids down to 2 x 2."""
+    from types import SimpleNamespace
+
+    from fabkit.toolpath.rough.roughing import _band_slope
+
+    rng = np.random.default_rng(3)
+    seen = set()
+    for shape, scale in [((2, 2), 1.0), ((2, 9), 0.1), ((7, 3), 1.0), ((301, 173), 1.0), ((301, 173), 0.01)]:
+        H = scale * np.cumsum(rng.normal(size=shape) * rng.choice([1e-3, 1.0, 30.0], size=shape), axis=0) - 5.0
+        H[rng.random(shape) < 0.02] = np.nan
+        hy, hx = 0.2498, 0.3117
+        gy, gx = np.gradient(H, hy, hx)
+        for low in (-1e9, -8.0, -2.0):
+            band = (H >= low) & (H <= 0.0) & np.isfinite(gx) & np.isfinite(gy)
+            want = float(min(20.0, np.hypot(gx, gy)[band].max())) if band.any() else 0.0
+            assert _band_slope(SimpleNamespace(H=H, hx=hx, hy=hy), low) == want
+            seen.add(want == 20.0)
+    assert seen == {True, False}          # both the cap and slopes under it

@@ -362,6 +362,55 @@ def drop_grid(S, hx, hy, X, Y, di, dj, lift, out):
 
 
 # ----------------------------------------------------------------------------
+# a grid's steepest slope in a band of heights: numpy.gradient's differences (central
+# inside, one-sided at the edges, edge_order=1, uniform spacing) to the last bit,
+# without its two arrays (roughing._band_slope)
+# ----------------------------------------------------------------------------
+@jit
+def _d0(f, i, j, h):
+    """numpy.gradient(f, h, axis=0)[i, j] (f has at least 2 rows)."""
+    n = f.shape[0]
+    if i == 0:
+        return (f[1, j] - f[0, j]) / h
+    if i == n - 1:
+        return (f[n - 1, j] - f[n - 2, j]) / h
+    return (f[i + 1, j] - f[i - 1, j]) / (2.0 * h)
+
+
+@jit
+def _d1(f, i, j, h):
+    """numpy.gradient(f, h, axis=1)[i, j] (f has at least 2 columns)."""
+    n = f.shape[1]
+    if j == 0:
+        return (f[i, 1] - f[i, 0]) / h
+    if j == n - 1:
+        return (f[i, n - 1] - f[i, n - 2]) / h
+    return (f[i, j + 1] - f[i, j - 1]) / (2.0 * h)
+
+
+@jit
+def band_max_slope(f, h0, h1, low, high):
+    """max of hypot(g0, g1) (g0, g1 = numpy.gradient(f, h0, h1)) over the nodes with
+    low <= f <= high and both differences finite; -1 where there is none. f: (n0, n1),
+    n0, n1 >= 2."""
+    n0, n1 = f.shape
+    best = -1.0
+    for i in range(n0):
+        for j in range(n1):
+            v = f[i, j]
+            if not (v >= low and v <= high):
+                continue
+            g0 = _d0(f, i, j, h0)
+            g1 = _d1(f, i, j, h1)
+            if not (math.isfinite(g0) and math.isfinite(g1)):
+                continue
+            s = math.hypot(g0, g1)
+            if s > best:
+                best = s
+    return best
+
+
+# ----------------------------------------------------------------------------
 # the whole job's per-node checks (stock.verify_job): one pass over the grid each,
 # the same floating-point operations, in the same order, as the array expressions
 # they replace (so the same figures to the last bit)
