@@ -578,3 +578,31 @@ def test_picture_pooling_equals_numpy_block_reductions():
         pool_mean(a, k, mean)
         np.testing.assert_allclose(mean, a[:mx, :my].reshape(mx // k, k, my // k, k).mean(axis=(1, 3)),
                                    rtol=1e-13, atol=1e-13 * np.abs(a).max())
+
+
+def test_slope_grids_are_numpys_gradient_expressions_to_the_bit():
+    """stock_kernels.slope_grids (verify_job's normal measure and slope) against the numpy
+    expressions it replaces: numpy.gradient, 1 / sqrt((1 + gx^2) + gy^2) in place, and
+    hypot, on rough random grids with non-finite nodes, unequal spacings, down to 2 x 2;
+    either output alone."""
+    from fabkit.toolpath.cut.stock_kernels import slope_grids
+
+    rng = np.random.default_rng(5)
+    for shape in [(2, 2), (2, 7), (5, 3), (301, 170)]:
+        f = np.cumsum(rng.normal(size=shape) * rng.choice([1e-3, 1.0, 50.0], size=shape), axis=0)
+        f[rng.random(shape) < 0.02] = np.nan
+        h0, h1 = 0.2498, 0.3117
+        gx, gy = np.gradient(f, h0, h1)
+        ns = gx * gx
+        np.add(1.0, ns, out=ns)
+        ns += gy * gy
+        np.sqrt(ns, out=ns)
+        np.divide(1.0, ns, out=ns)
+        hp = np.hypot(gx, gy)
+        N, S, none = np.empty_like(f), np.empty_like(f), np.empty((0, 0))
+        slope_grids(f, h0, h1, N, S)
+        assert np.array_equal(N, ns, equal_nan=True) and np.array_equal(S, hp, equal_nan=True)
+        N2, S2 = np.empty_like(f), np.empty_like(f)
+        slope_grids(f, h0, h1, N2, none)
+        slope_grids(f, h0, h1, none, S2)
+        assert np.array_equal(N2, ns, equal_nan=True) and np.array_equal(S2, hp, equal_nan=True)

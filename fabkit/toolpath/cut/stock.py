@@ -528,25 +528,23 @@ def verify_job(surface, operations, tolerance: float, *, spacing: float | None =
     area = stock.hx * stock.hy
     if measure not in ("normal", "vertical"):
         raise ValueError(f"measure {measure!r}: normal or vertical")
-    gx, gy = np.gradient(dz, stock.hx, stock.hy)
-    if measure == "normal":
-        # 1 / sqrt(1 + gx^2 + gy^2), in place (the same operations in the same order)
-        normal_scale = gx * gx
-        np.add(1.0, normal_scale, out=normal_scale)
-        normal_scale += gy * gy
-        np.sqrt(normal_scale, out=normal_scale)
-        np.divide(1.0, normal_scale, out=normal_scale)
-    else:
-        normal_scale = np.ones_like(dz)
-    from .stock_kernels import node_bounds, node_verdicts
+    from .stock_kernels import node_bounds, node_verdicts, slope_grids
 
     dz = np.ascontiguousarray(dz, dtype=float)
+    # numpy.gradient's differences of the design, one pass (stock_kernels.slope_grids, to the
+    # bit): 1 / sqrt(1 + gx^2 + gy^2) for the normal measure, and the slope's norm, whose
+    # 3 x 3 maximum is for all but the finish
+    none = np.empty((0, 0))
+    want_slope = any(op.kind != "finish" for op in operations)
+    normal_scale = np.empty_like(dz) if measure == "normal" else none
+    slope = np.empty_like(dz) if want_slope else none
+    if normal_scale.size or slope.size:
+        slope_grids(dz, stock.hx, stock.hy, normal_scale, slope)
+    if not normal_scale.size:
+        normal_scale = np.ones_like(dz)
+    slope = _max3(slope, overwrite=True) if want_slope else None
     dzf, scale_f = dz.ravel(), np.ascontiguousarray(normal_scale, dtype=float).ravel()
     empty = np.empty(0)
-    # the design's slope (3 x 3 maximum of its gradient's norm), for all but the finish
-    slope = _max3(np.hypot(gx, gy, out=gx), overwrite=True) if any(op.kind != "finish" for op in operations) \
-        else None
-    del gx, gy
     reports, snaps, failures = [], [], []
     for n, op in enumerate(operations, start=1):
         name = f"operation {n} ({op.kind}, {op.tool.describe()})"

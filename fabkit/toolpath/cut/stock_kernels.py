@@ -389,6 +389,27 @@ def _d1(f, i, j, h):
 
 
 @jit
+def slope_grids(f, h0, h1, normal, slope):
+    """With g0, g1 = numpy.gradient(f, h0, h1): normal[i, j] = 1 / sqrt((1 + g0^2) + g1^2)
+    (a vertical height to the normal distance) and slope[i, j] = hypot(g0, g1), the
+    operations in the order of the array expressions they replace; an output of size 0
+    is not computed. f: (n0, n1), n0, n1 >= 2."""
+    n0, n1 = f.shape
+    want_n = normal.size == f.size
+    want_s = slope.size == f.size
+    for i in range(n0):
+        for j in range(n1):
+            g0 = _d0(f, i, j, h0)
+            g1 = _d1(f, i, j, h1)
+            if want_n:
+                t = 1.0 + g0 * g0
+                t = t + g1 * g1
+                normal[i, j] = 1.0 / math.sqrt(t)
+            if want_s:
+                slope[i, j] = math.hypot(g0, g1)
+
+
+@jit
 def band_max_slope(f, h0, h1, low, high):
     """max of hypot(g0, g1) (g0, g1 = numpy.gradient(f, h0, h1)) over the nodes with
     low <= f <= high and both differences finite; -1 where there is none. f: (n0, n1),
