@@ -143,32 +143,49 @@ SKIP_MARGIN = 1e-7
 
 
 @jit
-def _band_in_column(x, px, py, qx, qy, d):
-    """The y interval [lo, hi] of the vertical line X = x within distance d of the
-    segment p-q (XY) (a capsule: convex, so an interval; lo > hi: none), from its two
-    discs and its band."""
-    lo, hi = np.inf, -np.inf
-    for cx, cy in ((px, py), (qx, qy)):
-        u = x - cx
-        if u * u <= d * d:
-            h = math.sqrt(d * d - u * u)
-            lo = min(lo, cy - h)
-            hi = max(hi, cy + h)
+def _band_consts(px, py, qx, qy):
+    """Per-segment constants of :func:`_band_in_column`: (ux, uy, Ln, 1/ux or 0, 1/uy or 0)."""
     dx, dy = qx - px, qy - py
     Ln = math.sqrt(dx * dx + dy * dy)
     if Ln > 1e-12:
         ux, uy = dx / Ln, dy / Ln
-        # |(X - p) . n| <= d with n = (-uy, ux), and 0 <= (X - p) . u <= Ln, linear in y
+    else:
+        ux = uy = 0.0
+    iux = 1.0 / ux if abs(ux) > 1e-12 else 0.0
+    iuy = 1.0 / uy if abs(uy) > 1e-12 else 0.0
+    return ux, uy, Ln, iux, iuy
+
+
+@jit
+def _band_in_column(x, px, py, qx, qy, d, ux, uy, Ln, iux, iuy):
+    """The y interval [lo, hi] of the vertical line X = x within distance d of the
+    segment p-q (XY) (a capsule: convex, so an interval; lo > hi: none), from its two
+    discs and its band; the segment's constants from :func:`_band_consts` (once per
+    move; divisions as products with the reciprocals: the interval to ~1e-13 mm, far
+    within the SKIP_MARGIN its caller keeps both ways)."""
+    lo, hi = np.inf, -np.inf
+    d2 = d * d
+    u = x - px
+    if u * u <= d2:
+        h = math.sqrt(d2 - u * u)
+        lo = min(lo, py - h)
+        hi = max(hi, py + h)
+    u = x - qx
+    if u * u <= d2:
+        h = math.sqrt(d2 - u * u)
+        lo = min(lo, qy - h)
+        hi = max(hi, qy + h)
+    if Ln > 1e-12:
         a, b = -np.inf, np.inf
-        if abs(ux) > 1e-12:
+        if iux != 0.0:
             c0 = (x - px) * (-uy)
-            y1, y2 = py + (-d - c0) / ux, py + (d - c0) / ux
+            y1, y2 = py + (-d - c0) * iux, py + (d - c0) * iux
             a, b = max(a, min(y1, y2)), min(b, max(y1, y2))
         elif abs((x - px) * uy) > d:
             a, b = np.inf, -np.inf
-        if abs(uy) > 1e-12:
+        if iuy != 0.0:
             c1 = (x - px) * ux
-            y1, y2 = py + (0.0 - c1) / uy, py + (Ln - c1) / uy
+            y1, y2 = py + (0.0 - c1) * iuy, py + (Ln - c1) * iuy
             a, b = max(a, min(y1, y2)), min(b, max(y1, y2))
         else:
             t = (x - px) * ux
@@ -194,7 +211,9 @@ def cut_moves(Z, hx, hy, A, B, feed, R, r, f, rapid_tol, engage, rapid_depth, ra
     or above z0 cuts nothing there, nor does a rapid pass into it (its tool is nowhere
     below its lowest tip). Such nodes of the last level feed's band (less SKIP_MARGIN)
     are skipped: the same stock and figures, to the bit, with the roughing's loops
-    visiting a fraction of their nodes."""
+    visiting a fraction of their nodes. A column's nodes are those of the move's capsule
+    of radius R + SKIP_MARGIN (the tool misses any other), its interval from the move's
+    constants computed once."""
     nx, ny = Z.shape
     top = -np.inf
     for i in range(nx):
@@ -203,6 +222,7 @@ def cut_moves(Z, hx, hy, A, B, feed, R, r, f, rapid_tol, engage, rapid_depth, ra
                 top = Z[i, j]
     band = False              # the last level feed: its segment and height
     pax = pay = pbx = pby = pz = 0.0
+    pux = puy = pLn = piux = piuy = 0.0
     dband = f - SKIP_MARGIN
     for m in range(A.shape[0]):
         ax, ay, az = A[m, 0], A[m, 1], A[m, 2]
@@ -222,35 +242,20 @@ def cut_moves(Z, hx, hy, A, B, feed, R, r, f, rapid_tol, engage, rapid_depth, ra
             Ln = math.sqrt(L2)
             ux, uy, k = dx / Ln, dy / Ln, (bz - az) / Ln
         is_feed = feed[m]
+        cux, cuy, cLn, ciux, ciuy = _band_consts(ax, ay, bx, by)
         worst = 0.0
         for i in range(i0, i1 + 1):
             x = i * hx
-            # the part of the move whose disk can reach this column, and its y range
-            if abs(dx) > 1e-12:
-                t1 = (x - R - ax) / dx
-                t2 = (x + R - ax) / dx
-                if t1 > t2:
-                    t1, t2 = t2, t1
-                if t1 < 0.0:
-                    t1 = 0.0
-                if t2 > 1.0:
-                    t2 = 1.0
-                if t1 > t2:
-                    continue
-                ya, yb = ay + t1 * dy, ay + t2 * dy
-            else:
-                ya, yb = ay, by
-            y0, y1 = min(ya, yb) - R, max(ya, yb) + R
             # within the move's capsule of radius R (+ SKIP_MARGIN): beyond, the tool misses the node
-            clo, chi = _band_in_column(x, ax, ay, bx, by, R + SKIP_MARGIN)
+            clo, chi = _band_in_column(x, ax, ay, bx, by, R + SKIP_MARGIN, cux, cuy, cLn, ciux, ciuy)
             if not clo <= chi:
                 continue
-            y0, y1 = max(y0, clo - SKIP_MARGIN), min(y1, chi + SKIP_MARGIN)
+            y0, y1 = clo - SKIP_MARGIN, chi + SKIP_MARGIN
             j0 = max(0, int(math.ceil(y0 / hy)))
             j1 = min(ny - 1, int(math.floor(y1 / hy)))
             k0, k1 = 1, 0             # nodes j in [k0, k1]: in the last level feed's band
             if skip:
-                slo, shi = _band_in_column(x, pax, pay, pbx, pby, dband)
+                slo, shi = _band_in_column(x, pax, pay, pbx, pby, dband, pux, puy, pLn, piux, piuy)
                 if slo <= shi:
                     k0 = int(math.ceil((slo + SKIP_MARGIN) / hy))
                     k1 = int(math.floor((shi - SKIP_MARGIN) / hy))
@@ -278,6 +283,7 @@ def cut_moves(Z, hx, hy, A, B, feed, R, r, f, rapid_tol, engage, rapid_depth, ra
             if az == bz and dband > 0.0:
                 band = True
                 pax, pay, pbx, pby, pz = ax, ay, bx, by, az
+                pux, puy, pLn, piux, piuy = cux, cuy, cLn, ciux, ciuy
         else:
             rapid_depth[m] = worst
 
