@@ -606,3 +606,29 @@ def test_slope_grids_are_numpys_gradient_expressions_to_the_bit():
         slope_grids(f, h0, h1, N2, none)
         slope_grids(f, h0, h1, none, S2)
         assert np.array_equal(N2, ns, equal_nan=True) and np.array_equal(S2, hp, equal_nan=True)
+
+
+def test_shaded_rgb_is_the_pictures_numpy_expression_to_the_byte():
+    """stock_kernels.shaded_rgb (stock_png's colouring) against the array expression it
+    replaces: colour(dv) x shade, rint, clip, uint8, rows +Y up; deviations on both sides
+    of the scale, beyond its ends and exactly 0, shades 0.5-1."""
+    from fabkit.toolpath.cut.stock import _GOUGE, _LEFT, _ZERO
+    from fabkit.toolpath.cut.stock_kernels import shaded_rgb
+
+    rng = np.random.default_rng(11)
+    dv = rng.normal(scale=0.05, size=(233, 117))
+    dv[::7, ::5] = 0.0
+    dv[3, :] = 1.0
+    dv[:, 4] = -1.0
+    shade = rng.uniform(0.5, 1.0, size=dv.shape)
+    gmax, lmax = 0.02, 0.07
+
+    def colour(d):
+        tg = np.clip(-d / gmax, 0.0, 1.0)[..., None]
+        tl = np.clip(d / lmax, 0.0, 1.0)[..., None]
+        return np.where(d[..., None] < 0, _ZERO + (_GOUGE - _ZERO) * tg, _ZERO + (_LEFT - _ZERO) * tl)
+
+    want = np.clip(np.rint(colour(dv) * shade[..., None]), 0, 255).astype(np.uint8).transpose(1, 0, 2)[::-1]
+    got = np.empty_like(want)
+    shaded_rgb(dv, shade, gmax, lmax, _ZERO, _GOUGE, _LEFT, got)
+    assert np.array_equal(got, want)

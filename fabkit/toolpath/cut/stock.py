@@ -679,6 +679,9 @@ def verify_job(surface, operations, tolerance: float, *, spacing: float | None =
 # ----------------------------------------------------------------------------
 # the picture
 # ----------------------------------------------------------------------------
+#: zlib level of the stock pictures: 3 encodes the paper's in half the time of the default 6
+#: (0.011 against 0.025 s a picture) for 16 % more bytes
+PNG_COMPRESS_LEVEL = 3
 #: diverging colours: deep blue (gouge) - white (on the design) - deep orange (material left)
 _GOUGE = np.array([33.0, 102.0, 172.0])
 _LEFT = np.array([202.0, 86.0, 0.0])
@@ -760,8 +763,16 @@ def stock_png(stock: Stock, design: np.ndarray, *, title: str = "", tolerance: f
         tl = np.clip(d / lmax, 0.0, 1.0)[..., None]
         return np.where(d[..., None] < 0, _ZERO + (_GOUGE - _ZERO) * tg, _ZERO + (_LEFT - _ZERO) * tl)
 
-    rgb = colour(dv) * shade[..., None]
-    plot = np.clip(np.rint(rgb), 0, 255).astype(np.uint8).transpose(1, 0, 2)[::-1]  # rows: +Y up
+    if np.isfinite(dv).all() and np.isfinite(shade).all():
+        from .stock_kernels import shaded_rgb
+
+        # colour(dv) x shade, rounded, clipped, rows +Y up: compiled, the same bytes
+        plot = np.empty((dv.shape[1], dv.shape[0], 3), np.uint8)
+        shaded_rgb(np.ascontiguousarray(dv, dtype=float), np.ascontiguousarray(shade, dtype=float), float(gmax),
+                   float(lmax), _ZERO, _GOUGE, _LEFT, plot)
+    else:
+        rgb = colour(dv) * shade[..., None]
+        plot = np.clip(np.rint(rgb), 0, 255).astype(np.uint8).transpose(1, 0, 2)[::-1]  # rows: +Y up
     ph, pw = plot.shape[:2]
     left, top, bottom, right = 60, 34, 86, 30
     img = np.full((top + ph + bottom, left + pw + right, 3), 255, np.uint8)
@@ -815,5 +826,5 @@ def stock_png(stock: Stock, design: np.ndarray, *, title: str = "", tolerance: f
         note = "clipped: " + "; ".join(notes) + " mm"
         dr.text((img.shape[1] - 4 - dr.textlength(note, font=font), by0 + 32), note, fill=(0, 0, 0), font=font)
     buf = io.BytesIO()
-    im.save(buf, format="PNG", optimize=False)
+    im.save(buf, format="PNG", optimize=False, compress_level=PNG_COMPRESS_LEVEL)
     return buf.getvalue()

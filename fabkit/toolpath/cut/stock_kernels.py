@@ -731,3 +731,31 @@ def pool_mean(a, k, out):
                     t += a[u, v]
                 s += t
             out[I, J] = s / (k * k)
+
+
+@jit
+def shaded_rgb(dv, shade, gmax, lmax, zero, gouge, left, out):
+    """stock.stock_png's picture, per pixel, the same operations as its array expressions:
+    the deviation dv (pooled, (n0, n1)) coloured on the scale (gouge side for dv < 0:
+    zero + (gouge - zero) clip(-dv / gmax, 0, 1), else zero + (left - zero) clip(dv /
+    lmax, 0, 1)), times the hill shade, rounded half to even, clipped to 0..255, into
+    ``out`` (n1, n0, 3) uint8 with +Y up (row r holds column n1 - 1 - r of dv). dv finite."""
+    n0, n1 = dv.shape
+    for i in range(n0):
+        for j in range(n1):
+            d = dv[i, j]
+            sh = shade[i, j]
+            r = n1 - 1 - j
+            if d < 0:
+                t = -d / gmax
+                t = min(max(t, 0.0), 1.0)
+                for c in range(3):
+                    v = np.rint((zero[c] + (gouge[c] - zero[c]) * t) * sh)
+                    out[r, i, c] = np.uint8(min(max(v, 0.0), 255.0))
+            else:
+                t = d / lmax
+                t = min(max(t, 0.0), 1.0)
+                for c in range(3):
+                    v = np.rint((zero[c] + (left[c] - zero[c]) * t) * sh)
+                    out[r, i, c] = np.uint8(min(max(v, 0.0), 255.0))
+
