@@ -763,3 +763,46 @@ def test_band_slope_is_numpys_gradient_to_the_bit():
             assert _band_slope(SimpleNamespace(H=H, hx=hx, hy=hy), low) == want
             seen.add(want == 20.0)
     assert seen == {True, False}          # both the cap and slopes under it
+
+
+def test_drop_grid_stops_early_with_the_same_maximum():
+    """stock_kernels.drop_grid with the blocks' bound (offsets by rising lift, the search
+    stopped once no block can beat the best) against the full search, on rough random
+    stocks (terraces, spikes, nan and inf nodes) and positions inside, at the edges and
+    beyond the grid, for a ball's, a bull nose's and a flat end's lifts."""
+    from fabkit.toolpath.cut.stock_kernels import drop_grid
+
+    rng = np.random.default_rng(17)
+    for trial in range(12):
+        ny, nx = int(rng.integers(5, 90)), int(rng.integers(5, 90))
+        S = -np.round(rng.uniform(0, 4, (ny, nx))) * 5.0 + rng.normal(scale=0.3, size=(ny, nx))
+        S[rng.random(S.shape) < 0.01] = 8.0
+        if trial % 4 == 1:
+            S[rng.random(S.shape) < 0.01] = np.nan
+        if trial % 4 == 2:
+            S[rng.random(S.shape) < 0.01] = np.inf
+        h = 0.25
+        ni = nj = int(rng.integers(2, 14))
+        di, dj = np.meshgrid(np.arange(-ni, ni + 1), np.arange(-nj, nj + 1), indexing="ij")
+        rho = np.hypot(di * h, dj * h)
+        R = ni * h
+        ok = rho <= R
+        shape = trial % 3
+        r = R if shape == 0 else (0.4 * R if shape == 1 else 0.0)
+        f = R - r
+        u = np.clip(rho[ok] - f, 0.0, None)
+        lift = np.where(u > 0, r - np.sqrt(np.maximum(r * r - u * u, 0.0)), 0.0) if r > 0 else np.zeros(ok.sum())
+        di, dj = di[ok], dj[ok]
+        order = np.argsort(lift, kind="stable")
+        di, dj, lift = (np.ascontiguousarray(di[order], np.int64), np.ascontiguousarray(dj[order], np.int64),
+                        np.ascontiguousarray(lift[order]))
+        X = rng.uniform(-3 * R, nx * h + 3 * R, 400)
+        Y = rng.uniform(-3 * R, ny * h + 3 * R, 400)
+        bs = max(1, ni)
+        pad = np.full((-(-ny // bs) * bs, -(-nx // bs) * bs), -np.inf)
+        pad[:ny, :nx] = np.where(np.isnan(S), -np.inf, S)
+        bmax = np.ascontiguousarray(pad.reshape(pad.shape[0] // bs, bs, pad.shape[1] // bs, bs).max(axis=(1, 3)))
+        fast, full = np.full(400, -np.inf), np.full(400, -np.inf)
+        drop_grid(S, h, h, X, Y, di, dj, lift, fast, bmax, bs, ni, nj)
+        drop_grid(S, h, h, X, Y, di, dj, lift, full, np.empty((0, 0)), 1, 0, 0)
+        assert np.array_equal(fast, full, equal_nan=True)

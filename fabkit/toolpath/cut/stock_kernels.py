@@ -348,16 +348,33 @@ def reach_at(S, hx, hy, R, r, f, pi, pj, D, beyond, d_i0=0, d_j0=0):
 
 
 @jit
-def drop_grid(S, hx, hy, X, Y, di, dj, lift, out):
+def drop_grid(S, hx, hy, X, Y, di, dj, lift, out, bmax, bs, ri, rj):
     """roughing_rest.drop_on_grid's maximum: per position k, max over the offsets a of
     S[i0 + di[a], j0 + dj[a]] - lift[a] over the nodes inside the grid (S is (ny, nx):
-    rows along y), i0, j0 the node nearest (X[k], Y[k]); -inf where none."""
+    rows along y), i0, j0 the node nearest (X[k], Y[k]); -inf where none.
+
+    ``bmax`` (size 0: not used): the highest node of each block of bs x bs nodes (nan
+    nodes, which never win, left out), the offsets in rising ``lift`` and |di| <= ri,
+    |dj| <= rj: the search stops at the first offset whose lift puts the highest node of
+    the blocks it can reach no higher than the best so far (S - lift <= top - lift in
+    floating point too: the same maximum)."""
     ny, nx = S.shape
     for k in range(X.size):
         i0 = int(np.rint(Y[k] / hy))
         j0 = int(np.rint(X[k] / hx))
         best = -np.inf
+        top = np.inf
+        if bmax.size:
+            # the highest node of the blocks the offsets reach: no offset a with
+            # top - lift[a] <= best (lift ascending) can raise the maximum
+            top = -np.inf
+            for bi in range(max(0, (i0 - ri) // bs), min(bmax.shape[0] - 1, (i0 + ri) // bs) + 1):
+                for bj in range(max(0, (j0 - rj) // bs), min(bmax.shape[1] - 1, (j0 + rj) // bs) + 1):
+                    if not (bmax[bi, bj] <= top):
+                        top = bmax[bi, bj]
         for a in range(di.size):
+            if top - lift[a] <= best:
+                break
             i = i0 + di[a]
             j = j0 + dj[a]
             if 0 <= i < ny and 0 <= j < nx:

@@ -94,15 +94,26 @@ def drop_on_grid(S, x, y, X, Y, tool: Tool, slack: float = 0.0) -> np.ndarray:
     Xf, Yf = np.ascontiguousarray(X.ravel()), np.ascontiguousarray(Y.ravel())
     out = np.full(Xf.size, -np.inf)
     Sc = np.ascontiguousarray(S, dtype=float)
-    di, dj = np.ascontiguousarray(di, np.int64), np.ascontiguousarray(dj, np.int64)
-    lift = np.ascontiguousarray(lift, float)
+    # the offsets by rising lift, and the highest node of each block of ni x ni nodes: a
+    # position's search stops at the first offset whose lift puts its blocks' highest node
+    # no higher than the best so far (the same maximum: the rest cannot exceed it)
+    order = np.argsort(lift, kind="stable")
+    di, dj = np.ascontiguousarray(di[order], np.int64), np.ascontiguousarray(dj[order], np.int64)
+    lift = np.ascontiguousarray(lift[order], float)
+    bs = max(1, ni)
+    ny, nx = Sc.shape
+    pad = np.full((-(-ny // bs) * bs, -(-nx // bs) * bs), -np.inf)
+    pad[:ny, :nx] = np.where(np.isnan(Sc), -np.inf, Sc)       # a nan node never wins
+    bmax = np.ascontiguousarray(pad.reshape(pad.shape[0] // bs, bs, pad.shape[1] // bs, bs).max(axis=(1, 3)))
     # compiled, in chunks of about DROP_CHUNK_PAIRS position-offset pairs (Ctrl-C between them)
     c = max(1, int(DROP_CHUNK_PAIRS / max(len(di), 1)))
     for a in range(0, Xf.size, c):
-        drop_grid(Sc, hx, hy, Xf[a:a + c], Yf[a:a + c], di, dj, lift, out[a:a + c])
+        drop_grid(Sc, hx, hy, Xf[a:a + c], Yf[a:a + c], di, dj, lift, out[a:a + c], bmax, bs, ni, nj)
     return out.reshape(X.shape)
 
 
+#: drop_grid without the blocks' bound (every offset searched)
+_NO_BLOCKS = np.empty((0, 0))
 #: drop_on_grid: grid cells per tool radius at most (finer grids are pooled), and
 #: position-offset pairs per call of its compiled kernel
 DROP_CELLS_PER_R = 12
@@ -607,7 +618,7 @@ class _FineDesign:
             step = max(1, int(DROP_CHUNK_PAIRS / max(len(self.di), 1)))
             for a in range(0, Xs.size, step):
                 drop_grid(self.U, self.hx, self.hy, Xs[a:a + step], Ys[a:a + step], self.di, self.dj, self.lift,
-                          fine[a:a + step])
+                          fine[a:a + step], _NO_BLOCKS, 1, 0, 0)
             out[inb] = np.minimum(out[inb], fine)
         return out.reshape(X.shape)
 
