@@ -137,6 +137,38 @@ def _lowest_on(qx, qy, ux, uy, Ln, az, bz, k, R, r, f):
     return va if va < vb else vb
 
 
+@jit
+def _lowest_column(out, ja, jb, qx, hy, ay, ux, uy, Ln, az, k, sk, R, r):
+    """out[j - ja] = :func:`_lowest_on` (qx, j hy - ay, ...) for j = ja..jb, for a flat
+    end mill (r <= 0) or a ball (r = R) on a move with XY travel (Ln > 0), sk = sqrt(1 +
+    k^2): the same floating-point operations in the same order, written without branches
+    (selects) so that the loop vectorises; +inf where the tool misses the node."""
+    R2 = R * R
+    ball = r > 0.0
+    for t in range(jb - ja + 1):
+        qy = (ja + t) * hy - ay
+        s0 = qx * ux + qy * uy
+        e = qx * uy - qy * ux
+        e2 = e * e
+        inside = e2 <= R2
+        half = math.sqrt(R2 - e2 if inside else 0.0)
+        lo = s0 - half
+        hi = s0 + half
+        lo = 0.0 if lo < 0.0 else lo
+        hi = Ln if hi > Ln else hi
+        inside = inside and lo <= hi
+        if ball:
+            sb = s0 - k * half / sk
+            sb = lo if sb < lo else (hi if sb > hi else sb)
+            w = sb - s0
+            v = R2 - e2 - w * w
+            g = az + k * sb + R - math.sqrt(v if v > 0.0 else 0.0)
+        else:
+            sf = lo if k >= 0.0 else hi
+            g = az + k * sf
+        out[t] = g if inside else np.inf
+
+
 #: :func:`cut_moves`: the skipped band's margin inside the flat's reach (mm): nodes
 #: nearer the band's edge than this are evaluated (floating point of the band's bounds)
 SKIP_MARGIN = 1e-7
@@ -215,6 +247,7 @@ def cut_moves(Z, hx, hy, A, B, feed, R, r, f, rapid_tol, engage, rapid_depth, ra
     of radius R + SKIP_MARGIN (the tool misses any other), its interval from the move's
     constants computed once."""
     nx, ny = Z.shape
+    buf = np.empty(ny)
     top = -np.inf
     for i in range(nx):
         for j in range(ny):
@@ -242,6 +275,10 @@ def cut_moves(Z, hx, hy, A, B, feed, R, r, f, rapid_tol, engage, rapid_depth, ra
             Ln = math.sqrt(L2)
             ux, uy, k = dx / Ln, dy / Ln, (bz - az) / Ln
         is_feed = feed[m]
+        # a ball or a flat end mill on a move with XY travel: the column's lowest points in
+        # one branch-free pass (vectorised), the same operations as _lowest_on's
+        closed = Ln > 0.0 and (r <= 0.0 or f <= 0.0)
+        sk = math.sqrt(1.0 + k * k)
         cux, cuy, cLn, ciux, ciuy = _band_consts(ax, ay, bx, by)
         worst = 0.0
         for i in range(i0, i1 + 1):
@@ -263,11 +300,17 @@ def cut_moves(Z, hx, hy, A, B, feed, R, r, f, rapid_tol, engage, rapid_depth, ra
             ja1 = j1 if k0 > k1 else min(j1, k0 - 1)
             jb0 = j1 + 1 if k0 > k1 else max(j0, k1 + 1)
             for part in range(2):
-                for j in range(j0 if part == 0 else jb0, (ja1 if part == 0 else j1) + 1):
+                ja, jb = (j0, ja1) if part == 0 else (jb0, j1)
+                if closed and jb >= ja:
+                    _lowest_column(buf, ja, jb, x - ax, hy, ay, ux, uy, Ln, az, k, sk, R, r)
+                for j in range(ja, jb + 1):
                     zc = Z[i, j]
                     if zlo >= zc:
                         continue
-                    g = _lowest_on(x - ax, j * hy - ay, ux, uy, Ln, az, bz, k, R, r, f)
+                    if closed:
+                        g = buf[j - ja]
+                    else:
+                        g = _lowest_on(x - ax, j * hy - ay, ux, uy, Ln, az, bz, k, R, r, f)
                     if g < zc:
                         d = zc - g
                         if is_feed:
