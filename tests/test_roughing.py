@@ -806,3 +806,18 @@ def test_drop_grid_stops_early_with_the_same_maximum():
         drop_grid(S, h, h, X, Y, di, dj, lift, fast, bmax, bs, ni, nj)
         drop_grid(S, h, h, X, Y, di, dj, lift, full, np.empty((0, 0)), 1, 0, 0)
         assert np.array_equal(fast, full, equal_nan=True)
+
+
+def test_block_max_leaves_nan_out():
+    """stock_kernels.block_max against numpy's block reduction (nan as -inf), partial
+    last blocks included."""
+    from fabkit.toolpath.cut.stock_kernels import block_max
+
+    rng = np.random.default_rng(2)
+    for ny, nx, bs in [(5, 7, 2), (40, 33, 6), (12, 12, 12), (3, 50, 7)]:
+        S = rng.normal(size=(ny, nx))
+        S[rng.random(S.shape) < 0.1] = np.nan
+        pad = np.full((-(-ny // bs) * bs, -(-nx // bs) * bs), -np.inf)
+        pad[:ny, :nx] = np.where(np.isnan(S), -np.inf, S)
+        want = pad.reshape(pad.shape[0] // bs, bs, pad.shape[1] // bs, bs).max(axis=(1, 3))
+        assert np.array_equal(block_max(S, bs), want)

@@ -391,6 +391,22 @@ def reach_at(S, hx, hy, R, r, f, pi, pj, D, beyond, d_i0=0, d_j0=0):
 
 
 @jit
+def block_max(S, bs):
+    """The highest node of each block of bs x bs nodes of S (the last blocks partial),
+    nan nodes left out (-inf for a block of nan nodes only): :func:`drop_grid`'s bmax."""
+    n0, n1 = S.shape
+    m0, m1 = (n0 + bs - 1) // bs, (n1 + bs - 1) // bs
+    out = np.full((m0, m1), -np.inf)
+    for i in range(n0):
+        bi = i // bs
+        for j in range(n1):
+            v = S[i, j]
+            if v > out[bi, j // bs]:
+                out[bi, j // bs] = v
+    return out
+
+
+@jit
 def drop_grid(S, hx, hy, X, Y, di, dj, lift, out, bmax, bs, ri, rj):
     """roughing_rest.drop_on_grid's maximum: per position k, max over the offsets a of
     S[i0 + di[a], j0 + dj[a]] - lift[a] over the nodes inside the grid (S is (ny, nx):

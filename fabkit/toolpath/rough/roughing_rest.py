@@ -88,7 +88,7 @@ def drop_on_grid(S, x, y, X, Y, tool: Tool, slack: float = 0.0) -> np.ndarray:
     ok = rho - diag <= R
     di, dj = di[ok], dj[ok]
     lift = tool.lift(np.clip(rho[ok] - diag, 0.0, R))
-    from ..cut.stock_kernels import drop_grid
+    from ..cut.stock_kernels import block_max, drop_grid
 
     X, Y = np.asarray(X, float), np.asarray(Y, float)
     Xf, Yf = np.ascontiguousarray(X.ravel()), np.ascontiguousarray(Y.ravel())
@@ -101,10 +101,7 @@ def drop_on_grid(S, x, y, X, Y, tool: Tool, slack: float = 0.0) -> np.ndarray:
     di, dj = np.ascontiguousarray(di[order], np.int64), np.ascontiguousarray(dj[order], np.int64)
     lift = np.ascontiguousarray(lift[order], float)
     bs = max(1, ni)
-    ny, nx = Sc.shape
-    pad = np.full((-(-ny // bs) * bs, -(-nx // bs) * bs), -np.inf)
-    pad[:ny, :nx] = np.where(np.isnan(Sc), -np.inf, Sc)       # a nan node never wins
-    bmax = np.ascontiguousarray(pad.reshape(pad.shape[0] // bs, bs, pad.shape[1] // bs, bs).max(axis=(1, 3)))
+    bmax = block_max(Sc, bs)          # nan nodes, which never win, left out
     # compiled, in chunks of about DROP_CHUNK_PAIRS position-offset pairs (Ctrl-C between them)
     c = max(1, int(DROP_CHUNK_PAIRS / max(len(di), 1)))
     for a in range(0, Xf.size, c):
