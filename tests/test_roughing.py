@@ -821,3 +821,23 @@ def test_block_max_leaves_nan_out():
         pad[:ny, :nx] = np.where(np.isnan(S), -np.inf, S)
         want = pad.reshape(pad.shape[0] // bs, bs, pad.shape[1] // bs, bs).max(axis=(1, 3))
         assert np.array_equal(block_max(S, bs), want)
+
+
+def test_curvature_bounds_are_the_array_expressions_to_the_bit():
+    """stock_kernels.curvature_bounds (roughing.LevelSets' second differences) against the
+    whole-grid numpy expressions it replaces, on rough random designs with nodes in and out
+    of the band, unequal spacings, grids down to 3 x 3, and a band no node lies in."""
+    from fabkit.toolpath.cut.stock_kernels import curvature_bounds
+
+    rng = np.random.default_rng(23)
+    for ny, nx in [(3, 3), (4, 9), (57, 31), (200, 150)]:
+        H = np.cumsum(rng.normal(size=(ny, nx)) * rng.choice([0.01, 1.0, 20.0], size=(ny, nx)), axis=1) - 10.0
+        hx, hy = 0.3117, 0.2498
+        for lo, hi in [(-12.0, 0.0), (-1e9, 1e9), (1e5, 2e5)]:
+            rel = (H >= lo) & (H <= hi)
+            hxx = np.abs(H[:, 2:] - 2 * H[:, 1:-1] + H[:, :-2]) / hx ** 2
+            hyy = np.abs(H[2:, :] - 2 * H[1:-1, :] + H[:-2, :]) / hy ** 2
+            hxy = np.abs(H[1:, 1:] - H[1:, :-1] - H[:-1, 1:] + H[:-1, :-1]) / (hx * hy)
+            want = [float(a[m].max()) if m.any() else -1.0
+                    for a, m in ((hxx, rel[:, 1:-1]), (hyy, rel[1:-1, :]), (hxy, rel[1:, 1:]))]
+            assert list(curvature_bounds(H, lo, hi, hx ** 2, hy ** 2, hx * hy)) == want

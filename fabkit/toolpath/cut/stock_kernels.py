@@ -471,6 +471,36 @@ def _d1(f, i, j, h):
 
 
 @jit
+def curvature_bounds(H, lo, hi, hxx2, hyy2, hxy):
+    """roughing.LevelSets' second differences of H (rows along y, columns along x),
+    their largest magnitudes over the centre nodes whose H lies in [lo, hi]: |H[i, j+1]
+    - 2 H[i, j] + H[i, j-1]| / hxx2, |H[i+1, j] - 2 H[i, j] + H[i-1, j]| / hyy2 and, at
+    (i, j) with i, j >= 1, |H[i, j] - H[i, j-1] - H[i-1, j] + H[i-1, j-1]| / hxy; the
+    operations of its array expressions in their order. Returns (cxx, cyy, cxy), -1 for
+    none."""
+    n0, n1 = H.shape
+    cxx = cyy = cxy = -1.0
+    for i in range(n0):
+        for j in range(n1):
+            v = H[i, j]
+            if not (v >= lo and v <= hi):
+                continue
+            if 0 < j < n1 - 1:
+                a = abs(H[i, j + 1] - 2 * H[i, j] + H[i, j - 1]) / hxx2
+                if a > cxx:
+                    cxx = a
+            if 0 < i < n0 - 1:
+                a = abs(H[i + 1, j] - 2 * H[i, j] + H[i - 1, j]) / hyy2
+                if a > cyy:
+                    cyy = a
+            if i > 0 and j > 0:
+                a = abs(H[i, j] - H[i, j - 1] - H[i - 1, j] + H[i - 1, j - 1]) / hxy
+                if a > cxy:
+                    cxy = a
+    return cxx, cyy, cxy
+
+
+@jit
 def slope_grids(f, h0, h1, normal, slope):
     """With g0, g1 = numpy.gradient(f, h0, h1): normal[i, j] = 1 / sqrt((1 + g0^2) + g1^2)
     (a vertical height to the normal distance) and slope[i, j] = hypot(g0, g1), the

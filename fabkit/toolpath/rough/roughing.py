@@ -118,32 +118,12 @@ class LevelSets:
         H[~np.isfinite(H)] = 1e9                     # unreadable: kept (material)
         self.H = H
         lo, hi = band
-        cxx = cyy = cxy = None
-        for a in range(0, ny, rows):
-            b = min(a + rows, ny)
-            Hb = H[a:b]
-            rel = (Hb >= lo - 1.0) & (Hb <= hi + 1.0)
-            if rel[:, 1:-1].any():
-                hxx = np.abs(Hb[:, 2:] - 2 * Hb[:, 1:-1] + Hb[:, :-2]) / self.hx ** 2
-                v = float(hxx[rel[:, 1:-1]].max())
-                cxx = v if cxx is None else max(cxx, v)
-            # rows a..b-1 of H[1:-1] (centred second differences) and of H[1:] (mixed)
-            c0, c1 = max(a, 1), min(b, ny - 1)
-            if c1 > c0:
-                relc = (H[c0:c1] >= lo - 1.0) & (H[c0:c1] <= hi + 1.0)
-                if relc.any():
-                    hyy = np.abs(H[c0 + 1:c1 + 1, :] - 2 * H[c0:c1, :] + H[c0 - 1:c1 - 1, :]) / self.hy ** 2
-                    v = float(hyy[relc].max())
-                    cyy = v if cyy is None else max(cyy, v)
-            m0 = max(a, 1)
-            if b > m0:
-                relm = (H[m0:b, 1:] >= lo - 1.0) & (H[m0:b, 1:] <= hi + 1.0)
-                if relm.any():
-                    hxy = np.abs(H[m0:b, 1:] - H[m0:b, :-1] - H[m0 - 1:b - 1, 1:] + H[m0 - 1:b - 1, :-1]) \
-                        / (self.hx * self.hy)
-                    v = float(hxy[relm].max())
-                    cxy = v if cxy is None else max(cxy, v)
-        cxx, cyy, cxy = (0.0 if c is None else c for c in (cxx, cyy, cxy))
+        from ..cut.stock_kernels import curvature_bounds
+
+        # the largest second differences where H lies within 1 mm of the band: one compiled
+        # pass, the array expressions' operations (tests/test_roughing.py: the same to the bit)
+        cxx, cyy, cxy = (max(float(c), 0.0) for c in curvature_bounds(
+            H, lo - 1.0, hi + 1.0, self.hx ** 2, self.hy ** 2, self.hx * self.hy))
         # the contour's vertices (linear on the cell edges) err by <= h^2/8 max|H''| along an
         # edge, its chords across a cell by <= d^2/8 max|H_dd| more (d the cell diagonal,
         # |H_dd| <= |H_xx| + 2|H_xy| + |H_yy|): the polygon is within err of the level set
