@@ -595,9 +595,12 @@ def verify_job(surface, operations, tolerance: float, *, spacing: float | None =
         ig, gouge, irm, removed_max = node_bounds(zf, dzf, bf, scale_f, finish, slope_k, extra_h, slack, leave,
                                                   tol, high.ravel())
         gouge = float(gouge)
-        target = dz + leave
-        np.minimum(target, 0.0, out=target)
-        if finish:
+        if not high.any():
+            # no node above its bound: the reach is asked nowhere (node_verdicts reads it at
+            # the nodes above their bound only)
+            reach = np.full(1, np.nan)
+        elif finish:
+            target = np.minimum(dz + leave, 0.0)
             from ..finish.scallop import EDGE_NODES
 
             reach = reach_height(target, stock, op.tool, high, beyond=float(EDGE_NODES[-1]) * op.tool.radius)
@@ -609,6 +612,7 @@ def verify_job(surface, operations, tolerance: float, *, spacing: float | None =
             with np.errstate(invalid="ignore"):
                 reach = np.where(reach > target + tol, np.inf, reach)
         else:
+            target = np.minimum(dz + leave, 0.0)
             reach = reach_height(target, stock, op.tool, high)
         verdicts = node_verdicts(zf, dzf, scale_f, finish, slope_k, extra_h, slack, leave, tol, reach.ravel(),
                                  -1.0 if finish else math.hypot(stock.hx, stock.hy), high.ravel())
