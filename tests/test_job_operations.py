@@ -581,3 +581,53 @@ def test_sheet_says_where_a_tool_left_material_for_the_next(finish):
     assert inch[1]["area"] == pytest.approx(0.01, rel=1e-9)
     assert inch[1]["largest"] == pytest.approx(0.001, rel=1e-9)
     assert inch[1]["taken_by"]["operation"] == "finish"
+
+
+@pytest.mark.parametrize("units", ["mm", "in"])
+@pytest.mark.parametrize("same_tool", [False, True])
+def test_the_finish_written_and_read_alone_is_taken_as_it_is(finish, units, same_tool):
+    """write_job(..., finish=(toolpath, text)) and job_figures(..., finish=(text, Program))
+    take the finishing operation's lines and moves from its program written and read
+    alone: the job's text is the same string as written whole, and its parse the same,
+    field for field, as the reader's of the whole text (mm and inch; the finish after a
+    tool change, and after a rest with its own tool, no change); a finishing tool with
+    its own feed writes and reads the job whole (the same text either way)."""
+    import dataclasses
+
+    from fabkit.toolpath.job import job_figures
+    from fabkit.toolpath.operations import Operation
+    from fabkit.toolpath.program.gcode import profile_from_spec, write_job, write_program
+    from fabkit.toolpath.program.reader import read_program
+    from fabkit.toolpath.tools import Tool
+
+    spec, surface, tp = finish
+    sp = _spec(units=units)
+    profile = profile_from_spec(sp, surface)
+    ops = _rough_ops()
+    if same_tool:     # the rest with the finishing ball: no tool change before the finish
+        ops[-1] = Operation("rest", Tool.ball(6.0, number=1), ops[-1].toolpath, leave=ops[-1].leave)
+    cases = [Tool.ball(6.0, number=1), Tool.ball(6.0, number=1, feed=777.0)]
+    for fin_tool in cases:
+        job = ops + [Operation("finish", fin_tool, tp, passes=tp.passes)]
+        alone = write_program(tp, profile)
+        whole = write_job(job, profile)
+        shared = write_job(job, profile, finish=(tp, alone))
+        assert shared == whole
+        (_, text), = shared
+        want = read_program(text)
+        parsed: list = []
+        _, back = job_figures(job, shared, profile, parsed=parsed, finish=(alone, read_program(alone)))
+        got, = parsed
+        # the lines after the job's last operation comment are the finish's own: taken as
+        # they are for the ball with the job's feeds, read whole for the one with its own
+        from fabkit.toolpath.job import _op_line_ranges, _read_with_finish
+
+        first = _op_line_ranges(text, len(job))[-1][0]
+        took = _read_with_finish(text.splitlines(), first, (alone, read_program(alone)))
+        assert (took is not None) == (fin_tool.feed is None)
+        for f in dataclasses.fields(want):
+            a, b = getattr(got, f.name), getattr(want, f.name)
+            if isinstance(b, np.ndarray):
+                assert a.dtype == b.dtype and np.array_equal(a, b, equal_nan=True), f.name
+            else:
+                assert a == b, f.name

@@ -354,15 +354,59 @@ def plan_job_operations(spec, surface, finish_toolpath) -> list:
     return ops
 
 
+def _read_with_finish(lines: list, first: int, finish):
+    """The Program of a one-program job's text (``lines``), its last operation (from line
+    ``first``) being ``finish`` = (text, Program) as written and read alone: its lines
+    from its first move on must be the job's last lines, one for one, with no tool,
+    offset or unit change among them; then only the lines before them are read, and the
+    finish's moves are taken as read alone (its leading axes never set taken from where
+    the job's lines before left the tool, its tool and offset theirs, its line numbers
+    the job's). None where that does not hold (the caller reads the whole text).
+    tests/test_job_operations.py: field for field the whole text's read."""
+    from .program.reader import Program, read_program
+
+    text_f, fin = finish
+    if not len(fin.points):
+        return None
+    flines = text_f.splitlines()
+    l0 = int(fin.line[0])                    # the finish's first move, 1-based, in its own text
+    body = flines[l0 - 1:]
+    k = len(lines) - len(body)               # where the same lines start in the job (0-based)
+    if k < first or lines[k:] != body:
+        return None
+    if any(("G2" in ln) or ("G4" in ln) or ("G9" in ln) or ("M6" in ln) or ("T" in ln.split("(")[0])
+           for ln in body):
+        return None                          # a units, offset, mode or tool word: read it all
+    pre = read_program("\n".join(lines[:k]) + "\n")
+    st = pre.end_state
+    if st["units"] != fin.units:
+        return None
+    pts = np.array(fin.points, dtype=float)
+    for a in range(3):                       # the axes the finish had not set: where the job left them
+        unset = ~np.isfinite(pts[:, a])
+        lead = int(np.argmin(unset)) if not unset.all() else len(unset)
+        pts[:lead, a] = st["pos"][a]
+    m = len(pts)
+    return Program(start=pre.start if len(pre.points) else np.array(st["pos"], dtype=float),
+                   points=np.vstack([pre.points, pts]), kinds=np.concatenate([pre.kinds, fin.kinds]),
+                   feed=np.concatenate([pre.feed, fin.feed]),
+                   line=np.concatenate([pre.line, fin.line + (k - (l0 - 1))]), units=fin.units, lines=len(lines),
+                   tool=np.concatenate([pre.tool, np.full(m, st["tool"], dtype=int)]),
+                   offset=np.concatenate([pre.offset, np.full(m, st["offset"], dtype=int)]),
+                   tool_changes=list(pre.tool_changes),
+                   end_state={**fin.end_state, "tool": st["tool"], "offset": st["offset"]})
+
+
 def job_figures(operations, programs, profile, machine=None, raster_axis: int | None = None,
-                parsed: list | None = None) -> tuple:
+                parsed: list | None = None, finish=None) -> tuple:
     """Per operation :class:`OperationFigures` and the programs read back.
 
     ``programs``: :func:`fabkit.toolpath.program.gcode.write_job`'s [(suffix, text)]: one per
     operation, or one for all. Returns (figures, readback) with ``readback`` one
     Program per operation (its moves read back from the written text). ``parsed``: a
     list given is filled with the reader's parse of each program's text, in order (one
-    per program: for a one-program job, the whole before it is split)."""
+    per program: for a one-program job, the whole before it is split). ``finish``: (text,
+    Program) of the last operation written and read alone (:func:`_read_with_finish`)."""
     from .program.gcode import operation_profile, write_program
     from .program.reader import estimate_time, read_program
 
@@ -376,10 +420,12 @@ def job_figures(operations, programs, profile, machine=None, raster_axis: int | 
             parsed.extend(readback)
     else:
         (suffix, text), = programs
-        whole = read_program(text)
+        ranges = _op_line_ranges(text, n)
+        whole = _read_with_finish(text.splitlines(), ranges[-1][0], finish) if finish is not None else None
+        if whole is None:
+            whole = read_program(text)
         if parsed is not None:
             parsed.append(whole)
-        ranges = _op_line_ranges(text, n)
         readback = [_section(whole, lo, hi) for lo, hi in ranges]
         lines = [hi - lo + 1 for lo, hi in ranges]
         names = [suffix] * n
@@ -533,9 +579,12 @@ def _operations(spec, surface, toolpath, profile, text, program, machine, verify
         if missing:
             raise SpecError(f"a {profile.dialect} job with roughing changes tools with M6: every tool needs a "
                             f"number (none for the {', '.join(missing)} tool)", file=spec.path, key="tools")
-    programs = write_job(ops, profile)
+    # the finish as written and read alone: its lines and its moves are the job's last
+    # operation's (write_job and job_figures take them as they are where they are the same)
+    programs = write_job(ops, profile, finish=(toolpath, text))
     parsed: list = []
-    figures, readback = job_figures(ops, programs, profile, machine, raster_axis=axis, parsed=parsed)
+    figures, readback = job_figures(ops, programs, profile, machine, raster_axis=axis, parsed=parsed,
+                                    finish=(text, program))
     fin = readback[-1]
     # from the rapid across on: the first move (G0 Z<safe>) starts where the tool change left the tool
     if not (np.array_equal(fin.points[1:], program.points[1:], equal_nan=True)

@@ -419,7 +419,7 @@ def _tool_words(tool, u: Units) -> str:
     return f"{name}, diameter {_length(tool.diameter, u)}{extra}"
 
 
-def write_job(operations, profile: MachineProfile) -> list[tuple[str, str]]:
+def write_job(operations, profile: MachineProfile, finish=None) -> list[tuple[str, str]]:
     """The programs of a job of ``operations`` (:class:`~fabkit.toolpath.operations.Operation`,
     in the order they run) on ``profile`` (the finishing tool's, as :func:`profile_from_spec`
     gives it). Returns [(suffix, text)], suffixes as :func:`job_suffixes`.
@@ -434,6 +434,12 @@ def write_job(operations, profile: MachineProfile) -> list[tuple[str, str]]:
       feeds. The header lists every operation. Every tool needs a number.
     - Without one (grbl): one complete program per operation (preamble, spindle, its
       moves, end), each naming its tool and its place in the job.
+
+    ``finish``: (toolpath, text) of the last operation written alone, ``write_program``
+    (toolpath, profile): in the one program of a dialect with a tool change, its lines
+    from its first ``G0 Z<safe>`` on are the last operation's, line for line, when that
+    operation runs the same toolpath with moves at the same feeds and speed; they are
+    taken as they are, not written again (tests/test_job_operations.py checks the two).
 
     Pure and deterministic, like :func:`write_program`.
     """
@@ -460,10 +466,30 @@ def write_job(operations, profile: MachineProfile) -> list[tuple[str, str]]:
     if missing:
         raise ValueError(f"every tool of a {d.name} job needs a number for its tool change "
                          f"(none for: {', '.join(missing)})")
-    return [("", _write_changes(ops, profile, header))]
+    return [("", _write_changes(ops, profile, header, finish))]
 
 
-def _write_changes(ops, profile: MachineProfile, header: list) -> str:
+def _finish_lines(op, p: MachineProfile, profile: MachineProfile, finish, safe: str):
+    """The lines of ``finish``'s text (toolpath, text) from its first ``G0 Z<safe>`` to its
+    end, when ``op`` (the job's last operation, written with ``p``) would write them the
+    same: its toolpath is that one, with moves, and ``p`` writes moves as ``profile``
+    (:func:`write_job`); else None."""
+    if finish is None:
+        return None
+    toolpath, text = finish
+    same = (op.toolpath is toolpath and len(toolpath.points) > 0
+            and (p.feed, p.plunge, p.spindle) == (profile.feed, profile.plunge, profile.spindle))
+    if not same:
+        return None
+    lines = text.splitlines()
+    try:
+        k = lines.index(f"G0 Z{safe}")
+    except ValueError:
+        return None
+    return lines[k:]
+
+
+def _write_changes(ops, profile: MachineProfile, header: list, finish=None) -> str:
     """One program with a tool change before each operation (see :func:`write_job`)."""
     d, u = profile.d, profile.u
     k = 1.0 / u.mm_per_unit
@@ -501,6 +527,10 @@ def _write_changes(ops, profile: MachineProfile, header: list) -> str:
                 add("M5")
             add(d.tool_change.format(n=int(op.tool.number)))
             loaded = op.tool.number
+        tail = _finish_lines(op, p, profile, finish, safe) if i == n else None
+        if tail is not None:
+            out.extend(tail)            # the last operation's lines, park and end as written alone
+            return "\n".join(out) + "\n"
         add(f"G0 Z{safe}")
         add(f"M3 S{p.spindle:.0f}")
         txt, kinds, last_z = _moves(op.toolpath, p, add)

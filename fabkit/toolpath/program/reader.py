@@ -58,6 +58,9 @@ class Program:
     tool: np.ndarray | None = None
     offset: np.ndarray | None = None
     tool_changes: list = field(default_factory=list)
+    #: the reader's state after the last line read: {"pos": [x, y, z] mm, "tool": the
+    #: tool M6 loaded (-1: none), "offset": the G43 H in effect (-1: none), "units"}
+    end_state: dict | None = None
 
     def __post_init__(self):
         n = len(self.points)
@@ -246,7 +249,8 @@ def read_program(text: str) -> Program:
                    kinds=np.array(kinds, dtype=np.int8), feed=np.array(feeds, dtype=float),
                    line=np.array(where, dtype=int), units=units, lines=n_lines,
                    tool=np.array(tools, dtype=int), offset=np.array(offsets, dtype=int),
-                   tool_changes=changes)
+                   tool_changes=changes,
+                   end_state={"pos": list(pos), "tool": spindle_tool, "offset": offset, "units": units})
 
 
 def estimate_time(program: Program, rapid_mm_min: float) -> float:

@@ -50,15 +50,16 @@ def stock_after(rough: Operation) -> np.ndarray:
     S = np.zeros((ny, nx))
     shift = 4
     scale = np.array([1.0 / sets.hx, 1.0 / sets.hy]) * (1 << shift)
+    mask = np.empty((ny, nx), np.uint8)
     for lev in rough.cleared:
-        mask = np.zeros((ny, nx), np.uint8)
+        mask.fill(0)
         for poly in _polys(lev.cleared):
             rings = [np.round(np.asarray(r.coords)[:, :2] * scale).astype(np.int32)
                      for r in [poly.exterior, *poly.interiors]]
             cv2.fillPoly(mask, rings[:1], 1, lineType=cv2.LINE_8, shift=shift)
             if len(rings) > 1:
                 cv2.fillPoly(mask, rings[1:], 0, lineType=cv2.LINE_8, shift=shift)
-        np.minimum(S, lev.z, out=S, where=mask.astype(bool))
+        np.minimum(S, lev.z, out=S, where=mask.view(np.bool_))      # 0 / 1: a valid bool view
     return window_max(S, (3, 3))
 
 
