@@ -632,3 +632,24 @@ def test_shaded_rgb_is_the_pictures_numpy_expression_to_the_byte():
     got = np.empty_like(want)
     shaded_rgb(dv, shade, gmax, lmax, _ZERO, _GOUGE, _LEFT, got)
     assert np.array_equal(got, want)
+
+
+def test_pooled_window_envelope_is_the_windows_pooled():
+    """stock_kernels.pool_window_envelope (the stock picture's colour per pixel) against
+    pool_envelope of window_minmax, the two passes it replaces: random deviations with
+    infinite nodes, blocks of 2-5 nodes, windows of 1-9 (wider than a small grid too),
+    partial last blocks dropped. (stock_png takes the two passes where a node is nan.)"""
+    from fabkit.toolpath.cut.stock_kernels import pool_envelope, pool_window_envelope, window_minmax
+
+    rng = np.random.default_rng(13)
+    for n0, n1, k, w in [(40, 31, 3, (7, 7)), (9, 8, 2, (9, 9)), (50, 50, 5, (3, 5)), (23, 61, 4, (1, 3)),
+                         (6, 6, 2, (5, 1))]:
+        a = rng.normal(scale=0.05, size=(n0, n1))
+        a[rng.random(a.shape) < 0.02] = np.inf
+        a[rng.random(a.shape) < 0.02] = -np.inf
+        lo, hi = window_minmax(a, w)
+        want = np.empty((n0 // k, n1 // k))
+        pool_envelope(np.ascontiguousarray(lo), np.ascontiguousarray(hi), k, want)
+        got = np.empty_like(want)
+        pool_window_envelope(a, k, w[0], w[1], got)
+        assert np.array_equal(got, want, equal_nan=True)

@@ -732,16 +732,22 @@ def stock_png(stock: Stock, design: np.ndarray, *, title: str = "", tolerance: f
     # finer than a pixel would alias into stripes): the highest material and the deepest
     # gouge within it, whichever is larger
     w = (max(1, int(round(envelope / stock.hx))) | 1, max(1, int(round(envelope / stock.hy))) | 1)
-    lo_env, hi_env = (dev, dev) if w == (1, 1) else window_minmax(dev, w)
     zm = z if w == (1, 1) else window_mean(z, w)
     if k == 1:
+        lo_env, hi_env = (dev, dev) if w == (1, 1) else window_minmax(dev, w)
         dv = np.where(-lo_env > hi_env, lo_env, hi_env)
         zz = zm
     else:                     # compiled: the blocks' extremes and means (_pool's, to the bit)
-        from .stock_kernels import pool_envelope, pool_mean
+        from .stock_kernels import pool_envelope, pool_mean, pool_window_envelope
 
         dv, zz = np.empty((nx // k, ny // k)), np.empty((nx // k, ny // k))
-        pool_envelope(np.ascontiguousarray(lo_env), np.ascontiguousarray(hi_env), k, dv)
+        if w == (1, 1):
+            pool_envelope(np.ascontiguousarray(dev), np.ascontiguousarray(dev), k, dv)
+        elif not np.isnan(dev).any():      # the windows' envelope pooled in one pass (the same values)
+            pool_window_envelope(np.ascontiguousarray(dev, dtype=float), k, w[0], w[1], dv)
+        else:                              # a window of nan nodes only makes its block -inf
+            lo_env, hi_env = window_minmax(dev, w)
+            pool_envelope(np.ascontiguousarray(lo_env), np.ascontiguousarray(hi_env), k, dv)
         pool_mean(np.ascontiguousarray(zm, dtype=float), k, zz)
     hx, hy = stock.hx * k, stock.hy * k
     up = max(1, min(width // nx, int(0.75 * width) // ny)) if k == 1 else 1   # small grids: enlarged

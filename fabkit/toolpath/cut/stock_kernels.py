@@ -823,6 +823,44 @@ def pool_envelope(lo, hi, k, out):
 
 
 @jit
+def pool_window_envelope(a, k, w0, w1, out):
+    """:func:`pool_envelope` of :func:`window_minmax` (a, (w0, w1)) without the full-size
+    windows: a block of k x k nodes takes the minimum m and maximum M of ``a`` over the
+    union of its nodes' windows (the edges repeated: clamped to the grid), m where -m >
+    M, else M. The same value: the node whose window holds the minimum has it as its
+    window's minimum, and its window's maximum is at most M, so where -m > M that node's
+    envelope is m and none is larger in magnitude; else the node whose window holds the
+    maximum has M as its envelope, and every envelope lies within [m, M] with -m <= M.
+    ``a`` without nan (a window of nan nodes only gives its node the envelope -inf, which
+    this does not see; infinities are fine)."""
+    n0, n1 = a.shape
+    N0, N1 = out.shape
+    s0, s1 = w0 // 2, w1 // 2
+    lo = np.empty((n0, N1))
+    hi = np.empty((n0, N1))
+    for i in range(n0):
+        for J in range(N1):
+            m, M = np.inf, -np.inf
+            for v in range(max(0, J * k - s1), min(n1 - 1, J * k + k - 1 + s1) + 1):
+                x = a[i, v]
+                if x < m:
+                    m = x
+                if x > M:
+                    M = x
+            lo[i, J] = m
+            hi[i, J] = M
+    for I in range(N0):
+        for J in range(N1):
+            m, M = np.inf, -np.inf
+            for u in range(max(0, I * k - s0), min(n0 - 1, I * k + k - 1 + s0) + 1):
+                if lo[u, J] < m:
+                    m = lo[u, J]
+                if hi[u, J] > M:
+                    M = hi[u, J]
+            out[I, J] = m if -m > M else M
+
+
+@jit
 def pool_mean(a, k, out):
     """Per block of k x k nodes (the last partial rows and columns dropped) the mean:
     each of its rows summed, the row sums added, over k^2 (numpy's mean over the block
