@@ -98,11 +98,16 @@ def drop_on_grid(S, x, y, X, Y, tool: Tool, slack: float = 0.0) -> np.ndarray:
     # the offsets by rising lift, and the highest node of each block of ni x ni nodes: a
     # position's search stops at the first offset whose lift puts its blocks' highest node
     # no higher than the best so far (the same maximum: the rest cannot exceed it)
-    order = np.argsort(lift, kind="stable")
-    di, dj = np.ascontiguousarray(di[order], np.int64), np.ascontiguousarray(dj[order], np.int64)
-    lift = np.ascontiguousarray(lift[order], float)
+    # (a flat bottom lifts nothing within its radius: no order helps, every offset is searched)
     bs = max(1, ni)
-    bmax = block_max(Sc, bs)          # nan nodes, which never win, left out
+    if len(lift) and float(np.max(lift)) > float(np.min(lift)):
+        order = np.argsort(lift, kind="stable")
+        di, dj, lift = di[order], dj[order], lift[order]
+        bmax = block_max(Sc, bs)          # nan nodes, which never win, left out
+    else:
+        bmax = _NO_BLOCKS
+    di, dj = np.ascontiguousarray(di, np.int64), np.ascontiguousarray(dj, np.int64)
+    lift = np.ascontiguousarray(lift, float)
     # compiled, in chunks of about DROP_CHUNK_PAIRS position-offset pairs (Ctrl-C between them)
     c = max(1, int(DROP_CHUNK_PAIRS / max(len(di), 1)))
     for a in range(0, Xf.size, c):
@@ -640,65 +645,87 @@ def _refine_runs(ws, runs, Rr, leave, lim, tolerance, rounds=10, drop=None, grid
         z = compensate(ws, px, py, Rr) if drop is None else drop(px, py)
         return np.maximum(np.asarray(z, float) + leave, -lim)
 
-    def on_grid(runs):
+    def on_grid(runs, fresh):
+        """The fresh points put on the program's grid (the others are already: putting a
+        point there again leaves it as it is)."""
         if grid is None or not runs:
             return runs
         from ..finish.snap import snap_points
 
+        f = np.concatenate(fresh)
+        if not f.any():
+            return runs
         step, k, slack = grid
         Q = np.vstack([q for q, _ in runs])
-        Q2 = snap_points(ws, Rr, Q, np.ones(len(Q), np.int8), step, k, slack_mm=slack, height=ask)
-        moved = np.any(Q2 != Q, axis=1)
+        Qf = Q[f]
+        Q2 = snap_points(ws, Rr, Qf, np.ones(len(Qf), np.int8), step, k, slack_mm=slack, height=ask)
+        moved = np.zeros(len(Q), bool)
+        moved[f] = np.any(Q2 != Qf, axis=1)
         if not moved.any():
             return runs
+        Q[f] = Q2
         out, a = [], 0
         for q, sb in runs:
-            out.append((Q2[a:a + len(q)] if moved[a:a + len(q)].any() else q, sb))
+            out.append((Q[a:a + len(q)] if moved[a:a + len(q)].any() else q, sb))
             a += len(q)
         return out
 
+    # per run, its points not yet put on the grid nor their chords checked: a chord between
+    # two points neither new nor moved was checked in an earlier round and passed
+    fresh = [np.ones(len(q), bool) for q, _ in runs]
     for _ in range(rounds):
-        runs = on_grid(runs)
-        segs = [(q[:-1], q[1:]) for q, _ in runs if len(q) >= 2]
+        runs = on_grid(runs, fresh)
+        segs = [(q[:-1], q[1:], fr_[:-1] | fr_[1:]) for (q, _), fr_ in zip(runs, fresh) if len(q) >= 2]
         if not segs:
             break
-        A = np.vstack([a for a, _ in segs])
-        B = np.vstack([b for _, b in segs])
-        P = A[None, :, :] + fr[:, None, None] * (B - A)[None, :, :]        # (3, n, 3)
-        # the level a segment is cut at: its two tips' lower value bounds it from below
-        lev = np.minimum(A[:, 2], B[:, 2])
-        px, py = np.ascontiguousarray(P[..., 0].ravel()), np.ascontiguousarray(P[..., 1].ravel())
-        Zp = (compensate(ws, px, py, Rr) if drop is None else drop(px, py)).reshape(P.shape[:2])
-        needs = np.maximum(np.maximum(lev[None, :], Zp + leave), -lim)
-        bad = (needs > P[..., 2] + tolerance).any(axis=0)
-        M = P[3]
-        need = needs[3]
+        A = np.vstack([a for a, _, _ in segs])
+        B = np.vstack([b for _, b, _ in segs])
+        ask_seg = np.concatenate([c for _, _, c in segs])
+        bad = np.zeros(len(A), bool)
+        M = np.zeros((len(A), 3))
+        need = np.zeros(len(A))
+        if ask_seg.any():
+            Aa, Ba = A[ask_seg], B[ask_seg]
+            P = Aa[None, :, :] + fr[:, None, None] * (Ba - Aa)[None, :, :]        # (7, n, 3)
+            # the level a segment is cut at: its two tips' lower value bounds it from below
+            lev = np.minimum(Aa[:, 2], Ba[:, 2])
+            px, py = np.ascontiguousarray(P[..., 0].ravel()), np.ascontiguousarray(P[..., 1].ravel())
+            Zp = (compensate(ws, px, py, Rr) if drop is None else drop(px, py)).reshape(P.shape[:2])
+            needs = np.maximum(np.maximum(lev[None, :], Zp + leave), -lim)
+            bad[ask_seg] = (needs > P[..., 2] + tolerance).any(axis=0)
+            M[ask_seg] = P[3]
+            need[ask_seg] = needs[3]
         if not bad.any():
             break
-        new_runs = []
+        new_runs, new_fresh = [], []
         k = 0
         for n, (q, sb) in enumerate(runs):
             if len(q) < 2:
                 new_runs.append((q, sb))
+                new_fresh.append(np.zeros(len(q), bool))
                 continue
             b = bad[k:k + len(q) - 1]
             mz = need[k:k + len(q) - 1]
             if b.any():
-                rows, srows = [q[0]], [sb[0]]
+                rows, srows, frows = [q[0]], [sb[0]], [False]
                 for i in range(len(q) - 1):
                     if b[i]:
                         m = M[k + i].copy()
                         m[2] = mz[i]
                         rows.append(m)
                         srows.append(max(sb[i], sb[i + 1]))
+                        frows.append(True)
                     rows.append(q[i + 1])
                     srows.append(sb[i + 1])
+                    frows.append(False)
                 new_runs.append((np.array(rows), np.array(srows)))
+                new_fresh.append(np.array(frows, bool))
             else:
                 new_runs.append((q, sb))
+                new_fresh.append(np.zeros(len(q), bool))
             k += len(q) - 1
-        runs = new_runs
-    return on_grid(runs)
+        runs, fresh = new_runs, new_fresh
+    return on_grid(runs, fresh)
 
 
 #: _feed_links: runs at most this many tool radii apart are linked by a feed when clear,
