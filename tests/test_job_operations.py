@@ -73,6 +73,19 @@ def _job(finish_tp, ops=None):
     return ops + [Operation("finish", Tool.ball(6.0, number=1), finish_tp, passes=finish_tp.passes)]
 
 
+def _assert_same_program(got, want):
+    """Two parses (reader.Program) equal field for field (arrays: dtype and values, nan
+    equal to nan)."""
+    import dataclasses
+
+    for f in dataclasses.fields(want):
+        a, b = getattr(got, f.name), getattr(want, f.name)
+        if isinstance(b, np.ndarray):
+            assert a.dtype == b.dtype and np.array_equal(a, b, equal_nan=True), f.name
+        else:
+            assert a == b, f.name
+
+
 def _code(text: str) -> list[str]:
     """The program's lines with comments removed, empty ones dropped."""
     out = []
@@ -193,8 +206,6 @@ def test_per_program_readback_is_the_parse_of_its_text(finish):
     """job_figures' parse of each program (one per operation for grbl, one for LinuxCNC)
     is, field for field, the reader's parse of that text (the machine's checks use it, not
     a second parse)."""
-    import dataclasses
-
     from fabkit.toolpath.job import job_figures
     from fabkit.toolpath.program.gcode import profile_from_spec, write_job
     from fabkit.toolpath.program.reader import read_program
@@ -208,13 +219,7 @@ def test_per_program_readback_is_the_parse_of_its_text(finish):
         _, back = job_figures(ops, programs, profile, parsed=parsed)
         assert len(programs) == len(parsed) == count and len(back) == len(ops)
         for (_, text), got in zip(programs, parsed):
-            want = read_program(text)
-            for f in dataclasses.fields(want):
-                a, b = getattr(got, f.name), getattr(want, f.name)
-                if isinstance(b, np.ndarray):
-                    assert a.dtype == b.dtype and np.array_equal(a, b, equal_nan=True), f.name
-                else:
-                    assert a == b, f.name
+            _assert_same_program(got, read_program(text))
 
 
 def test_operation_time_is_length_over_feed(finish):
@@ -592,8 +597,6 @@ def test_the_finish_written_and_read_alone_is_taken_as_it_is(finish, units, same
     field for field, as the reader's of the whole text (mm and inch; the finish after a
     tool change, and after a rest with its own tool, no change); a finishing tool with
     its own feed writes and reads the job whole (the same text either way)."""
-    import dataclasses
-
     from fabkit.toolpath.job import job_figures
     from fabkit.toolpath.operations import Operation
     from fabkit.toolpath.program.gcode import profile_from_spec, write_job, write_program
@@ -625,9 +628,4 @@ def test_the_finish_written_and_read_alone_is_taken_as_it_is(finish, units, same
         first = _op_line_ranges(text, len(job))[-1][0]
         took = _read_with_finish(text.splitlines(), first, (alone, read_program(alone)))
         assert (took is not None) == (fin_tool.feed is None)
-        for f in dataclasses.fields(want):
-            a, b = getattr(got, f.name), getattr(want, f.name)
-            if isinstance(b, np.ndarray):
-                assert a.dtype == b.dtype and np.array_equal(a, b, equal_nan=True), f.name
-            else:
-                assert a == b, f.name
+        _assert_same_program(got, want)

@@ -310,11 +310,12 @@ def has_roughing(spec) -> bool:
     return bool(getattr(spec, "has", lambda name: False)("roughing"))
 
 
-def _op_line_ranges(text: str, n: int) -> list[tuple[int, int]]:
+def _op_line_ranges(text: str, n: int, lines: list | None = None) -> list[tuple[int, int]]:
     """[(first line, last line)] (1-based) of each operation in a one-program job: from its
     ``(operation: i of n, ...)`` comment (:func:`fabkit.toolpath.program.gcode.write_job`) to the
-    line before the next one (the first from line 1, the last to the end)."""
-    lines = text.splitlines()
+    line before the next one (the first from line 1, the last to the end). ``lines``:
+    ``text.splitlines()`` when already split."""
+    lines = text.splitlines() if lines is None else lines
     starts = [i + 1 for i, ln in enumerate(lines) if ln.startswith("(operation: ")]
     if len(starts) != n:
         raise ValueError(f"{len(starts)} operation comments in a program of {n} operations")
@@ -420,8 +421,9 @@ def job_figures(operations, programs, profile, machine=None, raster_axis: int | 
             parsed.extend(readback)
     else:
         (suffix, text), = programs
-        ranges = _op_line_ranges(text, n)
-        whole = _read_with_finish(text.splitlines(), ranges[-1][0], finish) if finish is not None else None
+        text_lines = text.splitlines()
+        ranges = _op_line_ranges(text, n, text_lines)
+        whole = _read_with_finish(text_lines, ranges[-1][0], finish) if finish is not None else None
         if whole is None:
             whole = read_program(text)
         if parsed is not None:

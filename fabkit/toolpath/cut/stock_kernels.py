@@ -418,6 +418,7 @@ def drop_grid(S, hx, hy, X, Y, di, dj, lift, out, bmax, bs, ri, rj):
     the blocks it can reach no higher than the best so far (S - lift <= top - lift in
     floating point too: the same maximum)."""
     ny, nx = S.shape
+    bounded = bmax.size > 0
     for k in range(X.size):
         i0 = int(np.rint(Y[k] / hy))
         j0 = int(np.rint(X[k] / hx))
@@ -431,24 +432,15 @@ def drop_grid(S, hx, hy, X, Y, di, dj, lift, out, bmax, bs, ri, rj):
                 for bj in range(max(0, (j0 - rj) // bs), min(bmax.shape[1] - 1, (j0 + rj) // bs) + 1):
                     if not (bmax[bi, bj] <= top):
                         top = bmax[bi, bj]
-        if bmax.size:
-            for a in range(di.size):
-                if top - lift[a] <= best:
-                    break
-                i = i0 + di[a]
-                j = j0 + dj[a]
-                if 0 <= i < ny and 0 <= j < nx:
-                    v = S[i, j] - lift[a]
-                    if v > best:
-                        best = v
-        else:                       # every offset (the loop without the bound's test)
-            for a in range(di.size):
-                i = i0 + di[a]
-                j = j0 + dj[a]
-                if 0 <= i < ny and 0 <= j < nx:
-                    v = S[i, j] - lift[a]
-                    if v > best:
-                        best = v
+        for a in range(di.size):
+            if bounded and top - lift[a] <= best:     # (loop-invariant flag: the compiler unswitches it)
+                break
+            i = i0 + di[a]
+            j = j0 + dj[a]
+            if 0 <= i < ny and 0 <= j < nx:
+                v = S[i, j] - lift[a]
+                if v > best:
+                    best = v
         out[k] = best
 
 
